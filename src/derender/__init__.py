@@ -1,0 +1,47 @@
+"""derender: linear scene radiance, with uncertainty, from rendered 8-bit camera images.
+
+The library is organised as one module per pipeline stage (see ``DESIGN.md``):
+``io`` (files), ``camera`` (spectral camera simulator), ``response`` (camera response
+curves), ``merge`` (HDR merge engine), ``groundtruth`` (RAW ground truth),
+``evaluate`` (PSNR protocol), ``derendering`` (probabilistic de-rendering models).
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from .errors import DerenderError, InputError, ModelFileError, StackError
+from .io import (
+    read_exr,
+    read_hdr,
+    read_image,
+    read_radiance,
+    read_raw,
+    read_raw_stack,
+    read_stack,
+    write_exr,
+    write_png,
+    write_preview,
+)
+from .stack import HDRResult, RawFrame, Stack
+
+__all__ = [
+    "__version__",
+    "DerenderError",
+    "InputError",
+    "ModelFileError",
+    "StackError",
+    "Stack",
+    "RawFrame",
+    "HDRResult",
+    "read_exr",
+    "read_hdr",
+    "read_image",
+    "read_radiance",
+    "read_raw",
+    "read_raw_stack",
+    "read_stack",
+    "write_exr",
+    "write_png",
+    "write_preview",
+]

@@ -1,0 +1,40 @@
+"""Tone mapping for previews: the photographic operator of Reinhard et al. (2002).
+
+E. Reinhard, M. Stark, P. Shirley, J. Ferwerda, "Photographic Tone Reproduction for
+Digital Images", SIGGRAPH 2002, global operator (eqs. 1-4): log-average luminance
+``L_w_bar = exp(mean(log(delta + L_w)))``, scaled luminance ``L = a L_w / L_w_bar``,
+display luminance ``L_d = L (1 + L / L_white^2) / (1 + L)`` with ``L_white`` the
+largest scaled luminance (burn-out) unless given. Paper 1 uses it for its figures.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .colorimetry import luminance, srgb_encode
+
+__all__ = ["reinhard_photographic", "encode_srgb"]
+
+
+def reinhard_photographic(radiance_linear_srgb: np.ndarray, key: float = 0.18,
+                          l_white: float | None = None, delta: float = 1e-6) -> np.ndarray:
+    """Global Reinhard 2002 operator; returns display-linear RGB in [0, 1], finite."""
+    rgb = np.nan_to_num(np.asarray(radiance_linear_srgb, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    rgb = np.maximum(rgb, 0.0)
+    lum = luminance(rgb).astype(np.float64)
+    positive = lum[lum > 0]
+    if positive.size == 0:
+        return np.zeros_like(rgb)
+    log_avg = float(np.exp(np.mean(np.log(delta + positive))))
+    scaled = key * lum / log_avg
+    lw = float(np.max(scaled)) if l_white is None else float(l_white) * key / log_avg
+    lw = max(lw, 1e-12)
+    display = scaled * (1.0 + scaled / (lw * lw)) / (1.0 + scaled)
+    ratio = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
+    out = rgb * ratio[..., None].astype(np.float32)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def encode_srgb(display_linear: np.ndarray) -> np.ndarray:
+    """Display-linear [0, 1] to sRGB-encoded [0, 1] (for 8-bit PNG)."""
+    return srgb_encode(display_linear)
