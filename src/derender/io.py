@@ -59,6 +59,9 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
         raise InputError(f"output folder does not exist: {parent}")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
@@ -561,8 +564,8 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
                             row[x:x + count] = buf[i]
                             i += 1
                         else:
-                            if count == 0 or x + count > width:
-                                raise InputError(f"{path}: corrupt run length data")
+                            if count == 0 or x + count > width or i + count > buf.size:
+                                raise InputError(f"{path}: corrupt or truncated run length data")
                             row[x:x + count] = buf[i:i + count]
                             i += count
                         x += count
