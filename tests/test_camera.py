@@ -110,9 +110,10 @@ def test_gamut_compression_preserves_hue_and_removes_negatives():
 
 def test_simple_render_is_paper_model(camera):
     """--render simple is exactly (alpha S M WB x)^(1/gamma), clipped and quantised."""
-    from derender.camera import camera_to_linear_srgb_from_color_matrix, fit_xyz_to_camera, saturation_matrix
+    from derender.camera import fit_xyz_to_camera, saturation_matrix
+    from derender.groundtruth import camera_to_linear_srgb_matrix
 
-    m = camera_to_linear_srgb_from_color_matrix(fit_xyz_to_camera(camera))
+    m = camera_to_linear_srgb_matrix(fit_xyz_to_camera(camera))
     from derender.camera import mosaic_signal
 
     rng = np.random.default_rng(2)

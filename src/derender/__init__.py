@@ -25,6 +25,22 @@ from .io import (
 )
 from .stack import HDRResult, RawFrame, Stack
 
+
+def __getattr__(name: str):
+    """Lazy access to the heavier stage functions (keeps ``import derender`` fast)."""
+    lazy = {
+        "psnr_rgbl": ("derender.evaluate", "psnr_rgbl"),
+        "raw_ground_truth": ("derender.groundtruth", "raw_ground_truth"),
+        "simulate_bracket": ("derender.camera", "simulate_bracket"),
+        "calibrate_debevec": ("derender.response", "calibrate_debevec"),
+    }
+    if name in lazy:
+        import importlib
+
+        mod, attr = lazy[name]
+        return getattr(importlib.import_module(mod), attr)
+    raise AttributeError(f"module 'derender' has no attribute {name!r}")
+
 __all__ = [
     "__version__",
     "DerenderError",

@@ -17,7 +17,7 @@ Data flow::
 
 Truth (``truth.exr``) is the white-balanced, noise-free, unclipped camera RGB per second
 mapped to linear sRGB by the same normalised colour matrix a RAW converter derives from the
-DNG's ColorMatrix1 (:func:`derender.colorimetry.camera_to_linear_srgb_from_color_matrix`)
+DNG's ColorMatrix1 (:func:`derender.colorimetry.camera_to_linear_srgb_matrix`)
 with the DNG's AsShotNeutral white balance: the quantity paper 1 (Sec. 4.2) builds from RAW.
 
 Pipelines
@@ -55,8 +55,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .colorimetry import LUMINANCE_WEIGHTS_REC709, camera_to_linear_srgb_from_color_matrix
+from .colorimetry import LUMINANCE_WEIGHTS_REC709
 from .errors import InputError
+from .groundtruth import camera_to_linear_srgb_matrix
 from .spectral import (
     WAVELENGTHS,
     CameraSpectral,
@@ -543,7 +544,7 @@ def simulate_bracket(
     times, scale = bracket_times(cam_unit, exposures, stops=stops)
     cam_per_s = cam_unit * scale
     xyz_to_camera = fit_xyz_to_camera(camera)
-    camera_to_srgb = camera_to_linear_srgb_from_color_matrix(xyz_to_camera)
+    camera_to_srgb = camera_to_linear_srgb_matrix(xyz_to_camera)
     wb_true = white_balance_for(camera, scene.key_illuminant)
     truth = (cam_per_s * wb_true) @ camera_to_srgb.T
     settings = pipeline_settings(pipeline, exposures, wb_true, style, rng_pipe, tone_curve)

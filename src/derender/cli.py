@@ -139,6 +139,194 @@ def simulate(
     typer.echo(f"wrote {exposures} DNG + JPEG exposures, truth.exr and scene.json to {outdir}")
 
 
+# --------------------------------------------------------------------------- merge / evaluate
+def _read_stack_from_cli(images: List[Path], times: Optional[str], times_file: Optional[Path],
+                         times_inverse: bool):
+    from .io import parse_times, read_stack
+
+    if times is not None and times_file is not None:
+        raise InputError("give either --times or --times-file, not both")
+    t = parse_times(times) if times is not None else None
+    return read_stack(images, times=t, times_file=times_file, times_file_inverse=times_inverse)
+
+
+_TIMES_HELP = "Exposure times in seconds, comma separated (default: EXIF ExposureTime)."
+_TIMES_FILE_HELP = "File of 'FILENAME SECONDS' lines."
+_INVERSE_HELP = "The times file's 2nd column is 1/time (HDRShop / Debevec image lists)."
+
+
+@app.command("merge")
+def merge_cmd(
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output radiance map (.exr)."),
+    method: str = typer.Option("debevec", "--method", "-m", help="Merge method (see 'derender methods')."),
+    times: Optional[str] = typer.Option(None, "--times", help=_TIMES_HELP),
+    times_file: Optional[Path] = typer.Option(None, "--times-file", help=_TIMES_FILE_HELP),
+    times_inverse: bool = typer.Option(False, "--times-inverse", help=_INVERSE_HELP),
+    preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview (Reinhard 2002)."),
+    mask: Optional[Path] = typer.Option(None, "--mask", help="PNG mask: 0 ok, 128 over-exposed everywhere, 255 under-exposed."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Figure of the recovered response curves (if any)."),
+    half: bool = typer.Option(False, "--half", help="Write half-float EXR."),
+    seed: int = typer.Option(0, "--seed", help="Seed for sampling / RANSAC."),
+) -> None:
+    """Merge a bracket into a linear HDR radiance map (OpenEXR)."""
+    import numpy as np
+
+    from .benchmark import merge_seeded
+    from .io import write_exr, write_png, write_preview
+
+    if output.suffix.lower() != ".exr":
+        raise InputError(f"--output must end in .exr, got {output.name}")
+    stack = _read_stack_from_cli(images, times, times_file, times_inverse)
+    t0 = time.perf_counter()
+    result = merge_seeded(stack, method, seed)
+    inputs = list(images) + ([times_file] if times_file else [])
+    write_exr(output, result.radiance, half=half, inputs=inputs)
+    if preview is not None:
+        write_preview(preview, result.radiance, inputs=inputs)
+    if mask is not None:
+        m = np.zeros(result.mask.shape, np.uint8)
+        m[result.mask == 1] = 128
+        m[result.mask == 2] = 255
+        write_png(mask, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
+    if plot is not None:
+        curves = result.info.get("curves")
+        if curves is None:
+            raise InputError(f"method {method!r} has no response curves to plot")
+        from .response import plot_response
+
+        plot_response(curves, plot, inputs=inputs)
+    n_bright = int((result.mask == 1).sum())
+    n_dark = int((result.mask == 2).sum())
+    typer.echo(f"{method}: {stack.n} images {stack.shape[1]}x{stack.shape[0]} -> {output} "
+               f"({time.perf_counter() - t0:.2f} s; {n_bright} px over-exposed everywhere, {n_dark} px under-exposed)")
+
+
+@app.command("methods")
+def methods_cmd() -> None:
+    """List the merge methods."""
+    from .merge import MERGE_METHODS, _load_plugins
+
+    _load_plugins()
+    for name, fn in sorted(MERGE_METHODS.items()):
+        doc = (fn.__doc__ or "").strip().splitlines()[0] if fn.__doc__ else ""
+        typer.echo(f"{name:20s} {doc}")
+
+
+@app.command()
+def evaluate(
+    result: Path = typer.Argument(..., help="Radiance map to score (.exr or .hdr)."),
+    truth: Path = typer.Argument(..., help="Ground truth radiance map (.exr or .hdr)."),
+    remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """PSNR on R, G, B and luminance L after the protocol of DESIGN.md (scale fitted per plane)."""
+    from .evaluate import psnr_rgbl
+    from .io import read_radiance
+
+    _check_choice("--remap", remap, ("lstsq", "minmax"))
+    scores = psnr_rgbl(read_radiance(result), read_radiance(truth), remap=remap)
+    if as_json:
+        typer.echo(json.dumps({k: round(float(v), 4) for k, v in scores.items()}))
+    else:
+        typer.echo("  ".join(f"{k} {v:.2f} dB" for k, v in scores.items()))
+
+
+@app.command()
+def groundtruth(
+    raws: List[Path] = typer.Argument(..., help="RAW/DNG frames of the bracket (or a single frame)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output linear sRGB radiance (.exr)."),
+    wb: Optional[str] = typer.Option(None, "--wb", help="White-balance multipliers R,G,B (default: as shot)."),
+    wb_patch: Optional[str] = typer.Option(None, "--wb-patch", help="Neutral region x,y,w,h for white balance."),
+    times: Optional[str] = typer.Option(None, "--times", help="Exposure times (default: from the files)."),
+    preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview."),
+) -> None:
+    """Ground truth from RAW (paper 1 Sec. 4.2, Alg. 2): binary-weight merge, WB, Malvar demosaic, sRGB."""
+    from .groundtruth import raw_ground_truth
+    from .io import parse_times, read_raw_stack, write_exr, write_preview
+
+    if output.suffix.lower() != ".exr":
+        raise InputError(f"--output must end in .exr, got {output.name}")
+    frames = read_raw_stack(raws, times=parse_times(times) if times else None)
+    wb_value = "as_shot"
+    patch = None
+    if wb is not None:
+        vals = [float(v) for v in wb.split(",")] if all(_is_float(v) for v in wb.split(",")) else []
+        if len(vals) != 3 or min(vals) <= 0:
+            raise InputError(f"--wb needs three positive numbers R,G,B, got {wb!r}")
+        wb_value = vals
+    if wb_patch is not None:
+        parts = wb_patch.split(",")
+        if len(parts) != 4 or not all(p.strip().isdigit() for p in parts):
+            raise InputError(f"--wb-patch needs x,y,w,h in pixels, got {wb_patch!r}")
+        patch = tuple(int(p) for p in parts)
+    result = raw_ground_truth(frames, wb=wb_value, wb_patch=patch)
+    write_exr(output, result.radiance, inputs=raws)
+    if preview is not None:
+        write_preview(preview, result.radiance, inputs=raws)
+    typer.echo(f"ground truth from {len(frames)} RAW frame(s) -> {output}")
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+# --------------------------------------------------------------------------- benchmark
+@app.command("simulate-dataset")
+def simulate_dataset_cmd(
+    outdir: Path = typer.Argument(..., help="Dataset folder to create."),
+    scenes: int = typer.Option(18, "--scenes", help="Number of scenes (paper 1: 18)."),
+    exposures: int = typer.Option(9, "--exposures", "-n", help="Exposures per scene (paper 1: 9)."),
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated camera names (default: several real cameras)."),
+    size: str = typer.Option("384x256", "--size", help="Image size WxH."),
+    pipelines: str = typer.Option("auto,fixed", "--pipelines", help="Pipelines to cycle through."),
+    renders: str = typer.Option("camera", "--renders", help="Rendering styles to cycle through (simple, camera)."),
+    seed: int = typer.Option(0, "--seed", help="Dataset seed."),
+) -> None:
+    """Simulate a dataset of brackets (raw/ + jpeg/ + truth per scene) for 'derender benchmark'."""
+    from .benchmark import simulate_dataset
+
+    pl = [p.strip() for p in pipelines.split(",") if p.strip()]
+    st = [p.strip() for p in renders.split(",") if p.strip()]
+    for p in pl:
+        _check_choice("--pipelines", p, ("fixed", "auto"))
+    for p in st:
+        _check_choice("--renders", p, ("simple", "camera"))
+    cams = [c.strip() for c in cameras.split(",")] if cameras else None
+    with _progress() as prog:
+        task = prog.add_task("simulating scenes", total=scenes)
+        rows = simulate_dataset(outdir, scenes=scenes, exposures=exposures, cameras=cams, size=_parse_size(size),
+                                pipelines=pl, styles=st, seed=seed,
+                                progress=lambda i, n: prog.update(task, completed=i))
+    typer.echo(f"wrote {len(rows)} scenes to {outdir}")
+
+
+@app.command()
+def benchmark(
+    dataset: Path = typer.Argument(..., help="Dataset folder (scenes with raw/ and jpeg/)."),
+    output: Path = typer.Option(Path("benchmark-results"), "--output", "-o", help="Folder for table.md, scenes.csv, results.json."),
+    methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated merge methods (default: all)."),
+    scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
+    workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
+    seed: int = typer.Option(0, "--seed", help="Seed passed to every method."),
+) -> None:
+    """Paper 1's Table 1: every method on every scene, PSNR R/G/B/L against the RAW ground truth."""
+    from .benchmark import run_benchmark, write_benchmark_outputs
+
+    ms = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
+    with _progress() as prog:
+        task = prog.add_task("scenes", total=None)
+        result = run_benchmark(dataset, methods=ms, scheduler=scheduler, workers=workers, seed=seed,
+                               progress=lambda i, n: prog.update(task, completed=i, total=n))
+    files = write_benchmark_outputs(result, output)
+    typer.echo(result.markdown())
+    typer.echo(f"per-scene results: {files['csv']} and {files['json']}")
+
+
 # --------------------------------------------------------------------------- demo
 def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, exposures: int = 9,
              pipeline: str = "auto", render: str = "camera") -> list[dict]:
@@ -158,9 +346,9 @@ def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, ex
     stack = read_stack(bracket_paths(outdir, "jpeg"))
     rows: list[dict] = []
     from .evaluate import psnr_rgbl
-    from .merge import available_methods, merge
+    from .benchmark import default_methods, merge_seeded
 
-    methods = available_methods(needs_model=False)
+    methods = default_methods()
     with _progress() as prog:
         task = prog.add_task("merging", total=len(methods) + 1)
         try:
@@ -177,7 +365,7 @@ def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, ex
         prog.update(task, advance=1)
         for name in methods:
             t0 = time.perf_counter()
-            result = merge(stack, method=name, seed=seed)
+            result = merge_seeded(stack, name, seed)
             dt = time.perf_counter() - t0
             write_exr(outdir / f"merge-{name}.exr", result.radiance)
             write_preview(outdir / f"merge-{name}.png", result.radiance)

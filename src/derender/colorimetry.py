@@ -16,8 +16,6 @@ __all__ = [
     "luminance",
     "srgb_encode",
     "srgb_decode",
-    "camera_to_xyz_from_color_matrix",
-    "camera_to_linear_srgb_from_color_matrix",
 ]
 
 #: Linear sRGB (Rec. 709 primaries, D65) to CIE XYZ (Y of white = 1), IEC 61966-2-1.
@@ -54,23 +52,3 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
     v = np.clip(np.asarray(encoded, dtype=np.float32), 0.0, 1.0)
     return np.where(v <= 0.04045, v / 12.92, np.power((v + 0.055) / 1.055, 2.4)).astype(np.float32)
 
-
-def camera_to_xyz_from_color_matrix(xyz_to_camera: np.ndarray) -> np.ndarray:
-    """Camera-to-XYZ matrix for *white-balanced* camera RGB from a DNG ``ColorMatrix``.
-
-    ``xyz_to_camera`` maps CIE XYZ to camera RGB (DNG ColorMatrix1, or LibRaw's
-    ``rgb_xyz_matrix``). As in dcraw/LibRaw, its rows are scaled so that the D65 white
-    (Y = 1) maps to camera (1, 1, 1); the inverse then maps white-balanced camera RGB
-    (a neutral at (1, 1, 1)) to XYZ with D65 white at Y = 1.
-    """
-    m = np.asarray(xyz_to_camera, dtype=np.float64).reshape(3, 3)
-    rows = m @ D65_XYZ
-    if np.any(np.abs(rows) < 1e-12):
-        raise ValueError("colour matrix maps the white point to zero in some channel")
-    m = m / rows[:, None]
-    return np.linalg.inv(m)
-
-
-def camera_to_linear_srgb_from_color_matrix(xyz_to_camera: np.ndarray) -> np.ndarray:
-    """``XYZ_TO_LINEAR_SRGB @ camera_to_xyz``: white-balanced camera RGB -> linear sRGB (rows sum to 1)."""
-    return XYZ_TO_LINEAR_SRGB @ camera_to_xyz_from_color_matrix(xyz_to_camera)
