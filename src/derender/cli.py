@@ -327,6 +327,33 @@ def benchmark(
     typer.echo(f"per-scene results: {files['csv']} and {files['json']}")
 
 
+# --------------------------------------------------------------------------- de-rendering data
+@app.command("chart-pairs")
+def chart_pairs_cmd(
+    outdir: Path = typer.Argument(..., help="Folder for <camera>.npz pair files."),
+    camera: List[str] = typer.Option(["nikon-d5100"], "--camera", help="Camera name(s) (repeat the option)."),
+    camera_file: Optional[Path] = typer.Option(None, "--camera-file", help="rawtoaces camera JSON."),
+    illuminants: int = typer.Option(16, "--illuminants", help="Number of gel-filtered tungsten illuminants."),
+    exposures: int = typer.Option(22, "--exposures", help="Exposures from all-black to all-white."),
+    render: str = typer.Option("camera", "--render", help="simple | camera."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+) -> None:
+    """Simulate paper 2's calibration session (ColorChecker SG, 16 illuminants) into RAW/JPEG pairs."""
+    from .chart import chart_pairs, save_pairs
+
+    _check_choice("--render", render, ("simple", "camera"))
+    cams = [_load_camera("", camera_file)] if camera_file else [_load_camera(c, None) for c in camera]
+    outdir.mkdir(parents=True, exist_ok=True)
+    for cam in cams:
+        with _progress() as prog:
+            task = prog.add_task(f"{cam.name}: illuminants", total=illuminants)
+            pairs = chart_pairs(cam, n_illuminants=illuminants, n_exposures=exposures, style=render, seed=seed,
+                                progress=lambda i, n: prog.update(task, completed=i))
+        path = save_pairs(pairs, outdir / f"{cam.name}.npz")
+        typer.echo(f"{cam.name}: {pairs.jpeg.shape[0]} pairs ({100 * pairs.out_of_gamut.mean():.0f} % out of the "
+                   f"sRGB gamut) -> {path}")
+
+
 # --------------------------------------------------------------------------- demo
 def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, exposures: int = 9,
              pipeline: str = "auto", render: str = "camera") -> list[dict]:
