@@ -24,12 +24,13 @@ from .io import (
     write_preview,
 )
 from .stack import HDRResult, RawFrame, Stack
+from .merge import merge, merge_linear, register_method  # noqa: E402  (the function shadows the module name;
+from .evaluate import psnr_rgbl  # noqa: E402             use importlib / "from derender.merge import" for the module)
 
 
 def __getattr__(name: str):
     """Lazy access to the heavier stage functions (keeps ``import derender`` fast)."""
     lazy = {
-        "psnr_rgbl": ("derender.evaluate", "psnr_rgbl"),
         "raw_ground_truth": ("derender.groundtruth", "raw_ground_truth"),
         "simulate_bracket": ("derender.camera", "simulate_bracket"),
         "calibrate_debevec": ("derender.response", "calibrate_debevec"),
@@ -50,6 +51,10 @@ __all__ = [
     "Stack",
     "RawFrame",
     "HDRResult",
+    "merge",
+    "merge_linear",
+    "register_method",
+    "psnr_rgbl",
     "read_exr",
     "read_hdr",
     "read_image",

@@ -58,7 +58,9 @@ PLANES = ("R", "G", "B", "L")
 
 def default_methods() -> list[str]:
     """Registered merge methods that need no extra input (e.g. no de-rendering model)."""
-    from . import merge as merge_mod
+    import importlib
+
+    merge_mod = importlib.import_module("derender.merge")
 
     merge_mod._load_plugins()
     out = []
@@ -76,7 +78,9 @@ def default_methods() -> list[str]:
 
 def merge_seeded(stack, method: str, seed: int = 0, **options):
     """:func:`derender.merge.merge`, passing ``seed`` to methods that take one."""
-    from . import merge as merge_mod
+    import importlib
+
+    merge_mod = importlib.import_module("derender.merge")
 
     merge_mod._load_plugins()
     fn = merge_mod.MERGE_METHODS.get(method)
