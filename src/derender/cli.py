@@ -233,6 +233,27 @@ def evaluate(
 
 
 @app.command()
+def diagnose(
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Figure (.png/.pdf/.svg)."),
+    times: Optional[str] = typer.Option(None, "--times", help=_TIMES_HELP),
+    times_file: Optional[Path] = typer.Option(None, "--times-file", help=_TIMES_FILE_HELP),
+    times_inverse: bool = typer.Option(False, "--times-inverse", help=_INVERSE_HELP),
+    seed: int = typer.Option(0, "--seed", help="Sampling seed."),
+) -> None:
+    """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response)."""
+    from .diagnose import diagnose_constant_response, plot_diagnose
+
+    stack = _read_stack_from_cli(images, times, times_file, times_inverse)
+    result = diagnose_constant_response(stack, seed=seed)
+    inputs = list(images) + ([times_file] if times_file else [])
+    plot_diagnose(result, output, inputs=inputs)
+    per = ", ".join(f"{v:.3f}" for v in result.rms_stops_per_exposure)
+    typer.echo(f"spread (RMS deviation from slope-1 line): {result.rms_stops:.3f} stops overall; "
+               f"median {result.median_stops:.3f}; per exposure [{per}] -> {output}")
+
+
+@app.command()
 def groundtruth(
     raws: List[Path] = typer.Argument(..., help="RAW/DNG frames of the bracket (or a single frame)."),
     output: Path = typer.Option(..., "--output", "-o", help="Output linear sRGB radiance (.exr)."),

@@ -335,15 +335,34 @@ def merge_debevec(
     n_samples: int | None = None,
     sampling: str = "grid",
     seed: int = 0,
-    weight: str = "hat",
+    weight: str = "gaussian",
     domain: str = "log",
-    channel_weights: str = "independent",
+    channel_weights: str = "mean",
     block_rows: int | None = None,
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
-    ``curves`` (a :class:`~derender.response.ResponseCurves`) skips the calibration.
-    Defaults: hat weights, log-domain average (the paper's eq. 6).
+    ``curves`` (a :class:`~derender.response.ResponseCurves`) skips the calibration
+    (which always uses the paper's hat weights). Merge defaults: eq. 6's log-domain
+    average, with a Gaussian weight shared by the three channels of a pixel (the mean of
+    the channel weights, as OpenCV's MergeDebevec shares them). ``weight="hat",
+    channel_weights="independent"`` is eq. 6 literally. Chosen by measurement (PSNR L vs
+    truth on simulator brackets 192x128, 7 exposures, seed 4; log-luminance correlation
+    with Debevec's memorial.hdr at half resolution):
+
+    =====================  ==========  =========  ========
+    merge                  sim fixed   sim auto   Memorial
+    =====================  ==========  =========  ========
+    eq. 6 literal (hat)    38.0 dB     34.4 dB    0.985
+    hat, shared            39.6 dB     36.8 dB    0.986
+    gaussian, shared       41.7 dB     38.7 dB    0.995
+    linear domain, hat     41.6 dB     40.5 dB    0.810
+    OpenCV Calibrate+Merge 40.5 dB     36.5 dB    0.987
+    =====================  ==========  =========  ========
+
+    A camera mixes channels (3x3 matrix), so a clipped or noisy sensor channel spoils the
+    other two: shared weights avoid trusting them; the Gaussian weight trusts codes near
+    the ends of the range (toe and shoulder of the tone curve) less than the hat does.
     """
     from .response import DEFAULT_LAMBDA, DEFAULT_SAMPLES, calibrate_debevec, check_usable
 
