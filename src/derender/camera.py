@@ -529,9 +529,15 @@ def simulate_bracket(
     stops: float | None = None,
     noise: bool = True,
     scene: SpectralScene | None = None,
+    wb_preset: str | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> SimulatedBracket:
-    """Simulate a bracket: spectral scene -> noisy RAW mosaics -> in-camera 8-bit renderings."""
+    """Simulate a bracket: spectral scene -> noisy RAW mosaics -> in-camera 8-bit renderings.
+
+    ``wb_preset`` (a CIE illuminant name, e.g. ``"D65"`` for a daylight preset) makes the
+    JPEG engine white-balance for that illuminant instead of the scene's, as a camera set
+    to a fixed white-balance mode does (the mode :func:`derender.chart.chart_pairs` uses).
+    """
     if exposures < 1:
         raise InputError("--exposures must be at least 1")
     if isinstance(camera, str):
@@ -547,7 +553,8 @@ def simulate_bracket(
     camera_to_srgb = camera_to_linear_srgb_matrix(xyz_to_camera)
     wb_true = white_balance_for(camera, scene.key_illuminant)
     truth = (cam_per_s * wb_true) @ camera_to_srgb.T
-    settings = pipeline_settings(pipeline, exposures, wb_true, style, rng_pipe, tone_curve)
+    wb_render = wb_true if wb_preset is None else white_balance_for(camera, wb_preset)
+    settings = pipeline_settings(pipeline, exposures, wb_render, style, rng_pipe, tone_curve)
     signal = mosaic_signal(cam_per_s)
     h, w = scene.shape
     mosaics = np.empty((exposures, h, w), dtype=np.uint16)
@@ -578,6 +585,7 @@ def simulate_bracket(
         "xyz_to_camera": xyz_to_camera.tolist(),
         "camera_to_linear_srgb": camera_to_srgb.tolist(),
         "wb_as_shot": [float(v) for v in wb_true],
+        "wb_preset": wb_preset,
         "exposures": [asdict(s) | {"exponent": s.exponent} for s in settings],
         "truth": "linear sRGB (Rec. 709, D65) per second: camera_to_linear_srgb @ (wb_as_shot * camera_rgb), "
                  "noise-free, unclipped",
