@@ -41,7 +41,8 @@ of paper 1 (its eq. 4), optionally followed by a fixed S-shaped tone curve (``to
 ``camera`` (default, like a real picture style): saturation boost 1.2, soft hue-preserving
 gamut compression (chroma scaled towards luminance so no channel goes negative, with a soft
 knee), a per-channel filmic S-curve with highlight shoulder (Hable's curve, exposure bias 6,
-white at linear 1 = sensor saturation), then the display gamma. No 3x3-plus-curve model contains it.
+white at linear 1 = sensor saturation), then the display gamma with a linear toe (as
+sRGB: finite slope at black). The ``simple`` style keeps the pure power law of paper 1. No 3x3-plus-curve model contains it.
 """
 
 from __future__ import annotations
@@ -368,6 +369,21 @@ class RenderSettings:
         return 1.0 / self.gamma
 
 
+def encode_gamma_with_toe(y: np.ndarray, gamma: float, a: float = 0.055) -> np.ndarray:
+    """Display encoding ``(1 + a) y^(1/gamma) - a`` with a linear toe (as sRGB / Rec. 709).
+
+    The toe ``k y`` below ``y0 = (a / ((1 + a)(1 - 1/gamma)))^gamma`` joins the power law
+    with matching value and slope (for gamma = 2.4 this is sRGB: y0 = 0.0030, k = 12.9).
+    Real cameras' curves have a finite slope at black; a pure power law would amplify
+    sensor noise in the shadows without bound.
+    """
+    inv = 1.0 / gamma
+    y0 = (a / ((1.0 + a) * (1.0 - inv))) ** gamma
+    k = (1.0 + a) * inv * y0 ** (inv - 1.0)
+    y = np.clip(y, 0.0, 1.0)
+    return np.where(y < y0, k * y, (1.0 + a) * np.power(np.maximum(y, y0), inv) - a)
+
+
 def saturation_matrix(s: float) -> np.ndarray:
     """S = s I + (1 - s) 1 w^T with Rec. 709 luminance weights w (keeps luminance)."""
     w = LUMINANCE_WEIGHTS_REC709
@@ -447,7 +463,7 @@ def isp_render(mosaic: np.ndarray, camera: CameraSpectral, camera_to_srgb: np.nd
         lum = lin @ LUMINANCE_WEIGHTS_REC709
         lin = lum[..., None] + 1.2 * (lin - lum[..., None])           # picture-style saturation boost
         lin = gamut_compress(lin)
-        y = filmic_curve(lin) ** settings.exponent
+        y = encode_gamma_with_toe(filmic_curve(lin), settings.gamma)
     else:
         raise InputError(f"unknown render style {settings.style!r}: use 'simple' or 'camera'")
     return np.clip(np.rint(y * 255.0), 0, 255).astype(np.uint8)

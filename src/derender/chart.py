@@ -8,7 +8,8 @@ per patch. :func:`chart_pairs` does the same with the camera simulator:
   published chromaticities (``CCS_COLOURCHECKERS['ColorCheckerSG - After November 2014']``,
   D50) with Otsu et al. (2018) reflectance recovery;
 * illuminants: CIE A (tungsten) through 16 smooth, seeded "gel" transmission filters;
-* exposures: ``n_exposures`` (22 as in the paper) log-spaced from all-black to all-white;
+* exposures: ``n_exposures`` (22 as in the paper) log-spaced from nearly black to all-white
+  (:func:`chart_exposures`);
 * each exposure of the chart is a noisy Bayer mosaic rendered by the camera's JPEG engine
   (fixed pipeline, daylight white-balance preset as a camera set to a fixed WB would);
   RAW and JPEG are averaged over each patch's interior;
@@ -78,6 +79,15 @@ def gel_illuminants(n: int = 16, seed: int = 0) -> np.ndarray:
     return np.stack(out)
 
 
+def chart_exposures(n: int = 22) -> np.ndarray:
+    """Relative exposures of the session: 2^-7 .. 2^4.5 of the white-patch exposure, log-spaced.
+
+    At the shortest the white patch renders near code 40 and the darkest patches at 0-2
+    (a nearly black frame); at the longest every patch is clipped (an all-white frame).
+    """
+    return np.logspace(-7 * np.log10(2.0), 4.5 * np.log10(2.0), n)
+
+
 @dataclass
 class ChartPairs:
     """RAW/JPEG colour pairs: ``jpeg`` (N, 3) uint8, ``raw`` (N, 3) linear camera RGB (unclipped)."""
@@ -126,7 +136,7 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int
         r, c = divmod(i, cols)
         pidx[r * p + 1:(r + 1) * p - 1, c * p + 1:(c + 1) * p - 1] = i
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
-    exposures = np.logspace(-4.0, np.log10(30.0), n_exposures)  # relative to the white at 1
+    exposures = chart_exposures(n_exposures)
     jpeg_rows, raw_rows, il_rows, ex_rows, pa_rows = [], [], [], [], []
     valid = pidx >= 0
     flat_idx = pidx[valid]
