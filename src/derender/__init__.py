@@ -26,6 +26,17 @@ from .io import (
 from .stack import HDRResult, RawFrame, Stack
 from .merge import merge, merge_linear, register_method  # noqa: E402  (the function shadows the module name;
 from .evaluate import psnr_rgbl  # noqa: E402             use importlib / "from derender.merge import" for the module)
+from .derendering import (  # noqa: E402
+    MODEL_TYPES,
+    DerenderModel,
+    LocalGPModel,
+    PolynomialModel,
+    RBFModel,
+    fit_model,
+    interval_coverage,
+    load_model,
+    relative_rmse,
+)
 
 
 def __getattr__(name: str):
@@ -55,6 +66,15 @@ __all__ = [
     "merge_linear",
     "register_method",
     "psnr_rgbl",
+    "MODEL_TYPES",
+    "DerenderModel",
+    "LocalGPModel",
+    "PolynomialModel",
+    "RBFModel",
+    "fit_model",
+    "interval_coverage",
+    "load_model",
+    "relative_rmse",
     "read_exr",
     "read_hdr",
     "read_image",

@@ -260,15 +260,6 @@ class BenchmarkResult:
                 "info": self.info}
 
 
-def _client(scheduler: str | None, workers: int):
-    from dask.distributed import Client, LocalCluster
-
-    if scheduler in (None, "", "local"):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-        return Client(cluster), cluster
-    return Client(scheduler), None
-
-
 def run_benchmark(dataset_dir: str | os.PathLike, methods: Sequence[str] | None = None,
                   scheduler: str | None = "local", workers: int = 2, seed: int = 0,
                   progress: Callable[[int, int], None] | None = None) -> BenchmarkResult:
@@ -281,27 +272,11 @@ def run_benchmark(dataset_dir: str | os.PathLike, methods: Sequence[str] | None 
     unknown = [m for m in methods if m not in MERGE_METHODS]
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(sorted(MERGE_METHODS))}")
-    t0 = time.perf_counter()
-    rows: list[dict] = []
-    if scheduler == "serial":
-        for i, s in enumerate(scenes):
-            rows.append(evaluate_scene(s, methods, seed))
-            if progress:
-                progress(i + 1, len(scenes))
-    else:
-        from dask.distributed import as_completed
+    from .parallel import run_tasks
 
-        client, cluster = _client(scheduler, workers)
-        try:
-            futures = [client.submit(evaluate_scene, str(s), methods, seed, pure=False) for s in scenes]
-            for i, fut in enumerate(as_completed(futures)):
-                rows.append(fut.result())
-                if progress:
-                    progress(i + 1, len(scenes))
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+    t0 = time.perf_counter()
+    rows = run_tasks(evaluate_scene, [(str(s), methods, seed) for s in scenes], scheduler=scheduler,
+                     workers=workers, progress=progress)
     rows.sort(key=lambda r: r["scene"])
     return BenchmarkResult(rows=rows, methods=methods,
                            info={"dataset": str(dataset_dir), "scheduler": scheduler or "local",

@@ -1,0 +1,294 @@
+"""Paper 2's experiments on simulated cameras (``derender experiment ...``).
+
+* :func:`derender_table` - Table 1: train on 5000 random pairs, test on the rest; RMSE and
+  relative RMSE (``sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2)``, x the true unclipped RAW
+  colour) for all test colours and those outside the sRGB gamut; median per-colour
+  relative error; 95 % interval coverage per channel (beyond the paper).
+* :func:`threshold_sweep` - Fig. 4: hold out one illuminant's exposure sequence, train on
+  5000 pairs from the rest, estimate each patch's scene colour from the held-out JPEG
+  sequence using only JPEG values inside an interval ([0,255] ... [10,205]); the GP
+  combines exposures as a product of Gaussians (eq. 3), the deterministic models average
+  their per-exposure estimates. Relative RMSE of the scene colour, all / out of gamut.
+* :func:`photometric_stereo_experiment` - Sec. 4.3: sphere and bumps under 20 lights;
+  normals by inverse-variance weighted LS on the GP, LS on the polynomial baseline and LS
+  on gamma-2.2-inverted JPEG values; angular errors and depth cross-sections.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["JPEG_INTERVALS", "derender_table", "threshold_sweep", "photometric_stereo_experiment",
+           "default_experiment_cameras", "format_table"]
+
+#: Paper 2, Fig. 4 (DESIGN.md "Threshold sweep").
+JPEG_INTERVALS = ((0, 255), (1, 254), (2, 245), (4, 235), (6, 225), (8, 215), (10, 205))
+METHODS = ("gp", "poly", "rbf")
+
+
+def default_experiment_cameras() -> list[str]:
+    """Canon PowerShot S90 (used by paper 2) and others when the rawtoaces data is present, plus the built-in one."""
+    from .benchmark import _camera_search_dirs
+    from .spectral import load_camera
+
+    names = []
+    for n in ("canon-powershot-s90", "canon-eos-5d-mark-ii", "nikon-d5100"):
+        try:
+            load_camera(n, search_dirs=_camera_search_dirs())
+            names.append(n)
+        except InputError:
+            continue
+    return names
+
+
+def _camera(name: str):
+    from .benchmark import _camera_search_dirs
+    from .spectral import load_camera
+
+    return load_camera(name, search_dirs=_camera_search_dirs())
+
+
+def model_metadata(pairs) -> dict:
+    """Metadata a de-rendering model keeps from its calibration pairs (camera, WB, colour matrix)."""
+    return {"camera": {"name": pairs.camera, "make": pairs.make, "model": pairs.model},
+            "camera_to_srgb": np.asarray(pairs.camera_to_srgb).tolist(), "wb": np.asarray(pairs.wb).tolist()}
+
+
+def derender_table(cameras: Sequence[str] | None = None, methods: Sequence[str] = METHODS, n_train: int = 5000,
+                   seed: int = 0, n_illuminants: int = 16, n_exposures: int = 22,
+                   progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Paper 2 Table 1 on simulated cameras; one row per (camera, method)."""
+    from .chart import chart_pairs
+    from .derendering import fit_model, interval_coverage, median_relative_error, relative_rmse, rmse
+
+    rows = []
+    for cam_name in cameras or default_experiment_cameras():
+        cam = _camera(cam_name)
+        pairs = chart_pairs(cam, n_illuminants=n_illuminants, n_exposures=n_exposures, seed=seed)
+        rng = np.random.default_rng(seed)
+        perm = rng.permutation(pairs.jpeg.shape[0])
+        tr, te = perm[:n_train], perm[n_train:]
+        x = pairs.raw[te]
+        oog = pairs.out_of_gamut[te]
+        for m in methods:
+            t0 = time.perf_counter()
+            model = fit_model(m, pairs.jpeg[tr], pairs.raw[tr], seed=seed)
+            fit_s = time.perf_counter() - t0
+            mean, var = model.predict(pairs.jpeg[te])
+            cov = interval_coverage(mean, var, x)
+            rows.append({
+                "camera": cam.name, "method": m, "n_train": int(tr.size), "n_test": int(te.size),
+                "rmse_all": rmse(mean, x), "rmse_oog": rmse(mean[oog], x[oog]) if oog.any() else float("nan"),
+                "rel_rmse_all": relative_rmse(mean, x),
+                "rel_rmse_in": relative_rmse(mean[~oog], x[~oog]),
+                "rel_rmse_oog": relative_rmse(mean[oog], x[oog]) if oog.any() else float("nan"),
+                "median_rel": median_relative_error(mean, x),
+                "coverage95": [float(c) for c in cov], "fit_seconds": fit_s,
+                "share_oog": float(oog.mean()),
+            })
+            if progress:
+                progress(f"{cam.name} {m}: rel RMSE {rows[-1]['rel_rmse_all']:.3f} ({fit_s:.1f} s fit)")
+    return rows
+
+
+def format_table(rows: list[dict], columns: Sequence[tuple[str, str, str]]) -> str:
+    """Markdown table from dict rows; ``columns`` = (key, header, format)."""
+    head = "| " + " | ".join(h for _, h, _ in columns) + " |"
+    sep = "| " + " | ".join("---" if i == 0 else "---:" for i in range(len(columns))) + " |"
+    lines = [head, sep]
+    for r in rows:
+        cells = []
+        for key, _, fmt in columns:
+            v = r.get(key, "")
+            if isinstance(v, (list, tuple)):
+                cells.append("/".join(format(x, fmt) for x in v))
+            elif isinstance(v, float):
+                cells.append("n/a" if np.isnan(v) else format(v, fmt))
+            else:
+                cells.append(str(v))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _scene_estimates(model, method: str, jpeg: np.ndarray, t_rel: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Scene colour (at relative exposure 1) of each patch from its exposure sequence.
+
+    ``jpeg`` (E, P, 3) codes, ``t_rel`` (E,) exposures. Observations with every channel in
+    [lo, hi] are used; a patch with none uses the exposure closest to mid-grey.
+    """
+    e, p, _ = jpeg.shape
+    mean, var = model.predict(jpeg.reshape(-1, 3))
+    mean = mean.reshape(e, p, 3).astype(np.float64) / t_rel[:, None, None]
+    var = var.reshape(e, p, 3).astype(np.float64) / (t_rel[:, None, None] ** 2)
+    use = np.all((jpeg >= lo) & (jpeg <= hi), axis=-1)  # (E, P)
+    none = ~use.any(axis=0)
+    if none.any():
+        closest = np.argmin(np.abs(jpeg.astype(float).mean(-1) - 128), axis=0)
+        use[closest[none], np.nonzero(none)[0]] = True
+    if method == "gp":
+        w = np.where(use[..., None], 1.0 / np.maximum(var, 1e-300), 0.0)
+    else:
+        w = np.repeat(use[..., None].astype(np.float64), 3, axis=-1)
+    return (w * mean).sum(0) / np.maximum(w.sum(0), 1e-300)
+
+
+def threshold_sweep(cameras: Sequence[str] | None = None, methods: Sequence[str] = METHODS, n_train: int = 5000,
+                    holdouts: Sequence[int] | None = None, seed: int = 0, n_illuminants: int = 16,
+                    n_exposures: int = 22, intervals: Sequence[tuple[int, int]] = JPEG_INTERVALS,
+                    progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Paper 2 Fig. 4; one row per (camera, method, interval) with relative RMSE all / out of gamut."""
+    from .chart import chart_pairs
+    from .derendering import fit_model, relative_rmse
+
+    rows = []
+    for cam_name in cameras or default_experiment_cameras():
+        cam = _camera(cam_name)
+        pairs = chart_pairs(cam, n_illuminants=n_illuminants, n_exposures=n_exposures, seed=seed)
+        from .chart import chart_exposures
+
+        t_rel = chart_exposures(n_exposures)
+        scores: dict[tuple[str, int], list] = {}
+        for k in (holdouts if holdouts is not None else range(n_illuminants)):
+            rng = np.random.default_rng(seed + 1000 * k)
+            train_idx = np.nonzero(pairs.illuminant != k)[0]
+            tr = rng.choice(train_idx, size=min(n_train, train_idx.size), replace=False)
+            held = pairs.illuminant == k
+            jpeg = pairs.jpeg[held].reshape(n_exposures, -1, 3)
+            truth = pairs.raw[held].reshape(n_exposures, -1, 3)[0] / t_rel[0]
+            oog = pairs.out_of_gamut[held].reshape(n_exposures, -1)[0]
+            for m in methods:
+                model = fit_model(m, pairs.jpeg[tr], pairs.raw[tr], seed=seed)
+                for j, (lo, hi) in enumerate(intervals):
+                    est = _scene_estimates(model, m, jpeg, t_rel, lo, hi)
+                    scores.setdefault((m, j), []).append((relative_rmse(est, truth),
+                                                          relative_rmse(est[oog], truth[oog]) if oog.any() else np.nan))
+                if progress:
+                    progress(f"{cam.name} held-out illuminant {k}: {m} done")
+        for m in methods:
+            for j, (lo, hi) in enumerate(intervals):
+                arr = np.asarray(scores[(m, j)], dtype=np.float64)
+                rows.append({"camera": cam.name, "method": m, "interval": f"[{lo},{hi}]",
+                             "rel_rmse_all": float(np.mean(arr[:, 0])),
+                             "rel_rmse_oog": float(np.nanmean(arr[:, 1])) if np.isfinite(arr[:, 1]).any() else np.nan,
+                             "runs": int(arr.shape[0])})
+    return rows
+
+
+def plot_threshold_sweep(rows: list[dict], path: str | os.PathLike) -> Path:
+    """Figure like paper 2's Fig. 4: relative RMSE against the JPEG interval, per camera."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io import atomic_output
+
+    cams = sorted({r["camera"] for r in rows})
+    fig, axes = plt.subplots(len(cams), 1, figsize=(7, 2.8 * len(cams)), squeeze=False)
+    colours = {"gp": "tab:red", "poly": "tab:blue", "rbf": "black"}
+    for ax, cam in zip(axes[:, 0], cams):
+        for m in ("gp", "poly", "rbf"):
+            rr = [r for r in rows if r["camera"] == cam and r["method"] == m]
+            if not rr:
+                continue
+            x = np.arange(len(rr))
+            ax.plot(x, [r["rel_rmse_all"] for r in rr], "-o", color=colours[m], label=m)
+            ax.plot(x, [r["rel_rmse_oog"] for r in rr], "--", color=colours[m], label=f"{m} out-of-gamut")
+            ax.set_xticks(x, [r["interval"] for r in rr])
+        ax.set_title(cam)
+        ax.set_ylabel("relative RMSE")
+        ax.legend(fontsize=7, ncol=3)
+    axes[-1, 0].set_xlabel("JPEG values used as input")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def photometric_stereo_experiment(camera: str = "canon-powershot-s90", n_lights: int = 20, size: int = 128,
+                                  n_train: int = 5000, seed: int = 0, shapes: Sequence[str] = ("sphere", "bumps"),
+                                  models: dict | None = None, plot: str | os.PathLike | None = None,
+                                  progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Paper 2 Sec. 4.3 on simulated Lambertian shapes; rows with mean angular error per method."""
+    from .chart import chart_pairs
+    from .derendering import fit_model
+    from .stereo import (angular_error_deg, bumps, default_lights, frankot_chellappa, render_photometric_images,
+                         solve_normals, sphere)
+
+    cam = _camera(camera)
+    if models is None:
+        pairs = chart_pairs(cam, seed=seed)
+        rng = np.random.default_rng(seed)
+        tr = rng.permutation(pairs.jpeg.shape[0])[:n_train]
+        models = {m: fit_model(m, pairs.jpeg[tr], pairs.raw[tr], seed=seed) for m in ("gp", "poly")}
+        if progress:
+            progress("models fitted")
+    lights = default_lights(n_lights, seed=seed)
+    rows, depth_rows = [], []
+    for shape_name in shapes:
+        sc = sphere(size) if shape_name == "sphere" else bumps(size, seed=seed)
+        codes, raw, m, wb = render_photometric_images(sc, cam, lights, seed=seed)
+        lit = np.all(np.einsum("hwa,na->nhw", sc.normals, lights) > 0, axis=0) & sc.mask
+        gp_mean, gp_var = models["gp"].predict(codes)
+        poly_mean, _ = models["poly"].predict(codes)
+        estimates = {
+            "gp (weighted LS)": solve_normals(gp_mean, lights, variances=gp_var, mask=sc.mask)[0],
+            "poly (LS)": solve_normals(poly_mean, lights, mask=sc.mask)[0],
+            "gamma 2.2 (LS)": solve_normals((codes / 255.0) ** 2.2, lights, mask=sc.mask)[0],
+        }
+        for name, n in estimates.items():
+            err = angular_error_deg(n, sc.normals)
+            rows.append({"shape": shape_name, "method": name, "mean_angular_error_deg": float(err[lit].mean()),
+                         "median_angular_error_deg": float(np.median(err[lit])), "pixels": int(lit.sum())})
+            depth_rows.append((shape_name, name, frankot_chellappa(n, sc.mask), sc, err))
+        if progress:
+            progress(f"{shape_name} done")
+    if plot is not None:
+        _plot_stereo(depth_rows, plot)
+    return rows
+
+
+def _plot_stereo(depth_rows, path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io import atomic_output
+    from .stereo import frankot_chellappa
+
+    shapes = sorted({r[0] for r in depth_rows})
+    methods = [r[1] for r in depth_rows if r[0] == shapes[0]]
+    fig, axes = plt.subplots(len(shapes), len(methods) + 1, figsize=(3.2 * (len(methods) + 1), 3.0 * len(shapes)),
+                             squeeze=False)
+    for i, s in enumerate(shapes):
+        rr = [r for r in depth_rows if r[0] == s]
+        sc = rr[0][3]
+        true_depth = frankot_chellappa(sc.normals, sc.mask)
+        mid = sc.mask.shape[0] // 2
+        for j, (_, name, depth, _, err) in enumerate(rr):
+            im = axes[i, j].imshow(np.where(sc.mask, err, np.nan), vmin=0, vmax=20, cmap="magma")
+            axes[i, j].set_title(f"{s}: {name}\nangular error (deg)", fontsize=8)
+            axes[i, j].axis("off")
+        fig.colorbar(im, ax=axes[i, len(methods) - 1], fraction=0.046)
+        ax = axes[i, -1]
+        ax.plot(true_depth[mid], "k-", lw=2, label="true shape")
+        for _, name, depth, _, _ in rr:
+            ax.plot(depth[mid], label=name)
+        ax.set_title(f"{s}: depth cross-section (row {mid})", fontsize=8)
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    return path
