@@ -41,7 +41,8 @@ def merge_one_stack(folder: str, outdir: str, method: str, seed: int = 0, half: 
     t0 = time.perf_counter()
     try:
         files, times_file = stack_files(folder)
-        result = merge_files_fast(files, None, method, times_file=times_file, output=out, half=half, seed=seed)
+        result = merge_files_fast(files, None, method, times_file=times_file, output=out, half=half, seed=seed,
+                                  inputs=files, threads=1)
     except DerenderError as exc:
         return {"stack": name, "ok": False, "error": str(exc)}
     return {"stack": name, "ok": True, "output": str(out), "seconds": time.perf_counter() - t0,

@@ -159,7 +159,9 @@ _INVERSE_HELP = "The times file's 2nd column is 1/time (HDRShop / Debevec image 
 def merge_cmd(
     images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
     output: Path = typer.Option(..., "--output", "-o", help="Output radiance map (.exr)."),
-    method: str = typer.Option("debevec", "--method", "-m", help="Merge method (see 'derender methods')."),
+    method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
+    model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
     times: Optional[str] = typer.Option(None, "--times", help=_TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=_TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=_INVERSE_HELP),
@@ -172,16 +174,38 @@ def merge_cmd(
     """Merge a bracket into a linear HDR radiance map (OpenEXR)."""
     import numpy as np
 
-    from .benchmark import merge_seeded
-    from .io import write_exr, write_png, write_preview
+    from .fastmerge import merge_files_fast
+    from .io import parse_times, write_png, write_preview
 
     if output.suffix.lower() != ".exr":
         raise InputError(f"--output must end in .exr, got {output.name}")
-    stack = _read_stack_from_cli(images, times, times_file, times_inverse)
+    if times is not None and times_file is not None:
+        raise InputError("give either --times or --times-file, not both")
+    if variance is not None and variance.suffix.lower() != ".exr":
+        raise InputError(f"--variance must end in .exr, got {variance.name}")
     t0 = time.perf_counter()
-    result = merge_seeded(stack, method, seed)
-    inputs = list(images) + ([times_file] if times_file else [])
-    write_exr(output, result.radiance, half=half, inputs=inputs)
+    inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
+    if model is not None:
+        from .benchmark import merge_seeded
+        from .derender_io import resolve_model
+        from .io import write_exr
+
+        stack = _read_stack_from_cli(images, times, times_file, times_inverse)
+        model_obj, used = resolve_model(model, images[0])
+        typer.echo(f"de-rendering model: {used}", err=True)
+        result = merge_seeded(stack, method, seed, model=model_obj)
+        write_exr(output, result.radiance, half=half, inputs=inputs)
+    else:
+        # 8-bit files stream (frame by frame, table merge, parallel EXR write); others: read_stack + merge
+        result = merge_files_fast(images, parse_times(times) if times is not None else None, method,
+                                  times_file=times_file, times_file_inverse=times_inverse, output=output, half=half,
+                                  inputs=inputs, seed=seed)
+    if variance is not None:
+        if result.variance is None:
+            raise InputError(f"method {method!r} gives no variance")
+        from .io import write_exr
+
+        write_exr(variance, result.variance, half=half, inputs=inputs)
     if preview is not None:
         write_preview(preview, result.radiance, inputs=inputs)
     if mask is not None:
@@ -198,7 +222,7 @@ def merge_cmd(
         plot_response(curves, plot, inputs=inputs)
     n_bright = int((result.mask == 1).sum())
     n_dark = int((result.mask == 2).sum())
-    typer.echo(f"{method}: {stack.n} images {stack.shape[1]}x{stack.shape[0]} -> {output} "
+    typer.echo(f"{method}: {len(images)} images {result.radiance.shape[1]}x{result.radiance.shape[0]} -> {output} "
                f"({time.perf_counter() - t0:.2f} s; {n_bright} px over-exposed everywhere, {n_dark} px under-exposed)")
 
 
@@ -445,6 +469,232 @@ def demo(
 ) -> None:
     """Simulate an auto-pipeline bracket, merge it with every method, score each against the truth."""
     run_demo(outdir, _parse_size(size), seed=seed, pipeline=pipeline, render=render)
+
+
+@app.command("merge-batch")
+def merge_batch_cmd(
+    stacks: List[Path] = typer.Argument(..., help="Stack folders (images, or jpeg/ subfolder; optional times.txt)."),
+    outdir: Path = typer.Option(..., "--output", "-o", help="Folder for <stack>.exr outputs."),
+    method: str = typer.Option("debevec", "--method", help="Merge method."),
+    scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
+    workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
+    seed: int = typer.Option(0, "--seed", help="Seed."),
+    half: bool = typer.Option(False, "--half", help="Half-float EXR."),
+) -> None:
+    """Merge many brackets in parallel (Dask); one EXR per stack folder; identical to a serial run."""
+    from .batch import merge_batch
+
+    with _progress() as prog:
+        task = prog.add_task("stacks", total=len(stacks))
+        rows = merge_batch(stacks, outdir, method=method, scheduler=scheduler, workers=workers, seed=seed, half=half,
+                           progress=lambda i, n: prog.update(task, completed=i))
+    failed = [r for r in rows if not r["ok"]]
+    for r in rows:
+        typer.echo(f"{r['stack']}: " + (f"{r['output']} ({r['seconds']:.2f} s)" if r["ok"] else f"error: {r['error']}"))
+    if failed:
+        raise InputError(f"{len(failed)} of {len(rows)} stacks failed (see above)")
+
+
+@app.command()
+def bench(
+    size: str = typer.Option("1200x800", "--size", help="Frame size WxH of the generated bracket."),
+    frames: int = typer.Option(5, "--frames", help="Frames in the bracket."),
+    memory_frames: int = typer.Option(0, "--memory-frames", help="Also measure peak memory with this many frames."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Where to cache the generated bracket."),
+) -> None:
+    """Time 'derender merge' against OpenCV's Debevec (and colour-hdri if installed), with peak memory."""
+    from .fastmerge import format_bench, run_bench
+
+    res = run_bench(size=_parse_size(size), frames=frames, workdir=workdir, memory_frames=memory_frames or None,
+                    progress=lambda m: _console().print(m))
+    typer.echo(format_bench(res))
+
+
+# --------------------------------------------------------------------------- de-rendering
+@app.command()
+def calibrate(
+    output: Path = typer.Option(..., "--output", "-o", help="Model file to write (.npz)."),
+    pairs: Optional[Path] = typer.Option(None, "--pairs", help="Pairs file from 'derender chart-pairs' (.npz)."),
+    raw: List[Path] = typer.Option([], "--raw", help="RAW/DNG file(s) registered with --jpeg (repeat)."),
+    jpeg: List[Path] = typer.Option([], "--jpeg", help="JPEG file(s) registered with --raw (repeat)."),
+    method: str = typer.Option("gp", "--method", help="gp | poly | rbf."),
+    n_train: int = typer.Option(5000, "--n-train", help="Training pairs (random subset)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (subset, k-means)."),
+) -> None:
+    """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
+    from .derendering import fit_model
+    from .derender_io import pairs_from_images
+
+    if output.suffix.lower() != ".npz":
+        raise InputError(f"--output must end in .npz, got {output.name}")
+    if pairs is None and not raw:
+        raise InputError("give --pairs PAIRS.npz or --raw ... --jpeg ... image pairs")
+    if pairs is not None and raw:
+        raise InputError("give either --pairs or --raw/--jpeg, not both")
+    if pairs is not None:
+        from .chart import load_pairs
+        from .experiments import model_metadata
+
+        pr = load_pairs(pairs)
+        jp, rw, meta = pr.jpeg, pr.raw, model_metadata(pr)
+        inputs = [pairs]
+    else:
+        jp, rw, meta = pairs_from_images(raw, jpeg)
+        inputs = list(raw) + list(jpeg)
+    if n_train < 10:
+        raise InputError("--n-train must be at least 10")
+    rng = __import__("numpy").random.default_rng(seed)
+    if jp.shape[0] > n_train:
+        sel = rng.choice(jp.shape[0], size=n_train, replace=False)
+        jp, rw = jp[sel], rw[sel]
+    kw = {} if method != "gp" else {"n_train": n_train}
+    t0 = time.perf_counter()
+    model = fit_model(method, jp, rw, seed=seed, **kw)
+    model.metadata.update(meta)
+    from .io import check_not_input
+
+    check_not_input(output, inputs)
+    model.save(output)
+    typer.echo(f"{method} model from {jp.shape[0]} pairs in {time.perf_counter() - t0:.1f} s -> {output}")
+
+
+@app.command("derender")
+def derender_cmd(
+    image: Path = typer.Argument(..., help="8-bit rendered image (JPEG/PNG/TIFF)."),
+    model: Path = typer.Option(..., "--model", "-m", help="Model file, or a folder of models (picked by EXIF camera)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Mean linear camera RGB (.exr)."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr)."),
+    srgb: bool = typer.Option(False, "--srgb", help="Output linear sRGB instead of camera RGB (needs model camera metadata)."),
+) -> None:
+    """De-render an image: per-pixel Gaussian over the linear RAW colour (mean and variance)."""
+    from .derender_io import derender_image
+
+    for out in (output, variance):
+        if out is not None and out.suffix.lower() != ".exr":
+            raise InputError(f"outputs must end in .exr, got {out.name}")
+    t0 = time.perf_counter()
+    mean, var, used = derender_image(image, model, srgb=srgb)
+    from .io import write_exr
+
+    write_exr(output, mean, inputs=[image])
+    if variance is not None:
+        write_exr(variance, var, inputs=[image])
+    typer.echo(f"de-rendered {image.name} with {used} in {time.perf_counter() - t0:.2f} s -> {output}")
+
+
+@app.command()
+def stereo(
+    images: List[Path] = typer.Argument(..., help="Images of the object, one per light (same order as --lights)."),
+    lights: Path = typer.Option(..., "--lights", help="Text file: 'lx ly lz [intensity]' per image."),
+    model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (default: gamma 2.2 inversion)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Normals (.exr, RGB = xyz)."),
+    depth: Optional[Path] = typer.Option(None, "--depth", help="Depth from the normals (Frankot-Chellappa), .exr."),
+    mask_threshold: int = typer.Option(0, "--mask-threshold", help="Pixels whose max code over all images is <= this are background."),
+) -> None:
+    """Lambertian photometric stereo; with a model, inverse-variance weighted least squares (paper 2 eq. 7)."""
+    import numpy as np
+
+    from .io import read_image, write_exr
+    from .stereo import frankot_chellappa, read_lights, solve_normals
+
+    L = read_lights(lights)
+    if len(images) != L.shape[0]:
+        raise InputError(f"{len(images)} images but {L.shape[0]} lights in {lights}")
+    imgs = []
+    for p in images:
+        img, depth_bits = read_image(p)
+        if depth_bits != 8:
+            raise InputError(f"{p}: photometric stereo with a de-rendering model needs 8-bit images")
+        if imgs and img.shape != imgs[0].shape:
+            raise InputError(f"images differ in size: {images[0].name} vs {p.name}")
+        imgs.append(img)
+    codes = np.rint(np.stack(imgs) * 255).astype(np.uint8)
+    mask = codes.max(axis=(0, 3)) > mask_threshold
+    if model is not None:
+        from .derender_io import resolve_model
+
+        m, used = resolve_model(model, images[0])
+        mean, var = m.predict(codes)
+        normals, albedo = solve_normals(mean, L, variances=var, mask=mask)
+    else:
+        used = "gamma 2.2 inversion"
+        normals, albedo = solve_normals((codes / 255.0) ** 2.2, L, mask=mask)
+    write_exr(output, normals.astype(np.float32), inputs=list(images) + [lights])
+    if depth is not None:
+        write_exr(depth, frankot_chellappa(normals, mask).astype(np.float32), inputs=list(images) + [lights])
+    typer.echo(f"normals of {int(mask.sum())} pixels from {len(images)} images ({used}) -> {output}")
+
+
+experiment_app = typer.Typer(no_args_is_help=True, help="Paper experiments on simulated cameras.")
+app.add_typer(experiment_app, name="experiment")
+
+
+def _cams(cameras: Optional[str]):
+    return [c.strip() for c in cameras.split(",") if c.strip()] if cameras else None
+
+
+@experiment_app.command("derender-table")
+def exp_derender_table(
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated cameras (default: S90, 5D II, D5100)."),
+    n_train: int = typer.Option(5000, "--n-train", help="Training pairs."),
+    methods: str = typer.Option("gp,poly,rbf", "--methods", help="Methods."),
+    seed: int = typer.Option(0, "--seed", help="Seed."),
+    output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
+) -> None:
+    """Paper 2 Table 1: RMSE / relative RMSE, all and out-of-gamut, plus 95 % interval coverage."""
+    from .experiments import derender_table, format_table
+
+    rows = derender_table(_cams(cameras), methods=[m.strip() for m in methods.split(",")], n_train=n_train,
+                          seed=seed, progress=lambda msg: _console().print(msg))
+    typer.echo(format_table(rows, [("camera", "camera", ""), ("method", "method", ""),
+                                   ("rmse_all", "RMSE all", ".4f"), ("rmse_oog", "RMSE oog", ".4f"),
+                                   ("rel_rmse_all", "rel RMSE all", ".3f"), ("rel_rmse_in", "rel in-gamut", ".3f"),
+                                   ("rel_rmse_all_mean", "rel RMSE all (mean)", ".3f"),
+                                   ("rel_rmse_oog", "rel out-of-gamut", ".3f"), ("median_rel", "median rel", ".3f"),
+                                   ("coverage95", "95% coverage R/G/B", ".3f"), ("fit_seconds", "fit s", ".1f")]))
+    if output is not None:
+        output.write_text(json.dumps(rows, indent=2, default=float))
+
+
+@experiment_app.command("threshold-sweep")
+def exp_threshold_sweep(
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated cameras."),
+    holdouts: Optional[str] = typer.Option(None, "--holdouts", help="Illuminants to hold out (default: all 16)."),
+    n_train: int = typer.Option(5000, "--n-train", help="Training pairs."),
+    methods: str = typer.Option("gp,poly,rbf", "--methods", help="Methods."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Figure like paper 2 Fig. 4."),
+    seed: int = typer.Option(0, "--seed", help="Seed."),
+) -> None:
+    """Paper 2 Fig. 4: relative RMSE of scene colour from exposure sequences vs the JPEG interval used."""
+    from .experiments import format_table, plot_threshold_sweep, threshold_sweep
+
+    ho = [int(v) for v in holdouts.split(",")] if holdouts else None
+    rows = threshold_sweep(_cams(cameras), methods=[m.strip() for m in methods.split(",")], n_train=n_train,
+                           holdouts=ho, seed=seed, progress=lambda msg: _console().print(msg))
+    typer.echo(format_table(rows, [("camera", "camera", ""), ("method", "method", ""), ("interval", "interval", ""),
+                                   ("rel_rmse_all", "rel RMSE all", ".3f"), ("rel_rmse_oog", "rel RMSE oog", ".3f"),
+                                   ("runs", "held-out runs", "")]))
+    if plot is not None:
+        plot_threshold_sweep(rows, plot)
+        typer.echo(f"figure -> {plot}")
+
+
+@experiment_app.command("photometric-stereo")
+def exp_photometric_stereo(
+    camera: str = typer.Option("canon-powershot-s90", "--camera", help="Camera."),
+    lights: int = typer.Option(20, "--lights", help="Number of lights."),
+    size: int = typer.Option(128, "--size", help="Image size (square)."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Angular-error maps and depth cross-sections."),
+    seed: int = typer.Option(0, "--seed", help="Seed."),
+) -> None:
+    """Paper 2 Sec. 4.3: GP weighted LS vs polynomial LS vs gamma-2.2 LS on a sphere and bumps."""
+    from .experiments import format_table, photometric_stereo_experiment
+
+    rows = photometric_stereo_experiment(camera, n_lights=lights, size=size, seed=seed, plot=plot,
+                                         progress=lambda msg: _console().print(msg))
+    typer.echo(format_table(rows, [("shape", "shape", ""), ("method", "method", ""),
+                                   ("mean_angular_error_deg", "mean angular error (deg)", ".2f"),
+                                   ("median_angular_error_deg", "median (deg)", ".2f"), ("pixels", "pixels", "")]))
 
 
 if __name__ == "__main__":  # pragma: no cover

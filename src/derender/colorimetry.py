@@ -38,7 +38,8 @@ def luminance(linear_rgb: np.ndarray) -> np.ndarray:
     """Rec. 709 luminance ``0.2126 R + 0.7152 G + 0.0722 B`` of (..., 3) linear RGB."""
     rgb = np.asarray(linear_rgb)
     w = LUMINANCE_WEIGHTS_REC709.astype(rgb.dtype if rgb.dtype.kind == "f" else np.float64)
-    return rgb @ w
+    # explicit sum, not a BLAS product: identical results whatever the BLAS thread count
+    return rgb[..., 0] * w[0] + rgb[..., 1] * w[1] + rgb[..., 2] * w[2]
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:

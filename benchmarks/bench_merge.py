@@ -1,0 +1,50 @@
+#!/usr/bin/env python
+"""Side-by-side HDR merge benchmark: OpenCV vs colour-hdri vs ``derender merge``.
+
+Generates (and caches) a bracket of upscaled simulator JPEGs, runs every tool in a fresh
+process on the same files and prints wall time, the tool's own time, peak RSS (wait4)
+and CPU time, with ratios to OpenCV. See README.md in this folder.
+
+    python benchmarks/bench_merge.py                         # 9 x 6000x4000, + 18-frame memory run
+    python benchmarks/bench_merge.py --size 1200x800 --frames 5 --memory-frames 0   # quick
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    from derender.fastmerge import format_bench, run_bench
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", default="6000x4000", help="WxH of the generated JPEGs (default 6000x4000, 24 MP)")
+    ap.add_argument("--frames", type=int, default=9, help="exposures in the bracket (default 9)")
+    ap.add_argument("--memory-frames", type=int, default=18,
+                    help="also run derender-debevec on a bracket of this many frames to compare peak RSS (0: skip)")
+    ap.add_argument("--entries", default="opencv,colour-hdri,derender-debevec,derender-stabilized",
+                    help="comma-separated: opencv, colour-hdri, derender-<method>")
+    ap.add_argument("--workdir", default=None, help="cache folder for brackets and outputs (default: $TMPDIR/derender-bench)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per entry; the fastest is kept")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", default=None, help="also write the raw results to this JSON file")
+    args = ap.parse_args(argv)
+    try:
+        w, h = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        ap.error(f"--size must look like 6000x4000, got {args.size!r}")
+    entries = [e.strip() for e in args.entries.split(",") if e.strip()]
+    res = run_bench(size=(w, h), frames=args.frames, workdir=args.workdir, entries=entries,
+                    memory_frames=args.memory_frames or None, seed=args.seed, repeat=args.repeat,
+                    progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    print(format_bench(res))
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
