@@ -7,7 +7,8 @@ per patch. :func:`chart_pairs` does the same with the camera simulator:
 * reflectances: the 140 ColorChecker SG patches, spectra recovered from colour-science's
   published chromaticities (``CCS_COLOURCHECKERS['ColorCheckerSG - After November 2014']``,
   D50) with Otsu et al. (2018) reflectance recovery;
-* illuminants: CIE A (tungsten) through 16 smooth, seeded "gel" transmission filters;
+* illuminants: CIE A (tungsten) bare, through 5 colour-temperature-blue gels and through 10
+  coloured gels (:func:`gel_illuminants`);
 * exposures: ``n_exposures`` (22 as in the paper) log-spaced from nearly black to all-white
   (:func:`chart_exposures`);
 * each exposure of the chart is a noisy Bayer mosaic rendered by the camera's JPEG engine
@@ -56,27 +57,32 @@ def colorchecker_sg_reflectances() -> np.ndarray:
 
 
 def gel_illuminants(n: int = 16, seed: int = 0) -> np.ndarray:
-    """(n, n_wl) spectra: CIE A (tungsten) through ``n`` smooth random gel filters (Y = 1).
+    """(n, n_wl) spectra: CIE A (tungsten) through ``n`` gel filters (Y = 1).
 
-    Each gel's transmission is a sum of two Gaussian pass bands plus a floor, drawn from a
-    seeded generator; the first illuminant is the bare lamp.
+    The first is the bare lamp; the next five are colour-temperature-blue gels of rising
+    strength (transmission ``exp(-s (lambda - 380) / 400)``, s up to 2.2, which takes the
+    lamp to about daylight and beyond, so that neutral colours under daylight-like light
+    are covered); the rest are coloured gels: two Gaussian pass bands plus a floor,
+    drawn from a seeded generator.
     """
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
     lamp = illuminant_spd("A")
     from .spectral import cmfs_xyz
 
     ybar = cmfs_xyz()[:, 1]
-    out = [lamp / float(ybar @ lamp)]
     wl = WAVELENGTHS
-    while len(out) < n:
+    filters = [np.ones(wl.size)]
+    for strength in np.linspace(0.5, 2.2, 5):
+        filters.append(np.exp(-strength * (wl - 380.0) / 400.0))
+    while len(filters) < n:
         t = np.full(wl.size, rng.uniform(0.02, 0.2))
         for _ in range(2):
             centre = rng.uniform(400, 700)
             width = rng.uniform(25, 90)
             t += rng.uniform(0.3, 1.0) * np.exp(-0.5 * ((wl - centre) / width) ** 2)
-        spd = lamp * np.clip(t, 0, 1)
-        out.append(spd / float(ybar @ spd))
-    return np.stack(out)
+        filters.append(np.clip(t, 0, 1))
+    out = [lamp * f for f in filters[:n]]
+    return np.stack([spd / float(ybar @ spd) for spd in out])
 
 
 def chart_exposures(n: int = 22) -> np.ndarray:

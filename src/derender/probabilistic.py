@@ -8,7 +8,19 @@ exposures the posterior is the normalised product of these Gaussians:
     1 / s_0^2 = sum_i 1 / s_i'^2,     mu_0 = s_0^2 sum_i mu_i' / s_i'^2.
 
 No pixel is thrown away by a threshold: a saturated JPEG value contributes through its
-(large) variance. The result is in the model's camera RGB (white balance fixed, as the
+(large) variance (``censor=False``, the paper's eq. 3 literally).
+
+Beyond the paper (``censor=True``, default): a JPEG colour with a channel at 255 only says
+the RAW colour is *at least* what the calibration saw for that code; a Gaussian centred on
+the training data's conditional mean, scaled by t_0 / t_i, claims far too much for a
+light source brighter than anything in the calibration (a clipped long exposure would
+pull the estimate down with a tiny variance). Such observations are treated as censored:
+each gives a lower bound ``B_i = q_0.023(x | J_i) t_0 / t_i`` (the GP's 2.3 % quantile,
+``exp(mu - 2 sigma)`` in its log space); the Gaussians of the unclipped observations are
+multiplied as in eq. 3, and the product is truncated below at ``B = max_i B_i``
+(truncated-normal moments). When the bound contradicts the unclipped evidence by more
+than 3 sigma, or no exposure is unclipped, the estimate is ``B`` with a variance of ``B^2``
+(at least 100 % relative uncertainty): high exactly where all exposures clip. The result is in the model's camera RGB (white balance fixed, as the
 calibration pairs); with the camera's white balance and colour matrix stored in the model
 (``derender calibrate`` from ``chart-pairs`` files stores them) it is converted to linear
 sRGB, the variance propagated through the same 3x3 map (diagonal of ``A S A^T``).
@@ -54,6 +66,40 @@ def product_of_gaussians(means: list[np.ndarray] | np.ndarray, variances, floor:
     return acc * var, var
 
 
+def _lower_quantile(model, codes: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """2.3 % quantile of the predictive RAW distribution (exp(mu - 2 sigma) - eps for log-space models)."""
+    if hasattr(model, "predict_log"):
+        mu, s2 = model.predict_log(codes)
+        return np.maximum(np.exp(np.asarray(mu) - 2.0 * np.sqrt(np.maximum(s2, 0.0))) - model.eps, 0.0)
+    return np.maximum(np.asarray(mean, dtype=np.float64), 0.0)
+
+
+def _truncate_below(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moments of N(mean, var) truncated to [bound, inf); see the module doc for conflicts."""
+    from scipy.special import ndtr
+
+    out_m = mean.copy()
+    out_v = var.copy()
+    active = bound > 0
+    finite = np.isfinite(var)
+    sd = np.sqrt(np.where(finite, var, 1.0))
+    alpha = np.where(finite, (bound - mean) / np.maximum(sd, 1e-300), np.inf)
+    ok = active & finite & (alpha < 3.0)
+    if ok.any():
+        a = alpha[ok]
+        tail = np.maximum(1.0 - ndtr(a), 1e-300)
+        lam = np.exp(-0.5 * a * a) / np.sqrt(2 * np.pi) / tail
+        out_m[ok] = mean[ok] + sd[ok] * lam
+        out_v[ok] = var[ok] * np.maximum(1.0 + a * lam - lam * lam, 1e-6)
+    conflict = active & ~ok
+    out_m[conflict] = bound[conflict]
+    out_v[conflict] = np.maximum(np.where(finite[conflict], var[conflict], 0.0), bound[conflict] ** 2)
+    nothing = ~np.isfinite(out_v)
+    out_m[nothing] = 0.0
+    out_v[nothing] = np.finfo(np.float32).max / 8
+    return out_m, out_v
+
+
 def _load(model: Any):
     from .derendering import DerenderModel, load_model
 
@@ -66,7 +112,7 @@ def _load(model: Any):
 
 @register_method("probabilistic")
 def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colour_space: str = "linear_srgb",
-                        seed: int = 0) -> HDRResult:
+                        censor: bool = True, seed: int = 0) -> HDRResult:
     """Probabilistic HDR merge (paper 2 eq. 3) with a de-rendering model; returns mean and variance.
 
     ``target_time`` is alpha_0 in seconds (the result is radiance x t_0); ``colour_space``
@@ -91,15 +137,25 @@ def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colo
     h, w = stack.shape
     prec = np.zeros((h, w, 3), dtype=np.float64)
     acc = np.zeros((h, w, 3), dtype=np.float64)
+    bound = np.zeros((h, w, 3), dtype=np.float64)
     for i in range(stack.n):
         mean, var = model.predict(codes[i])
         scale = float(target_time / stack.times[i])
         v = np.maximum(var.astype(np.float64) * scale * scale, 1e-30)
         p = 1.0 / v
+        if censor:
+            clipped = np.any(codes[i] >= 255, axis=-1)
+            if clipped.any():
+                low = _lower_quantile(model, codes[i][clipped], mean[clipped]) * scale
+                bound[clipped] = np.maximum(bound[clipped], low)
+                p = np.where(clipped[..., None], 0.0, p)
         prec += p
         acc += mean.astype(np.float64) * scale * p
-    var0 = 1.0 / prec
-    mean0 = acc * var0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var0 = np.where(prec > 0, 1.0 / prec, np.inf)
+        mean0 = np.where(prec > 0, acc * var0, 0.0)
+    if censor:
+        mean0, var0 = _truncate_below(mean0, var0, bound)
     if a is not None:
         mean0 = mean0 @ a.T
         var0 = var0 @ (a * a).T
