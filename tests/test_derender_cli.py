@@ -1,0 +1,128 @@
+"""De-rendering from files: calibrate, derender, model library, probabilistic merge, stereo, merge-batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from derender.camera import bracket_paths, simulate_bracket, write_bracket, write_jpeg
+from derender.chart import chart_pairs, save_pairs
+from derender.derendering import load_model
+from derender.io import read_exr
+from derender.stack import Stack
+
+from helpers import run_cli
+
+
+@pytest.fixture(scope="module")
+def pairs_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pairs")
+    return save_pairs(chart_pairs("nikon-d5100", n_illuminants=6, n_exposures=12, seed=0), d / "nikon.npz")
+
+
+@pytest.fixture(scope="module")
+def model_file(pairs_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("models") / "nikon-gp.npz"
+    code, _, _ = run_cli(["calibrate", "--pairs", pairs_file, "-o", out, "--method", "gp", "--n-train", "1500"])
+    assert code == 0
+    return out
+
+
+def test_calibrate_stores_camera_metadata(model_file):
+    m = load_model(model_file)
+    assert m.method == "gp"
+    assert m.metadata["camera"]["model"] == "NIKON D5100"
+    assert np.asarray(m.metadata["camera_to_srgb"]).shape == (3, 3)
+
+
+def test_derender_image_and_model_library(model_file, tmp_path, capsys):
+    b = simulate_bracket(size=(64, 48), exposures=1, pipeline="fixed", wb_preset="D65", seed=1)
+    img = write_jpeg(tmp_path / "shot.jpg", b.jpeg_codes[0], float(b.times[0]), "NIKON CORPORATION", "NIKON D5100")
+    code, out, err = run_cli(["derender", img, "-m", model_file, "-o", tmp_path / "mean.exr",
+                              "--variance", tmp_path / "var.exr"], capsys)
+    assert code == 0, err
+    mean, var = read_exr(tmp_path / "mean.exr"), read_exr(tmp_path / "var.exr")
+    assert mean.shape == (48, 64, 3) and np.all(np.isfinite(mean)) and np.all(var >= 0)
+    # a folder of models: the one whose camera matches the EXIF is used
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    (lib / "a.npz").write_bytes(model_file.read_bytes())
+    code, out, err = run_cli(["derender", img, "-m", lib, "-o", tmp_path / "m2.exr"], capsys)
+    assert code == 0 and "matches the image EXIF" in out
+    np.testing.assert_array_equal(read_exr(tmp_path / "m2.exr"), mean)
+    other = write_jpeg(tmp_path / "other.jpg", b.jpeg_codes[0], 0.01, "Canon", "Canon EOS 5D")
+    code, out, err = run_cli(["derender", other, "-m", lib, "-o", tmp_path / "m3.exr"], capsys)
+    assert code == 2 and "no model" in err
+
+
+def test_derender_errors(model_file, tmp_path, capsys):
+    import cv2
+    import tifffile
+
+    rgba = tmp_path / "a.png"
+    cv2.imwrite(str(rgba), np.zeros((8, 8, 4), np.uint8))
+    sixteen = tmp_path / "s.tif"
+    tifffile.imwrite(sixteen, np.zeros((8, 8, 3), np.uint16))
+    bad_model = tmp_path / "bad.npz"
+    bad_model.write_bytes(b"not a zip")
+    nan_pairs = tmp_path / "nan.npz"
+    np.savez(nan_pairs, jpeg=np.zeros((20, 3), np.uint8), raw=np.full((20, 3), np.nan))
+    good = tmp_path / "g.png"
+    cv2.imwrite(str(good), np.zeros((8, 8, 3), np.uint8))
+    cases = [
+        (["derender", rgba, "-m", model_file, "-o", tmp_path / "o.exr"], "alpha"),
+        (["derender", sixteen, "-m", model_file, "-o", tmp_path / "o.exr"], "16-bit"),
+        (["derender", good, "-m", bad_model, "-o", tmp_path / "o.exr"], "model"),
+        (["calibrate", "--pairs", nan_pairs, "-o", tmp_path / "m.npz"], "nan"),
+        (["calibrate", "-o", tmp_path / "m.npz"], "--pairs"),
+    ]
+    for args, needle in cases:
+        code, out, err = run_cli(args, capsys)
+        assert code == 2, (args, err)
+        assert needle.lower() in err.lower() and "Traceback" not in err, (args, err)
+
+
+def test_probabilistic_merge_variance_high_where_everything_clips(model_file, tmp_path, capsys):
+    b = simulate_bracket(kind="indoor", size=(96, 64), exposures=5, pipeline="fixed", wb_preset="D65", seed=2)
+    write_bracket(b, tmp_path / "br")
+    jpgs = bracket_paths(tmp_path / "br", "jpeg")
+    code, out, err = run_cli(["merge", *jpgs, "--method", "probabilistic", "-m", model_file, "-o", tmp_path / "p.exr",
+                              "--variance", tmp_path / "pv.exr"], capsys)
+    assert code == 0, err
+    rad, var = read_exr(tmp_path / "p.exr"), read_exr(tmp_path / "pv.exr")
+    assert np.all(np.isfinite(rad)) and np.all(np.isfinite(var))
+    codes = b.jpeg_codes
+    all_clip = np.all(codes.max(-1) >= 255, axis=0)
+    rel = var.sum(-1) / np.maximum(rad.sum(-1), 1e-12) ** 2
+    assert all_clip.any()
+    assert np.median(rel[all_clip]) > 100 * np.median(rel[~all_clip])
+
+
+def test_probabilistic_censoring_beats_plain_product_on_light_source(model_file):
+    from derender.evaluate import psnr_rgbl
+    from derender.probabilistic import merge_probabilistic
+
+    m = load_model(model_file)
+    b = simulate_bracket(kind="outdoor", size=(96, 64), exposures=5, pipeline="fixed", wb_preset="D65", seed=3)
+    st = Stack(images=b.jpeg_codes / 255.0, times=b.times)
+    scores = {}
+    for censor in (False, True):
+        r = merge_probabilistic(st, m, colour_space="camera_rgb", censor=censor)
+        srgb = (r.radiance * b.wb_true) @ b.camera_to_srgb.T
+        scores[censor] = psnr_rgbl(srgb, b.truth_linear_srgb)["L"]
+    assert scores[True] > scores[False] + 5.0, scores
+
+
+def test_merge_batch_equals_serial(tmp_path, capsys):
+    for i in range(2):
+        write_bracket(simulate_bracket(size=(64, 48), exposures=3, pipeline="auto", seed=10 + i), tmp_path / f"s{i}")
+    stacks = [tmp_path / "s0", tmp_path / "s1"]
+    code, out, err = run_cli(["merge-batch", *stacks, "-o", tmp_path / "serial", "--scheduler", "serial"], capsys)
+    assert code == 0, err
+    code, out, err = run_cli(["merge-batch", *stacks, "-o", tmp_path / "dask", "--workers", "2"], capsys)
+    assert code == 0, err
+    for s in ("s0", "s1"):
+        np.testing.assert_array_equal(read_exr(tmp_path / "serial" / f"{s}.exr"), read_exr(tmp_path / "dask" / f"{s}.exr"))
+    (tmp_path / "bad").mkdir()
+    code, out, err = run_cli(["merge-batch", tmp_path / "bad", "-o", tmp_path / "x", "--scheduler", "serial"], capsys)
+    assert code == 2 and "at least two images" in out + err
