@@ -614,7 +614,7 @@ def stereo(
         from .derender_io import resolve_model
 
         m, used = resolve_model(model, images[0])
-        mean, var = m.predict(codes)
+        mean, var = m.predict(codes, point="map")
         normals, albedo = solve_normals(mean, L, variances=var, mask=mask)
     else:
         used = "gamma 2.2 inversion"
