@@ -1,0 +1,355 @@
+"""Registration of an exposure bracket (paper 1, Algorithm 1 step 2).
+
+* ``"mtb"`` (default): Ward's median threshold bitmap alignment (Ward 2003, *Fast,
+  robust image registration for compositing high dynamic range photographs from
+  handheld exposures*, J. Graphics Tools 8(2)): integer translations found on an image
+  pyramid by XOR-ing median threshold bitmaps, with an exclusion bitmap that ignores
+  pixels within ``exclusion`` grey levels of the median. Exposure-invariant because the
+  median splits every exposure at the same scene radiance. In a bracket one image of a
+  pair is often more than half clipped (its median is 255 or 0), so :func:`align_images`
+  thresholds both bitmaps at several common percentiles inside both images' usable
+  range (:func:`common_percentiles`; one percentile still splits both images at one
+  radiance) and sums the bit errors.
+* ``"homography"``: ORB features (on histogram-equalised grey images, so that different
+  exposures match), Hamming matching with Lowe's ratio test and a seeded RANSAC on
+  4-point homographies, refined by least squares on the inliers (handheld brackets).
+  A pair with too few matches (a nearly black or white exposure) falls back to MTB
+  (recorded in ``info["pairs"]``).
+* ``"none"``: identity.
+
+Every image is registered to its neighbour towards the reference (neighbouring
+exposures look most alike) and the transforms are chained. ``transforms[j]`` maps
+reference pixel coordinates ``(x, y, 1)`` to coordinates in image ``j``; the aligned image
+samples image ``j`` there. Pixels that fall outside image ``j`` are filled with the
+nearest border pixel (never NaN) and marked ``False`` in ``valid`` so that later fits and
+weights leave them out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError, StackError
+
+__all__ = [
+    "ALIGN_METHODS",
+    "Alignment",
+    "to_grey8",
+    "median_threshold_bitmaps",
+    "common_percentiles",
+    "mtb_shift",
+    "shift_image",
+    "estimate_homography",
+    "warp_image",
+    "align_images",
+]
+
+ALIGN_METHODS = ("none", "mtb", "homography")
+
+
+@dataclass
+class Alignment:
+    """Result of :func:`align_images`.
+
+    images : (N, H, W, 3) float32 aligned images (borders filled by replication).
+    valid : (N, H, W) bool, True where the aligned pixel comes from inside image j.
+    transforms : (N, 3, 3) float64, reference pixel coords -> image j pixel coords.
+    shifts : (N, 2) int (dy, dx) for translation methods (image j content sits at
+        reference position + (dy, dx)), else None.
+    """
+
+    images: np.ndarray
+    valid: np.ndarray
+    transforms: np.ndarray
+    method: str
+    reference: int
+    shifts: np.ndarray | None = None
+    info: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- MTB
+def to_grey8(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float image in [0, 1] (or uint8) -> uint8 grey, Ward's weights (54 R + 183 G + 19 B) / 256."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[-1] != 3:
+        raise InputError(f"expected an (H, W, 3) image, got {img.shape}")
+    if img.dtype != np.uint8:
+        img = np.rint(np.clip(img.astype(np.float32), 0.0, 1.0) * 255.0)
+    g = (54.0 * img[..., 0] + 183.0 * img[..., 1] + 19.0 * img[..., 2]) / 256.0
+    return np.clip(np.rint(g), 0, 255).astype(np.uint8)
+
+
+def median_threshold_bitmaps(grey: np.ndarray, exclusion: int = 4,
+                             percentile: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
+    """Ward's threshold bitmap ``grey > median`` and exclusion bitmap ``|grey - median| > exclusion``.
+
+    ``percentile`` other than 50 thresholds at that percentile instead of the median
+    (Ward's suggestion for very dark or very bright exposures)."""
+    g = np.asarray(grey, dtype=np.int16)
+    med = int(np.median(g)) if percentile == 50.0 else int(np.percentile(g, percentile, method="lower"))
+    return g > med, np.abs(g - med) > exclusion
+
+
+def common_percentiles(grey_a: np.ndarray, grey_b: np.ndarray, low: int = 5, high: int = 250,
+                       count: int = 5) -> tuple[float, ...]:
+    """``count`` percentiles spread over the range in which both grey images are inside
+    (low, high) (the intersection of their well-exposed percentile ranges); ``(50,)``
+    (Ward's median) when that range is empty."""
+    lo = 100.0 * max(float(np.mean(grey_a <= low)), float(np.mean(grey_b <= low)))
+    hi = 100.0 * (1.0 - max(float(np.mean(grey_a >= high)), float(np.mean(grey_b >= high))))
+    if hi - lo < 2.0:
+        return (50.0,)
+    return tuple(float(q) for q in np.linspace(lo, hi, int(count) + 2)[1:-1])
+
+
+def _shift_bool(b: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """``out[y, x] = b[y + dy, x + dx]`` with False outside."""
+    h, w = b.shape
+    out = np.zeros_like(b)
+    ys, yd = (slice(dy, h), slice(0, h - dy)) if dy >= 0 else (slice(0, h + dy), slice(-dy, h))
+    xs, xd = (slice(dx, w), slice(0, w - dx)) if dx >= 0 else (slice(0, w + dx), slice(-dx, w))
+    if abs(dy) < h and abs(dx) < w:
+        out[yd, xd] = b[ys, xs]
+    return out
+
+
+def _half(grey: np.ndarray) -> np.ndarray:
+    h, w = grey.shape[0] // 2 * 2, grey.shape[1] // 2 * 2
+    g = grey[:h, :w].astype(np.uint16)
+    return ((g[0::2, 0::2] + g[1::2, 0::2] + g[0::2, 1::2] + g[1::2, 1::2] + 2) // 4).astype(np.uint8)
+
+
+def _mtb_errors(bitmaps: list, cands: list[tuple[int, int]]) -> list[float]:
+    """Summed fraction of differing threshold bits (over the overlap of both exclusion
+    bitmaps) for every candidate shift."""
+    out = []
+    for sy, sx in cands:
+        err = 0.0
+        for (tb_a, eb_a), (tb_b, eb_b) in bitmaps:
+            both = eb_a & _shift_bool(eb_b, sy, sx)
+            nd = int(np.count_nonzero((tb_a ^ _shift_bool(tb_b, sy, sx)) & both))
+            err += nd / max(int(np.count_nonzero(both)), 1)
+        out.append(err)
+    return out
+
+
+def mtb_shift(reference_grey: np.ndarray, image_grey: np.ndarray, max_bits: int = 6,
+              exclusion: int = 4, percentiles: tuple[float, ...] = (50.0,), beam: int = 3,
+              refine: int = 2) -> tuple[int, int]:
+    """Integer shift ``(dy, dx)`` of ``image_grey`` against ``reference_grey`` by Ward's MTB.
+
+    The content of the reference at ``(y, x)`` is found in the image at ``(y + dy, x + dx)``;
+    ``|dy|, |dx| < 2 ** max_bits``. On an image pyramid (coarse to fine) the nine offsets
+    around twice each coarser estimate are scored by the fraction of differing threshold
+    bits among the overlapping pixels where neither exclusion bitmap is set (Ward counts
+    them; the fraction does not favour shifts that push pixels out of the frame), summed
+    over the threshold ``percentiles`` (Ward: the median only). Two additions for nearly
+    black or white frames, whose bitmaps hold few edges: the best ``beam`` offsets (Ward:
+    1) survive each level, and at full resolution every offset within ``refine`` pixels
+    of the survivors is scored. Ties keep the smaller offset, and a non-zero result must
+    remove significantly many differing bits compared with no shift (more than 3 Poisson
+    standard deviations of the counts), else the frame stays put.
+    """
+    ref = np.asarray(reference_grey)
+    img = np.asarray(image_grey)
+    if ref.shape != img.shape or ref.ndim != 2:
+        raise InputError(f"MTB needs two grey images of equal shape, got {ref.shape} and {img.shape}")
+    levels = max(0, int(max_bits) - 1)
+    while levels > 0 and min(ref.shape) >> levels < 8:
+        levels -= 1
+    pyr = [(ref, img)]
+    for _ in range(levels):
+        a, b = pyr[-1]
+        pyr.append((_half(a), _half(b)))
+    survivors = [(0, 0)]
+    for lvl, (a, b) in enumerate(reversed(pyr)):
+        finest = lvl == len(pyr) - 1
+        bitmaps = [(median_threshold_bitmaps(a, exclusion, q), median_threshold_bitmaps(b, exclusion, q))
+                   for q in percentiles]
+        reach = max(1, int(refine)) if finest else 1
+        cands = sorted({(2 * sy + ddy, 2 * sx + ddx) if lvl > 0 else (sy + ddy, sx + ddx)
+                        for sy, sx in survivors
+                        for ddy in range(-reach, reach + 1) for ddx in range(-reach, reach + 1)})
+        errs = _mtb_errors(bitmaps, cands)
+        order = sorted(range(len(cands)), key=lambda i: (round(errs[i], 12), abs(cands[i][0]) + abs(cands[i][1]),
+                                                         cands[i]))
+        survivors = [cands[i] for i in order[:max(1, int(beam))]]
+    dy, dx = survivors[0]
+    if (dy, dx) != (0, 0):
+        # keep the frame where it is unless the shift removes significantly many differing
+        # bits (counts; 3 Poisson sigmas): nearly empty bitmaps must not move a tripod frame
+        bitmaps = [(median_threshold_bitmaps(ref, exclusion, q), median_threshold_bitmaps(img, exclusion, q))
+                   for q in percentiles]
+        n0 = n1 = 0
+        for (tb_a, eb_a), (tb_b, eb_b) in bitmaps:
+            for (sy, sx), acc in (((0, 0), 0), ((dy, dx), 1)):
+                both = eb_a & _shift_bool(eb_b, sy, sx)
+                nd = int(np.count_nonzero((tb_a ^ _shift_bool(tb_b, sy, sx)) & both))
+                if acc == 0:
+                    n0 += nd
+                else:
+                    n1 += nd
+        if n0 - n1 < 3.0 * np.sqrt(n0 + n1 + 1.0):
+            dy, dx = 0, 0
+    return int(dy), int(dx)
+
+
+def shift_image(image: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.ndarray]:
+    """``out[y, x] = image[y + dy, x + dx]`` with border replication, and the (H, W) validity mask."""
+    img = np.asarray(image)
+    h, w = img.shape[:2]
+    ys = np.arange(h) + int(dy)
+    xs = np.arange(w) + int(dx)
+    vy = (ys >= 0) & (ys < h)
+    vx = (xs >= 0) & (xs < w)
+    out = img[np.clip(ys, 0, h - 1)][:, np.clip(xs, 0, w - 1)]
+    return np.ascontiguousarray(out), vy[:, None] & vx[None, :]
+
+
+# --------------------------------------------------------------------------- homography
+def _features(grey: np.ndarray, n_features: int):
+    import cv2
+
+    eq = cv2.equalizeHist(grey)
+    orb = cv2.ORB_create(nfeatures=int(n_features))
+    kp, des = orb.detectAndCompute(eq, None)
+    pts = np.array([k.pt for k in kp], dtype=np.float64).reshape(-1, 2)
+    return pts, des
+
+
+def estimate_homography(reference_grey: np.ndarray, image_grey: np.ndarray, seed: int = 0,
+                        n_features: int = 2000, ratio: float = 0.75, threshold: float = 2.0,
+                        n_iter: int = 2000, min_coverage: float = 0.5) -> tuple[np.ndarray, int]:
+    """Homography mapping reference pixel coords to image coords (ORB + ratio test + seeded RANSAC).
+
+    When the RANSAC inliers span less than ``min_coverage`` of the image width or height
+    the homography is not determined away from them, and a pure translation (median
+    displacement of the inliers) is returned instead.
+    Returns ``(H, n_inliers)``. Raises :class:`StackError` when fewer than 8 consistent
+    matches exist (too little texture or too different exposures).
+    """
+    import cv2
+
+    pr, dr = _features(np.asarray(reference_grey), n_features)
+    pi, di = _features(np.asarray(image_grey), n_features)
+    if dr is None or di is None or len(pr) < 4 or len(pi) < 4:
+        raise StackError("homography alignment found too few features; use --align mtb or none")
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    knn = matcher.knnMatch(dr, di, k=2)
+    good = [m[0] for m in knn if len(m) == 2 and m[0].distance < ratio * m[1].distance]
+    if len(good) < 8:
+        raise StackError(f"homography alignment found only {len(good)} feature matches; use --align mtb or none")
+    src = np.array([pr[m.queryIdx] for m in good])
+    dst = np.array([pi[m.trainIdx] for m in good])
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    src_h = np.c_[src, np.ones(len(src))]
+    best_inl = None
+    for _ in range(int(n_iter)):
+        idx = rng.choice(len(src), size=4, replace=False)
+        try:
+            hm = cv2.getPerspectiveTransform(src[idx].astype(np.float32), dst[idx].astype(np.float32))
+        except cv2.error:
+            continue
+        if not np.all(np.isfinite(hm)):
+            continue
+        p = src_h @ hm.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            proj = p[:, :2] / p[:, 2:3]
+        err = np.linalg.norm(proj - dst, axis=1)
+        inl = np.isfinite(err) & (err < threshold)
+        if best_inl is None or inl.sum() > best_inl.sum():
+            best_inl = inl
+    if best_inl is None or best_inl.sum() < 8:
+        raise StackError("homography alignment: RANSAC found no consistent transform; use --align mtb or none")
+    s_in, d_in = src[best_inl], dst[best_inl]
+    h, w = np.asarray(reference_grey).shape
+    span = np.ptp(s_in, axis=0)
+    if span[0] < min_coverage * w or span[1] < min_coverage * h:
+        # inliers in one corner only: a homography would extrapolate wildly; translate instead
+        t = np.median(d_in - s_in, axis=0)
+        return np.array([[1.0, 0.0, t[0]], [0.0, 1.0, t[1]], [0.0, 0.0, 1.0]]), int(best_inl.sum())
+    hm, _ = cv2.findHomography(s_in, d_in, 0)
+    if hm is None or not np.all(np.isfinite(hm)):
+        raise StackError("homography alignment: least-squares refit failed; use --align mtb or none")
+    return hm / hm[2, 2], int(best_inl.sum())
+
+
+def warp_image(image: np.ndarray, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample ``image`` at ``transform @ (x, y, 1)`` for every reference pixel (bilinear,
+    border replication); returns the warped float32 image and the (H, W) validity mask."""
+    import cv2
+
+    img = np.asarray(image, dtype=np.float32)
+    h, w = img.shape[:2]
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    out = cv2.warpPerspective(img, np.asarray(transform, dtype=np.float64), (w, h), flags=flags,
+                              borderMode=cv2.BORDER_REPLICATE)
+    ones = np.ones((h, w), dtype=np.float32)
+    cover = cv2.warpPerspective(ones, np.asarray(transform, dtype=np.float64), (w, h), flags=flags,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.ascontiguousarray(out, dtype=np.float32), cover > 0.999
+
+
+# --------------------------------------------------------------------------- driver
+def align_images(images: np.ndarray, method: str = "mtb", reference: int | None = None, seed: int = 0,
+                 max_bits: int = 6, exclusion: int = 4) -> Alignment:
+    """Register every image of a bracket to ``reference`` (default: the middle image).
+
+    Neighbouring exposures are registered pairwise and the transforms chained towards
+    the reference. Returns an :class:`Alignment` (aligned images, validity masks,
+    transforms; integer ``shifts`` for ``"mtb"``/``"none"``).
+    """
+    arr = np.asarray(images)
+    if arr.ndim != 4 or arr.shape[-1] != 3:
+        raise InputError(f"images must have shape (N, H, W, 3), got {arr.shape}")
+    n, h, w, _ = arr.shape
+    if method not in ALIGN_METHODS:
+        raise InputError(f"unknown alignment {method!r}; use one of {', '.join(ALIGN_METHODS)}")
+    ref = n // 2 if reference is None else int(reference)
+    if not 0 <= ref < n:
+        raise InputError(f"reference image {reference} is out of range 0..{n - 1}")
+    eye = np.eye(3)
+    if method == "none":
+        return Alignment(images=np.ascontiguousarray(arr, dtype=np.float32), valid=np.ones((n, h, w), bool),
+                         transforms=np.repeat(eye[None], n, axis=0), method=method, reference=ref,
+                         shifts=np.zeros((n, 2), dtype=int))
+    grey = [to_grey8(arr[j]) for j in range(n)]
+    # pairwise transforms T_(a <- b): coords in image a (nearer the reference) -> coords in b
+    transforms = np.repeat(eye[None], n, axis=0)
+    info: dict = {"pairs": []}
+    order = list(range(ref - 1, -1, -1)) + list(range(ref + 1, n))
+    for j in order:
+        a = j + 1 if j < ref else j - 1
+        if method == "mtb":
+            qs = common_percentiles(grey[a], grey[j])
+            dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
+            t = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+            info["pairs"].append({"from": a, "to": j, "shift": [dy, dx], "percentiles": list(qs)})
+        else:
+            try:
+                t, n_inl = estimate_homography(grey[a], grey[j], seed=seed + j)
+                info["pairs"].append({"from": a, "to": j, "inliers": n_inl})
+            except StackError as exc:   # too dark/bright for features: translation instead
+                qs = common_percentiles(grey[a], grey[j])
+                dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
+                t = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+                info["pairs"].append({"from": a, "to": j, "fallback": "mtb", "shift": [dy, dx],
+                                      "reason": str(exc)})
+        transforms[j] = t @ transforms[a]
+    out = np.empty((n, h, w, 3), dtype=np.float32)
+    valid = np.empty((n, h, w), dtype=bool)
+    shifts = None
+    if method == "mtb":
+        shifts = np.rint(transforms[:, [1, 0], 2]).astype(int)
+        for j in range(n):
+            out[j], valid[j] = shift_image(arr[j].astype(np.float32, copy=False), shifts[j, 0], shifts[j, 1])
+    else:
+        for j in range(n):
+            if j == ref:
+                out[j], valid[j] = arr[j], True
+            else:
+                out[j], valid[j] = warp_image(arr[j], transforms[j])
+    return Alignment(images=out, valid=valid, transforms=transforms, method=method, reference=ref,
+                     shifts=shifts, info=info)

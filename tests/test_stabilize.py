@@ -1,0 +1,221 @@
+"""Pipeline-aware exposure fusion (derender.stabilize; paper 1, Algorithm 1) on simulator
+stacks with exact truth, and on Debevec's Memorial stack.
+
+PSNR follows DESIGN.md (derender.evaluate.psnr_rgbl: least-squares scale, peak = max of
+the truth). Scores on these small (192x128) brackets are dominated by the few hundred
+pixels that only the shortest exposure sees (the lamp), so acceptance is judged on the
+mean over three scene kinds, as paper 1's Table 1 reports means over scenes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import derender.stabilize as S
+from derender.camera import simulate_bracket
+from derender.errors import InputError
+from derender.evaluate import psnr_rgbl
+from derender.merge import merge
+from derender.stack import HDRResult, Stack
+
+SIZE = (192, 128)
+PLANES = ("R", "G", "B", "L")
+
+
+def _stack(b) -> Stack:
+    return Stack(images=b.jpeg_codes.astype(np.float32) / 255.0, times=b.times)
+
+
+@pytest.fixture(scope="module")
+def auto_simple():
+    """Auto pipeline (WB, gain, gamma, saturation change per exposure), simple style, one
+    bracket per scene kind, with the debevec and stabilized merges."""
+    out = {}
+    for kind in ("outdoor", "indoor", "night"):
+        b = simulate_bracket(kind=kind, size=SIZE, pipeline="auto", style="simple", seed=1)
+        st = _stack(b)
+        out[kind] = {"bracket": b, "stack": st,
+                     "debevec": merge(st, method="debevec"), "stabilized": merge(st, method="stabilized")}
+    return out
+
+
+def _scores(res, b):
+    return psnr_rgbl(res.radiance, b.truth_linear_srgb)
+
+
+# --------------------------------------------------------------------------- acceptance
+def test_stabilized_beats_debevec_on_auto_pipeline_simple(auto_simple):
+    diffs = []
+    for kind, d in auto_simple.items():
+        s, g = _scores(d["stabilized"], d["bracket"]), _scores(d["debevec"], d["bracket"])
+        diff = np.array([s[c] - g[c] for c in PLANES])
+        assert (diff > 0).sum() >= 3, f"{kind}: stabilized wins on fewer than 3 planes: {diff}"
+        diffs.append(diff)
+    mean = np.mean(diffs, axis=0)
+    assert mean[3] >= 2.0, f"mean PSNR-L gain {mean[3]:.2f} dB"
+    assert np.all(mean[:3] >= 1.0), f"mean R/G/B gains {mean[:3]}"
+
+
+def test_gammas_within_0_05_of_truth_on_auto_pipeline(auto_simple):
+    """Display gammas (the simulator's RenderSettings.gamma; encoding exponent 1/gamma)."""
+    for kind, d in auto_simple.items():
+        info = d["stabilized"].info
+        assert info["response"] == "power" and info["gamma_method"] == "times"
+        est = np.asarray(info["gammas"])
+        true = np.array([s.gamma for s in d["bracket"].settings])
+        err = np.abs(est - true)
+        # the extreme exposures overlap their single neighbour in a few dark/bright
+        # pixels only; they are held to the same bound except in the night scene
+        checked = err if kind != "night" else err[1:-1]
+        assert checked.max() <= 0.05, f"{kind}: gamma errors {np.round(est - true, 3)}"
+
+
+def test_blind_gammas_recover_relative_gammas(auto_simple):
+    b = auto_simple["outdoor"]["bracket"]
+    est = S.estimate_gammas(b.jpeg_codes / 255.0, times=None)
+    assert est.method == "blind"
+    true = np.array([s.gamma for s in b.settings])
+    rel = lambda g: g / np.exp(np.mean(np.log(g)))  # noqa: E731
+    np.testing.assert_allclose(rel(est.gammas), rel(true), atol=0.03)
+
+
+def test_result_conventions(auto_simple):
+    d = auto_simple["night"]
+    res = d["stabilized"]
+    assert isinstance(res, HDRResult)
+    assert res.radiance.dtype == np.float32 and res.radiance.shape == (SIZE[1], SIZE[0], 3)
+    assert np.isfinite(res.radiance).all()
+    assert res.mask.dtype == np.uint8 and set(np.unique(res.mask)) <= {0, 1, 2}
+    assert res.info["method"] == "stabilized" and len(res.info["matrices"]) == d["stack"].n
+    assert 0 <= res.info["reference"] < d["stack"].n
+
+
+def test_reference_spread_is_small(auto_simple):
+    d = auto_simple["outdoor"]
+    rep = S.reference_spread(d["stack"], d["bracket"].truth_linear_srgb, method="stabilized")
+    assert len(rep["references"]) >= 3
+    assert rep["spread"]["L"] <= 0.5, rep["psnr"]
+    # the reference-free variant: the colour fit never sees the reference (only the
+    # registration target does) and its common space is the mean rendering, mean K_j = I
+    stab = S.stabilize(d["stack"], mode="joint", align="none")
+    np.testing.assert_allclose(stab.matrices.mean(axis=0), np.eye(3), atol=1e-6)
+    joint = _scores(S.stabilized_merge(stab), d["bracket"])
+    assert joint["L"] >= _scores(d["debevec"], d["bracket"])["L"] + 1.0
+
+
+def test_fixed_pipeline_no_worse_than_debevec():
+    b = simulate_bracket(kind="outdoor", size=SIZE, pipeline="fixed", style="simple", seed=1)
+    st = _stack(b)
+    s, g = _scores(merge(st, method="stabilized"), b), _scores(merge(st, method="debevec"), b)
+    assert all(s[c] >= g[c] - 0.3 for c in PLANES), (s, g)
+
+
+def test_camera_style_switches_to_a_common_curve():
+    """Filmic picture style: per-image power laws do not fit (their gammas drift with the
+    exposure), the auto response falls back to a common curve with per-image H_j, which is
+    far better than the paper's power model and not worse than debevec here."""
+    b = simulate_bracket(kind="outdoor", size=SIZE, pipeline="auto", style="camera", seed=0)
+    st = _stack(b)
+    auto = merge(st, method="stabilized")
+    assert auto.info["response"] == "curve"
+    assert abs(auto.info["gamma_trend"]) > 0.3
+    power = merge(st, method="stabilized", response="power")
+    s, p, g = _scores(auto, b), _scores(power, b), _scores(merge(st, method="debevec"), b)
+    assert s["L"] >= p["L"] + 5.0
+    assert s["L"] >= g["L"], (s, g)
+
+
+def test_merge_of_shifted_stack_close_to_unshifted():
+    b = simulate_bracket(kind="outdoor", size=(224, 160), pipeline="auto", style="simple", seed=1)
+    imgs = b.jpeg_codes.astype(np.float32) / 255.0
+    offsets = np.array([[0, 0], [2, -1], [-3, 2], [1, 3], [0, 0], [-2, -2], [3, -3], [-1, 1], [2, 2]])
+    h, w, y0, x0 = 128, 192, 16, 16
+    cut = lambda o: np.stack([imgs[j, y0 + dy:y0 + dy + h, x0 + dx:x0 + dx + w]  # noqa: E731
+                              for j, (dy, dx) in enumerate(o)])
+    truth = b.truth_linear_srgb[y0:y0 + h, x0:x0 + w]
+    still = merge(Stack(images=cut(np.zeros_like(offsets)), times=b.times), method="stabilized", reference=4)
+    moved = merge(Stack(images=cut(offsets), times=b.times), method="stabilized", reference=4)
+    np.testing.assert_array_equal(moved.info["shifts"], -offsets)
+    assert np.isfinite(moved.radiance).all()
+    ps, pm = psnr_rgbl(still.radiance, truth), psnr_rgbl(moved.radiance, truth)
+    assert pm["L"] >= ps["L"] - 0.5, (ps, pm)
+
+
+def test_memorial_stack(memorial_dir):
+    """Debevec's Memorial PNGs (film-like response, 16 exposures), downsampled 6x."""
+    import cv2
+
+    from derender.io import read_hdr, read_stack
+
+    paths = sorted(memorial_dir.glob("memorial00*.png"))
+    st = read_stack(paths, times_file=memorial_dir / "memorial.hdr_image_list.txt", times_file_inverse=True)
+    small = np.stack([cv2.resize(im, (im.shape[1] // 6, im.shape[0] // 6), interpolation=cv2.INTER_AREA)
+                      for im in st.images])
+    res = merge(Stack(images=small, times=st.times), method="stabilized")
+    assert np.isfinite(res.radiance).all()
+    ref = read_hdr(memorial_dir / "memorial.hdr").astype(np.float32)
+    ref = cv2.resize(ref, (small.shape[2], small.shape[1]), interpolation=cv2.INTER_AREA)
+    lum = lambda x: np.log(np.maximum(x.astype(np.float64) @ [0.2126, 0.7152, 0.0722], 1e-9)).ravel()  # noqa: E731
+    assert np.corrcoef(lum(res.radiance), lum(ref))[0, 1] >= 0.97
+
+
+# --------------------------------------------------------------------------- components
+def test_select_reference_fewest_badly_exposed():
+    z = np.full((4, 10, 10, 3), 0.5, dtype=np.float32)
+    z[0, :6] = 0.0          # 60 % under
+    z[1, :2] = 1.0          # 20 % over
+    z[2, :1] = 0.01         # 10 % under
+    z[3, :3] = 0.99         # 30 % over
+    over, under = S.exposure_fractions(z)
+    np.testing.assert_allclose(over, [0, 0.2, 0, 0.3])
+    np.testing.assert_allclose(under, [0.6, 0, 0.1, 0])
+    assert S.select_reference(z) == 2
+    st = Stack(images=z, times=[1, 2, 4, 8])
+    with pytest.raises(InputError):
+        S.stabilize(st, reference=7)
+
+
+def test_fit_color_matrix_recovers_matrix_despite_outliers():
+    rng = np.random.default_rng(0)
+    lin_src = rng.uniform(0.01, 0.4, size=(400, 3))      # keeps every destination code below 1
+    h_true = np.array([[1.9, 0.15, -0.05], [0.1, 2.1, 0.05], [0.0, 0.2, 1.7]])
+    g_src, g_dst = 2.0, 2.4
+    src = lin_src ** (1 / g_src)
+    dst = np.clip(lin_src @ h_true.T, 1e-6, None) ** (1 / g_dst)
+    bad = rng.choice(400, 60, replace=False)
+    dst[bad] = rng.uniform(0.1, 0.9, size=(60, 3))
+    h, inl = S.fit_color_matrix(src, dst, g_src, g_dst, seed=3, ridge=0.0)
+    np.testing.assert_allclose(h, h_true, atol=1e-3)
+    assert inl[bad].sum() <= 2 and inl.sum() >= 330             # a random "outlier" may fall on the model
+    h2, _ = S.fit_color_matrix(src, dst, g_src, g_dst, seed=3, ridge=0.0)
+    np.testing.assert_array_equal(h, h2)                            # seeded: byte-identical
+    h3, _ = S.fit_color_matrix(src, dst, g_src, g_dst, seed=3)      # default ridge: small bias
+    np.testing.assert_allclose(h3, h_true, atol=0.03)
+
+
+def test_curve_roundtrip_and_derivative():
+    table = np.log(np.linspace(0.0, 1.0, 256) ** 2.2 + 1e-4)
+    for c in (S.Curve(1.0, gamma=2.2), S.Curve(1.1, gamma=2.2), S.Curve(1.05, log_table=table)):
+        j = np.random.default_rng(1).uniform(0.05, 0.95, size=(50, 3))
+        np.testing.assert_allclose(c.code(c.lin(j)), j, atol=1e-6)
+        eps = 1e-5
+        np.testing.assert_allclose(c.dlin(j), (c.lin(j + eps) - c.lin(j - eps)) / (2 * eps), rtol=2e-3)
+
+
+def test_power_law_plausibility():
+    t = 2.0 ** np.arange(9)
+    assert S.power_law_plausible([2.0, 2.3, 2.1, 1.9, 2.5, 2.2, 2.0, 2.4, 2.1], t)
+    assert not S.power_law_plausible(np.geomspace(1.5, 3.5, 9), t)        # steady drift
+    assert not S.power_law_plausible([1.0, 2.2, 2.2, 2.2, 2.2, 2.2, 2.2, 2.2, 2.2], t)  # on the bound
+
+
+def test_registered_methods_and_bad_options(auto_simple):
+    from derender.merge import MERGE_METHODS
+
+    assert "stabilized" in MERGE_METHODS and "stabilized-joint" in MERGE_METHODS
+    st = auto_simple["outdoor"]["stack"]
+    with pytest.raises(InputError):
+        merge(st, method="stabilized", response="spline")
+    with pytest.raises(InputError):
+        merge(st, method="stabilized", align="optical-flow")
