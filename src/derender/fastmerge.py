@@ -659,43 +659,10 @@ def read_codes(path: str | os.PathLike, out: np.ndarray | None = None) -> np.nda
 
 def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None,
                times_file: str | os.PathLike | None = None, times_file_inverse: bool = False) -> np.ndarray:
-    """Exposure times of image files without decoding them (the rules and messages of :func:`derender.io.read_stack`)."""
-    from .io import RAW_SUFFIXES, read_exposure_time, read_times_file
+    """Exposure times of image files without decoding them (see :func:`derender.io.file_times`)."""
+    from .io import file_times as _file_times
 
-    paths = [Path(p) for p in paths]
-    if len(paths) < 2:
-        raise InputError("an exposure stack needs at least two images")
-    seen: set[Path] = set()
-    for p in paths:
-        r = p.resolve()
-        if r in seen:
-            raise InputError(f"the same file is given twice: {p}")
-        seen.add(r)
-    for p in paths:
-        if not p.is_file():
-            raise InputError(f"no such file: {p}")
-        if p.suffix.lower() in RAW_SUFFIXES:
-            raise InputError(f"{p} is a RAW file; use 'derender groundtruth' for RAW brackets")
-    if times is not None:
-        t = [float(x) for x in times]
-        if len(t) != len(paths):
-            raise InputError(f"{len(t)} exposure time(s) given for {len(paths)} image(s)")
-    elif times_file is not None:
-        table = read_times_file(times_file, inverse=times_file_inverse)
-        missing = [p.name for p in paths if p.name not in table]
-        if missing:
-            raise InputError(f"times file {times_file} has no entry for: {', '.join(missing)}")
-        t = [table[p.name] for p in paths]
-    else:
-        t, missing = [], []
-        for p in paths:
-            v = read_exposure_time(p)
-            if v is None:
-                missing.append(p.name)
-            t.append(v if v is not None else 0.0)
-        if missing:
-            raise InputError(f"no EXIF ExposureTime in {', '.join(missing)}; give --times or --times-file")
-    return validate_times(t, len(paths))
+    return _file_times(paths, times, times_file, times_file_inverse)
 
 
 def _prefetch(fn: Callable[[Any], Any], items: Sequence[Any], depth: int = 1, workers: int = 1) -> Iterator[Any]:

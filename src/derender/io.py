@@ -28,6 +28,7 @@ __all__ = [
     "parse_times",
     "read_times_file",
     "read_stack",
+    "file_times",
     "read_raw",
     "read_raw_stack",
     "write_exr",
@@ -245,26 +246,22 @@ def read_times_file(path: str | os.PathLike, inverse: bool = False) -> dict[str,
     return out
 
 
-def read_stack(
-    paths: Sequence[str | os.PathLike],
-    times: Sequence[float] | None = None,
-    times_file: str | os.PathLike | None = None,
-    times_file_inverse: bool = False,
-) -> Stack:
-    """Read a bracketed stack of rendered images, sorted by exposure time.
+def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None,
+               times_file: str | os.PathLike | None = None, times_file_inverse: bool = False) -> np.ndarray:
+    """Exposure times of image files without decoding them, in the order of ``paths``.
 
-    Times come from ``times`` (one per path, in the given order), else ``times_file``
-    (matched by file name), else each file's EXIF ``ExposureTime``.
+    From ``times`` (one per path), else ``times_file`` (matched by file name), else each
+    file's EXIF ``ExposureTime``; checks the paths exist, are distinct and not RAW files.
     """
     paths = [Path(p) for p in paths]
     if len(paths) < 2:
         raise InputError("an exposure stack needs at least two images")
-    seen: dict[Path, Path] = {}
+    seen: set[Path] = set()
     for p in paths:
         r = p.resolve()
         if r in seen:
             raise InputError(f"the same file is given twice: {p}")
-        seen[r] = p
+        seen.add(r)
     for p in paths:
         if not p.is_file():
             raise InputError(f"no such file: {p}")
@@ -281,18 +278,30 @@ def read_stack(
             raise InputError(f"times file {times_file} has no entry for: {', '.join(missing)}")
         t = [table[p.name] for p in paths]
     else:
-        t = []
-        missing = []
+        t, missing = [], []
         for p in paths:
             v = read_exposure_time(p)
             if v is None:
                 missing.append(p.name)
             t.append(v if v is not None else 0.0)
         if missing:
-            raise InputError(
-                f"no EXIF ExposureTime in {', '.join(missing)}; give --times or --times-file"
-            )
-    validate_times(t, len(paths))
+            raise InputError(f"no EXIF ExposureTime in {', '.join(missing)}; give --times or --times-file")
+    return validate_times(t, len(paths))
+
+
+def read_stack(
+    paths: Sequence[str | os.PathLike],
+    times: Sequence[float] | None = None,
+    times_file: str | os.PathLike | None = None,
+    times_file_inverse: bool = False,
+) -> Stack:
+    """Read a bracketed stack of rendered images, sorted by exposure time.
+
+    Times come from ``times`` (one per path, in the given order), else ``times_file``
+    (matched by file name), else each file's EXIF ``ExposureTime``.
+    """
+    paths = [Path(p) for p in paths]
+    t = file_times(paths, times, times_file, times_file_inverse)
 
     images: list[np.ndarray] = []
     depths: list[int] = []
