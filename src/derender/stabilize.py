@@ -1046,7 +1046,8 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
                          curves=curves, how=how, info=info)
 
 
-def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True) -> HDRResult:
+def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
+                     pixel_weights: np.ndarray | None = None) -> HDRResult:
     """Paper 1, Algorithm 1 step 4: weighted average of the stabilised linear images through
     :func:`derender.merge.merge_linear`. H_j mixes channels, so a pixel of image j gets one
     weight for all channels, times its registration mask: the smallest trapezoid weight
@@ -1062,12 +1063,13 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     curve, otherwise counts as much as a well-exposed one and dominates a linear average
     with its noise. Linear result: the reference's colour rendering
     (``mode="reference"``, radiance per second of the reference's exposure) or the common
-    average rendering (``mode="joint"``). 8-bit stacks with integer alignment take the
-    table path of :func:`derender.fastmerge.merge_stabilized_table` (same result to 1e-5)."""
+    average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
+    weights (normalised per pixel). 8-bit stacks with integer alignment and no
+    ``pixel_weights`` take the table path of :func:`derender.fastmerge.merge_stabilized_table` (same result to 1e-5)."""
     from .fastmerge import merge_stabilized_table
     from .merge import get_weight, merge_linear
 
-    fast = merge_stabilized_table(stab, weight, noise_weighting)
+    fast = merge_stabilized_table(stab, weight, noise_weighting) if pixel_weights is None else None
     if fast is not None:
         fast.info.update(_stab_info(stab))
         return fast
@@ -1089,6 +1091,13 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
                                                            1e-30) for j in range(n)])
         inv = inv / np.maximum(inv.max(axis=0, keepdims=True), 1e-300)
         wts = (wts * inv).astype(np.float32)
+    if pixel_weights is not None:
+        # extra per-image, per-pixel reliability (e.g. inverse relative variance of a de-rendering model)
+        pw = np.asarray(pixel_weights, dtype=np.float64)
+        if pw.shape != wts.shape or not np.all(np.isfinite(pw)) or np.any(pw < 0):
+            raise InputError(f"pixel_weights must be finite, non-negative, shape {wts.shape}")
+        pw = pw / np.maximum(pw.max(axis=0, keepdims=True), 1e-300)
+        wts = (wts * pw).astype(np.float32)
     # the engine's saturation fallback then sees the brightest channel of each pixel
     zmax = np.repeat(al.images.max(axis=-1, keepdims=True), 3, axis=-1)
 
