@@ -126,3 +126,17 @@ def test_merge_batch_equals_serial(tmp_path, capsys):
     (tmp_path / "bad").mkdir()
     code, out, err = run_cli(["merge-batch", tmp_path / "bad", "-o", tmp_path / "x", "--scheduler", "serial"], capsys)
     assert code == 2 and "at least two images" in out + err
+
+
+def test_stabilized_probabilistic_runs_and_is_close_to_stabilized(model_file):
+    from derender.evaluate import psnr_rgbl
+    from derender.merge import merge
+
+    b = simulate_bracket(size=(96, 64), exposures=5, pipeline="auto", style="simple", seed=1)
+    st = Stack(images=b.jpeg_codes / 255.0, times=b.times)
+    both = merge(st, method="stabilized-probabilistic", model=load_model(model_file))
+    alone = merge(st, method="stabilized")
+    assert np.all(np.isfinite(both.radiance))
+    s_both = psnr_rgbl(both.radiance, b.truth_linear_srgb)["L"]
+    s_alone = psnr_rgbl(alone.radiance, b.truth_linear_srgb)["L"]
+    assert abs(s_both - s_alone) < 3.0, (s_both, s_alone)
