@@ -79,7 +79,7 @@ def rbf(data):
 
 
 # ----------------------------------------------------------------------------- accuracy
-def test_gp_beats_polynomial_baseline(data, gp, poly, rbf):
+def test_gp_and_polynomial_accuracy(data, gp, poly, rbf):
     _, _, jte, rte = data
     nonblack = jte.max(axis=1) >= 8          # a colour rendered black has unbounded relative error
     unclipped = nonblack & (jte.max(axis=1) < 255)
@@ -90,10 +90,11 @@ def test_gp_beats_polynomial_baseline(data, gp, poly, rbf):
         rel[name] = (D.relative_rmse(mean[nonblack], rte[nonblack]), D.relative_rmse(mean[unclipped], rte[unclipped]))
     print("relative RMSE (non-black, unclipped):", rel,
           "ratio gp/poly: %.2f, %.2f" % (rel["gp"][0] / rel["poly"][0], rel["gp"][1] / rel["poly"][1]))
-    # measured: gp 0.33 / 0.15, poly 0.38 / 0.33 -> ratios 0.85 / 0.45 (5000 pairs: 0.75 / 0.30)
-    assert rel["gp"][1] < 0.6 * rel["poly"][1]
-    assert rel["gp"][0] < 0.95 * rel["poly"][0]
-    assert rel["gp"][1] < 0.2
+    # measured: gp 0.33 / 0.151, poly 0.28 / 0.155, rbf 0.30 / 0.20. This renderer is a
+    # Chakrabarti-family camera except for its gamut mapping and highlight roll-off, so the
+    # (robustly fitted) polynomial baseline is strong here; the GP's edge is its variance.
+    assert rel["gp"][1] < 0.2 and rel["poly"][1] < 0.2
+    assert rel["gp"][1] < 1.1 * rel["poly"][1]
     # clipped colours have wide, skewed posteriors: the predictive median is the better point
     # estimate under relative error (measured 0.26 vs mean 0.33)
     med, msd = gp.predict(jte, point="median")
@@ -101,7 +102,7 @@ def test_gp_beats_polynomial_baseline(data, gp, poly, rbf):
     assert np.all(med <= mean) and np.all(msd >= var)
     rel_med = D.relative_rmse(med[nonblack], rte[nonblack])
     print("gp point=median relative RMSE (non-black): %.3f" % rel_med)
-    assert rel_med < 0.85 * rel["gp"][0] and rel_med < 0.8 * rel["poly"][0]
+    assert rel_med < 0.85 * rel["gp"][0] and rel_med < rel["poly"][0]
     mu, _ = gp.predict_log(jte)
     np.testing.assert_allclose(med, np.exp(mu) - gp.eps, rtol=1e-5, atol=1e-6 * gp.eps)
 
@@ -325,3 +326,58 @@ def test_metrics_on_known_values():
     cov = D.interval_coverage(np.zeros_like(x), sd ** 2, x, level=0.95)
     np.testing.assert_allclose(cov, 0.95, atol=0.003)
     assert D.interval_coverage(np.zeros_like(x), sd ** 2, x, level=0.5) == pytest.approx(0.5, abs=0.005)
+
+
+# ----------------------------------------------------------------------------- polynomial baseline
+POLY_C = np.array([[1.30, -0.25, -0.05], [-0.15, 1.25, -0.10], [0.02, -0.30, 1.28]])
+
+
+def _chakrabarti_render(raw: np.ndarray) -> np.ndarray:
+    """A camera *in* the Chakrabarti family (3x3 then per-channel monotone curves) plus sensor saturation.
+
+    The curve (Reinhard shoulder, then the sRGB OETF) is not a polynomial. Colours whose raw
+    value exceeds the sensor's white (1) are clipped before C and, as white renders below 255,
+    keep unclipped codes: for them the stored raw is the unclipped truth and the rendering is not
+    the model's -- the outliers of real calibration data that broke the earlier fit.
+    """
+    u = np.minimum(raw, 1.0) @ POLY_C.T
+    g = np.clip(1.1 * u / (u + 0.25), 0.0, 1.0)         # white renders at code 241: saturated stays unclipped
+    s = np.where(g <= 0.0031308, 12.92 * g, 1.055 * g ** (1 / 2.4) - 0.055)
+    return np.round(255 * s).astype(np.uint8)
+
+
+def _chakrabarti_pairs(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    base = rng.dirichlet([3.0, 3.0, 3.0], 3000) * rng.uniform(0.5, 1.5, (3000, 1))
+    raw = base * 2.0 ** rng.uniform(-9.0, 3.0, (3000, 1))           # 12 stops, 15 % sensor-saturated
+    return _chakrabarti_render(raw), raw
+
+
+def test_polynomial_recovers_chakrabarti_camera_despite_saturated_pairs():
+    jpeg, raw = _chakrabarti_pairs(0)
+    model = D.PolynomialModel().fit(jpeg[:2000], raw[:2000])
+    jte, rte = jpeg[2000:], raw[2000:]
+    ok = (rte.max(axis=1) < 1.0) & (jte.min(axis=1) >= 20)          # not sensor-saturated, not dark
+    mean, _ = model.predict(jte)
+    err = D.median_relative_error(mean[ok], rte[ok])
+    print("poly on a Chakrabarti-family camera: median relative error %.4f (%d colours)" % (err, ok.sum()))
+    assert err < 0.012                                    # measured 0.0084; the pre-fix fit gave 0.56
+    # the rows of C are identifiable up to scale (the curves absorb the scale)
+    unit = lambda m: m / np.linalg.norm(m, axis=1, keepdims=True)  # noqa: E731
+    np.testing.assert_allclose(unit(model.C), unit(POLY_C), atol=0.01)
+    # the curves are monotone, so the de-rendered u grows with the code in every channel
+    assert np.all(np.diff(model.bernstein, axis=1) >= 0)
+    assert np.all(np.diff(model._u_of_code, axis=0) >= 0)
+
+
+def test_polynomial_stable_across_subsets_and_equivariant_to_raw_units():
+    jpeg, raw = _chakrabarti_pairs(1)
+    a = D.fit_model("poly", jpeg[:1500], raw[:1500])
+    b = D.fit_model("poly", jpeg[1500:], raw[1500:])               # disjoint training set
+    c = D.fit_model("poly", jpeg[:1500], raw[:1500] * 1000.0)      # other raw units
+    cols = np.random.default_rng(2).integers(10, 250, (2000, 3)).astype(np.uint8)
+    ma, mb, mc = a.predict(cols)[0], b.predict(cols)[0], c.predict(cols)[0]
+    assert D.median_relative_error(mb, ma) < 0.01
+    np.testing.assert_allclose(mc, 1000.0 * ma, rtol=1e-4, atol=1e-3 * np.abs(ma).max())
+    again = D.fit_model("poly", jpeg[:1500], raw[:1500])
+    assert again.predict(cols)[0].tobytes() == ma.tobytes()
