@@ -1,0 +1,40 @@
+"""Small versions of paper 2's experiments (the full ones: 'derender experiment ...')."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from derender.chart import chart_pairs
+from derender.derendering import fit_model
+from derender.experiments import (JPEG_INTERVALS, derender_table, format_table, photometric_stereo_experiment,
+                                  threshold_sweep)
+
+
+def test_derender_table_small():
+    rows = derender_table(["nikon-d5100"], methods=("gp", "poly"), n_train=800, n_illuminants=3, n_exposures=8)
+    assert [r["method"] for r in rows] == ["gp", "poly"]
+    for r in rows:
+        assert np.isfinite(r["rel_rmse_all"]) and 0 < r["median_rel"] < 1
+        assert all(0.5 < c <= 1 for c in r["coverage95"])
+    text = format_table(rows, [("method", "method", ""), ("rel_rmse_all", "rel", ".3f")])
+    assert "| gp |" in text
+
+
+def test_threshold_sweep_small():
+    rows = threshold_sweep(["nikon-d5100"], methods=("gp",), n_train=600, holdouts=[1], n_illuminants=3,
+                           n_exposures=8)
+    assert len(rows) == len(JPEG_INTERVALS)
+    errs = [r["rel_rmse_all"] for r in rows]
+    assert all(np.isfinite(errs)) and max(errs) < 0.5
+
+
+@pytest.mark.parametrize("shape", ["sphere"])
+def test_photometric_stereo_small_orders_methods(shape):
+    pairs = chart_pairs("nikon-d5100", n_illuminants=4, n_exposures=12)
+    tr = np.random.default_rng(0).permutation(pairs.jpeg.shape[0])[:1500]
+    models = {m: fit_model(m, pairs.jpeg[tr], pairs.raw[tr]) for m in ("gp", "poly")}
+    rows = photometric_stereo_experiment("nikon-d5100", n_lights=12, size=48, shapes=(shape,), models=models)
+    err = {r["method"]: r["mean_angular_error_deg"] for r in rows}
+    assert err["gp (weighted LS)"] < err["gamma 2.2 (LS)"]
+    assert err["poly (LS)"] < err["gamma 2.2 (LS)"]
