@@ -95,3 +95,18 @@ def test_align_rejects_bad_arguments(wide_bracket):
         align_images(wide_bracket, "optical-flow")
     with pytest.raises(InputError):
         align_images(wide_bracket, "mtb", reference=12)
+
+
+def test_mtb_band_scoring_on_large_frames_recovers_shifts(wide_bracket, monkeypatch):
+    """Levels above MTB_PIXELS are scored on bands of rows (lazy bitmaps); forced here on
+    small frames, the shifts are still recovered exactly."""
+    import derender.align as A
+
+    monkeypatch.setattr(A, "MTB_PIXELS", 4096)
+    rng = np.random.default_rng(2)
+    offsets = rng.integers(-6, 7, size=(9, 2))
+    offsets[4] = 0
+    al = align_images(_cut(wide_bracket, offsets), "mtb", reference=4)
+    np.testing.assert_array_equal(al.shifts, -offsets)
+    tripod = align_images(wide_bracket, "mtb", reference=4)
+    np.testing.assert_array_equal(tripod.shifts, 0)

@@ -219,3 +219,37 @@ def test_registered_methods_and_bad_options(auto_simple):
         merge(st, method="stabilized", response="spline")
     with pytest.raises(InputError):
         merge(st, method="stabilized", align="optical-flow")
+
+
+def test_blocks_gathered_without_full_copies_match_block_view():
+    """_make_blocks gathers only the kept blocks; they equal the full block view's."""
+    rng = np.random.default_rng(4)
+    imgs = rng.random((3, 37, 51, 3))
+    valid = rng.random((3, 37, 51)) > 0.05
+    blocks = S._make_blocks(imgs, valid, 2, 200, seed=5)
+    full = np.stack([S._block_view(imgs[j], 2) for j in range(3)])
+    vfull = np.stack([S._block_view(np.repeat(valid[j][..., None], 3, axis=2).astype(float), 2).min(axis=(1, 2)) > 0.5
+                      for j in range(3)])
+    # the kept blocks are a subset of the full view's, in order, with matching validity
+    flat = full.reshape(3, full.shape[1], -1)
+    keep = [int(np.flatnonzero((flat[0] == b.ravel()).all(axis=1))[0]) for b in blocks.codes[0]]
+    assert keep == sorted(keep) and len(set(keep)) == 200
+    np.testing.assert_array_equal(blocks.codes, full[:, keep])
+    np.testing.assert_array_equal(blocks.valid, vfull[:, keep])
+
+
+def test_fit_color_matrix_scores_hypotheses_on_a_subset():
+    """Preemptive RANSAC: ranking on 300 of 3000 correspondences still finds H and all inliers."""
+    rng = np.random.default_rng(6)
+    lin_src = rng.uniform(0.01, 0.4, size=(3000, 3))
+    h_true = np.array([[1.9, 0.15, -0.05], [0.1, 2.1, 0.05], [0.0, 0.2, 1.7]])
+    src = lin_src ** (1 / 2.2)
+    dst = np.clip(lin_src @ h_true.T, 1e-6, None) ** (1 / 2.4)
+    bad = rng.choice(3000, 600, replace=False)
+    dst[bad] = rng.uniform(0.1, 0.9, size=(600, 3))
+    h, inl = S.fit_color_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=300)
+    np.testing.assert_allclose(h, h_true, atol=3e-3)      # a few random "outliers" fall on the model
+    assert inl[bad].sum() <= 10 and inl.sum() >= 2350
+    h_all, inl_all = S.fit_color_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=3000)
+    np.testing.assert_allclose(h, h_all, atol=1e-6)       # same answer as ranking on all of them
+    np.testing.assert_array_equal(inl, inl_all)

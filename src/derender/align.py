@@ -75,18 +75,51 @@ def to_grey8(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[-1] != 3:
         raise InputError(f"expected an (H, W, 3) image, got {img.shape}")
-    if img.dtype != np.uint8:
-        img = np.rint(np.clip(img.astype(np.float32), 0.0, 1.0) * 255.0)
-    g = (54.0 * img[..., 0] + 183.0 * img[..., 1] + 19.0 * img[..., 2]) / 256.0
-    return np.clip(np.rint(g), 0, 255).astype(np.uint8)
+    h, w = img.shape[:2]
+    out = np.empty((h, w), dtype=np.uint8)
+    rows = max(1, (1 << 16) // max(w, 1))          # row blocks: small float32 temporaries
+    for r0 in range(0, h, rows):
+        blk = img[r0:r0 + rows]
+        if blk.dtype != np.uint8:
+            c = np.clip(blk.astype(np.float32), 0.0, 1.0)
+            c *= np.float32(255.0)
+            np.rint(c, out=c)
+        else:
+            c = blk.astype(np.float32)
+        # integer codes: the weighted sum and /256 are exact in float32, as in float64
+        g = np.float32(54.0) * c[..., 0] + np.float32(183.0) * c[..., 1] + np.float32(19.0) * c[..., 2]
+        g /= np.float32(256.0)
+        out[r0:r0 + rows] = np.clip(np.rint(g), 0, 255)
+    return out
 
 
-def median_threshold_bitmaps(grey: np.ndarray, exclusion: int = 4,
-                             percentile: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
+def _grey_threshold(g: np.ndarray, percentile: float, cum: np.ndarray | None = None) -> int:
+    """``int(np.median(g))`` (percentile 50) or ``np.percentile(g, q, method="lower")`` of a
+    uint8 image, from its cumulative histogram ``cum`` (computed if None; no sort, same value)."""
+    if cum is None:
+        cum = np.cumsum(np.bincount(g.ravel(), minlength=256))
+    n = int(cum[-1])
+
+    def kth(k: int) -> int:            # k-th smallest value (0-based)
+        return int(np.searchsorted(cum, k, side="right"))
+
+    if percentile == 50.0:
+        return kth(n // 2) if n % 2 else int((kth(n // 2 - 1) + kth(n // 2)) / 2.0)
+    q = np.true_divide(float(percentile), 100)
+    return kth(int(np.floor(q * (n - 1))))
+
+
+def median_threshold_bitmaps(grey: np.ndarray, exclusion: int = 4, percentile: float = 50.0,
+                             _cum: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Ward's threshold bitmap ``grey > median`` and exclusion bitmap ``|grey - median| > exclusion``.
 
     ``percentile`` other than 50 thresholds at that percentile instead of the median
     (Ward's suggestion for very dark or very bright exposures)."""
+    grey = np.asarray(grey)
+    if grey.dtype == np.uint8 and grey.size:
+        med = _grey_threshold(grey, percentile, _cum)
+        lo, hi = med - exclusion, med + exclusion          # |g - med| > exclusion on uint8 without a widening copy
+        return grey > med, (grey < lo) | (grey > hi) if lo >= 0 else grey > hi
     g = np.asarray(grey, dtype=np.int16)
     med = int(np.median(g)) if percentile == 50.0 else int(np.percentile(g, percentile, method="lower"))
     return g > med, np.abs(g - med) > exclusion
@@ -97,8 +130,30 @@ def common_percentiles(grey_a: np.ndarray, grey_b: np.ndarray, low: int = 5, hig
     """``count`` percentiles spread over the range in which both grey images are inside
     (low, high) (the intersection of their well-exposed percentile ranges); ``(50,)``
     (Ward's median) when that range is empty."""
-    lo = 100.0 * max(float(np.mean(grey_a <= low)), float(np.mean(grey_b <= low)))
-    hi = 100.0 * (1.0 - max(float(np.mean(grey_a >= high)), float(np.mean(grey_b >= high))))
+    def fracs(g: np.ndarray) -> tuple[float, float]:
+        if g.dtype == np.uint8 and g.size and int(low) == low and int(high) == high and 0 <= low <= high <= 255:
+            hist = np.bincount(g.ravel(), minlength=256)
+            return float(hist[:int(low) + 1].sum()) / g.size, float(hist[int(high):].sum()) / g.size
+        return float(np.mean(g <= low)), float(np.mean(g >= high))
+
+    (la, ha), (lb, hb) = fracs(np.asarray(grey_a)), fracs(np.asarray(grey_b))
+    lo = 100.0 * max(la, lb)
+    hi = 100.0 * (1.0 - max(ha, hb))
+    if hi - lo < 2.0:
+        return (50.0,)
+    return tuple(float(q) for q in np.linspace(lo, hi, int(count) + 2)[1:-1])
+
+
+def _common_percentiles_hist(hist_a: np.ndarray, hist_b: np.ndarray, low: int = 5, high: int = 250,
+                             count: int = 5) -> tuple[float, ...]:
+    """:func:`common_percentiles` from the two grey histograms (same result)."""
+    def fracs(hist: np.ndarray) -> tuple[float, float]:
+        tot = int(hist.sum())
+        return float(hist[:low + 1].sum()) / tot, float(hist[high:].sum()) / tot
+
+    (la, ha), (lb, hb) = fracs(hist_a), fracs(hist_b)
+    lo = 100.0 * max(la, lb)
+    hi = 100.0 * (1.0 - max(ha, hb))
     if hi - lo < 2.0:
         return (50.0,)
     return tuple(float(q) for q in np.linspace(lo, hi, int(count) + 2)[1:-1])
@@ -121,18 +176,133 @@ def _half(grey: np.ndarray) -> np.ndarray:
     return ((g[0::2, 0::2] + g[1::2, 0::2] + g[0::2, 1::2] + g[1::2, 1::2] + 2) // 4).astype(np.uint8)
 
 
+def _bitmap_pairs(a: np.ndarray, b: np.ndarray, exclusion: int, percentiles) -> list:
+    """[(bitmaps of a, bitmaps of b)] per percentile; uint8 histograms computed once.
+
+    Images above :data:`MTB_PIXELS` get lazy bitmaps (:class:`_RowBitmaps`: threshold
+    now, bits only for the rows that are scored; thresholds from the histogram of every
+    k-th row)."""
+    h, w = a.shape
+    step = -(-h * w // MTB_PIXELS)
+    if step > 1 and h >= 64 and a.dtype == np.uint8 and b.dtype == np.uint8:
+        ca = np.cumsum(np.bincount(a[::step].ravel(), minlength=256))
+        cb = np.cumsum(np.bincount(b[::step].ravel(), minlength=256))
+        return [(_RowBitmaps(a, _grey_threshold(a, q, ca), exclusion),
+                 _RowBitmaps(b, _grey_threshold(b, q, cb), exclusion)) for q in percentiles]
+    ca = np.cumsum(np.bincount(a.ravel(), minlength=256)) if a.dtype == np.uint8 and a.size else None
+    cb = np.cumsum(np.bincount(b.ravel(), minlength=256)) if b.dtype == np.uint8 and b.size else None
+    return [(median_threshold_bitmaps(a, exclusion, q, ca), median_threshold_bitmaps(b, exclusion, q, cb))
+            for q in percentiles]
+
+
+class _RowBitmaps:
+    """Threshold and exclusion bitmaps of a uint8 grey image, computed for requested rows only."""
+
+    def __init__(self, grey: np.ndarray, med: int, exclusion: int):
+        self.grey, self.med, self.exclusion = grey, int(med), int(exclusion)
+        self.shape = grey.shape
+
+    def rows(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        g = self.grey[idx]
+        lo, hi = self.med - self.exclusion, self.med + self.exclusion
+        return g > self.med, ((g < lo) | (g > hi)) if lo >= 0 else g > hi
+
+
+#: MTB scores each candidate shift on at most about this many pixels per pyramid level:
+#: larger levels are scored on evenly spaced bands of rows (see :func:`_mtb_counts`).
+MTB_PIXELS = 1 << 19
+
+
+def _pack(b: np.ndarray) -> np.ndarray:
+    """Bool (..., W) -> rows of 64-bit words (zero padded), 64 pixels per word."""
+    p = np.packbits(b, axis=-1)
+    pad = -p.shape[-1] % 8
+    if pad:
+        p = np.concatenate([p, np.zeros(p.shape[:-1] + (pad,), np.uint8)], axis=-1)
+    return p.view(np.uint64)
+
+
+def _mtb_counts(bitmaps: list, cands: list[tuple[int, int]],
+                max_pixels: int | None = None) -> list[list[tuple[int, int]]]:
+    """For every candidate shift and every bitmap pair: (differing threshold bits, pixels
+    outside both exclusion bitmaps) over the overlap, as :func:`_shift_bool` would count them.
+
+    Bit-packed along rows: one packing of the image's bitmaps per horizontal shift, the
+    vertical shift is a row offset of the packed arrays (64 pixels per word, popcount).
+    Images larger than ``max_pixels`` (default :data:`MTB_PIXELS`) are scored on every
+    k-th band of rows of the reference (same bands for every candidate; the counts of a
+    row subset rank shifts like the full counts)."""
+    first = bitmaps[0][0]
+    h, w = first.shape if isinstance(first, _RowBitmaps) else first[0].shape
+    budget = MTB_PIXELS if max_pixels is None else int(max_pixels)
+    step = -(-h * w // max(budget, 1))
+    if (step > 1 and h >= 64) or isinstance(first, _RowBitmaps):
+        return _mtb_counts_bands(bitmaps, cands, step)
+    out = [[(0, 0)] * len(bitmaps) for _ in cands]
+    pack = _pack
+
+    for i, ((tb_a, eb_a), (tb_b, eb_b)) in enumerate(bitmaps):
+        ta, ea = pack(tb_a), pack(eb_a)
+        for sx in sorted({c[1] for c in cands}):
+            tb, eb = pack(_shift_bool(tb_b, 0, sx)), pack(_shift_bool(eb_b, 0, sx))
+            for ci, (sy, sx2) in enumerate(cands):
+                if sx2 != sx:
+                    continue
+                if abs(sy) >= h:
+                    out[ci][i] = (0, 0)
+                    continue
+                ya, yb = (slice(0, h - sy), slice(sy, h)) if sy >= 0 else (slice(-sy, h), slice(0, h + sy))
+                both = ea[ya] & eb[yb]
+                nb = int(np.bitwise_count(both).sum(dtype=np.int64))
+                nd = int(np.bitwise_count((ta[ya] ^ tb[yb]) & both).sum(dtype=np.int64))
+                out[ci][i] = (nd, nb)
+    return out
+
+
+def _mtb_counts_bands(bitmaps: list, cands: list[tuple[int, int]], step: int) -> list[list[tuple[int, int]]]:
+    """:func:`_mtb_counts` on every ``step``-th band of reference rows (bands of at least
+    32 rows, 4x the largest vertical shift): per band the image rows it meets under all
+    candidate shifts are gathered and packed once per horizontal shift."""
+    first = bitmaps[0][0]
+    h, w = first.shape if isinstance(first, _RowBitmaps) else first[0].shape
+    m = min(max(abs(c[0]) for c in cands), h)
+    band = max(32, 4 * m)
+    starts = np.arange(0, h, band)[::step]
+    rows_a = starts[:, None] + np.arange(band)[None, :]                   # (nb, band), may pass h
+    rows_b = starts[:, None] + np.arange(-m, band + m)[None, :]           # (nb, band + 2m)
+    in_a, in_b = rows_a < h, (rows_b >= 0) & (rows_b < h)
+    ra, rb = np.clip(rows_a, 0, h - 1), np.clip(rows_b, 0, h - 1)
+    out = [[(0, 0)] * len(bitmaps) for _ in cands]
+
+    def rows(bm, idx):
+        if isinstance(bm, _RowBitmaps):
+            return bm.rows(idx)
+        return bm[0][idx], bm[1][idx]
+
+    for i, (bm_a, bm_b) in enumerate(bitmaps):
+        tba, eba = rows(bm_a, ra)
+        ta = _pack(tba)
+        ea = _pack(eba & in_a[..., None])                 # rows past the image count nowhere
+        tbb, ebb = rows(bm_b, rb)
+        for sx in sorted({c[1] for c in cands}):
+            tbg = _shift_bool(tbb.reshape(-1, w), 0, sx).reshape(rb.shape + (w,))
+            ebg = _shift_bool(ebb.reshape(-1, w), 0, sx).reshape(rb.shape + (w,)) & in_b[..., None]
+            tb, eb = _pack(tbg), _pack(ebg)
+            for ci, (sy, sx2) in enumerate(cands):
+                if sx2 != sx:
+                    continue
+                sl = slice(m + sy, m + sy + band)
+                both = ea & eb[:, sl]
+                nb = int(np.bitwise_count(both).sum(dtype=np.int64))
+                nd = int(np.bitwise_count((ta ^ tb[:, sl]) & both).sum(dtype=np.int64))
+                out[ci][i] = (nd, nb)
+    return out
+
+
 def _mtb_errors(bitmaps: list, cands: list[tuple[int, int]]) -> list[float]:
     """Summed fraction of differing threshold bits (over the overlap of both exclusion
     bitmaps) for every candidate shift."""
-    out = []
-    for sy, sx in cands:
-        err = 0.0
-        for (tb_a, eb_a), (tb_b, eb_b) in bitmaps:
-            both = eb_a & _shift_bool(eb_b, sy, sx)
-            nd = int(np.count_nonzero((tb_a ^ _shift_bool(tb_b, sy, sx)) & both))
-            err += nd / max(int(np.count_nonzero(both)), 1)
-        out.append(err)
-    return out
+    return [sum(nd / max(nb, 1) for nd, nb in row) for row in _mtb_counts(bitmaps, cands)]
 
 
 def mtb_shift(reference_grey: np.ndarray, image_grey: np.ndarray, max_bits: int = 6,
@@ -166,8 +336,7 @@ def mtb_shift(reference_grey: np.ndarray, image_grey: np.ndarray, max_bits: int 
     survivors = [(0, 0)]
     for lvl, (a, b) in enumerate(reversed(pyr)):
         finest = lvl == len(pyr) - 1
-        bitmaps = [(median_threshold_bitmaps(a, exclusion, q), median_threshold_bitmaps(b, exclusion, q))
-                   for q in percentiles]
+        bitmaps = _bitmap_pairs(a, b, exclusion, percentiles)
         reach = max(1, int(refine)) if finest else 1
         cands = sorted({(2 * sy + ddy, 2 * sx + ddx) if lvl > 0 else (sy + ddy, sx + ddx)
                         for sy, sx in survivors
@@ -180,32 +349,44 @@ def mtb_shift(reference_grey: np.ndarray, image_grey: np.ndarray, max_bits: int 
     if (dy, dx) != (0, 0):
         # keep the frame where it is unless the shift removes significantly many differing
         # bits (counts; 3 Poisson sigmas): nearly empty bitmaps must not move a tripod frame
-        bitmaps = [(median_threshold_bitmaps(ref, exclusion, q), median_threshold_bitmaps(img, exclusion, q))
-                   for q in percentiles]
-        n0 = n1 = 0
-        for (tb_a, eb_a), (tb_b, eb_b) in bitmaps:
-            for (sy, sx), acc in (((0, 0), 0), ((dy, dx), 1)):
-                both = eb_a & _shift_bool(eb_b, sy, sx)
-                nd = int(np.count_nonzero((tb_a ^ _shift_bool(tb_b, sy, sx)) & both))
-                if acc == 0:
-                    n0 += nd
-                else:
-                    n1 += nd
+        bitmaps = _bitmap_pairs(ref, img, exclusion, percentiles)
+        c0, c1 = _mtb_counts(bitmaps, [(0, 0), (dy, dx)])
+        n0, n1 = sum(nd for nd, _ in c0), sum(nd for nd, _ in c1)
         if n0 - n1 < 3.0 * np.sqrt(n0 + n1 + 1.0):
             dy, dx = 0, 0
     return int(dy), int(dx)
+
+
+def _shift_into(out: np.ndarray, img: np.ndarray, dy: int, dx: int) -> None:
+    """``out[y, x] = img[clip(y + dy), clip(x + dx)]`` by slices (no index arrays, one copy)."""
+    h, w = img.shape[:2]
+    dy, dx = int(np.clip(dy, -h + 1, h - 1)), int(np.clip(dx, -w + 1, w - 1))
+    y0, y1 = max(0, -dy), min(h, h - dy)          # rows of out whose source row is inside
+    x0, x1 = max(0, -dx), min(w, w - dx)
+    out[y0:y1, x0:x1] = img[y0 + dy:y1 + dy, x0 + dx:x1 + dx]
+    if x0 > 0:
+        out[y0:y1, :x0] = out[y0:y1, x0:x0 + 1]
+    if x1 < w:
+        out[y0:y1, x1:] = out[y0:y1, x1 - 1:x1]
+    if y0 > 0:
+        out[:y0] = out[y0:y0 + 1]
+    if y1 < h:
+        out[y1:] = out[y1 - 1:y1]
 
 
 def shift_image(image: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.ndarray]:
     """``out[y, x] = image[y + dy, x + dx]`` with border replication, and the (H, W) validity mask."""
     img = np.asarray(image)
     h, w = img.shape[:2]
+    out = np.empty_like(img)
+    _shift_into(out, img, dy, dx)
+    return out, _shift_valid(h, w, dy, dx)
+
+
+def _shift_valid(h: int, w: int, dy: int, dx: int) -> np.ndarray:
     ys = np.arange(h) + int(dy)
     xs = np.arange(w) + int(dx)
-    vy = (ys >= 0) & (ys < h)
-    vx = (xs >= 0) & (xs < w)
-    out = img[np.clip(ys, 0, h - 1)][:, np.clip(xs, 0, w - 1)]
-    return np.ascontiguousarray(out), vy[:, None] & vx[None, :]
+    return ((ys >= 0) & (ys < h))[:, None] & ((xs >= 0) & (xs < w))[None, :]
 
 
 # --------------------------------------------------------------------------- homography
@@ -316,6 +497,9 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
                          transforms=np.repeat(eye[None], n, axis=0), method=method, reference=ref,
                          shifts=np.zeros((n, 2), dtype=int))
     grey = [to_grey8(arr[j]) for j in range(n)]
+    # grey histograms once per image (every k-th row above MTB_PIXELS) for common_percentiles
+    hstep = max(1, -(-h * w // MTB_PIXELS))
+    hists = [np.bincount(g[::hstep].ravel(), minlength=256) for g in grey]
     # pairwise transforms T_(a <- b): coords in image a (nearer the reference) -> coords in b
     transforms = np.repeat(eye[None], n, axis=0)
     info: dict = {"pairs": []}
@@ -323,7 +507,7 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
     for j in order:
         a = j + 1 if j < ref else j - 1
         if method == "mtb":
-            qs = common_percentiles(grey[a], grey[j])
+            qs = _common_percentiles_hist(hists[a], hists[j])
             dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
             t = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
             info["pairs"].append({"from": a, "to": j, "shift": [dy, dx], "percentiles": list(qs)})
@@ -332,7 +516,7 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
                 t, n_inl = estimate_homography(grey[a], grey[j], seed=seed + j)
                 info["pairs"].append({"from": a, "to": j, "inliers": n_inl})
             except StackError as exc:   # too dark/bright for features: translation instead
-                qs = common_percentiles(grey[a], grey[j])
+                qs = _common_percentiles_hist(hists[a], hists[j])
                 dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
                 t = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
                 info["pairs"].append({"from": a, "to": j, "fallback": "mtb", "shift": [dy, dx],
@@ -343,8 +527,10 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
     shifts = None
     if method == "mtb":
         shifts = np.rint(transforms[:, [1, 0], 2]).astype(int)
-        for j in range(n):
-            out[j], valid[j] = shift_image(arr[j].astype(np.float32, copy=False), shifts[j, 0], shifts[j, 1])
+        for j in range(n):              # written in place: no per-frame temporaries
+            src = arr[j] if arr.dtype == np.float32 else arr[j].astype(np.float32)
+            _shift_into(out[j], src, shifts[j, 0], shifts[j, 1])
+            valid[j] = _shift_valid(h, w, shifts[j, 0], shifts[j, 1])
     else:
         for j in range(n):
             if j == ref:

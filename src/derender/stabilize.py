@@ -79,6 +79,8 @@ __all__ = [
 #: 255, the zero points of the default trapezoid weight).
 REF_LOW = 0.02
 REF_HIGH = 0.98
+#: Reference selection counts at most about this many pixels per frame (row subsample).
+REF_PIXELS = 1 << 20
 #: Fitting range for gammas and H_j: a pixel takes part only if all its channels lie in
 #: (FIT_LOW, FIT_HIGH) in the brighter image of a pair and in (FIT_FLOOR, FIT_HIGH) in
 #: the darker one. FIT_HIGH is well below 1 because sensors clip
@@ -106,15 +108,21 @@ def exposure_fractions(images: Any, low: float = REF_LOW, high: float = REF_HIGH
                        valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fractions of over-exposed (any channel ``>= high``) and under-exposed (any channel
     ``<= low``, and not over-exposed) pixels per image, each (N,). ``valid`` (N, H, W)
-    restricts the count (registration borders)."""
+    restricts the count (registration borders). Frames above :data:`REF_PIXELS` pixels are
+    counted on every k-th row (fractions, not counts, are compared)."""
     arr = _check_images(images)
-    n = arr.shape[0]
+    n, h, w = arr.shape[:3]
+    step = -(-h * w // REF_PIXELS)
+    if step > 1:
+        arr = arr[:, ::step]
+        valid = None if valid is None else np.asarray(valid)[:, ::step]
     over = np.empty(n)
     under = np.empty(n)
     for j in range(n):
         z = arr[j]
-        o = (z >= high).any(axis=-1)
-        u = (z <= low).any(axis=-1) & ~o
+        # any channel >= high <=> brightest channel >= high (channel max/min without reduce over a size-3 axis)
+        o = np.maximum(np.maximum(z[..., 0], z[..., 1]), z[..., 2]) >= high
+        u = (np.minimum(np.minimum(z[..., 0], z[..., 1]), z[..., 2]) <= low) & ~o
         if valid is not None:
             v = np.asarray(valid[j], dtype=bool)
             cnt = max(int(v.sum()), 1)
@@ -184,11 +192,15 @@ def _make_blocks(images: np.ndarray, valid: np.ndarray | None, block: int, max_b
         keep = np.sort(rng.choice(keep, size=max_blocks, replace=False))
     codes = np.empty((n, keep.size, bs * bs, 3), dtype=np.float64)
     vmask = np.ones((n, keep.size), dtype=bool)
+    # pixel coordinates of the kept blocks only (no full-size copies): (nkeep, bs*bs), row-major in a block
+    ky, kx = np.divmod(keep, nbx)
+    oy, ox = np.divmod(np.arange(bs * bs), bs)
+    ys = ky[:, None] * bs + oy[None, :]
+    xs = kx[:, None] * bs + ox[None, :]
     for j in range(n):
-        codes[j] = _block_view(np.asarray(images[j], dtype=np.float64), bs)[keep]
+        codes[j] = np.asarray(images[j])[ys, xs]
         if valid is not None:
-            vj = _block_view(np.repeat(np.asarray(valid[j], dtype=np.float64)[..., None], 3, axis=2), bs)[keep]
-            vmask[j] = (vj > 0.5).all(axis=(1, 2))
+            vmask[j] = np.asarray(valid[j])[ys, xs].all(axis=1)
     if times is not None:
         brightness = np.log(np.asarray(times, dtype=np.float64))
     else:
@@ -204,21 +216,25 @@ def _make_blocks(images: np.ndarray, valid: np.ndarray | None, block: int, max_b
 RIDGE = 1e-2
 
 
-def _wls_matrix(src: np.ndarray, dst: np.ndarray, wt: np.ndarray, ridge: float | None = None) -> np.ndarray:
+_IU = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))   # upper triangle of a 3x3
+_SYM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])                  # 3x3 -> its entry of the 6
+
+
+def _wls_matrix(src: np.ndarray, dst: np.ndarray, wt: np.ndarray, ridge: float | None = None,
+                prods: np.ndarray | None = None) -> np.ndarray:
     """Row-wise weighted least squares ``dst ~ src @ H.T`` with per-row-of-H sample weights
-    wt (n, 3) and a ridge pulling off-diagonal entries to 0."""
+    wt (n, 3) and a ridge pulling off-diagonal entries to 0. ``prods`` (n, 6): the products
+    ``src_k src_l`` (k <= l), when already computed."""
     lam = RIDGE if ridge is None else ridge
-    h = np.empty((3, 3))
-    for c in range(3):
-        sw = np.sqrt(wt[:, c])
-        a = src * sw[:, None]
-        b = dst[:, c] * sw
-        ata = a.T @ a
-        scale = np.trace(ata) / 3.0 + 1e-300
-        pen = np.full(3, lam * scale)
-        pen[c] = 1e-9 * scale
-        h[c] = np.linalg.solve(ata + np.diag(pen), a.T @ b)
-    return h
+    if prods is None:
+        prods = src[:, _IU[0]] * src[:, _IU[1]]
+    ata = (wt.T @ prods)[:, _SYM]                # (row c, k, l): sum_n w_c s_k s_l
+    atb = (wt * dst).T @ src                     # (row c, k): sum_n w_c d_c s_k
+    scale = np.trace(ata, axis1=1, axis2=2) / 3.0 + 1e-300
+    pen = np.full((3, 3), lam) * scale[:, None]
+    pen[np.arange(3), np.arange(3)] = 1e-9 * scale
+    ata[:, np.arange(3), np.arange(3)] += pen
+    return np.linalg.solve(ata, atb[..., None])[..., 0]
 
 
 class Curve:
@@ -318,6 +334,15 @@ def _pair_weights(j_src: np.ndarray, j_dst: np.ndarray, c_src: "float | Curve",
     destination. ``j_dst`` should be noise-free (a prediction): weights computed from
     noisy observations bias the fit."""
     cs, cd = _as_curve(c_src), _as_curve(c_dst)
+    if cs.table is None and cd.table is None:
+        # power laws (eq. 4): dL/dJ = g L / J, so the slope below is (g_s / g_d) J_d / J_s
+        # (same values, one power instead of four)
+        gs, gd = cs.gamma * cs.rho, cd.gamma * cd.rho
+        js, jd = np.clip(j_src, 1e-6, 1.0), np.clip(j_dst, 1e-6, 1.0)
+        djdl_dst = jd / (gd * jd ** gd)
+        slope = (gs / gd) * (jd / js)
+        v = 1.0 / (1.0 + slope * slope)
+        return v, v * djdl_dst * djdl_dst
     js, jd = np.maximum(j_src, 1e-6), np.maximum(j_dst, 1e-6)
     ls, ld = cs.lin(js), cd.lin(jd)
     djdl_dst = 1.0 / cd.dlin(jd)
@@ -335,12 +360,15 @@ def _fit_pair(jj: np.ndarray, jk: np.ndarray, gj: "float | Curve", gk: "float | 
     weights come from the current prediction (first pass: the observation)."""
     cj, ck = _as_curve(gj), _as_curve(gk)
     lj, lk = cj.lin(jj), ck.lin(jk)
+    prods = lj[:, _IU[0]] * lj[:, _IU[1]]
+    lo = 0.5 * jk.min(axis=0)
     pred = jk
     for _ in range(iters):
         v, wl = _pair_weights(jj, pred, cj, ck)
-        h = _wls_matrix(lj, lk, wl, ridge)
-        pred = np.clip(_predict_codes(h, lj, ck), 0.5 * jk.min(axis=0), 1.0)
-    r = _predict_codes(h, lj, ck) - jk
+        h = _wls_matrix(lj, lk, wl, ridge, prods)
+        raw = _predict_codes(h, lj, ck)
+        pred = np.clip(raw, lo, 1.0)
+    r = raw - jk
     return h, float(np.sum(v * r * r) / np.sum(v))
 
 
@@ -380,6 +408,12 @@ def _robust_inliers(r: np.ndarray, floor: float) -> np.ndarray:
     return r <= max(med + 3.0 * mad, floor)
 
 
+#: Half-width (log units) of the refined exponent search after trimming (:func:`_pair_log_ratio`).
+NARROW = 0.1
+#: Tolerance of the exponent searches (log units; 1e-3 is 0.1 % of a gamma).
+XATOL = 1e-3
+
+
 def _pair_log_ratio(pj: np.ndarray, pk: np.ndarray, base: "float | Curve", max_log_ratio: float,
                     rounds: int = 2, base_k: "float | Curve | None" = None) -> tuple[float, float, np.ndarray]:
     """``log`` of the factor on image k's exponent (relative to ``base_k``, default ``base``)
@@ -392,10 +426,17 @@ def _pair_log_ratio(pj: np.ndarray, pk: np.ndarray, base: "float | Curve", max_l
     jj = _effective_codes(pj, base)
     sel = None
     x = 0.0
-    for _ in range(rounds):
-        res = minimize_scalar(lambda r: _pair_cost(pj, pk, base, bk * np.exp(r), sel, jj),
-                              bounds=(-max_log_ratio, max_log_ratio), method="bounded",
-                              options={"xatol": 3e-4})
+    for rnd in range(rounds):
+        cost = lambda r: _pair_cost(pj, pk, base, bk * np.exp(r), sel, jj)  # noqa: E731
+        lo, hi = -max_log_ratio, max_log_ratio
+        if rnd > 0:
+            # trimming moves the optimum little: search near the previous one (full range
+            # again if it lands on the narrowed bound)
+            lo, hi = max(lo, x - NARROW), min(hi, x + NARROW)
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": XATOL})
+        if rnd > 0 and min(res.x - lo, hi - res.x) < 1e-3 and (lo, hi) != (-max_log_ratio, max_log_ratio):
+            res = minimize_scalar(cost, bounds=(-max_log_ratio, max_log_ratio), method="bounded",
+                                  options={"xatol": XATOL})
         x = float(res.x)
         r = _pair_residuals(pj, pk, base, bk * np.exp(x), sel)
         sel = _robust_inliers(r, 2.0 / 255.0)
@@ -414,7 +455,7 @@ def _pair_log_ratio(pj: np.ndarray, pk: np.ndarray, base: "float | Curve", max_l
 
 def _relative_exponents(blocks: _Blocks, bases: list, low: float, high: float, floor: float, max_gap: int,
                         prior_sd: float, min_blocks: int, max_lr: float,
-                        max_pair_blocks: int = 1500) -> tuple[np.ndarray, list, np.ndarray]:
+                        max_pair_blocks: int = 800) -> tuple[np.ndarray, list, np.ndarray]:
     """Per-image log exponent corrections ``u`` (mean 0 over connected images) from the
     pairwise searches (pairs k - j <= max_gap), combined by weighted least squares over
     the pair graph with a prior ``u_j - mean(u) ~ N(0, prior_sd^2)``."""
@@ -672,7 +713,10 @@ def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: fl
     pairs: list = []
 
     def table_for(r: np.ndarray) -> np.ndarray:
-        warped = np.clip(images, 0.0, 1.0) ** r[:, None, None, None].astype(np.float32)
+        if np.all(r == 1.0) and images.min() >= 0.0 and images.max() <= 1.0:
+            warped = images                 # no exponent warp: no full-size copy of the stack
+        else:
+            warped = np.clip(images, 0.0, 1.0) ** r[:, None, None, None].astype(np.float32)
         return calibrate_debevec(Stack(images=warped, times=times), seed=seed).log_inverse
 
     table = table_for(rho)
@@ -692,7 +736,8 @@ def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: fl
 def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "float | Curve",
                      gamma_dst: "float | Curve",
                      n_iter: int = 100, sample: int = 4, threshold: float | None = None,
-                     seed: int = 0, ridge: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     seed: int = 0, ridge: float | None = None,
+                     max_score: int = 1000) -> tuple[np.ndarray, np.ndarray]:
     """H with ``dst_codes ** gamma_dst ~ H @ src_codes ** gamma_src`` (paper 1, eq. 9), by
     weighted least squares inside a seeded RANSAC. ``gamma_*`` are display gammas or
     :class:`Curve` linearisations.
@@ -705,6 +750,8 @@ def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
     standard deviations of the all-data fit, at least 2/255). The best hypothesis' inliers
     are refitted by weighted least squares (code-domain error, 2 reweighting passes) with
     the off-diagonal ridge ``ridge`` (default :data:`RIDGE`; 0 for plain least squares).
+    Hypotheses are ranked on at most ``max_score`` evenly spread correspondences (their
+    inlier count only orders them); the winner's inliers are found on all.
     Returns ``(H, inlier_mask)``.
     """
     src = np.asarray(src_codes, dtype=np.float64).reshape(-1, 3)
@@ -728,9 +775,14 @@ def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
         med = float(np.median(r_all))
         threshold = max(med + 3.0 * 1.4826 * float(np.median(np.abs(r_all - med))), 2.0 / 255.0)
     best = r_all <= threshold
+    # hypotheses are scored on at most `max_score` evenly spread correspondences (preemptive
+    # RANSAC: the count only ranks hypotheses); the winner's inliers are taken on all of them
+    sub = np.arange(n) if n <= max_score else np.linspace(0, n - 1, int(max_score)).astype(np.int64)
+    best_cnt, best_h = int(best[sub].sum()), None
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
-    # all hypotheses at once: least squares on `sample` random correspondences each
-    idx = np.argsort(rng.random((int(n_iter), n)), axis=1)[:, :sample] if n_iter > 0 else np.zeros((0, sample), int)
+    # all hypotheses at once: least squares on `sample` distinct random correspondences each
+    idx = np.array([np.sort(rng.choice(n, size=sample, replace=False)) for _ in range(int(n_iter))],
+                   dtype=np.int64).reshape(-1, sample)
     a = ls[idx]                                            # (iters, sample, 3)
     ata = np.einsum("isk,isl->ikl", a, a)
     atb = np.einsum("isk,isl->ikl", a, ld[idx])
@@ -738,15 +790,18 @@ def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
     ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.einsum("ikk->i", ata) ** 3)
     if ok.any():
         hyp = np.transpose(np.linalg.solve(ata[ok], atb[ok]), (0, 2, 1))     # (m, 3, 3)
+        ls_s, src_s, dst_s = ls[sub], src[sub], dst[sub]
         for start in range(0, hyp.shape[0], 64):
             hh = hyp[start:start + 64]
-            pred = c_dst.code(np.maximum(np.einsum("nk,mck->mnc", ls, hh), 1e-12))
-            v, _ = _pair_weights(src[None], np.clip(pred, 1e-3, 1.0), gamma_src, gamma_dst)
-            inl = (np.abs(pred - dst[None]) * np.sqrt(v)).max(axis=2) <= threshold
+            pred = c_dst.code(np.maximum(np.matmul(ls_s, hh.transpose(0, 2, 1)), 1e-12))
+            v, _ = _pair_weights(src_s[None], np.clip(pred, 1e-3, 1.0), gamma_src, gamma_dst)
+            inl = (np.abs(pred - dst_s[None]) * np.sqrt(v)).max(axis=2) <= threshold
             cnt = inl.sum(axis=1)
             m = int(np.argmax(cnt))
-            if cnt[m] > best.sum():
-                best = inl[m]
+            if cnt[m] > best_cnt:
+                best_cnt, best_h = int(cnt[m]), hh[m]
+    if best_h is not None:
+        best = norm_resid(best_h) <= threshold
     if best.sum() < 3:
         best = np.ones(n, dtype=bool)
     h, _ = _fit_pair(src[best], dst[best], gamma_src, gamma_dst, ridge=ridge)
