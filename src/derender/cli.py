@@ -574,11 +574,11 @@ def derender_cmd(
             raise InputError(f"outputs must end in .exr, got {out.name}")
     t0 = time.perf_counter()
     mean, var, used = derender_image(image, model, srgb=srgb)
-    from .io import write_exr
+    from .fastmerge import write_exr_fast
 
-    write_exr(output, mean, inputs=[image])
+    write_exr_fast(output, mean, inputs=[image])
     if variance is not None:
-        write_exr(variance, var, inputs=[image])
+        write_exr_fast(variance, var, inputs=[image])
     typer.echo(f"de-rendered {image.name} with {used} in {time.perf_counter() - t0:.2f} s -> {output}")
 
 

@@ -29,6 +29,13 @@ def check_8bit_rgb(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"no such file: {path}")
+    if path.suffix.lower() in (".jpg", ".jpeg"):
+        # JPEG is always 8-bit without alpha: the fast libjpeg-turbo decoder of fastmerge
+        from .fastmerge import read_codes
+
+        codes = read_codes(path)
+        if codes is not None:
+            return codes
     img = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:
         raise InputError(f"not a readable image (corrupt or unsupported format): {path}")
@@ -141,7 +148,8 @@ def derender_image(image_path: str | os.PathLike, model_path: str | os.PathLike,
             raise InputError("the model has no camera colour metadata; drop --srgb to get camera RGB")
         mean = mean @ a.T.astype(np.float32)
         var = var @ (a * a).T.astype(np.float32)
-    big = np.float32(np.finfo(np.float32).max / 4)
-    mean = np.nan_to_num(mean, nan=0.0, posinf=big, neginf=-big).astype(np.float32)
-    var = np.nan_to_num(np.clip(var, 0, big), nan=big).astype(np.float32)
+        big = np.float32(np.finfo(np.float32).max / 4)
+        mean = np.nan_to_num(mean, nan=0.0, posinf=big, neginf=-big).astype(np.float32)
+        var = np.nan_to_num(np.clip(var, 0, big), nan=big).astype(np.float32)
+    # model.predict already returns finite float32 (DerenderModel.predict guarantees it)
     return mean, var, used
