@@ -198,6 +198,18 @@ def _raw_white(jf: np.ndarray, rf: np.ndarray) -> float:
     return max(w, 1e-30)
 
 
+def _log_training_targets(model, jf: np.ndarray, rf: np.ndarray):
+    """Shared by the log-space models: seeded subsample to ``model.n_train`` pairs, set
+    ``model.raw_white`` and ``model.eps``; returns (rng, jf, rf, inputs code/255, log targets)."""
+    rng = np.random.default_rng(model.seed)
+    if jf.shape[0] > model.n_train:
+        sel = np.sort(rng.choice(jf.shape[0], model.n_train, replace=False))
+        jf, rf = jf[sel], rf[sel]
+    model.raw_white = _raw_white(jf, rf)
+    model.eps = model.eps_rel * model.raw_white
+    return rng, jf, rf, jf / 255.0, np.log(np.maximum(rf, 0.0) + model.eps)
+
+
 def _lognormal_moments(mu: np.ndarray, s2: np.ndarray, eps: float,
                        median: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Raw-space (centre, spread) of raw = exp(t) - eps with t ~ N(mu, s2), float64.
@@ -720,14 +732,7 @@ class LocalGPModel(DerenderModel):
         from sklearn.cluster import KMeans
         from threadpoolctl import threadpool_limits
 
-        rng = np.random.default_rng(self.seed)
-        if jf.shape[0] > self.n_train:
-            sel = np.sort(rng.choice(jf.shape[0], self.n_train, replace=False))
-            jf, rf = jf[sel], rf[sel]
-        self.raw_white = _raw_white(jf, rf)
-        self.eps = self.eps_rel * self.raw_white
-        Y = jf / 255.0
-        T = np.log(np.maximum(rf, 0.0) + self.eps)
+        rng, jf, rf, Y, T = _log_training_targets(self, jf, rf)
         # clip-aware k-means: colours with a clipped (255) channel are one-to-many and get their
         # own clusters, so their spread neither smooths nor inflates the unclipped GPs
         clipped = jf.max(axis=1) >= self.clip_code
@@ -1196,14 +1201,7 @@ class RBFModel(DerenderModel):
         self._table: _Table | None = None
 
     def _fit(self, jf, rf):
-        rng = np.random.default_rng(self.seed)
-        if jf.shape[0] > self.n_train:
-            sel = np.sort(rng.choice(jf.shape[0], self.n_train, replace=False))
-            jf, rf = jf[sel], rf[sel]
-        self.raw_white = _raw_white(jf, rf)
-        self.eps = self.eps_rel * self.raw_white
-        Y = jf / 255.0
-        T = np.log(np.maximum(rf, 0.0) + self.eps)
+        _, jf, rf, Y, T = _log_training_targets(self, jf, rf)
         # smoothing thin-plate spline with linear tail (same system as scipy's RBFInterpolator):
         # [K + smoothing I, P; P^T, 0] [w; c] = [T; 0],  K_ij = r_ij^2 log r_ij,  P = [1, y]
         n = Y.shape[0]

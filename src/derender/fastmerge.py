@@ -51,8 +51,8 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .errors import InputError, StackError
-from .stack import HDRResult, Stack, validate_times
+from .errors import InputError
+from .stack import HDRResult, Stack
 
 __all__ = [
     "code_values",
@@ -732,14 +732,9 @@ def _histograms(codes: np.ndarray) -> np.ndarray:
 
 def _check_usable_hists(hists: np.ndarray) -> None:
     """:func:`derender.response.check_usable` from per-image histograms (N, 3, 256)."""
-    usable = hists[:, :, 1:N_CODES - 1].sum(axis=(0, 2)) > 0
-    if usable.all():
-        return
-    if not usable.any():
-        raise StackError("no pixel of any image is exposed within the usable range "
-                         "(every value is black or clipped); nothing to merge")
-    bad = ", ".join(_CHANNELS[c] for c in range(3) if not usable[c])
-    raise StackError(f"channel {bad} is black or clipped in every pixel of every image; cannot recover its response")
+    from .response import raise_unusable
+
+    raise_unusable(hists[:, :, 1:N_CODES - 1].sum(axis=(0, 2)) > 0)
 
 
 def _calibrate_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray],
@@ -1028,9 +1023,7 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
         raise InputError(f"cannot write image of shape {arr.shape} to EXR")
     if compression not in _EXR_COMPRESSION:
         raise InputError(f"compression must be one of {', '.join(_EXR_COMPRESSION)}, got {compression!r}")
-    comp_id, lines = _EXR_COMPRESSION[compression]
-    if comp_id == 0:
-        lines = 16  # several uncompressed lines per task; the file still has one line per block
+    comp_id = _EXR_COMPRESSION[compression][0]
     h, w = arr.shape[:2]
     dtype = np.dtype("<f2") if half else np.dtype("<f4")
     deflate = _deflate(level)

@@ -131,10 +131,17 @@ def _lower_quantile(model, codes: np.ndarray, mean: np.ndarray) -> np.ndarray:
     return np.maximum(np.asarray(mean, dtype=np.float64), 0.0)
 
 
-def _truncate_below(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Moments of N(mean, var) truncated to [bound, inf); see the module doc for conflicts."""
+def _truncnorm_moments(mean, var, sd, alpha):
+    """Mean and variance of N(mean, var) truncated below at ``mean + alpha sd``."""
     from scipy.special import ndtr
 
+    tail = np.maximum(1.0 - ndtr(alpha), 1e-300)
+    lam = np.exp(-0.5 * alpha * alpha) / np.sqrt(2 * np.pi) / tail
+    return mean + sd * lam, var * np.maximum(1.0 + alpha * lam - lam * lam, 1e-6)
+
+
+def _truncate_below(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moments of N(mean, var) truncated to [bound, inf); see the module doc for conflicts."""
     out_m = mean.copy()
     out_v = var.copy()
     active = bound > 0
@@ -143,11 +150,7 @@ def _truncate_below(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tup
     alpha = np.where(finite, (bound - mean) / np.maximum(sd, 1e-300), np.inf)
     ok = active & finite & (alpha < 3.0)
     if ok.any():
-        a = alpha[ok]
-        tail = np.maximum(1.0 - ndtr(a), 1e-300)
-        lam = np.exp(-0.5 * a * a) / np.sqrt(2 * np.pi) / tail
-        out_m[ok] = mean[ok] + sd[ok] * lam
-        out_v[ok] = var[ok] * np.maximum(1.0 + a * lam - lam * lam, 1e-6)
+        out_m[ok], out_v[ok] = _truncnorm_moments(mean[ok], var[ok], sd[ok], alpha[ok])
     conflict = active & ~ok
     out_m[conflict] = bound[conflict]
     out_v[conflict] = np.maximum(np.where(finite[conflict], var[conflict], 0.0), bound[conflict] ** 2)
@@ -164,8 +167,6 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
     A bound more than 3 sigma above the mean (conflict) is dropped: the Gaussian evidence
     stands. A bound without Gaussian evidence gives the bound with log variance 1.
     """
-    from scipy.special import ndtr
-
     out_m = mean.copy()
     out_v = var.copy()
     active = np.isfinite(bound)
@@ -175,11 +176,7 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
         alpha = np.where(active & finite, (bound - np.where(finite, mean, 0.0)) / np.maximum(sd, 1e-300), np.inf)
     ok = active & finite & (alpha < 3.0)
     if ok.any():
-        a = alpha[ok]
-        tail = np.maximum(1.0 - ndtr(a), 1e-300)
-        lam = np.exp(-0.5 * a * a) / np.sqrt(2 * np.pi) / tail
-        out_m[ok] = mean[ok] + sd[ok] * lam
-        out_v[ok] = var[ok] * np.maximum(1.0 + a * lam - lam * lam, 1e-6)
+        out_m[ok], out_v[ok] = _truncnorm_moments(mean[ok], var[ok], sd[ok], alpha[ok])
     only_bound = active & ~finite
     out_m[only_bound] = bound[only_bound] - 0.5   # mean exp(m + v/2) = exp(bound): the bound itself
     out_v[only_bound] = 1.0

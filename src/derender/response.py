@@ -143,6 +143,13 @@ def check_usable(stack_or_codes: Any, n_levels: int = 256) -> None:
         usable |= ((zj > lo) & (zj < hi)).any(axis=(0, 1))
         if usable.all():
             return
+    raise_unusable(usable)
+
+
+def raise_unusable(usable: np.ndarray) -> None:
+    """Raise :class:`StackError` for per-channel usability flags (3,) that are not all true."""
+    if usable.all():
+        return
     if not usable.any():
         raise StackError("no pixel of any image is exposed within the usable range "
                          "(every value is black or clipped); nothing to merge")
