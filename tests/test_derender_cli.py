@@ -43,6 +43,21 @@ def test_derender_image_and_model_library(model_file, tmp_path, capsys):
     assert code == 0, err
     mean, var = read_exr(tmp_path / "mean.exr"), read_exr(tmp_path / "var.exr")
     assert mean.shape == (48, 64, 3) and np.all(np.isfinite(mean)) and np.all(var >= 0)
+    # the streamed files hold exactly the model's per-pixel prediction (decoded like the CLI does)
+    from derender.derender_io import check_8bit_rgb
+
+    ref_mean, ref_var = load_model(model_file).predict(check_8bit_rgb(img))
+    np.testing.assert_array_equal(mean, ref_mean)
+    np.testing.assert_array_equal(var, ref_var)
+    code, out, err = run_cli(["derender", img, "-m", model_file, "-o", tmp_path / "zip.exr", "--srgb",
+                              "--compression", "zip"], capsys)
+    assert code == 0, err
+    from derender.derender_io import derender_image
+
+    np.testing.assert_array_equal(read_exr(tmp_path / "zip.exr"), derender_image(img, model_file, srgb=True)[0])
+    code, out, err = run_cli(["derender", img, "-m", model_file, "-o", img.with_suffix(".exr"),
+                              "--variance", img.with_suffix(".exr")], capsys)
+    assert code == 2 and "same file" in err
     # a folder of models: the one whose camera matches the EXIF is used
     lib = tmp_path / "lib"
     lib.mkdir()
@@ -166,3 +181,17 @@ def test_probabilistic_beats_debevec_on_jpeg_files_and_variance_marks_censored(m
         assert rel[censored].min() > 1.0 and rel[~censored].max() < 0.5, (kind, rel[censored].min(), rel[~censored].max())
         again = merge_probabilistic(st, m, colour_space="camera_rgb")
         np.testing.assert_array_equal(again.radiance, r.radiance)
+
+
+def test_index_colours_matches_unique():
+    from derender.derender_io import index_colours, pack_codes
+
+    rng = np.random.default_rng(3)
+    codes = rng.integers(0, 256, size=(37, 53, 3)).astype(np.uint8)
+    codes[5:20, 7:30] = (255, 0, 17)              # a flat patch: repeated colours
+    idx = index_colours(codes, block_rows=8)
+    uniq = np.unique(codes.reshape(-1, 3), axis=0)
+    np.testing.assert_array_equal(idx.codes, uniq)
+    rows = idx.rows(codes)
+    np.testing.assert_array_equal(idx.codes[rows], codes.astype(np.int32))
+    assert pack_codes(np.array([[1, 2, 3]], np.uint8))[0] == (1 << 16) + (2 << 8) + 3

@@ -26,26 +26,21 @@ from .io import (
 from .stack import HDRResult, RawFrame, Stack
 from .merge import merge, merge_linear, register_method  # noqa: E402  (the function shadows the module name;
 from .evaluate import psnr_rgbl  # noqa: E402             use importlib / "from derender.merge import" for the module)
-from .derendering import (  # noqa: E402
-    MODEL_TYPES,
-    DerenderModel,
-    LocalGPModel,
-    PolynomialModel,
-    RBFModel,
-    fit_model,
-    interval_coverage,
-    load_model,
-    relative_rmse,
-)
+
+
+# de-rendering models load on first use: a CLI command that only merges does not pay for them
+_DERENDERING = ("MODEL_TYPES", "DerenderModel", "LocalGPModel", "PolynomialModel", "RBFModel", "fit_model",
+                "interval_coverage", "load_model", "relative_rmse")
 
 
 def __getattr__(name: str):
     """Lazy access to the heavier stage functions (keeps ``import derender`` fast)."""
-    lazy = {
+    lazy = {name: ("derender.derendering", name) for name in _DERENDERING}
+    lazy.update({
         "raw_ground_truth": ("derender.groundtruth", "raw_ground_truth"),
         "simulate_bracket": ("derender.camera", "simulate_bracket"),
         "calibrate_debevec": ("derender.response", "calibrate_debevec"),
-    }
+    })
     if name in lazy:
         import importlib
 

@@ -565,21 +565,19 @@ def derender_cmd(
     output: Path = typer.Option(..., "--output", "-o", help="Mean linear camera RGB (.exr)."),
     variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr)."),
     srgb: bool = typer.Option(False, "--srgb", help="Output linear sRGB instead of camera RGB (needs model camera metadata)."),
+    compression: str = typer.Option("none", "--compression",
+                                    help="EXR compression: none (fastest) or zip (~30 % smaller files, ~3x slower at 24 MP)."),
 ) -> None:
     """De-render an image: per-pixel Gaussian over the linear RAW colour (mean and variance)."""
-    from .derender_io import derender_image
+    from .derender_io import derender_to_exr
 
     for out in (output, variance):
         if out is not None and out.suffix.lower() != ".exr":
             raise InputError(f"outputs must end in .exr, got {out.name}")
     t0 = time.perf_counter()
-    mean, var, used = derender_image(image, model, srgb=srgb)
-    from .fastmerge import write_exr_fast
-
-    write_exr_fast(output, mean, inputs=[image])
-    if variance is not None:
-        write_exr_fast(variance, var, inputs=[image])
-    typer.echo(f"de-rendered {image.name} with {used} in {time.perf_counter() - t0:.2f} s -> {output}")
+    info = derender_to_exr(image, model, output, variance=variance, srgb=srgb, compression=compression)
+    typer.echo(f"de-rendered {image.name} ({info['width']}x{info['height']}, {info['distinct_colours']} distinct "
+               f"colours) with {info['model']} in {time.perf_counter() - t0:.2f} s -> {output}")
 
 
 @app.command()

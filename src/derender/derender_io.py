@@ -5,13 +5,19 @@
 * :func:`resolve_model` loads a model file, or picks from a *folder* of models the one
   whose camera make/model matches the image's EXIF (paper 2 imagines such per-camera
   libraries looked up by the metadata of an Internet image).
-* :func:`derender_image` predicts per-pixel mean and variance of the linear RAW colour.
+* :func:`derender_image` predicts per-pixel mean and variance of the linear RAW colour;
+  :func:`derender_to_exr` does the same straight into EXR files, block by block (a
+  24-megapixel JPEG never exists as full float images in memory).
+* :func:`index_colours` finds the distinct colours of an 8-bit image: a prediction is a
+  function of the colour alone, so it is made once per distinct colour and gathered.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -19,7 +25,8 @@ import numpy as np
 
 from .errors import InputError, ModelFileError
 
-__all__ = ["pairs_from_images", "resolve_model", "derender_image", "check_8bit_rgb"]
+__all__ = ["pairs_from_images", "resolve_model", "derender_image", "derender_to_exr", "check_8bit_rgb",
+           "index_colours", "ColourIndex", "pack_codes"]
 
 
 def check_8bit_rgb(path: str | os.PathLike) -> np.ndarray:
@@ -139,17 +146,135 @@ def derender_image(image_path: str | os.PathLike, model_path: str | os.PathLike,
     """Mean and variance (float32 (H, W, 3)) of the linear colour of every pixel, and the model used."""
     codes = check_8bit_rgb(image_path)
     model, used = resolve_model(model_path, image_path)
-    mean, var = model.predict(codes)
-    if srgb:
-        from .probabilistic import model_camera_to_srgb
+    index = index_colours(codes)
+    mean_tab, var_tab = _colour_tables(model, index, srgb)
+    rows = index.rows(codes)
+    return np.take(mean_tab, rows, axis=0), np.take(var_tab, rows, axis=0), used
 
-        a = model_camera_to_srgb(model)
-        if a is None:
-            raise InputError("the model has no camera colour metadata; drop --srgb to get camera RGB")
-        mean = mean @ a.T.astype(np.float32)
-        var = var @ (a * a).T.astype(np.float32)
-        big = np.float32(np.finfo(np.float32).max / 4)
-        mean = np.nan_to_num(mean, nan=0.0, posinf=big, neginf=-big).astype(np.float32)
-        var = np.nan_to_num(np.clip(var, 0, big), nan=big).astype(np.float32)
-    # model.predict already returns finite float32 (DerenderModel.predict guarantees it)
-    return mean, var, used
+
+# --------------------------------------------------------------------------- colour tables
+_N_PACKED = 1 << 24
+
+
+def pack_codes(codes: np.ndarray) -> np.ndarray:
+    """uint8 RGB codes (..., 3) -> int32 ``R << 16 | G << 8 | B`` (...,)."""
+    packed = codes[..., 0].astype(np.int32)
+    packed <<= 8
+    packed |= codes[..., 1]
+    packed <<= 8
+    packed |= codes[..., 2]
+    return packed
+
+
+@dataclass
+class ColourIndex:
+    """The distinct colours of an 8-bit image and where each packed colour sits among them.
+
+    packed : (M,) int32, sorted packed codes (:func:`pack_codes`) present in the image.
+    lut : (2**24,) int32, ``lut[packed[i]] == i``; entries of absent colours are undefined.
+    """
+
+    packed: np.ndarray
+    lut: np.ndarray
+
+    @property
+    def codes(self) -> np.ndarray:
+        """(M, 3) int32 RGB codes of the distinct colours."""
+        p = self.packed
+        return np.stack([(p >> 16) & 255, (p >> 8) & 255, p & 255], axis=1).astype(np.int32)
+
+    def rows(self, codes: np.ndarray) -> np.ndarray:
+        """Row of each pixel's colour in the tables (int32, shape ``codes.shape[:-1]``)."""
+        return np.take(self.lut, pack_codes(codes), mode="clip")
+
+
+def index_colours(codes: np.ndarray, block_rows: int = 64) -> ColourIndex:
+    """Distinct colours of uint8 codes (H, W, 3) or (P, 3), scanned in row blocks.
+
+    A presence bitmap over the 2**24 colours is filled block by block (no full-size
+    temporaries), so the cost grows with the pixels, and the tables built from it with
+    the distinct colours (a photograph has ~10^5-10^6 of them among 2.4 10^7 pixels).
+    """
+    if codes.dtype != np.uint8 or codes.shape[-1] != 3:
+        raise InputError(f"index_colours needs uint8 RGB codes, got {codes.dtype} {codes.shape}")
+    rows = codes.reshape(-1, codes.shape[-2] if codes.ndim == 3 else 1, 3)
+    present = np.zeros(_N_PACKED, dtype=bool)
+    for y in range(0, rows.shape[0], block_rows):
+        present[pack_codes(rows[y:y + block_rows]).reshape(-1)] = True
+    packed = np.flatnonzero(present).astype(np.int32)
+    lut = np.empty(_N_PACKED, dtype=np.int32)   # only the present entries are ever read
+    lut[packed] = np.arange(packed.shape[0], dtype=np.int32)
+    return ColourIndex(packed=packed, lut=lut)
+
+
+def _colour_tables(model, index: ColourIndex, srgb: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance (float32, finite, (M, 3)) of each distinct colour, optionally in linear sRGB."""
+    from .derendering import _finite32
+
+    mean, var = model._predict_codes(index.codes, True, False, False)
+    mean, var = _finite32(np.asarray(mean), np.asarray(var))
+    if srgb:
+        mean, var = _to_linear_srgb(model, mean, var)
+    return mean, var
+
+
+def _to_linear_srgb(model, mean: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera RGB Gaussians -> linear sRGB through the model's camera matrix (independent channels)."""
+    from .probabilistic import model_camera_to_srgb
+
+    a = model_camera_to_srgb(model)
+    if a is None:
+        raise InputError("the model has no camera colour metadata; drop --srgb to get camera RGB")
+    mean = mean @ a.T.astype(np.float32)
+    var = var @ (a * a).T.astype(np.float32)
+    big = np.float32(np.finfo(np.float32).max / 4)
+    mean = np.nan_to_num(mean, nan=0.0, posinf=big, neginf=-big).astype(np.float32)
+    var = np.nan_to_num(np.clip(var, 0, big), nan=big).astype(np.float32)
+    return mean, var
+
+
+def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike, output: str | os.PathLike,
+                    variance: str | os.PathLike | None = None, srgb: bool = False,
+                    compression: str = "zip", threads: int | None = None) -> dict:
+    """De-render an image straight into ``output`` (mean) and ``variance`` EXR files.
+
+    The same numbers as :func:`derender_image` (each distinct colour predicted once,
+    :func:`index_colours`), but the full-size mean and variance images are never formed:
+    the EXR writer (:func:`derender.fastmerge.write_exr_lines`) asks for 16-row blocks
+    and each is gathered from the per-colour tables in its worker thread. Outputs are
+    written atomically and never overwrite the input. Returns what was used and the
+    timings of the stages.
+    """
+    from .fastmerge import write_exr_lines
+    from .io import check_not_input
+
+    outs = [Path(output)] + ([Path(variance)] if variance is not None else [])
+    for out in outs:
+        check_not_input(out, [image_path])
+    if len(outs) == 2 and outs[0].resolve() == outs[1].resolve():
+        raise InputError(f"mean and variance outputs are the same file: {outs[0]}")
+    t0 = time.perf_counter()
+    codes = check_8bit_rgb(image_path)
+    model, used = resolve_model(model_path, image_path)
+    t1 = time.perf_counter()
+    index = index_colours(codes)
+    t2 = time.perf_counter()
+    mean_tab, var_tab = _colour_tables(model, index, srgb)
+    t3 = time.perf_counter()
+    h, w = codes.shape[:2]
+    timings = {"read_s": t1 - t0, "index_s": t2 - t1, "predict_s": t3 - t2}
+    for name, out, table in (("mean", outs[0], mean_tab), ("variance", variance, var_tab)):
+        if out is None:
+            continue
+        planes = [np.ascontiguousarray(table[:, c]) for c in (2, 1, 0)]   # B, G, R
+
+        def lines(y0: int, y1: int, buf: np.ndarray, planes=planes) -> None:
+            rows = index.rows(codes[y0:y1])
+            for k in range(3):
+                np.take(planes[k], rows, out=buf[:, k, :], mode="clip")  # clip: unbuffered out
+
+        ts = time.perf_counter()
+        write_exr_lines(out, w, h, lines, inputs=[image_path], compression=compression, threads=threads)
+        timings[f"write_{name}_s"] = time.perf_counter() - ts
+    return {"model": used, "width": w, "height": h, "distinct_colours": int(index.packed.shape[0]),
+            "timings": timings}

@@ -58,9 +58,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy.linalg import lapack
-from scipy.optimize import minimize
-from scipy.special import ndtri
 
 from .errors import InputError, ModelFileError
 
@@ -301,12 +298,24 @@ class _Table:
 
     def _gb_tables(self) -> list[np.ndarray]:
         if self._gb is None:
-            lo, w = self._lut_lo, self._lut_w[:, None]
-            v = self.values                                           # (n, n, n, C)
-            v = v[:, :, lo] * (1.0 - w) + v[:, :, lo + 1] * w           # along B: (n, n, 256, C)
-            v = v[:, lo] * (1.0 - w[:, :, None]) + v[:, lo + 1] * w[:, :, None]   # along G: (n, 256, 256, C)
-            v = v.reshape(-1, v.shape[-1])
-            self._gb = [np.ascontiguousarray(v[:, k:k + 3], dtype=np.float32) for k in range(0, v.shape[1], 3)]
+            # float32 throughout, one 3-value block at a time: the (n, 256, 256, 3) tables are
+            # ~30 MB each, and float64 temporaries of the full width cost seconds on first use
+            lo = self._lut_lo
+            w = self._lut_w.astype(np.float32)
+            vb = self.values[:, :, lo]                                  # along B: (n, n, 256, C)
+            vb += (self.values[:, :, lo + 1] - vb) * self._lut_w[:, None]
+            vb = vb.astype(np.float32)
+            wg = w[None, :, None, None]
+            tabs = []
+            for k in range(0, vb.shape[-1], 3):
+                part = np.ascontiguousarray(vb[..., k:k + 3])
+                out = part[:, lo]                                      # along G: (n, 256, 256, 3)
+                hi = part[:, lo + 1]
+                hi -= out
+                hi *= wg
+                out += hi
+                tabs.append(out.reshape(-1, 3))
+            self._gb = tabs
         return self._gb
 
     def at_codes(self, codes: np.ndarray) -> list[np.ndarray]:
@@ -555,6 +564,8 @@ def _se_kernel(A: np.ndarray, B: np.ndarray, log_ell: np.ndarray, log_sf: float)
 
 def _chol_solve_inv(K: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Cholesky of K (overwritten): returns (L, K^-1 y, K^-1) or None if not positive definite."""
+    from scipy.linalg import lapack  # scipy is imported on first fit, not by a prediction
+
     L, info = lapack.dpotrf(K, lower=1, clean=1, overwrite_a=1)
     if info != 0:
         return None
@@ -612,6 +623,8 @@ def _optimise(D: list[np.ndarray], y: np.ndarray, X: np.ndarray, r: np.ndarray |
         th0 = np.concatenate([np.log(ell0), [0.0, np.log(0.1)]])
     bounds = [(np.log(0.004), np.log(20.0))] * d + [(np.log(1e-2), np.log(1e2)), (np.log(1e-4), np.log(3.0))]
     th0 = np.clip(th0, [b[0] for b in bounds], [b[1] for b in bounds])
+    from scipy.optimize import minimize
+
     res = minimize(_gp_nll, th0, args=(D, y, r), jac=True, method="L-BFGS-B", bounds=bounds,
                    options={"maxiter": 200})
     return np.asarray(res.x if np.isfinite(res.fun) and res.fun < 1e24 else th0, dtype=np.float64)
@@ -635,6 +648,8 @@ def _noise_gp(th: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _noise_gp_weights(X: np.ndarray, thn: np.ndarray, l: np.ndarray) -> np.ndarray:
     K = _se_kernel(X, X, thn[:3], thn[3])
     K.flat[:: X.shape[0] + 1] += np.exp(2 * thn[4])
+    from scipy.linalg import lapack  # scipy is imported on first fit, not by a prediction
+
     L, info = lapack.dpotrf(K, lower=1, clean=1, overwrite_a=1)
     if info != 0:  # pragma: no cover - noise variance pi^2/2 keeps K well conditioned
         raise ModelFileError("noise GP covariance is not positive definite")
@@ -1364,5 +1379,7 @@ def interval_coverage(mean, var, truth, level: float = 0.95) -> np.ndarray:
     v = np.asarray(var, dtype=np.float64).reshape(-1, 3)
     if v.shape != m.shape:
         raise InputError("variance shape differs from mean shape")
+    from scipy.special import ndtri
+
     z = float(ndtri(0.5 + level / 2))
     return np.mean(np.abs(t - m) <= z * np.sqrt(np.maximum(v, 0.0)), axis=0)

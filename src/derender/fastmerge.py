@@ -68,6 +68,7 @@ __all__ = [
     "STREAMING_METHODS",
     "merge_files_fast",
     "write_exr_fast",
+    "write_exr_lines",
     "generate_bench_bracket",
     "run_bench",
     "format_bench",
@@ -1012,19 +1013,44 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
     hardly compresses: ~5 %; ``probe=1`` compresses every block). Deterministic bytes.
     ``compression="none"`` writes uncompressed lines. Non-finite values are refused
     (like :func:`derender.io.write_exr`); with ``half=True`` values beyond the half-float
-    range are clipped to +-65504 instead of becoming inf.
+    range are clipped to +-65504 instead of becoming inf. See :func:`write_exr_lines`
+    for images produced block by block.
+    """
+    arr = image
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise InputError(f"cannot write image of shape {arr.shape} to EXR")
+
+    def bgr_lines(y0: int, y1: int, buf: np.ndarray) -> None:
+        for k, c in enumerate((2, 1, 0)):  # channels in alphabetical order: B, G, R
+            buf[:, k, :] = arr[y0:y1, :, c]
+
+    return write_exr_lines(path, arr.shape[1], arr.shape[0], bgr_lines, half=half, inputs=inputs,
+                           compression=compression, level=level, threads=threads, probe=probe,
+                           min_saving=min_saving)
+
+
+def write_exr_lines(path: str | os.PathLike, width: int, height: int,
+                    lines: Callable[[int, int, np.ndarray], None], half: bool = False,
+                    inputs: Iterable[str | os.PathLike] = (), compression: str = "zip", level: int = 1,
+                    threads: int | None = None, probe: int = 16, min_saving: float = 0.1) -> Path:
+    """:func:`write_exr_fast` for an image that exists only block by block.
+
+    ``lines(y0, y1, buf)`` fills ``buf`` (float32, shape ``(y1 - y0, 3, width)``) with rows
+    ``y0:y1`` in planar B, G, R order (the alphabetical channel order of the file). It is
+    called from a thread pool on blocks of at most 16 rows, so it must be thread-safe and
+    should release the GIL (NumPy gathers and arithmetic do). Non-finite values are
+    refused; the other options are :func:`write_exr_fast`'s.
     """
     import cv2
 
     from .io import atomic_output
 
-    arr = image
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise InputError(f"cannot write image of shape {arr.shape} to EXR")
+    w, h = int(width), int(height)
+    if w < 1 or h < 1:
+        raise InputError(f"cannot write an empty {w}x{h} image to EXR")
     if compression not in _EXR_COMPRESSION:
         raise InputError(f"compression must be one of {', '.join(_EXR_COMPRESSION)}, got {compression!r}")
     comp_id = _EXR_COMPRESSION[compression][0]
-    h, w = arr.shape[:2]
     dtype = np.dtype("<f2") if half else np.dtype("<f4")
     deflate = _deflate(level)
     n_blocks = (h + 15) // 16 if comp_id == 3 else h
@@ -1032,16 +1058,12 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
     probe = max(1, int(probe))
 
     def raw_lines(y0: int, y1: int) -> np.ndarray:
-        buf = np.empty((y1 - y0, 3, w), dtype=dtype)
-        for k, c in enumerate((2, 1, 0)):  # channels in alphabetical order: B, G, R
-            src = arr[y0:y1, :, c]
-            if src.dtype != np.float32:
-                src = src.astype(np.float32)
-            if not cv2.checkRange(np.ascontiguousarray(src))[0]:
-                raise ValueError("refusing to write NaN/inf to EXR (internal error)")
-            if half:
-                src = np.clip(src, -65504.0, 65504.0)
-            buf[:, k, :] = src
+        buf = np.empty((y1 - y0, 3, w), dtype=np.float32)
+        lines(y0, y1, buf)
+        if not cv2.checkRange(buf.reshape(-1, w))[0]:
+            raise ValueError("refusing to write NaN/inf to EXR (internal error)")
+        if half:
+            return np.clip(buf, -65504.0, 65504.0).astype(dtype)
         return buf
 
     def group(g: int) -> list[bytes]:
