@@ -140,8 +140,10 @@ def test_stabilized_table_equals_stabilized_merge():
     b = simulate_bracket(size=(96, 64), exposures=5, seed=4, stops=1.0)
     st = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
     stab = stabilize.stabilize(st)
+    ones = np.ones(st.images.shape[:3])       # pixel weights force the reference engine (merge_linear)
     for nw in (True, False):
-        ref = stabilize.stabilized_merge(stab, noise_weighting=nw)
+        ref = stabilize.stabilized_merge(stab, noise_weighting=nw, pixel_weights=ones)
+        assert ref.info.get("engine") != "table"
         res = merge_stabilized_table(stab, noise_weighting=nw)
         assert res is not None
         scale = np.abs(ref.radiance).max(axis=2, keepdims=True)
@@ -310,3 +312,28 @@ def test_engine_rejects_bad_inputs():
     with pytest.raises(InputError):
         eng.finish((np.zeros((4, 4, 3), np.uint8), np.zeros((256, 3))), (np.zeros((4, 4, 3), np.uint8), np.zeros((256, 3))))
     assert isinstance(ResponseCurves(np.zeros((256, 3))), ResponseCurves) and HDRResult.MASK_DARK == 2
+
+
+@pytest.mark.parametrize("method", ["stabilized", "stabilized-joint"])
+def test_streamed_stabilized_equals_reference_engine(tmp_path, method):
+    """merge_files_fast streams stabilized brackets (8-bit frames, shifts, sampled fits) to the
+    in-memory method's numbers, the reference engine (merge_linear) included."""
+    from derender.camera import simulate_bracket, write_jpeg
+    from derender.io import read_stack
+    from derender.stabilize import stabilize, stabilized_merge
+
+    b = simulate_bracket(size=(160, 112), exposures=6, seed=5, style="camera")
+    paths = []
+    for j, t in enumerate(b.times):           # a hand-held bracket: frames moved by whole pixels
+        codes = np.roll(b.jpeg_codes[j], (j % 3 - 1, 2 - j % 4), axis=(0, 1))
+        paths.append(write_jpeg(tmp_path / f"{j:02d}.jpg", codes, float(t), "Sim", "Cam"))
+    res = merge_files_fast(paths, method=method, seed=3)
+    assert res.info["engine_path"] == "streaming"
+    stack = read_stack(paths)
+    stab = stabilize(stack, mode="joint" if method == "stabilized-joint" else "reference", seed=3)
+    assert np.any(np.asarray(stab.alignment.shifts) != 0)
+    assert res.info["shifts"] == np.asarray(stab.alignment.shifts).tolist()
+    ref = stabilized_merge(stab, pixel_weights=np.ones(stack.images.shape[:3]))
+    scale = np.abs(ref.radiance).max(axis=2, keepdims=True)
+    assert np.max(np.abs(res.radiance - ref.radiance) / np.maximum(scale, 1e-30)) < RTOL
+    np.testing.assert_array_equal(res.mask, ref.mask)

@@ -28,6 +28,7 @@ weights leave them out.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
@@ -497,6 +498,40 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
                          transforms=np.repeat(eye[None], n, axis=0), method=method, reference=ref,
                          shifts=np.zeros((n, 2), dtype=int))
     grey = [to_grey8(arr[j]) for j in range(n)]
+    transforms, info = chain_transforms(grey, method, ref, seed=seed, max_bits=max_bits, exclusion=exclusion)
+    out = np.empty((n, h, w, 3), dtype=np.float32)
+    valid = np.empty((n, h, w), dtype=bool)
+    shifts = None
+    if method == "mtb":
+        shifts = transforms_to_shifts(transforms)
+        for j in range(n):              # written in place: no per-frame temporaries
+            src = arr[j] if arr.dtype == np.float32 else arr[j].astype(np.float32)
+            _shift_into(out[j], src, shifts[j, 0], shifts[j, 1])
+            valid[j] = _shift_valid(h, w, shifts[j, 0], shifts[j, 1])
+    else:
+        for j in range(n):
+            if j == ref:
+                out[j], valid[j] = arr[j], True
+            else:
+                out[j], valid[j] = warp_image(arr[j], transforms[j])
+    return Alignment(images=out, valid=valid, transforms=transforms, method=method, reference=ref,
+                     shifts=shifts, info=info)
+
+
+def transforms_to_shifts(transforms: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) translation transforms -> (N, 2) integer shifts (dy, dx)."""
+    return np.rint(np.asarray(transforms)[:, [1, 0], 2]).astype(int)
+
+
+def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: int = 0, max_bits: int = 6,
+                     exclusion: int = 4) -> tuple[np.ndarray, dict]:
+    """Pairwise registration of neighbouring uint8 grey frames (:func:`to_grey8`), chained
+    towards ``ref``: (N, 3, 3) transforms (reference pixel coords -> image j coords) and
+    the per-pair details. ``method`` is ``"mtb"`` or ``"homography"`` (falls back to MTB
+    for frames too dark or bright for features)."""
+    n = len(grey)
+    h, w = grey[0].shape
+    eye = np.eye(3)
     # grey histograms once per image (every k-th row above MTB_PIXELS) for common_percentiles
     hstep = max(1, -(-h * w // MTB_PIXELS))
     hists = [np.bincount(g[::hstep].ravel(), minlength=256) for g in grey]
@@ -522,20 +557,4 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
                 info["pairs"].append({"from": a, "to": j, "fallback": "mtb", "shift": [dy, dx],
                                       "reason": str(exc)})
         transforms[j] = t @ transforms[a]
-    out = np.empty((n, h, w, 3), dtype=np.float32)
-    valid = np.empty((n, h, w), dtype=bool)
-    shifts = None
-    if method == "mtb":
-        shifts = np.rint(transforms[:, [1, 0], 2]).astype(int)
-        for j in range(n):              # written in place: no per-frame temporaries
-            src = arr[j] if arr.dtype == np.float32 else arr[j].astype(np.float32)
-            _shift_into(out[j], src, shifts[j, 0], shifts[j, 1])
-            valid[j] = _shift_valid(h, w, shifts[j, 0], shifts[j, 1])
-    else:
-        for j in range(n):
-            if j == ref:
-                out[j], valid[j] = arr[j], True
-            else:
-                out[j], valid[j] = warp_image(arr[j], transforms[j])
-    return Alignment(images=out, valid=valid, transforms=transforms, method=method, reference=ref,
-                     shifts=shifts, info=info)
+    return transforms, info

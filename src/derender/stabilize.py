@@ -67,6 +67,7 @@ __all__ = [
     "joint_color_matrices",
     "Stabilization",
     "stabilize",
+    "stabilize_aligned",
     "stabilized_merge",
     "merge_stabilized",
     "merge_stabilized_joint",
@@ -175,6 +176,14 @@ class _Blocks:
                 & (self.bmin[bright] > low) & (self.bmin[dark] > floor))
 
 
+def _pixels(images: Any, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """``images[j][ys, xs]`` of an array, or ``images.pixels(j, ys, xs)`` of a lazy stack
+    (the streaming merge of :mod:`derender.fastmerge` keeps 8-bit frames and their shifts)."""
+    if hasattr(images, "pixels"):
+        return images.pixels(j, ys, xs)
+    return np.asarray(images[j])[ys, xs]
+
+
 def _make_blocks(images: np.ndarray, valid: np.ndarray | None, block: int, max_blocks: int,
                  seed: int, times: np.ndarray | None = None) -> _Blocks:
     n, h, w, _ = images.shape
@@ -198,9 +207,9 @@ def _make_blocks(images: np.ndarray, valid: np.ndarray | None, block: int, max_b
     ys = ky[:, None] * bs + oy[None, :]
     xs = kx[:, None] * bs + ox[None, :]
     for j in range(n):
-        codes[j] = np.asarray(images[j])[ys, xs]
+        codes[j] = _pixels(images, j, ys, xs)
         if valid is not None:
-            vmask[j] = np.asarray(valid[j])[ys, xs].all(axis=1)
+            vmask[j] = _pixels(valid, j, ys, xs).all(axis=1)
     if times is not None:
         brightness = np.log(np.asarray(times, dtype=np.float64))
     else:
@@ -693,7 +702,7 @@ def power_law_plausible(gammas: Sequence[float], times: Sequence[float], max_tre
 
 def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
                  max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
-                 seed: int = 0) -> tuple[list, dict]:
+                 seed: int = 0, calibrate: Any = None) -> tuple[list, dict]:
     """Response model ``L_j = G(J_j ** rho_j)``: one response table ``G`` per channel common to
     the bracket (Debevec & Malik 1997, on the exponent-warped codes) and a relative
     exponent ``rho_j`` (geometric mean 1) per image from the pairwise 3x3-linearity
@@ -704,7 +713,8 @@ def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: fl
     style, the exponent search is biased by the S-curve (the local log-log slope of ``G``
     differs between the dark and bright parts that neighbouring exposures share: rho
     trends by +-0.2 across the bracket) and lowers PSNR; on true power laws use
-    ``response="power"``.
+    ``response="power"``. ``calibrate()`` (optional) returns the Debevec curves of the
+    unwarped ``images`` without reading them (the streaming path samples its frames).
     """
     from .response import calibrate_debevec
 
@@ -713,6 +723,8 @@ def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: fl
     pairs: list = []
 
     def table_for(r: np.ndarray) -> np.ndarray:
+        if calibrate is not None and np.all(r == 1.0):
+            return calibrate().log_inverse
         if np.all(r == 1.0) and images.min() >= 0.0 and images.max() <= 1.0:
             warped = images                 # no exponent warp: no full-size copy of the stack
         else:
@@ -1043,10 +1055,7 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
     """
     if not isinstance(stack, Stack):
         raise InputError(f"stabilize() needs a Stack, got {type(stack).__name__}")
-    if mode not in ("reference", "joint"):
-        raise InputError(f"mode must be 'reference' or 'joint', got {mode!r}")
-    if response not in ("auto", "power", "curve"):
-        raise InputError(f"response must be 'auto', 'power' or 'curve', got {response!r}")
+    _check_modes(mode, response)
     from .align import align_images
     from .response import check_usable
 
@@ -1062,7 +1071,37 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
             raise InputError(f"reference image {reference} is out of range 0..{n - 1}")
     al = align_images(images, method=align, reference=ref, seed=seed)
     t1 = time.perf_counter()
-    times = np.asarray(stack.times, dtype=np.float64)
+    stab = stabilize_aligned(al, stack.times, mode=mode, response=response, gammas=gammas, use_times=use_times,
+                             path=path, block=block, max_blocks=max_blocks, low=low, high=high, floor=floor,
+                             ransac_iter=ransac_iter, seed=seed)
+    stab.info["timings"] = {"align_s": t1 - t0, **stab.info["timings"]}
+    return stab
+
+
+def _check_modes(mode: str, response: str) -> None:
+    if mode not in ("reference", "joint"):
+        raise InputError(f"mode must be 'reference' or 'joint', got {mode!r}")
+    if response not in ("auto", "power", "curve"):
+        raise InputError(f"response must be 'auto', 'power' or 'curve', got {response!r}")
+
+
+def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", response: str = "auto",
+                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
+                      block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW, high: float = FIT_HIGH,
+                      floor: float = FIT_FLOOR, ransac_iter: int = 100, seed: int = 0,
+                      calibrate: Any = None) -> Stabilization:
+    """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
+
+    ``al`` is an :class:`derender.align.Alignment`, or a lazy equivalent with ``images``
+    and ``valid`` offering ``shape`` and ``pixels(j, ys, xs)`` (the streaming path of
+    :func:`derender.fastmerge.merge_files_fast`, which also passes ``calibrate``, see
+    :func:`_curve_model`). The reference is ``al.reference``.
+    """
+    _check_modes(mode, response)
+    t1 = time.perf_counter()
+    ref = int(al.reference)
+    times = np.asarray(times, dtype=np.float64)
+    n = times.shape[0]
     blocks = _make_blocks(al.images, al.valid, block, max_blocks, seed, times)
     info: dict = {}
     if gammas is not None:
@@ -1081,7 +1120,7 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
             info["gamma_trend"] = gamma_trend(ge.gammas, times)
             info["response"] = "power"
         if response == "curve" or (response == "auto" and not power_law_plausible(ge.gammas, times)):
-            cc, cinfo = _curve_model(blocks, al.images, times, low, high, floor, seed=seed)
+            cc, cinfo = _curve_model(blocks, al.images, times, low, high, floor, seed=seed, calibrate=calibrate)
             if ge is not None:
                 cinfo["rejected_power_gammas"] = ge.gammas.tolist()
             ge = GammaEstimate(gammas=np.array([c.effective_gamma for c in cc]), method="curve", info=cinfo)
@@ -1096,7 +1135,7 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
                                     n_iter=ransac_iter)
         how = ["joint"] * n
     t3 = time.perf_counter()
-    info["timings"] = {"align_s": t1 - t0, "response_s": t2 - t1, "matrices_s": t3 - t2}
+    info["timings"] = {"response_s": t2 - t1, "matrices_s": t3 - t2}
     return Stabilization(mode=mode, reference=ref, gammas=ge, matrices=mats, alignment=al, times=times,
                          curves=curves, how=how, info=info)
 
