@@ -52,8 +52,17 @@ def prepare(workdir: Path, size: tuple[int, int], seed: int = 0) -> tuple[Path, 
     from derender.derendering import fit_model
 
     workdir.mkdir(parents=True, exist_ok=True)
+    from derender.derendering import load_model
+    from derender.errors import DerenderError
+
     model = workdir / "nikon-d5100-gp.npz"
-    if not model.exists():
+    try:
+        load_model(model)
+        fresh = False
+    except DerenderError:          # missing, or written by another model-file version
+        fresh = True
+    if fresh:
+        model.unlink(missing_ok=True)
         pairs = chart_pairs("nikon-d5100")
         train = np.random.default_rng(seed).permutation(len(pairs.jpeg))[:5000]
         fit_model("gp", pairs.jpeg[train], pairs.raw[train], seed=seed).save(model)

@@ -248,7 +248,7 @@ def test_bad_model_files_raise(tmp_path, poly):
     foreign = tmp_path / "foreign.npz"
     np.savez(foreign, weights=np.ones(3))
     future = tmp_path / "future.npz"
-    np.savez(future, **{**arrays, "format_version": np.array(2)})
+    np.savez(future, **{**arrays, "format_version": np.array(D.MODEL_FORMAT_VERSION + 1)})
     unknown = tmp_path / "unknown.npz"
     np.savez(unknown, **{**arrays, "method": np.array("magic")})
     missing = tmp_path / "missing.npz"
@@ -258,7 +258,7 @@ def test_bad_model_files_raise(tmp_path, poly):
     pickled = tmp_path / "pickled.npz"
     np.savez(pickled, **{**arrays, "metadata_json": np.array([{"a": 1}], dtype=object)})
     cases = {junk: "not a readable", truncated: "not a readable", foreign: "not a derender model",
-             future: "version 2", unknown: "unknown model method", missing: "lacks parameters",
+             future: f"version {D.MODEL_FORMAT_VERSION + 1}", unknown: "unknown model method", missing: "lacks parameters",
              badshape: "inconsistent", pickled: "not a readable", tmp_path / "absent.npz": "not found"}
     for path, msg in cases.items():
         with pytest.raises(ModelFileError, match=msg):
@@ -326,6 +326,44 @@ def test_metrics_on_known_values():
     cov = D.interval_coverage(np.zeros_like(x), sd ** 2, x, level=0.95)
     np.testing.assert_allclose(cov, 0.95, atol=0.003)
     assert D.interval_coverage(np.zeros_like(x), sd ** 2, x, level=0.5) == pytest.approx(0.5, abs=0.005)
+
+
+
+def test_code_floor_is_the_best_function_of_the_code(data, gp, poly, rbf):
+    # hand-computed: codes A, A, B; truths (1,0,0), (2,0,0), (0,3,0): v_A = (1 + 2/4) / (1 + 1/4) = 1.2
+    codes = np.array([[9, 9, 9], [9, 9, 9], [1, 2, 3]])
+    truth = np.array([[1.0, 0, 0], [2.0, 0, 0], [0, 3.0, 0]])
+    np.testing.assert_allclose(D.code_floor_errors(codes, truth), [0.04, 0.16, 0.0])
+    # no other value for code A does better (it is the minimiser of sum ||v - x||^2 / ||x||^2)
+    vs = np.linspace(0.5, 2.5, 2001)
+    risk = (vs - 1.0) ** 2 + (vs - 2.0) ** 2 / 4
+    assert risk.min() >= 0.2 - 1e-12 and vs[np.argmin(risk)] == pytest.approx(1.2, abs=1e-3)
+    # a lower bound for every model on held-out colours, and far from zero (clipped codes)
+    _, _, jt, rt = data
+    floor = np.sqrt(D.code_floor_errors(jt, rt).mean())
+    for model in (gp, poly, rbf):
+        assert D.relative_rmse(model.predict(jt, point="map")[0], rt) > floor
+    assert floor > 0.05
+
+
+def test_gp_clip_pattern_clusters_and_bounded_noise(data, gp):
+    # clipped colours are clustered per clip pattern and a clipped test colour uses a cluster of
+    # its own pattern when there is one
+    jt = data[2]
+    bits = D._clip_bits(jt.astype(float), gp.clip_code)
+    lab = gp._assign(jt / 255.0)
+    g = gp.cluster_group
+    assert np.all(g[lab[bits == 0]] == 0) and np.all(g[lab[bits > 0]] >= 1)
+    own = np.isin(1 + bits, g) & (bits > 0)
+    assert own.any() and np.all(g[lab[own]] == 1 + bits[own])
+    # the input-dependent noise never exceeds its largest value on the training colours, anywhere
+    # in the code cube (an unbounded noise GP extrapolated to log-variances of 30+)
+    codes = np.random.default_rng(3).integers(0, 256, (4000, 3))
+    _, s2 = gp.predict_log(codes.astype(np.uint8), exact=True)
+    lab = gp._assign(codes / 255.0)
+    sf2 = np.exp(2 * gp.theta[lab, :, 3])
+    noise_max = np.exp(2 * gp.theta[lab, :, 4] + gp.theta_noise[lab, :, 7])
+    assert np.all(s2 <= (sf2 + noise_max) * gp.t_std[lab] ** 2 * (1 + 1e-9))
 
 
 # ----------------------------------------------------------------------------- polynomial baseline

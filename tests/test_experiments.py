@@ -13,10 +13,14 @@ from derender.experiments import (JPEG_INTERVALS, derender_table, format_table, 
 
 def test_derender_table_small():
     rows = derender_table(["nikon-d5100"], methods=("gp", "poly"), n_train=800, n_illuminants=3, n_exposures=8)
-    assert [r["method"] for r in rows] == ["gp", "poly"]
-    for r in rows:
+    assert [r["method"] for r in rows] == ["gp", "poly", "floor"]
+    for r in rows[:2]:
         assert np.isfinite(r["rel_rmse_all"]) and 0 < r["median_rel"] < 1
         assert all(0.5 < c <= 1 for c in r["coverage95"])
+    # the floor (best function of the code, fitted to the test colours) bounds every model from below
+    gp, poly, floor = (r["rel_rmse_all"] for r in rows)
+    assert 0 < floor < gp < poly
+    assert rows[0]["ratio_to_poly"] == gp / poly and rows[2]["ratio_to_poly"] == floor / poly
     text = format_table(rows, [("method", "method", ""), ("rel_rmse_all", "rel", ".3f")])
     assert "| gp |" in text
 

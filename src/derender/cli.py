@@ -649,6 +649,7 @@ def exp_derender_table(
                                    ("rel_rmse_all", "rel RMSE all", ".3f"), ("rel_rmse_in", "rel in-gamut", ".3f"),
                                    ("rel_rmse_all_mean", "rel RMSE all (mean)", ".3f"),
                                    ("rel_rmse_oog", "rel out-of-gamut", ".3f"), ("median_rel", "median rel", ".3f"),
+                                   ("ratio_to_poly", "/poly", ".2f"),
                                    ("coverage95", "95% coverage R/G/B", ".3f"), ("fit_seconds", "fit s", ".1f")]))
     if output is not None:
         output.write_text(json.dumps(rows, indent=2, default=float))
