@@ -9,6 +9,7 @@ import pytest
 
 from derender.camera import (
     bracket_paths,
+    bracket_times,
     expose_mosaic,
     gamut_compress,
     isp_render,
@@ -19,6 +20,7 @@ from derender.camera import (
     write_bracket,
 )
 from derender.colorimetry import LINEAR_SRGB_TO_XYZ
+from derender.errors import InputError
 from derender.io import read_exr, read_raw, read_stack
 from derender.spectral import load_camera
 
@@ -55,6 +57,34 @@ def test_noise_follows_poisson_gaussian_model(camera):
 def test_clipping_at_white_level(camera):
     dn = expose_mosaic(np.full((10, 10), 5.0), camera, 1.0, np.random.default_rng(0))
     assert np.all(dn == camera.white_level)
+
+
+def test_bracket_times_peak_percentile_covers_small_highlight():
+    """A highlight of 0.05 % of the frame: the 99.9th percentile leaves it above white at
+    ``t_min`` (it clips in every exposure); ``peak_percentile=100`` puts it at exactly
+    ``peak_level`` of white, and the dark end still reaches 25 % at the longest exposure."""
+    rng = np.random.default_rng(0)
+    cam = rng.uniform(0.5, 2.0, (100, 200, 3))          # 20000 px
+    cam[:2, :5] = 1000.0                                  # 10 px = 0.05 %
+    dark = np.percentile(cam.mean(-1), 2.0)
+    t_min = 1 / 2000
+    times, scale = bracket_times(cam, 5, t_min=t_min)
+    assert 1000.0 * scale * t_min > 1.0                  # default: the highlight clips at t_min
+    times, scale = bracket_times(cam, 5, t_min=t_min, peak_percentile=100.0)
+    assert 1000.0 * scale * t_min == pytest.approx(0.6, rel=1e-12)
+    times, scale = bracket_times(cam, 5, t_min=t_min, peak_percentile=100.0, peak_level=0.3)
+    assert 1000.0 * scale * t_min == pytest.approx(0.3, rel=1e-12)
+    assert dark * scale * times[-1] == pytest.approx(0.25, rel=1e-4)   # times are EXIF rationals
+    assert times[0] == pytest.approx(t_min) and np.all(np.diff(np.log(times)) > 0)
+    with pytest.raises(InputError):
+        bracket_times(cam, 5, peak_percentile=0.0)
+
+
+def test_simulated_bracket_with_peak_percentile_100_never_clips_raw_at_t_min():
+    b = simulate_bracket(size=(64, 48), exposures=3, pipeline="fixed", seed=3, peak_percentile=100.0, noise=False)
+    cam = b.camera
+    norm = (b.mosaics[0].astype(np.float64) - cam.black_level) / (cam.white_level - cam.black_level)
+    assert 0.55 < norm.max() <= 0.6 + 1e-3 and b.params["peak_percentile"] == 100.0
 
 
 def test_scene_spans_four_decades_and_no_exposure_captures_it(small_bracket):
