@@ -337,3 +337,19 @@ def test_streamed_stabilized_equals_reference_engine(tmp_path, method):
     scale = np.abs(ref.radiance).max(axis=2, keepdims=True)
     assert np.max(np.abs(res.radiance - ref.radiance) / np.maximum(scale, 1e-30)) < RTOL
     np.testing.assert_array_equal(res.mask, ref.mask)
+
+
+def test_streamed_stabilized_refuses_unusable_stacks(tmp_path):
+    """All-white frames: the streaming path raises the same StackError as the in-memory method."""
+    from derender.camera import write_jpeg
+    from derender.errors import StackError
+    from derender.io import read_stack
+    from derender.merge import merge
+
+    white = np.full((40, 64, 3), 255, np.uint8)
+    paths = [write_jpeg(tmp_path / f"{j}.jpg", white, t, "Sim", "Cam") for j, t in enumerate((0.01, 0.04))]
+    with pytest.raises(StackError) as streamed:
+        merge_files_fast(paths, method="stabilized")
+    with pytest.raises(StackError) as in_memory:
+        merge(read_stack(paths), "stabilized")
+    assert str(streamed.value) == str(in_memory.value)

@@ -27,6 +27,7 @@ weights leave them out.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -539,22 +540,37 @@ def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: in
     transforms = np.repeat(eye[None], n, axis=0)
     info: dict = {"pairs": []}
     order = list(range(ref - 1, -1, -1)) + list(range(ref + 1, n))
-    for j in order:
+
+    def translation(a: int, j: int) -> tuple[np.ndarray, list, list]:
+        qs = _common_percentiles_hist(hists[a], hists[j])
+        dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
+        return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]), [dy, dx], list(qs)
+
+    def register(j: int) -> tuple[np.ndarray, dict]:
+        """Transform T_(a <- j) of frame j against its neighbour a nearer the reference."""
         a = j + 1 if j < ref else j - 1
         if method == "mtb":
-            qs = _common_percentiles_hist(hists[a], hists[j])
-            dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
-            t = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
-            info["pairs"].append({"from": a, "to": j, "shift": [dy, dx], "percentiles": list(qs)})
-        else:
-            try:
-                t, n_inl = estimate_homography(grey[a], grey[j], seed=seed + j)
-                info["pairs"].append({"from": a, "to": j, "inliers": n_inl})
-            except StackError as exc:   # too dark/bright for features: translation instead
-                qs = _common_percentiles_hist(hists[a], hists[j])
-                dy, dx = mtb_shift(grey[a], grey[j], max_bits=max_bits, exclusion=exclusion, percentiles=qs)
-                t = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
-                info["pairs"].append({"from": a, "to": j, "fallback": "mtb", "shift": [dy, dx],
-                                      "reason": str(exc)})
+            t, shift, qs = translation(a, j)
+            return t, {"from": a, "to": j, "shift": shift, "percentiles": qs}
+        try:
+            t, n_inl = estimate_homography(grey[a], grey[j], seed=seed + j)
+            return t, {"from": a, "to": j, "inliers": n_inl}
+        except StackError as exc:   # too dark/bright for features: translation instead
+            t, shift, _ = translation(a, j)
+            return t, {"from": a, "to": j, "fallback": "mtb", "shift": shift, "reason": str(exc)}
+
+    # the pairs are independent (NumPy releases the GIL on the bitmaps): register them in
+    # threads, then chain in order
+    from concurrent.futures import ThreadPoolExecutor
+
+    workers = min(len(order), max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1))
+    if workers > 1 and h * w >= MTB_PIXELS:
+        with ThreadPoolExecutor(workers, thread_name_prefix="derender-align") as ex:
+            found = list(ex.map(register, order))
+    else:
+        found = [register(j) for j in order]
+    for j, (t, pair) in zip(order, found):
+        a = pair["from"]
+        info["pairs"].append(pair)
         transforms[j] = t @ transforms[a]
     return transforms, info

@@ -579,14 +579,11 @@ def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: boo
         return None
     valid = getattr(al, "valid", None)
 
-    def frame(j: int) -> tuple[np.ndarray, np.ndarray | None]:
-        return codes[j], (None if valid is None or np.all(valid[j]) else valid[j])
+    def band(j: int, y0: int, y1: int) -> tuple[np.ndarray, np.ndarray | None]:
+        v = None if valid is None else valid[j, y0:y1]
+        return codes[j, y0:y1], (None if v is None or v.all() else v)
 
-    wt = weight_table(weight)
-    masks = [all_usable_mask(codes[j], wt) for j in range(codes.shape[0])]
-    sel = _registered_or(masks, [frame(j)[1] for j in range(codes.shape[0])])
-    return _merge_stabilized_frames(stab, frame, codes.shape[1:3], weight, noise_weighting, threads, block_rows,
-                                    selector=sel)
+    return _merge_stabilized_bands(stab, band, codes.shape[1:3], weight, noise_weighting, threads, block_rows)
 
 
 def _registered_or(masks: Sequence[np.ndarray], valid: Sequence[np.ndarray | None]) -> np.ndarray:
@@ -639,14 +636,17 @@ def _stabilized_tables(stab, weight: Any, noise_weighting: bool):
     return values, mats, ivs
 
 
-def _merge_stabilized_frames(stab, frame: Callable[[int], tuple[np.ndarray, np.ndarray | None]],
-                             shape: tuple[int, int], weight: Any, noise_weighting: bool, threads: int | None,
-                             block_rows: int | None, selector: np.ndarray | None = None,
-                             contiguous: bool = True, accumulator: str = "float32") -> HDRResult | None:
-    """Accumulate ``frame(j) -> (aligned uint8 codes, registration mask or None)`` in image order.
+def _merge_stabilized_bands(stab, band: Callable[[int, int, int], tuple[np.ndarray, np.ndarray | None]],
+                            shape: tuple[int, int], weight: Any, noise_weighting: bool, threads: int | None,
+                            block_rows: int | None = None, band_rows: int = 32) -> HDRResult | None:
+    """The stabilised merge band by band: ``band(j, y0, y1) -> (aligned uint8 codes of rows
+    y0:y1 of image j, registration mask or None)``.
 
-    ``selector``: the OR over images of :func:`all_usable_mask` times the registration
-    masks, when known (halves the accumulators); else both weight sets are accumulated."""
+    Every band takes all images at once: the ``"min_else_brightest"`` choice of the band is
+    known before accumulating (OR over images of :func:`all_usable_mask` times the
+    registration masks), so one set of float32 accumulators of ``band_rows`` rows suffices
+    and stays in cache; bands run in ``threads`` threads. Per pixel the images are added in
+    order, as in the frame-by-frame engine (:class:`TableMerge`), whose code does the work."""
     tables = _stabilized_tables(stab, weight, noise_weighting)
     if tables is None:
         return None
@@ -654,29 +654,44 @@ def _merge_stabilized_frames(stab, frame: Callable[[int], tuple[np.ndarray, np.n
     al = stab.alignment
     times = np.asarray(stab.times, dtype=np.float64)
     n = times.shape[0]
+    h, w = int(shape[0]), int(shape[1])
     wt = weight_table(weight)
-    t0 = time.perf_counter()
     j_short, j_long = int(np.argmin(times)), int(np.argmax(times))
-    ends: dict[int, np.ndarray] = {}
-    with TableMerge(shape, channel_weights="min_else_brightest", domain="linear", threads=threads,
-                    block_rows=block_rows, accumulator=accumulator, selector=selector) as eng:
-        for j in range(n):
-            codes, pw = frame(j)
-            eng.add(codes, values[j], wt, matrix=mats[j], pixel_weights=pw, inverse_variance=ivs[j])
-            if j in (j_short, j_long):
-                ends[j] = codes
-            del codes, pw
-        res = eng.finish((ends[j_short], values[j_short], mats[j_short]),
-                         (ends[j_long], values[j_long], mats[j_long]), contiguous=contiguous)
-    res.info.update({"weight": weight if isinstance(weight, str) else "custom",
-                     "merge_seconds": time.perf_counter() - t0, "noise_weighting": bool(noise_weighting),
-                     "reference": stab.reference, "gammas": np.asarray(stab.gammas.gammas).tolist(),
-                     "gamma_method": getattr(stab.gammas, "method", None),
-                     "matrices": np.asarray(stab.matrices).tolist(), "mode": stab.mode, "how": stab.how,
-                     "align": getattr(al, "method", None)})
+    radiance = np.empty((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
+    mask = np.empty((h, w), dtype=np.uint8)
+    t0 = time.perf_counter()
+
+    def run(y0: int, y1: int) -> tuple[int, int]:
+        got = [band(j, y0, y1) for j in range(n)]
+        sel = _registered_or([all_usable_mask(c, wt) for c, _ in got], [v for _, v in got])
+        with TableMerge((y1 - y0, w), channel_weights="min_else_brightest", domain="linear", threads=1,
+                        block_rows=block_rows, accumulator="float32", selector=sel) as eng:
+            for j, (codes, pw) in enumerate(got):
+                eng.add(codes, values[j], wt, matrix=mats[j], pixel_weights=pw, inverse_variance=ivs[j])
+            res = eng.finish((got[j_short][0], values[j_short], mats[j_short]),
+                             (got[j_long][0], values[j_long], mats[j_long]))
+        radiance[:, y0:y1] = res.radiance.transpose(2, 0, 1)
+        mask[y0:y1] = res.mask
+        return res.info["n_bright"], res.info["n_dark"]
+
+    bands = [(y0, min(h, y0 + band_rows)) for y0 in range(0, h, band_rows)]
+    nthreads = min(_n_threads(threads), len(bands))
+    if nthreads > 1:
+        with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-merge") as ex:
+            counts = list(ex.map(lambda b: run(*b), bands))
+    else:
+        counts = [run(*b) for b in bands]
+    info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
+            "accumulator": "float32", "n_bright": sum(c[0] for c in counts), "n_dark": sum(c[1] for c in counts),
+            "weight": weight if isinstance(weight, str) else "custom",
+            "merge_seconds": time.perf_counter() - t0, "noise_weighting": bool(noise_weighting),
+            "reference": stab.reference, "gammas": np.asarray(stab.gammas.gammas).tolist(),
+            "gamma_method": getattr(stab.gammas, "method", None),
+            "matrices": np.asarray(stab.matrices).tolist(), "mode": stab.mode, "how": stab.how,
+            "align": getattr(al, "method", None)}
     if getattr(al, "shifts", None) is not None:
-        res.info["shifts"] = np.asarray(al.shifts).tolist()
-    return res
+        info["shifts"] = np.asarray(al.shifts).tolist()
+    return HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
 
 
 # --------------------------------------------------------------------------- files
@@ -868,7 +883,8 @@ class _ShiftedFrames:
     :func:`derender.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
     clip(x + dx)]``, codes as ``k * float32(1/255)``), without making them: ``shape`` and
     ``pixels(j, ys, xs)`` for :func:`derender.stabilize.stabilize_aligned`; ``codes(j)``
-    gives the aligned uint8 frame and ``valid(j)`` its registration mask (None if whole)."""
+    gives the aligned uint8 frame and ``band(j, y0, y1)`` rows of it with their
+    registration mask."""
 
     def __init__(self, frames: list[np.ndarray], shifts: np.ndarray):
         self.frames = frames
@@ -900,11 +916,23 @@ class _ShiftedFrames:
         _shift_into(out, self.frames[j], int(dy), int(dx))
         return out
 
-    def valid(self, j: int) -> np.ndarray | None:
-        from .align import _shift_valid
+    def band(self, j: int, y0: int, y1: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Rows y0:y1 of the aligned frame j (uint8) and their registration mask (None: all inside)."""
+        from .align import _shift_into
 
-        dy, dx = self.shifts[j]
-        return None if dy == 0 and dx == 0 else _shift_valid(self.shape[1], self.shape[2], int(dy), int(dx))
+        h, w = self.shape[1:3]
+        dy, dx = (int(v) for v in self.shifts[j])
+        if dy == 0 and dx == 0:
+            return self.frames[j][y0:y1], None
+        ys = np.arange(y0, y1) + dy
+        rows = self.frames[j][np.clip(ys, 0, h - 1)]
+        if dx != 0:
+            out = np.empty_like(rows)
+            _shift_into(out, rows, 0, dx)
+            rows = out
+        xs = np.arange(w) + dx
+        valid = ((ys >= 0) & (ys < h))[:, None] & ((xs >= 0) & (xs < w))[None, :]
+        return rows, (None if valid.all() else valid)
 
 
 class _ShiftedValid:
@@ -962,28 +990,28 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
         if codes is None:
             return None
         grey = to_grey8(codes) if align == "mtb" else None
-        return codes, grey, _histograms(codes), all_usable_mask(codes, wt)
+        return codes, grey
 
-    wt = weight_table(opts["weight"])
     frames: list[np.ndarray] = []
     greys: list[np.ndarray] = []
-    usable: list[np.ndarray] = []
-    hists = np.zeros((n, 3, N_CODES), dtype=np.int64)
     for j, item in enumerate(_prefetch(load, paths, depth=nthreads, workers=nthreads)):
         if item is None:
             raise _NotStreamable("16-bit input")
-        codes, grey, hists[j], use = item
-        usable.append(use)
+        codes, grey = item
         if frames and codes.shape != frames[0].shape:
             raise InputError(f"images differ in size: {paths[0].name} is {frames[0].shape[1]}x"
                              f"{frames[0].shape[0]}, {paths[j].name} is {codes.shape[1]}x{codes.shape[0]}")
         frames.append(codes)
         greys.append(grey)
-        del item, codes, grey, use
+        del item, codes, grey
     h, w = frames[0].shape[:2]
     if n < 2:
         raise StackError("an exposure stack needs at least two images")
-    _check_usable_hists(hists)
+    # response.check_usable: grid samples settle it, unless some channel shows no usable code there
+    ys, xs = _grid_positions(h, w, DEFAULT_SAMPLES, int(opts["seed"]))
+    probe = np.stack([f[ys, xs] for f in frames])
+    if not np.all(((probe > 0) & (probe < N_CODES - 1)).any(axis=(0, 1))):
+        _check_usable_hists(np.stack([_histograms(f) for f in frames]))
     # reference (stabilize.select_reference reads every k-th row of the float frames)
     if opts["reference"] is None:
         step = -(-h * w // REF_PIXELS)
@@ -1021,26 +1049,7 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
                              max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"], seed=seed,
                              calibrate=calibrate)
     t3 = time.perf_counter()
-    buf = [None]
-
-    def frame(j: int):
-        if buf[0] is None and np.any(shifts[j] != 0):
-            buf[0] = np.empty_like(frames[j])
-        use = buf[0] if j not in (int(np.argmin(t)), int(np.argmax(t))) else None
-        return view.codes(j, out=use), view.valid(j)
-
-    # which pixels some exposure sees with every channel usable (after registration)
-    for j in range(n):
-        if np.any(shifts[j] != 0):
-            from .align import _shift_into
-
-            moved = np.empty_like(usable[j])
-            _shift_into(moved, usable[j], int(shifts[j, 0]), int(shifts[j, 1]))
-            usable[j] = moved
-    selector = _registered_or(usable, [view.valid(j) for j in range(n)])
-    del usable
-    res = _merge_stabilized_frames(stab, frame, (h, w), opts["weight"], opts["noise_weighting"], threads, None,
-                                   selector=selector, contiguous=False)
+    res = _merge_stabilized_bands(stab, view.band, (h, w), opts["weight"], opts["noise_weighting"], threads)
     if res is None:
         raise _NotStreamable("no table form for these curves")
     t4 = time.perf_counter()
