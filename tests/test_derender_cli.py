@@ -181,6 +181,15 @@ def test_probabilistic_beats_debevec_on_jpeg_files_and_variance_marks_censored(m
         assert rel[censored].min() > 1.0 and rel[~censored].max() < 0.5, (kind, rel[censored].min(), rel[~censored].max())
         again = merge_probabilistic(st, m, colour_space="camera_rgb")
         np.testing.assert_array_equal(again.radiance, r.radiance)
+        # the files stream band by band (merge_files_fast, as the CLI does) to the same numbers
+        from derender.fastmerge import merge_files_fast
+
+        streamed = merge_files_fast(bracket_paths(tmp_path / kind, "jpeg"), method="probabilistic", model=m,
+                                    colour_space="camera_rgb")
+        assert streamed.info["engine_path"] == "streaming"
+        np.testing.assert_array_equal(streamed.radiance, r.radiance)
+        np.testing.assert_array_equal(streamed.variance, r.variance)
+        np.testing.assert_array_equal(streamed.mask, r.mask)
 
 
 def test_index_colours_matches_unique():

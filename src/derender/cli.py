@@ -185,27 +185,28 @@ def merge_cmd(
         raise InputError(f"--variance must end in .exr, got {variance.name}")
     t0 = time.perf_counter()
     inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
+    extra = {}
     if model is not None:
-        from .benchmark import merge_seeded
         from .derender_io import resolve_model
-        from .io import write_exr
 
-        stack = _read_stack_from_cli(images, times, times_file, times_inverse)
         model_obj, used = resolve_model(model, images[0])
         typer.echo(f"de-rendering model: {used}", err=True)
-        result = merge_seeded(stack, method, seed, model=model_obj)
-        write_exr(output, result.radiance, half=half, inputs=inputs)
-    else:
-        # 8-bit files stream (frame by frame, table merge, parallel EXR write); others: read_stack + merge
-        result = merge_files_fast(images, parse_times(times) if times is not None else None, method,
-                                  times_file=times_file, times_file_inverse=times_inverse, output=output, half=half,
-                                  inputs=inputs, seed=seed)
+        extra["model"] = model_obj
+    if variance is not None:
+        from .io import check_not_input
+
+        check_not_input(variance, inputs + [output])
+    # 8-bit files stream (frame by frame or band by band, table merge, parallel EXR write);
+    # others: read_stack + merge
+    result = merge_files_fast(images, parse_times(times) if times is not None else None, method,
+                              times_file=times_file, times_file_inverse=times_inverse, output=output, half=half,
+                              inputs=inputs, seed=seed, **extra)
     if variance is not None:
         if result.variance is None:
             raise InputError(f"method {method!r} gives no variance")
-        from .io import write_exr
+        from .fastmerge import write_exr_fast
 
-        write_exr(variance, result.variance, half=half, inputs=inputs)
+        write_exr_fast(variance, result.variance, half=half, inputs=inputs + [output])
     if preview is not None:
         write_preview(preview, result.radiance, inputs=inputs)
     if mask is not None:

@@ -26,7 +26,7 @@ import numpy as np
 from .errors import InputError, ModelFileError
 
 __all__ = ["pairs_from_images", "resolve_model", "derender_image", "derender_to_exr", "check_8bit_rgb",
-           "index_colours", "ColourIndex", "pack_codes"]
+           "index_colours", "ColourIndex", "ColourIndexBuilder", "pack_codes"]
 
 
 def check_8bit_rgb(path: str | os.PathLike) -> np.ndarray:
@@ -188,23 +188,38 @@ class ColourIndex:
         return np.take(self.lut, pack_codes(codes), mode="clip")
 
 
+class ColourIndexBuilder:
+    """Collects the distinct colours of several 8-bit images (a presence bitmap over the 2**24
+    colours, filled in row blocks without full-size temporaries); :meth:`finish` gives the
+    :class:`ColourIndex` of their union."""
+
+    def __init__(self, block_rows: int = 64):
+        self.present = np.zeros(_N_PACKED, dtype=bool)
+        self.block_rows = int(block_rows)
+
+    def add(self, codes: np.ndarray) -> None:
+        if codes.dtype != np.uint8 or codes.shape[-1] != 3:
+            raise InputError(f"colour indexing needs uint8 RGB codes, got {codes.dtype} {codes.shape}")
+        rows = codes.reshape(-1, codes.shape[-2] if codes.ndim == 3 else 1, 3)
+        for y in range(0, rows.shape[0], self.block_rows):
+            self.present[pack_codes(rows[y:y + self.block_rows]).reshape(-1)] = True
+
+    def finish(self) -> ColourIndex:
+        packed = np.flatnonzero(self.present).astype(np.int32)
+        lut = np.empty(_N_PACKED, dtype=np.int32)   # only the present entries are ever read
+        lut[packed] = np.arange(packed.shape[0], dtype=np.int32)
+        return ColourIndex(packed=packed, lut=lut)
+
+
 def index_colours(codes: np.ndarray, block_rows: int = 64) -> ColourIndex:
     """Distinct colours of uint8 codes (H, W, 3) or (P, 3), scanned in row blocks.
 
-    A presence bitmap over the 2**24 colours is filled block by block (no full-size
-    temporaries), so the cost grows with the pixels, and the tables built from it with
-    the distinct colours (a photograph has ~10^5-10^6 of them among 2.4 10^7 pixels).
+    The cost grows with the pixels, and the tables built from the index with the distinct
+    colours (a photograph has ~10^5-10^6 of them among 2.4 10^7 pixels).
     """
-    if codes.dtype != np.uint8 or codes.shape[-1] != 3:
-        raise InputError(f"index_colours needs uint8 RGB codes, got {codes.dtype} {codes.shape}")
-    rows = codes.reshape(-1, codes.shape[-2] if codes.ndim == 3 else 1, 3)
-    present = np.zeros(_N_PACKED, dtype=bool)
-    for y in range(0, rows.shape[0], block_rows):
-        present[pack_codes(rows[y:y + block_rows]).reshape(-1)] = True
-    packed = np.flatnonzero(present).astype(np.int32)
-    lut = np.empty(_N_PACKED, dtype=np.int32)   # only the present entries are ever read
-    lut[packed] = np.arange(packed.shape[0], dtype=np.int32)
-    return ColourIndex(packed=packed, lut=lut)
+    builder = ColourIndexBuilder(block_rows)
+    builder.add(codes)
+    return builder.finish()
 
 
 def _colour_tables(model, index: ColourIndex, srgb: bool) -> tuple[np.ndarray, np.ndarray]:

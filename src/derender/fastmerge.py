@@ -856,7 +856,7 @@ def _calibrate_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Ca
 
 
 #: Methods :func:`merge_files_fast` streams (others are read into memory and merged by :func:`derender.merge.merge`).
-STREAMING_METHODS = ("debevec", "stabilized", "stabilized-joint")
+STREAMING_METHODS = ("debevec", "stabilized", "stabilized-joint", "probabilistic")
 
 
 def _method_options(method: str, options: dict) -> dict:
@@ -961,18 +961,66 @@ class _LazyAlignment:
     info: dict
 
 
+def _read_frames(paths: list[Path], threads: int | None, extra: Callable[[np.ndarray], Any] | None = None
+                 ) -> tuple[list[np.ndarray], list[Any]]:
+    """Decode 8-bit frames (in threads, in order), with ``extra(codes)`` computed in the decoding thread."""
+    nthreads = _n_threads(threads)
+
+    def load(p: Path):
+        codes = read_codes(p)
+        if codes is None:
+            return None
+        return codes, (extra(codes) if extra is not None else None)
+
+    frames: list[np.ndarray] = []
+    extras: list[Any] = []
+    for j, item in enumerate(_prefetch(load, paths, depth=nthreads, workers=nthreads)):
+        if item is None:
+            raise _NotStreamable("16-bit input")
+        codes, more = item
+        if frames and codes.shape != frames[0].shape:
+            raise InputError(f"images differ in size: {paths[0].name} is {frames[0].shape[1]}x"
+                             f"{frames[0].shape[0]}, {paths[j].name} is {codes.shape[1]}x{codes.shape[0]}")
+        frames.append(codes)
+        extras.append(more)
+        del item, codes, more
+    if len(frames) < 2:
+        raise StackError("an exposure stack needs at least two images")
+    return frames, extras
+
+
+def _stream_probabilistic(paths: list[Path], t: np.ndarray, opts: dict, threads: int | None) -> HDRResult:
+    """:func:`derender.probabilistic.merge_probabilistic` on 8-bit files, band by band (same numbers)."""
+    from .probabilistic import _check_options, _load, merge_probabilistic_frames
+
+    model = _load(opts.get("model"))
+    space, _ = _check_options(model, opts["target_time"], opts["colour_space"], opts["censor"], opts["space"],
+                              opts["floor"], opts["clip_code"])
+    if space != "log":
+        raise _NotStreamable("raw-space product")
+    t0 = time.perf_counter()
+    frames, _ = _read_frames(paths, threads)
+    t1 = time.perf_counter()
+    res = merge_probabilistic_frames(frames, t, model, target_time=opts["target_time"],
+                                     colour_space=opts["colour_space"], censor=opts["censor"], space=opts["space"],
+                                     floor=opts["floor"], clip_code=opts["clip_code"], threads=threads)
+    res.info["timings"] = {"decode_s": t1 - t0, "merge_s": time.perf_counter() - t1}
+    res.info["streaming"] = {"frames_kept": len(frames), "decodes": len(frames)}
+    return res
+
+
 def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict,
                        threads: int | None) -> HDRResult:
     """:func:`derender.stabilize.merge_stabilized` (or ``-joint``) on 8-bit files, same result.
 
     Each frame is decoded once and kept as 8-bit codes (72 MB per 24 MP frame, a quarter
     of the float image the in-memory path holds, which also keeps an aligned copy); grey
-    images and histograms are made in the decoding threads. Registration (MTB) works on
-    the greys, the reference is chosen on the row-subsampled codes exactly as
+    images are made in the decoding threads. Registration (MTB) works on the greys, the
+    reference is chosen on the row-subsampled codes exactly as
     :func:`~derender.stabilize.select_reference` does, the gamma / matrix fits read only
     their sampled blocks through :class:`_ShiftedFrames`, the Debevec curve (filmic
-    cameras) comes from grid samples of the aligned frames, and the merge shifts one
-    frame at a time into the table engine.
+    cameras) comes from grid samples of the aligned frames, and the merge takes bands of
+    rows of all aligned frames (:func:`_merge_stabilized_bands`).
     """
     from .align import chain_transforms, to_grey8, transforms_to_shifts
     from .response import DEFAULT_LAMBDA, DEFAULT_SAMPLES, _grid_positions
@@ -982,31 +1030,9 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
     if align not in ("mtb", "none"):
         raise _NotStreamable(f"align={align!r} warps frames")
     n = len(paths)
-    nthreads = _n_threads(threads)
     t0 = time.perf_counter()
-
-    def load(p: Path):
-        codes = read_codes(p)
-        if codes is None:
-            return None
-        grey = to_grey8(codes) if align == "mtb" else None
-        return codes, grey
-
-    frames: list[np.ndarray] = []
-    greys: list[np.ndarray] = []
-    for j, item in enumerate(_prefetch(load, paths, depth=nthreads, workers=nthreads)):
-        if item is None:
-            raise _NotStreamable("16-bit input")
-        codes, grey = item
-        if frames and codes.shape != frames[0].shape:
-            raise InputError(f"images differ in size: {paths[0].name} is {frames[0].shape[1]}x"
-                             f"{frames[0].shape[0]}, {paths[j].name} is {codes.shape[1]}x{codes.shape[0]}")
-        frames.append(codes)
-        greys.append(grey)
-        del item, codes, grey
+    frames, greys = _read_frames(paths, threads, extra=to_grey8 if align == "mtb" else None)
     h, w = frames[0].shape[:2]
-    if n < 2:
-        raise StackError("an exposure stack needs at least two images")
     # response.check_usable: grid samples settle it, unless some channel shows no usable code there
     ys, xs = _grid_positions(h, w, DEFAULT_SAMPLES, int(opts["seed"]))
     probe = np.stack([f[ys, xs] for f in frames])
@@ -1110,6 +1136,8 @@ def merge_files_fast(paths: Sequence[str | os.PathLike], times: Sequence[float] 
             if method == "debevec":
                 res = _stream_debevec(paths, t, opts, threads=threads, keep_frames=keep_frames,
                                       keep_bytes=keep_bytes)
+            elif method == "probabilistic":
+                res = _stream_probabilistic(paths, t, opts, threads=threads)
             else:
                 res = _stream_stabilized(paths, t, method, opts, threads=threads)
         except _NotStreamable:

@@ -213,6 +213,52 @@ def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colo
     model = _load(model)
     if stack.bit_depth == 16:
         raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
+    space, a = _check_options(model, target_time, colour_space, censor, space, floor, clip_code)
+    t0 = time.perf_counter()
+    codes = stack.codes()
+    h, w = stack.shape
+    if space == "log":
+        mean0, var0 = _product_log(model, codes, stack.times, float(target_time), censor, float(floor), int(clip_code))
+    else:
+        mean0, var0 = _product_linear(model, codes, stack.times, float(target_time), censor)
+    radiance, variance = finite_outputs(mean0, var0, a)
+    return HDRResult(radiance=radiance, mask=saturation_mask(codes[0], codes[-1]), variance=variance,
+                     info=_info(model, colour_space, target_time, space, censor, floor, time.perf_counter() - t0))
+
+
+def _info(model, colour_space: str, target_time: float, space: str, censor: bool, floor: float,
+          seconds: float) -> dict:
+    return {"method": "probabilistic", "colour_space": colour_space, "target_time": target_time, "space": space,
+            "censor": bool(censor), "floor": float(floor), "model": getattr(model, "method", "?"),
+            "merge_seconds": seconds}
+
+
+def saturation_mask(shortest: np.ndarray, longest: np.ndarray) -> np.ndarray:
+    """HDRResult mask from the codes of the shortest and longest exposure (information only:
+    the probabilistic merge discards no pixel)."""
+    sat_short = np.any(shortest >= 255, axis=-1)
+    dark_long = np.all(longest <= 0, axis=-1)
+    mask = np.zeros(shortest.shape[:-1], dtype=np.uint8)
+    mask[sat_short] = HDRResult.MASK_BRIGHT
+    mask[dark_long & ~sat_short] = HDRResult.MASK_DARK
+    return mask
+
+
+def finite_outputs(mean0: np.ndarray, var0: np.ndarray, a: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Camera RGB moments -> float32 radiance and variance (through ``a``, camera -> linear
+    sRGB, when given; variance by the diagonal of ``A S A^T``), finite by construction."""
+    if a is not None:
+        mean0 = mean0 @ a.T
+        var0 = var0 @ (a * a).T
+    big = np.finfo(np.float32).max / 4
+    radiance = np.nan_to_num(np.clip(mean0, -big, big), nan=0.0, posinf=big, neginf=-big).astype(np.float32)
+    variance = np.nan_to_num(np.clip(var0, 0, big), nan=big, posinf=big).astype(np.float32)
+    return radiance, variance
+
+
+def _check_options(model, target_time: float, colour_space: str, censor: bool, space: str | None, floor: float,
+                   clip_code: int) -> tuple[str, np.ndarray | None]:
+    """Validated ``space`` and the camera -> linear sRGB matrix (None for camera RGB output)."""
     if not (np.isfinite(target_time) and target_time > 0):
         raise InputError("target_time must be a positive number of seconds")
     if space is None:
@@ -233,29 +279,61 @@ def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colo
         raise InputError(f"colour_space must be 'linear_srgb' or 'camera_rgb', got {colour_space!r}")
     if space == "log" and not hasattr(model, "predict_log"):
         space = "linear"   # deterministic / raw-space models: eq. 3 in raw space
+    return space, a
+
+
+def merge_probabilistic_frames(frames: list[np.ndarray], times: np.ndarray, model: Any, target_time: float = 1.0,
+                               colour_space: str = "linear_srgb", censor: bool = True, space: str | None = None,
+                               floor: float = 0.01, clip_code: int = 245, threads: int | None = None,
+                               band_rows: int = 32, seed: int = 0) -> HDRResult:
+    """:func:`merge_probabilistic` on 8-bit frames (uint8 (H, W, 3), sorted by time), band by band.
+
+    The same numbers with the memory of the frames themselves: every distinct colour of
+    the bracket is de-rendered once (:func:`_log_tables` on the union of the frames'
+    colours), and bands of ``band_rows`` rows gather their tables and multiply the
+    exposures' Gaussians in ``threads`` threads. Log-space product only (GP models);
+    raw-space models go through :func:`merge_probabilistic`."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .derender_io import ColourIndexBuilder
+
+    model = _load(model)
+    space, a = _check_options(model, target_time, colour_space, censor, space, floor, clip_code)
+    if space != "log":
+        raise InputError("the banded probabilistic merge needs a log-space model (gp)")
+    times = np.asarray(times, dtype=np.float64)
+    if len(frames) != times.shape[0] or np.any(np.diff(times) < 0):
+        raise InputError("frames and times must match, sorted by exposure time")
     t0 = time.perf_counter()
-    codes = stack.codes()
-    h, w = stack.shape
-    if space == "log":
-        mean0, var0 = _product_log(model, codes, stack.times, float(target_time), censor, float(floor), int(clip_code))
+    builder = ColourIndexBuilder()
+    for f in frames:
+        builder.add(f)
+    index = builder.finish()
+    table = _log_planes(model, index.codes.astype(np.uint8), float(floor), int(clip_code), censor)
+    h, w = frames[0].shape[:2]
+    radiance = np.empty((h, w, 3), dtype=np.float32)
+    variance = np.empty((h, w, 3), dtype=np.float32)
+    mask = np.empty((h, w), dtype=np.uint8)
+    log_scales = [float(np.log(target_time / t)) for t in times]
+
+    def run(y0: int, y1: int) -> None:
+        prod = _LogProduct((y1 - y0, w))
+        for f, ls in zip(frames, log_scales):
+            prod.add_rows(table, index.rows(f[y0:y1]), ls)
+        radiance[y0:y1], variance[y0:y1] = finite_outputs(*prod.moments(censor), a)
+        mask[y0:y1] = saturation_mask(frames[0][y0:y1], frames[-1][y0:y1])
+
+    bands = [(y0, min(h, y0 + band_rows)) for y0 in range(0, h, band_rows)]
+    nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
+    if nthreads > 1 and len(bands) > 1:
+        with ThreadPoolExecutor(min(nthreads, len(bands)), thread_name_prefix="derender-prob") as ex:
+            list(ex.map(lambda b: run(*b), bands))
     else:
-        mean0, var0 = _product_linear(model, codes, stack.times, float(target_time), censor)
-    if a is not None:
-        mean0 = mean0 @ a.T
-        var0 = var0 @ (a * a).T
-    # saturation mask (information only: no pixel is discarded)
-    sat_short = np.any(codes[0] >= 255, axis=-1)
-    dark_long = np.all(codes[-1] <= 0, axis=-1)
-    mask = np.zeros((h, w), dtype=np.uint8)
-    mask[sat_short] = HDRResult.MASK_BRIGHT
-    mask[dark_long & ~sat_short] = HDRResult.MASK_DARK
-    big = np.finfo(np.float32).max / 4
-    radiance = np.nan_to_num(np.clip(mean0, -big, big), nan=0.0, posinf=big, neginf=-big).astype(np.float32)
-    variance = np.nan_to_num(np.clip(var0, 0, big), nan=big, posinf=big).astype(np.float32)
-    return HDRResult(radiance=radiance, mask=mask, variance=variance,
-                     info={"method": "probabilistic", "colour_space": colour_space, "target_time": target_time,
-                           "space": space, "censor": bool(censor), "floor": float(floor),
-                           "model": getattr(model, "method", "?"), "merge_seconds": time.perf_counter() - t0})
+        for b in bands:
+            run(*b)
+    info = _info(model, colour_space, target_time, space, censor, floor, time.perf_counter() - t0)
+    info["distinct_colours"] = int(index.packed.shape[0])
+    return HDRResult(radiance=radiance, mask=mask, variance=variance, info=info)
 
 
 def _product_linear(model, codes: np.ndarray, times: np.ndarray, target_time: float, censor: bool
@@ -286,50 +364,100 @@ def _product_linear(model, codes: np.ndarray, times: np.ndarray, target_time: fl
     return mean0, var0
 
 
-def _product_log(model, codes: np.ndarray, times: np.ndarray, target_time: float, censor: bool, floor: float,
-                 clip_code: int, per_channel: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 3 on the GP's log-space Gaussians (module docstring); raw-space mean and variance, camera RGB."""
-    n, h, w = codes.shape[:3]
+def _log_tables(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
+                per_channel: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What one observation of each colour (uint8 (M, 3)) contributes to the log-space product,
+    before its exposure scaling ``log(t_0 / t_i)`` is added (a function of the colour alone,
+    so computed once per distinct colour): the log raw median ``log(exp(mu) - eps)``, the
+    joint precision of the measured channels (0 where censored) and the censoring lower
+    bound (``-inf`` where measured); float64 (M, 3) each. See the module docstring."""
     eps = float(getattr(model, "eps", 0.0))
     tiny = 1e-30
-    prec = np.zeros((h, w, 3), dtype=np.float64)
-    acc = np.zeros((h, w, 3), dtype=np.float64)
-    bound = np.full((h, w, 3), -np.inf)
-    for i in range(n):
-        mu, s2 = model.predict_log(codes[i])
-        mu = np.clip(np.nan_to_num(np.asarray(mu, dtype=np.float64), nan=0.0), -_MAX_LOG, _MAX_LOG)
-        s2 = np.clip(np.nan_to_num(np.asarray(s2, dtype=np.float64), nan=1e6), 1e-12, 1e6)
-        # log of the raw median, exposure-scaled: l = log(exp(mu) - eps) + log s, var by the delta method
-        e = np.exp(mu)
-        r = np.maximum(e - eps, tiny)
-        logs = np.log(target_time / times[i])
-        lg = np.log(r) + logs
-        s2l = np.minimum(s2 * (e / r) ** 2, 1e6) + floor
-        clipped = np.zeros(codes[i].shape, dtype=bool)
-        if censor:
-            clipped = codes[i] >= clip_code
-            if not per_channel:
-                clipped = np.repeat(np.any(clipped, axis=-1, keepdims=True), 3, axis=-1)
-            if clipped.any():
-                low = np.log(np.maximum(np.exp(mu - 2.0 * np.sqrt(s2)) - eps, tiny)) + logs
-                bound = np.where(clipped, np.maximum(bound, low), bound)
-        # joint per-pixel weight: one precision for the colour's measured (uncensored) channels
-        n_ok = np.sum(~clipped, axis=-1, keepdims=True)
-        mean_s2 = np.sum(np.where(clipped, 0.0, s2l), axis=-1, keepdims=True) / np.maximum(n_ok, 1)
-        p = np.where(clipped | (n_ok == 0), 0.0, 1.0 / np.maximum(mean_s2, 1e-12))
-        prec += p
-        acc += lg * p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v = np.where(prec > 0, 1.0 / prec, np.inf)
-        m = np.where(prec > 0, acc * v, 0.0)
+    mu, s2 = model.predict_log(colours)
+    mu = np.clip(np.nan_to_num(np.asarray(mu, dtype=np.float64), nan=0.0), -_MAX_LOG, _MAX_LOG)
+    s2 = np.clip(np.nan_to_num(np.asarray(s2, dtype=np.float64), nan=1e6), 1e-12, 1e6)
+    # log of the raw median, var by the delta method
+    e = np.exp(mu)
+    r = np.maximum(e - eps, tiny)
+    lg = np.log(r)
+    s2l = np.minimum(s2 * (e / r) ** 2, 1e6) + floor
+    clipped = np.zeros(colours.shape, dtype=bool)
+    low = np.full(colours.shape, -np.inf)
     if censor:
-        m, v = _truncate_below_log(m, v, bound)
-    m = np.clip(m, -_MAX_LOG, _MAX_LOG)
-    v = np.clip(v, 0.0, 60.0)
-    with np.errstate(over="ignore"):
-        mean0 = np.exp(m + 0.5 * v)
-        var0 = np.expm1(v) * np.exp(2.0 * m + v)
-    return mean0, var0
+        clipped = colours >= clip_code
+        if not per_channel:
+            clipped = np.repeat(np.any(clipped, axis=-1, keepdims=True), 3, axis=-1)
+        if clipped.any():
+            low = np.where(clipped, np.log(np.maximum(np.exp(mu - 2.0 * np.sqrt(s2)) - eps, tiny)), -np.inf)
+    # joint per-pixel weight: one precision for the colour's measured (uncensored) channels
+    n_ok = np.sum(~clipped, axis=-1, keepdims=True)
+    mean_s2 = np.sum(np.where(clipped, 0.0, s2l), axis=-1, keepdims=True) / np.maximum(n_ok, 1)
+    p = np.where(clipped | (n_ok == 0), 0.0, 1.0 / np.maximum(mean_s2, 1e-12))
+    return lg, p, low
+
+
+class _LogProduct:
+    """Accumulators of the log-space product (eq. 3) for a block of pixels, channel planes (3, ...)."""
+
+    def __init__(self, shape: tuple[int, ...]):
+        self.prec = np.zeros((3, *shape), dtype=np.float64)
+        self.acc = np.zeros((3, *shape), dtype=np.float64)
+        self.bound = np.full((3, *shape), -np.inf)
+
+    def add_rows(self, planes: np.ndarray, rows: np.ndarray, log_scale: float) -> None:
+        """One exposure: ``planes`` (9, M) = ``[lg; p; low]`` per channel of its colours (from
+        :func:`_log_tables`, transposed), ``rows`` (...) the row of each pixel's colour, and
+        ``log(t_0 / t_i)``."""
+        t = np.empty(rows.shape, dtype=np.float64)
+        p = np.empty(rows.shape, dtype=np.float64)
+        for c in range(3):
+            np.take(planes[3 + c], rows, out=p, mode="clip")       # clip: rows are valid; unbuffered out
+            self.prec[c] += p
+            np.take(planes[c], rows, out=t, mode="clip")
+            t += log_scale
+            t *= p
+            self.acc[c] += t
+            np.take(planes[6 + c], rows, out=t, mode="clip")
+            t += log_scale
+            np.maximum(self.bound[c], t, out=self.bound[c])
+
+    def moments(self, censor: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Raw-space mean and variance (..., 3) of the (censored) log-normal product, camera RGB."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = np.where(self.prec > 0, 1.0 / self.prec, np.inf)
+            m = np.where(self.prec > 0, self.acc * v, 0.0)
+        if censor:
+            m, v = _truncate_below_log(m, v, self.bound)
+        m = np.clip(m, -_MAX_LOG, _MAX_LOG)
+        v = np.clip(v, 0.0, 60.0)
+        with np.errstate(over="ignore"):
+            mean0 = np.exp(m + 0.5 * v)
+            var0 = np.expm1(v) * np.exp(2.0 * m + v)
+        return np.moveaxis(mean0, 0, -1), np.moveaxis(var0, 0, -1)
+
+
+def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
+                per_channel: bool = True) -> np.ndarray:
+    """:func:`_log_tables` as contiguous (9, M) planes ``[lg; p; low]`` for :meth:`_LogProduct.add_rows`."""
+    return np.ascontiguousarray(np.concatenate(_log_tables(model, colours, floor, clip_code, censor, per_channel),
+                                               axis=1).T)
+
+
+def _product_log(model, codes: np.ndarray, times: np.ndarray, target_time: float, censor: bool, floor: float,
+                 clip_code: int, per_channel: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 3 on the GP's log-space Gaussians (module docstring); raw-space mean and variance, camera RGB.
+
+    Each exposure's contribution is tabulated once per distinct colour (:func:`_log_tables`)
+    and gathered per pixel."""
+    from .derender_io import index_colours
+
+    n, h, w = codes.shape[:3]
+    index = index_colours(np.ascontiguousarray(codes).reshape(-1, w, 3))
+    table = _log_planes(model, index.codes.astype(np.uint8), floor, clip_code, censor, per_channel)
+    prod = _LogProduct((h, w))
+    for i in range(n):
+        prod.add_rows(table, index.rows(codes[i]), float(np.log(target_time / times[i])))
+    return prod.moments(censor)
 
 
 @register_method("stabilized-probabilistic")
