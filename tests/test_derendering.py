@@ -347,15 +347,19 @@ def test_code_floor_is_the_best_function_of_the_code(data, gp, poly, rbf):
 
 
 def test_gp_clip_pattern_clusters_and_bounded_noise(data, gp):
-    # clipped colours are clustered per clip pattern and a clipped test colour uses a cluster of
-    # its own pattern when there is one
+    # with clip_patterns, clipped colours are clustered per clip pattern and a clipped test
+    # colour uses a cluster of its own pattern when there is one
     jt = data[2]
-    bits = D._clip_bits(jt.astype(float), gp.clip_code)
-    lab = gp._assign(jt / 255.0)
-    g = gp.cluster_group
+    pat = D.LocalGPModel(seed=0, clip_patterns=True, **GP_TEST_SETTINGS).fit(data[0], data[1])
+    bits = D._clip_bits(jt.astype(float), pat.clip_code)
+    lab = pat._assign(jt / 255.0)
+    g = pat.cluster_group
     assert np.all(g[lab[bits == 0]] == 0) and np.all(g[lab[bits > 0]] >= 1)
     own = np.isin(1 + bits, g) & (bits > 0)
     assert own.any() and np.all(g[lab[own]] == 1 + bits[own])
+    # by default: one group for every clipped colour
+    lab = gp._assign(jt / 255.0)
+    assert np.all(gp.cluster_group[lab[bits == 0]] == 0) and np.all(gp.cluster_group[lab[bits > 0]] == 1)
     # the input-dependent noise never exceeds its largest value on the training colours, anywhere
     # in the code cube (an unbounded noise GP extrapolated to log-variances of 30+)
     codes = np.random.default_rng(3).integers(0, 256, (4000, 3))
