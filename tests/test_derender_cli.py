@@ -204,3 +204,19 @@ def test_index_colours_matches_unique():
     rows = idx.rows(codes)
     np.testing.assert_array_equal(idx.codes[rows], codes.astype(np.int32))
     assert pack_codes(np.array([[1, 2, 3]], np.uint8))[0] == (1 << 16) + (2 << 8) + 3
+
+
+def test_colour_tables_do_not_depend_on_chunking(model_file):
+    """Per-colour tables are computed in chunks (bounded temporaries): chunk size must not matter."""
+    from derender.derender_io import _colour_tables, index_colours
+    from derender.probabilistic import _log_planes
+
+    m = load_model(model_file)
+    codes = np.random.default_rng(5).integers(0, 256, size=(40, 30, 3)).astype(np.uint8)
+    idx = index_colours(codes)
+    whole = _colour_tables(m, idx, False)
+    parts = _colour_tables(m, idx, False, chunk=7)
+    np.testing.assert_array_equal(whole[0], parts[0])
+    np.testing.assert_array_equal(whole[1], parts[1])
+    cols = idx.codes.astype(np.uint8)
+    np.testing.assert_array_equal(_log_planes(m, cols, 0.01, 245, True), _log_planes(m, cols, 0.01, 245, True, chunk=7))

@@ -353,3 +353,21 @@ def test_streamed_stabilized_refuses_unusable_stacks(tmp_path):
     with pytest.raises(StackError) as in_memory:
         merge(read_stack(paths), "stabilized")
     assert str(streamed.value) == str(in_memory.value)
+
+
+def test_stabilized_merge_restores_opencv_threads(tmp_path):
+    """Bands merge in parallel with OpenCV's own threads off; the user's setting comes back."""
+    import cv2
+
+    from derender.camera import simulate_bracket, write_jpeg
+
+    b = simulate_bracket(size=(160, 112), exposures=4, seed=1)
+    paths = [write_jpeg(tmp_path / f"{j}.jpg", b.jpeg_codes[j], float(t), "S", "C") for j, t in enumerate(b.times)]
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(3)
+        for _ in range(3):
+            merge_files_fast(paths, method="stabilized", threads=2)
+            assert cv2.getNumThreads() == 3
+    finally:
+        cv2.setNumThreads(before)

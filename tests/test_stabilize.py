@@ -253,3 +253,28 @@ def test_fit_color_matrix_scores_hypotheses_on_a_subset():
     h_all, inl_all = S.fit_color_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=3000)
     np.testing.assert_allclose(h, h_all, atol=1e-6)       # same answer as ranking on all of them
     np.testing.assert_array_equal(inl, inl_all)
+
+
+def test_joint_ignores_a_frame_without_usable_pixels(tmp_path):
+    """An all-white middle frame shares no pixels: it must not take the whole rendering
+    (the constraint mean K_j = I once put K = 5 I on it and ~0 on the others)."""
+    from derender.evaluate import psnr_rgbl
+
+    b = simulate_bracket(size=(128, 96), exposures=6, seed=7)
+    codes = b.jpeg_codes.copy()
+    codes[3] = 255
+    st = Stack(images=codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+    joint = merge(st, "stabilized-joint")
+    ref = merge(st, "stabilized")
+    assert psnr_rgbl(joint.radiance, b.truth_linear_srgb)["L"] > psnr_rgbl(ref.radiance, b.truth_linear_srgb)["L"] - 6
+
+
+def test_grey_frame_in_colour_bracket_does_not_crash():
+    """R = G = B in one frame makes the unregularised pair fit singular: minimum-norm map instead of a traceback."""
+    b = simulate_bracket(size=(96, 64), exposures=4, seed=2)
+    codes = b.jpeg_codes.copy()
+    codes[1] = codes[1].mean(axis=-1, keepdims=True).round().astype(np.uint8)
+    st = Stack(images=codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+    for method in ("stabilized", "stabilized-joint"):
+        r = merge(st, method)
+        assert np.all(np.isfinite(r.radiance)) and r.radiance.max() > 0

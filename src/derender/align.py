@@ -525,11 +525,12 @@ def transforms_to_shifts(transforms: np.ndarray) -> np.ndarray:
 
 
 def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: int = 0, max_bits: int = 6,
-                     exclusion: int = 4) -> tuple[np.ndarray, dict]:
+                     exclusion: int = 4, threads: int | None = None) -> tuple[np.ndarray, dict]:
     """Pairwise registration of neighbouring uint8 grey frames (:func:`to_grey8`), chained
     towards ``ref``: (N, 3, 3) transforms (reference pixel coords -> image j coords) and
     the per-pair details. ``method`` is ``"mtb"`` or ``"homography"`` (falls back to MTB
-    for frames too dark or bright for features)."""
+    for frames too dark or bright for features). Pairs are registered in ``threads``
+    threads (default: the usable cores) when the frames are large."""
     n = len(grey)
     h, w = grey[0].shape
     eye = np.eye(3)
@@ -563,7 +564,9 @@ def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: in
     # threads, then chain in order
     from concurrent.futures import ThreadPoolExecutor
 
-    workers = min(len(order), max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1))
+    if threads is None:
+        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    workers = min(len(order), max(1, int(threads)))
     if workers > 1 and h * w >= MTB_PIXELS:
         with ThreadPoolExecutor(workers, thread_name_prefix="derender-align") as ex:
             found = list(ex.map(register, order))

@@ -185,6 +185,18 @@ def merge_cmd(
         raise InputError(f"--variance must end in .exr, got {variance.name}")
     t0 = time.perf_counter()
     inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
+    from .io import check_output
+
+    check_output(output, inputs)
+    if variance is not None:
+        if variance.resolve() == output.resolve():
+            raise InputError(f"--variance and --output are the same file: {output}")
+        check_output(variance, inputs)
+        from .merge import MERGE_METHODS, _load_plugins
+
+        _load_plugins()
+        if method in MERGE_METHODS and not getattr(MERGE_METHODS[method], "gives_variance", False):
+            raise InputError(f"method {method!r} gives no variance (drop --variance)")
     extra = {}
     if model is not None:
         from .derender_io import resolve_model
@@ -192,10 +204,6 @@ def merge_cmd(
         model_obj, used = resolve_model(model, images[0])
         typer.echo(f"de-rendering model: {used}", err=True)
         extra["model"] = model_obj
-    if variance is not None:
-        from .io import check_not_input
-
-        check_not_input(variance, inputs + [output])
     # 8-bit files stream (frame by frame or band by band, table merge, parallel EXR write);
     # others: read_stack + merge
     result = merge_files_fast(images, parse_times(times) if times is not None else None, method,
@@ -575,6 +583,10 @@ def derender_cmd(
     for out in (output, variance):
         if out is not None and out.suffix.lower() != ".exr":
             raise InputError(f"outputs must end in .exr, got {out.name}")
+    from .fastmerge import _EXR_COMPRESSION
+
+    if compression not in _EXR_COMPRESSION:
+        raise InputError(f"--compression must be one of {', '.join(_EXR_COMPRESSION)}, got {compression!r}")
     t0 = time.perf_counter()
     info = derender_to_exr(image, model, output, variance=variance, srgb=srgb, compression=compression)
     typer.echo(f"de-rendered {image.name} ({info['width']}x{info['height']}, {info['distinct_colours']} distinct "

@@ -222,12 +222,17 @@ def index_colours(codes: np.ndarray, block_rows: int = 64) -> ColourIndex:
     return builder.finish()
 
 
-def _colour_tables(model, index: ColourIndex, srgb: bool) -> tuple[np.ndarray, np.ndarray]:
+def _colour_tables(model, index: ColourIndex, srgb: bool, chunk: int = 1 << 18) -> tuple[np.ndarray, np.ndarray]:
     """Mean and variance (float32, finite, (M, 3)) of each distinct colour, optionally in linear sRGB."""
     from .derendering import _finite32
 
-    mean, var = model._predict_codes(index.codes, True, False, False)
-    mean, var = _finite32(np.asarray(mean), np.asarray(var))
+    m = index.packed.shape[0]
+    mean = np.empty((m, 3), dtype=np.float32)
+    var = np.empty((m, 3), dtype=np.float32)
+    codes = index.codes
+    for s in range(0, m, chunk):       # temporaries of the model bounded by the chunk
+        mc, vc = model._predict_codes(codes[s:s + chunk], True, False, False)
+        mean[s:s + chunk], var[s:s + chunk] = _finite32(np.asarray(mc), np.asarray(vc))
     if srgb:
         mean, var = _to_linear_srgb(model, mean, var)
     return mean, var
@@ -261,13 +266,13 @@ def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike
     timings of the stages.
     """
     from .fastmerge import write_exr_lines
-    from .io import check_not_input
+    from .io import check_output
 
     outs = [Path(output)] + ([Path(variance)] if variance is not None else [])
-    for out in outs:
-        check_not_input(out, [image_path])
     if len(outs) == 2 and outs[0].resolve() == outs[1].resolve():
         raise InputError(f"mean and variance outputs are the same file: {outs[0]}")
+    for out in outs:
+        check_output(out, [image_path])
     t0 = time.perf_counter()
     codes = check_8bit_rgb(image_path)
     model, used = resolve_model(model_path, image_path)

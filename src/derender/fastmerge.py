@@ -42,10 +42,12 @@ import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import zlib
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
@@ -85,6 +87,29 @@ def _cv2():
     import cv2
 
     return cv2
+
+
+_CV2_THREADS_LOCK = threading.Lock()
+_CV2_SINGLE_DEPTH = [0, 0]   # nesting depth, OpenCV's thread count outside
+
+
+@contextmanager
+def _cv2_single_thread():
+    """OpenCV's own threads off inside (process-wide setting; nested and concurrent uses
+    from several of our threads are counted, the outermost restores the user's value)."""
+    cv2 = _cv2()
+    with _CV2_THREADS_LOCK:
+        if _CV2_SINGLE_DEPTH[0] == 0:
+            _CV2_SINGLE_DEPTH[1] = cv2.getNumThreads()
+            cv2.setNumThreads(1)
+        _CV2_SINGLE_DEPTH[0] += 1
+    try:
+        yield
+    finally:
+        with _CV2_THREADS_LOCK:
+            _CV2_SINGLE_DEPTH[0] -= 1
+            if _CV2_SINGLE_DEPTH[0] == 0:
+                cv2.setNumThreads(_CV2_SINGLE_DEPTH[1])
 
 
 def _n_threads(threads: int | None) -> int:
@@ -244,17 +269,12 @@ class TableMerge:
         cores, and OpenCV's split of an array (SIMD body vs scalar tail, e.g. in ``exp``) must not
         depend on its thread count, so the bytes of a result never depend on the machine."""
         bands = self._bands()
-        cv2 = _cv2()
-        inner = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-        try:
+        with _cv2_single_thread():
             if self.threads == 1 or len(bands) == 1:
                 return [fn(a, b) for a, b in bands]
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="derender-merge")
             return list(self._pool.map(lambda ab: fn(*ab), bands))
-        finally:
-            cv2.setNumThreads(inner)
 
     def close(self) -> None:
         """Stop the worker threads."""
@@ -676,11 +696,12 @@ def _merge_stabilized_bands(stab, band: Callable[[int, int, int], tuple[np.ndarr
 
     bands = [(y0, min(h, y0 + band_rows)) for y0 in range(0, h, band_rows)]
     nthreads = min(_n_threads(threads), len(bands))
-    if nthreads > 1:
-        with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-merge") as ex:
-            counts = list(ex.map(lambda b: run(*b), bands))
-    else:
-        counts = [run(*b) for b in bands]
+    with _cv2_single_thread():
+        if nthreads > 1:
+            with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-merge") as ex:
+                counts = list(ex.map(lambda b: run(*b), bands))
+        else:
+            counts = [run(*b) for b in bands]
     info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
             "accumulator": "float32", "n_bright": sum(c[0] for c in counts), "n_dark": sum(c[1] for c in counts),
             "weight": weight if isinstance(weight, str) else "custom",
@@ -1049,7 +1070,7 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
             raise InputError(f"reference image {opts['reference']} is out of range 0..{n - 1}")
     t1 = time.perf_counter()
     if align == "mtb":
-        transforms, ainfo = chain_transforms(greys, "mtb", ref, seed=int(opts["seed"]))
+        transforms, ainfo = chain_transforms(greys, "mtb", ref, seed=int(opts["seed"]), threads=threads)
     else:
         transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
     del greys

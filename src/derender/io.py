@@ -54,10 +54,8 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
     The temporary name keeps the suffix so that format-sniffing writers work.
     """
     path = Path(path)
-    check_not_input(path, inputs)
+    check_output(path, inputs)
     parent = path.parent if str(path.parent) else Path(".")
-    if not parent.exists():
-        raise InputError(f"output folder does not exist: {parent}")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
     os.close(fd)
     umask = os.umask(0)
@@ -70,6 +68,19 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def check_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Raise :class:`InputError` unless ``path`` can be written as a new or replaced file:
+    its folder exists, it is not a folder, and it is none of ``inputs`` (checked before any
+    work, so a user mistake costs nothing)."""
+    path = Path(path)
+    check_not_input(path, inputs)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"output folder does not exist: {parent}")
+    if path.is_dir():
+        raise InputError(f"output {path} is a folder; give a file name")
 
 
 def check_not_input(path: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:
@@ -140,7 +151,11 @@ def read_exif(path: str | os.PathLike) -> dict:
     """
     info: dict = {}
     try:
+        import logging
+
         import exifread
+
+        logging.getLogger("exifread").setLevel(logging.ERROR)   # "PNG file does not have exif data." etc.
 
         with open(path, "rb") as fh:
             tags = exifread.process_file(fh, details=False)

@@ -274,10 +274,13 @@ MERGE_METHODS: dict[str, Callable[..., HDRResult]] = {}
 _PLUGIN_MODULES = ("derender.stabilize", "derender.stabilized", "derender.derendering", "derender.probabilistic")
 
 
-def register_method(name: str) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
-    """Decorator registering ``fn(stack, **options) -> HDRResult`` under ``name``."""
+def register_method(name: str, gives_variance: bool = False
+                    ) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
+    """Decorator registering ``fn(stack, **options) -> HDRResult`` under ``name``
+    (``gives_variance``: its results carry a per-pixel variance)."""
 
     def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
+        fn.gives_variance = bool(gives_variance)
         MERGE_METHODS[name] = fn
         return fn
 

@@ -89,7 +89,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, StackError
 from .merge import register_method
 from .stack import HDRResult, Stack
 
@@ -196,7 +196,7 @@ def _load(model: Any):
     return model
 
 
-@register_method("probabilistic")
+@register_method("probabilistic", gives_variance=True)
 def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colour_space: str = "linear_srgb",
                         censor: bool = True, seed: int = 0, space: str | None = None, floor: float = 0.01,
                         clip_code: int = 245) -> HDRResult:
@@ -301,9 +301,14 @@ def merge_probabilistic_frames(frames: list[np.ndarray], times: np.ndarray, mode
     space, a = _check_options(model, target_time, colour_space, censor, space, floor, clip_code)
     if space != "log":
         raise InputError("the banded probabilistic merge needs a log-space model (gp)")
-    times = np.asarray(times, dtype=np.float64)
-    if len(frames) != times.shape[0] or np.any(np.diff(times) < 0):
-        raise InputError("frames and times must match, sorted by exposure time")
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    if len(frames) < 2:
+        raise StackError("an exposure stack needs at least two images")
+    if len(frames) != times.shape[0] or not np.all(np.isfinite(times) & (times > 0)) or np.any(np.diff(times) < 0):
+        raise InputError("give one positive exposure time per frame, sorted by exposure time")
+    shape = frames[0].shape
+    if any(f.dtype != np.uint8 or f.shape != shape or f.ndim != 3 or f.shape[2] != 3 for f in frames):
+        raise InputError("frames must be uint8 RGB images (H, W, 3) of one size")
     t0 = time.perf_counter()
     builder = ColourIndexBuilder()
     for f in frames:
@@ -437,10 +442,15 @@ class _LogProduct:
 
 
 def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
-                per_channel: bool = True) -> np.ndarray:
-    """:func:`_log_tables` as contiguous (9, M) planes ``[lg; p; low]`` for :meth:`_LogProduct.add_rows`."""
-    return np.ascontiguousarray(np.concatenate(_log_tables(model, colours, floor, clip_code, censor, per_channel),
-                                               axis=1).T)
+                per_channel: bool = True, chunk: int = 1 << 18) -> np.ndarray:
+    """:func:`_log_tables` as contiguous (9, M) planes ``[lg; p; low]`` for :meth:`_LogProduct.add_rows`,
+    computed ``chunk`` colours at a time (72 bytes per colour, temporaries bounded)."""
+    planes = np.empty((9, colours.shape[0]), dtype=np.float64)
+    for s in range(0, colours.shape[0], chunk):
+        part = _log_tables(model, colours[s:s + chunk], floor, clip_code, censor, per_channel)
+        for k, arr in enumerate(part):
+            planes[3 * k:3 * k + 3, s:s + chunk] = arr.T
+    return planes
 
 
 def _product_log(model, codes: np.ndarray, times: np.ndarray, target_time: float, censor: bool, floor: float,

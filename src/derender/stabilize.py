@@ -243,7 +243,12 @@ def _wls_matrix(src: np.ndarray, dst: np.ndarray, wt: np.ndarray, ridge: float |
     pen = np.full((3, 3), lam) * scale[:, None]
     pen[np.arange(3), np.arange(3)] = 1e-9 * scale
     ata[:, np.arange(3), np.arange(3)] += pen
-    return np.linalg.solve(ata, atb[..., None])[..., 0]
+    try:
+        return np.linalg.solve(ata, atb[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        # colours spanning fewer than 3 directions without ridge (e.g. a grey frame, R = G = B,
+        # with ridge=0): the minimum-norm least-squares map
+        return np.einsum("cij,cj->ci", np.linalg.pinv(ata), atb)
 
 
 class Curve:
@@ -950,10 +955,15 @@ def joint_color_matrices(blocks: _Blocks, gammas: np.ndarray, times: np.ndarray,
     runs.append((start, n - 1))
     lo_i, hi_i = max(runs, key=lambda r: (r[1] - r[0], -abs((r[0] + r[1]) / 2 - (n - 1) / 2)))
     mats = np.empty((n, 3, 3))
-    if hi_i == lo_i:            # no neighbours share pixels: all renderings assumed alike
+    # only images that share pixels with another take part: a frame skipped by a pair
+    # across it (e.g. an all-white middle frame) has no data, and the constraint
+    # mean K_j = I would put the whole rendering on it
+    paired = {i for key in graph for i in key}
+    members = [i for i in range(lo_i, hi_i + 1) if i in paired]
+    if len(members) < 2:        # no neighbours share pixels: all renderings assumed alike
         mats[:] = np.eye(3)
         return mats
-    members = list(range(lo_i, hi_i + 1))
+    lo_i, hi_i = members[0], members[-1]
     graph = {key: val for key, val in graph.items() if lo_i <= key[0] and key[1] <= hi_i}
     sub = {j: i for i, j in enumerate(members)}
     m = 3 * len(members)
@@ -988,9 +998,15 @@ def joint_color_matrices(blocks: _Blocks, gammas: np.ndarray, times: np.ndarray,
         rhs[m + c] = 1.0
         sol = np.linalg.lstsq(kkt, rhs, rcond=None)[0]
         mats[members, c, :] = sol[:m].reshape(nm, 3)
-    # images outside the run: chained to the neighbour towards it (or assumed alike)
-    for j in list(range(lo_i - 1, -1, -1)) + list(range(hi_i + 1, n)):
-        a = j + 1 if j < lo_i else j - 1
+    # images outside the fit (outside the run, or without pixels in common): chained to the
+    # nearest fitted image, nearest first (or assumed alike)
+    done = set(members)
+    rest = [j for j in range(n) if j not in done]
+    while rest:
+        j = min(rest, key=lambda i: (min(abs(i - d) for d in done), i))
+        a = min(done, key=lambda d: (abs(d - j), d))
+        rest.remove(j)
+        done.add(j)
         jj, ja = _pair_effective(blocks, j, a, gammas, low, high, floor)
         h = None
         if jj.shape[0] >= 8:          # fewer blocks cannot pin down 9 entries against noise
