@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 
 from derender.benchmark import list_scenes, run_benchmark, simulate_dataset, write_benchmark_outputs

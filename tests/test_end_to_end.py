@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from derender.camera import bracket_paths, simulate_bracket, write_bracket
-from derender.colorimetry import luminance
 from derender.evaluate import psnr_rgbl
 from derender.io import read_exr, read_image, read_stack
 from derender.merge import merge
