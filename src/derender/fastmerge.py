@@ -210,8 +210,11 @@ class TableMerge:
     weights where some exposure has all channels usable, else the ``"brightest"`` ones
     (two sets of accumulators; the stabilised merge of paper 1 in
     :func:`derender.stabilize.stabilized_merge`).
-    :meth:`finish` needs the codes and tables of the shortest and longest exposures
-    for the saturation policy.
+    ``selector`` ((H, W), with ``"min_else_brightest"``): the choice of weights known in
+    advance (1: ``"min"``, 0: ``"brightest"``; the OR over exposures of
+    :func:`all_usable_mask` times the registration masks), so one set of accumulators
+    suffices. :meth:`finish` needs the codes and tables of the shortest and longest
+    exposures for the saturation policy.
 
     Accumulators: float64 in the log domain (a float32 sum of ``w (g - ln t)`` would
     lose up to ``N * 6e-8 * |ln E|`` relative, ~1e-5 for 18 frames), float32 in the
