@@ -92,6 +92,17 @@ def check_not_input(path: str | os.PathLike, inputs: Iterable[str | os.PathLike]
 
 
 # --------------------------------------------------------------------------- rasters
+def read_bytes(path: str | os.PathLike) -> np.ndarray:
+    """The bytes of an existing, non-empty file as uint8 (clear errors otherwise)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    data = np.fromfile(path, dtype=np.uint8)
+    if data.size == 0:
+        raise InputError(f"empty file: {path}")
+    return data
+
+
 def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     """Read an 8- or 16-bit JPEG/PNG/TIFF as float32 (H, W, 3) RGB in [0, 1].
 
@@ -101,11 +112,7 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     import cv2
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"no such file: {path}")
-    data = np.fromfile(path, dtype=np.uint8)
-    if data.size == 0:
-        raise InputError(f"empty file: {path}")
+    data = read_bytes(path)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:
         raise InputError(f"not a readable image (corrupt or unsupported format): {path}")

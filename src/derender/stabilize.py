@@ -829,6 +829,17 @@ def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
     return h, best
 
 
+def _neighbour_matrix(blocks: _Blocks, j: int, a: int, gammas, low: float, high: float, floor: float,
+                      n_iter: int, seed: int) -> np.ndarray | None:
+    """H (a <- j) fitted on the blocks images j and a share, or None when fewer than 8 blocks
+    (too few to pin down 9 entries against noise) or the fit is implausible."""
+    jj, ja = _pair_effective(blocks, j, a, gammas, low, high, floor)
+    if jj.shape[0] < 8:
+        return None
+    h, _ = fit_color_matrix(jj, ja, gammas[j], gammas[a], n_iter=n_iter, seed=seed + 101 * j + a)
+    return h if _plausible_matrix(h) else None
+
+
 def _plausible_matrix(h: np.ndarray) -> bool:
     """A colour matrix between two renderings of one scene: positive luminance gain of
     white and a dominant positive diagonal (each diagonal entry above the sum of the
@@ -905,12 +916,7 @@ def color_matrices_to_reference(blocks: _Blocks, gammas: Sequence, reference: in
                                  f"{reference}; use path='chain'")
         elif path != "chain":
             raise InputError(f"path must be 'auto', 'direct' or 'chain', got {path!r}")
-        jj, ja = _pair_effective(blocks, j, a, gammas, low, high, floor)
-        h = None
-        if jj.shape[0] >= 8:          # fewer blocks cannot pin down 9 entries against noise
-            h, _ = fit_color_matrix(jj, ja, gammas[j], gammas[a], n_iter=n_iter, seed=seed + 101 * j + a)
-            if not _plausible_matrix(h):
-                h = None
+        h = _neighbour_matrix(blocks, j, a, gammas, low, high, floor, n_iter, seed)
         if h is None:
             # nothing well exposed in common (exposure step too large, frame nearly black or
             # white): assume the neighbour's rendering, scaled by the exposure ratio
@@ -1007,12 +1013,7 @@ def joint_color_matrices(blocks: _Blocks, gammas: np.ndarray, times: np.ndarray,
         a = min(done, key=lambda d: (abs(d - j), d))
         rest.remove(j)
         done.add(j)
-        jj, ja = _pair_effective(blocks, j, a, gammas, low, high, floor)
-        h = None
-        if jj.shape[0] >= 8:          # fewer blocks cannot pin down 9 entries against noise
-            h, _ = fit_color_matrix(jj, ja, gammas[j], gammas[a], n_iter=n_iter, seed=seed + 101 * j + a)
-            if not _plausible_matrix(h):
-                h = None
+        h = _neighbour_matrix(blocks, j, a, gammas, low, high, floor, n_iter, seed)
         mats[j] = mats[a] @ (h * (t[j] / t[a]) if h is not None else np.eye(3))
     return mats
 
