@@ -77,6 +77,8 @@ def to_grey8(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[-1] != 3:
         raise InputError(f"expected an (H, W, 3) image, got {img.shape}")
+    if img.dtype == np.uint8:
+        return grey8_codes(img)
     h, w = img.shape[:2]
     out = np.empty((h, w), dtype=np.uint8)
     rows = max(1, (1 << 16) // max(w, 1))          # row blocks: small float32 temporaries
@@ -92,6 +94,19 @@ def to_grey8(image: np.ndarray) -> np.ndarray:
         g = np.float32(54.0) * c[..., 0] + np.float32(183.0) * c[..., 1] + np.float32(19.0) * c[..., 2]
         g /= np.float32(256.0)
         out[r0:r0 + rows] = np.clip(np.rint(g), 0, 255)
+    return out
+
+
+def grey8_codes(codes: np.ndarray) -> np.ndarray:
+    """:func:`to_grey8` of (H, W, 3) uint8 codes in one compiled pass (exact integer
+    arithmetic, the same bytes)."""
+    from .kernels import grey8_rows
+
+    codes = np.asarray(codes)
+    if codes.dtype != np.uint8 or codes.ndim != 3 or codes.shape[-1] != 3:
+        raise InputError(f"expected (H, W, 3) uint8 codes, got {codes.dtype} {codes.shape}")
+    out = np.empty(codes.shape[:2], dtype=np.uint8)
+    grey8_rows(np.ascontiguousarray(codes), out)
     return out
 
 
@@ -173,6 +188,14 @@ def _shift_bool(b: np.ndarray, dy: int, dx: int) -> np.ndarray:
 
 
 def _half(grey: np.ndarray) -> np.ndarray:
+    """Next MTB pyramid level: 2x2 box average ``(a + b + c + d + 2) // 4`` (odd edge dropped)."""
+    grey = np.asarray(grey)
+    if grey.dtype == np.uint8 and grey.shape[0] >= 2 and grey.shape[1] >= 2:
+        from .kernels import half_grey
+
+        out = np.empty((grey.shape[0] // 2, grey.shape[1] // 2), dtype=np.uint8)
+        half_grey(grey, out)
+        return out
     h, w = grey.shape[0] // 2 * 2, grey.shape[1] // 2 * 2
     g = grey[:h, :w].astype(np.uint16)
     return ((g[0::2, 0::2] + g[1::2, 0::2] + g[0::2, 1::2] + g[1::2, 1::2] + 2) // 4).astype(np.uint8)

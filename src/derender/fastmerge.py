@@ -72,7 +72,6 @@ __all__ = [
     "merge_files_fast",
     "write_exr_fast",
     "write_exr_lines",
-    "all_usable_mask",
     "generate_bench_bracket",
     "run_bench",
     "format_bench",
@@ -208,13 +207,9 @@ class TableMerge:
     ``"brightest"``: every channel takes the weight of the pixel's largest code, and
     the saturation policy judges that code too; ``"min_else_brightest"``: the ``"min"``
     weights where some exposure has all channels usable, else the ``"brightest"`` ones
-    (two sets of accumulators; the stabilised merge of paper 1 in
-    :func:`derender.stabilize.stabilized_merge`).
-    ``selector`` ((H, W), with ``"min_else_brightest"``): the choice of weights known in
-    advance (1: ``"min"``, 0: ``"brightest"``; the OR over exposures of
-    :func:`all_usable_mask` times the registration masks), so one set of accumulators
-    suffices. :meth:`finish` needs the codes and tables of the shortest and longest
-    exposures for the saturation policy.
+    (two sets of accumulators; the weights of the stabilised merge of paper 1, whose
+    compiled form is :func:`merge_stabilized_table`). :meth:`finish` needs the codes and
+    tables of the shortest and longest exposures for the saturation policy.
 
     Accumulators: float64 in the log domain (a float32 sum of ``w (g - ln t)`` would
     lose up to ``N * 6e-8 * |ln E|`` relative, ~1e-5 for 18 frames), float32 in the
@@ -225,7 +220,7 @@ class TableMerge:
 
     def __init__(self, shape: tuple[int, int], channel_weights: str = "mean", domain: str = "log",
                  bright_threshold: float = 0.5, threads: int | None = None, block_rows: int | None = None,
-                 accumulator: str = "auto", selector: np.ndarray | None = None):
+                 accumulator: str = "auto"):
         if channel_weights not in _ENGINE_MODES:
             raise InputError(f"channel_weights must be one of {', '.join(_ENGINE_MODES)}, got {channel_weights!r}")
         if domain not in ("linear", "log"):
@@ -245,17 +240,6 @@ class TableMerge:
         self.block_rows = max(1, int(block_rows))
         self.dtype = np.dtype(accumulator)
         self.sets = ("min", "brightest") if channel_weights == "min_else_brightest" else (channel_weights,)
-        self.selector = None
-        if selector is not None:
-            # "min_else_brightest" with the choice known in advance (:func:`all_usable_mask`): one
-            # set of accumulators, the "min" weights where ``selector`` is set, else the "brightest"
-            if channel_weights != "min_else_brightest":
-                raise InputError("a selector goes with channel_weights='min_else_brightest'")
-            sel = np.asarray(selector)
-            if sel.shape != (h, w):
-                raise InputError(f"selector must have shape {(h, w)}, got {sel.shape}")
-            self.selector = np.ascontiguousarray(sel, dtype=np.uint8)
-            self.sets = ("selected",)
         self.num = np.zeros((3 * len(self.sets), h, w), dtype=self.dtype)
         self.den = np.zeros(((3 if channel_weights == "independent" else 1) * len(self.sets), h, w), dtype=self.dtype)
         self.n_added = 0
@@ -361,13 +345,7 @@ class TableMerge:
                     for c in range(3):
                         cv2.multiply(wc[c], pw[r0:r1], dst=wc[c])
                 return tuple(wc)
-            if mode == "selected":
-                wsum = cv2.LUT(cv2.max(cv2.max(p[0], p[1]), p[2]), wcol[0])
-                w0, w1, w2 = (cv2.LUT(p[c], wcol[c]) for c in range(3))
-                wmin = cv2.min(w0, w1)
-                cv2.min(wmin, w2, dst=wmin)
-                cv2.copyTo(wmin, self.selector[r0:r1], wsum)
-            elif mode == "brightest":
+            if mode == "brightest":
                 wsum = cv2.LUT(cv2.max(cv2.max(p[0], p[1]), p[2]), wcol[0])
             else:
                 w0, w1, w2 = (cv2.LUT(p[c], wcol[c]) for c in range(3))
@@ -579,57 +557,31 @@ def merge_curves_table(stack: Stack, curves, weight: Any = "gaussian", *, domain
 
 
 def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                           threads: int | None = None, block_rows: int | None = None) -> HDRResult | None:
-    """:func:`derender.stabilize.stabilized_merge` on the table engine (paper 1, Algorithm 1 step 4).
+                           threads: int | None = None) -> HDRResult | None:
+    """:func:`derender.stabilize.stabilized_merge` on 8-bit codes (paper 1, Algorithm 1 step 4).
 
     Image ``j`` contributes ``H'_j L_j(z) / t_j`` with the per-channel table
     ``L_j = stab.curves[j].lin`` on the 256 codes and the 3x3 matrix ``H'_j``
-    (``H_j t_j / t_ref`` in reference mode, ``K_j`` in joint mode) applied per block. One
-    weight for all channels, times the registration mask: the smallest channel weight
-    where some exposure has all channels usable, else the weight of the brightest channel
-    (``channel_weights="min_else_brightest"``); with ``noise_weighting`` times
-    ``t_j^2 / mean_c (dL_j/dJ)^2`` (the reference also divides by the per-pixel maximum
-    over images, a common factor that cancels). Returns None when the aligned images are
-    not 8-bit codes (sub-pixel warps), so the caller keeps the reference path.
-    Accumulates in float32: the weights span many decades, but every sum is of a few
-    same-sign terms, so float32 keeps ~1e-7 relative (measured: 2.7e-7 to 3.4e-7 against
-    the float64 reference engine on 4 auto/fixed, simple/camera brackets; float64
-    accumulators: 2.1e-7 to 3.3e-7) at half the memory traffic.
+    (``H_j t_j / t_ref`` in reference mode, ``K_j`` in joint mode). One weight for all
+    channels, times the registration mask: the smallest channel weight where some
+    exposure has all channels usable, else the weight of the brightest channel; with
+    ``noise_weighting`` times ``t_j^2 / mean_c (dL_j/dJ)^2`` (the reference also divides
+    by the per-pixel maximum over images, a common factor that cancels). One compiled
+    pass per pixel (:func:`derender.kernels.stabilized_merge_rows`), float32 sums (every
+    sum is of a few same-sign weights; measured 2e-7 to 4e-7 relative to the float64
+    reference engine). Returns None when the aligned images are not 8-bit codes
+    (sub-pixel warps), so the caller keeps the reference path.
     """
     al = stab.alignment
     codes = stack_codes_exact(al.images)
     if codes is None:
         return None
     valid = getattr(al, "valid", None)
-
-    def band(j: int, y0: int, y1: int) -> tuple[np.ndarray, np.ndarray | None]:
-        v = None if valid is None else valid[j, y0:y1]
-        return codes[j, y0:y1], (None if v is None or v.all() else v)
-
-    return _merge_stabilized_bands(stab, band, codes.shape[1:3], weight, noise_weighting, threads, block_rows)
-
-
-def _registered_or(masks: Sequence[np.ndarray], valid: Sequence[np.ndarray | None]) -> np.ndarray:
-    """OR over images of uint8 masks (already registered) times their registration masks (None: whole)."""
-    cv2 = _cv2()
-    out = np.zeros_like(masks[0])
-    for m, v in zip(masks, valid):
-        if v is not None:
-            m = cv2.multiply(m, np.asarray(v, dtype=np.uint8))
-        cv2.max(out, m, dst=out)
-    return out
-
-
-def all_usable_mask(codes: np.ndarray, weights: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """uint8 (H, W): 1 where every channel's code has a positive weight (``weights`` (256, 3)).
-
-    OR-ed over the registered exposures it is the choice of ``"min_else_brightest"``
-    known before merging (:class:`TableMerge` ``selector``)."""
-    cv2 = _cv2()
-    support = [np.ascontiguousarray(np.asarray(weights)[:, c] > 0, dtype=np.uint8) for c in range(3)]
-    p = cv2.split(codes)
-    m = cv2.min(cv2.LUT(p[0], support[0]), cv2.LUT(p[1], support[1]))
-    return cv2.min(m, cv2.LUT(p[2], support[2]), dst=out)
+    if valid is not None:
+        valid = np.asarray(valid)
+        valid = None if valid.all() else np.ascontiguousarray(valid, dtype=np.uint8)
+    return _merge_stabilized_frames(stab, codes, np.zeros((codes.shape[0], 2), dtype=np.int64), valid,
+                                    weight, noise_weighting, threads)
 
 
 def _stabilized_tables(stab, weight: Any, noise_weighting: bool):
@@ -659,54 +611,82 @@ def _stabilized_tables(stab, weight: Any, noise_weighting: bool):
     return values, mats, ivs
 
 
-def _merge_stabilized_bands(stab, band: Callable[[int, int, int], tuple[np.ndarray, np.ndarray | None]],
-                            shape: tuple[int, int], weight: Any, noise_weighting: bool, threads: int | None,
-                            block_rows: int | None = None, band_rows: int = 32) -> HDRResult | None:
-    """The stabilised merge band by band: ``band(j, y0, y1) -> (aligned uint8 codes of rows
-    y0:y1 of image j, registration mask or None)``.
+#: Serialises launches of the parallel numba kernels (see :mod:`derender.kernels`).
+_KERNEL_LOCK = threading.Lock()
 
-    Every band takes all images at once: the ``"min_else_brightest"`` choice of the band is
-    known before accumulating (OR over images of :func:`all_usable_mask` times the
-    registration masks), so one set of float32 accumulators of ``band_rows`` rows suffices
-    and stays in cache; bands run in ``threads`` threads. Per pixel the images are added in
-    order, as in the frame-by-frame engine (:class:`TableMerge`), whose code does the work."""
+
+def _set_numba_threads(threads: int | None) -> None:
+    import numba
+
+    numba.set_num_threads(max(1, min(_n_threads(threads), int(numba.config.NUMBA_NUM_THREADS))))
+
+
+def _warm_up_stabilized() -> threading.Thread:
+    """Import (and load from numba's cache) what the stabilised merge needs after decoding, in a
+    background thread: the imports hold the GIL, decoding (libjpeg-turbo) does not. Failures
+    are left for the real calls to report."""
+    def run() -> None:
+        try:
+            import scipy.optimize  # noqa: F401  (the exponent searches of derender.stabilize)
+
+            from .kernels import stabilized_merge_rows
+
+            f32 = np.float32
+            with _KERNEL_LOCK:
+                stabilized_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros((1, 2), np.int64),
+                                      np.ones((1, 1, 1), np.uint8), np.zeros((1, N_CODES, 3), f32),
+                                      np.zeros((1, 3, 3), f32), np.zeros((1, 3, 3)), np.zeros((N_CODES, 3), f32),
+                                      np.zeros((1, N_CODES, 3), f32), np.ones(1, f32), True, 0, 0,
+                                      np.zeros(N_CODES, bool), 0, 1, np.zeros((3, 1, 1), f32),
+                                      np.zeros((1, 1), np.uint8))
+        except Exception:  # noqa: BLE001
+            pass
+
+    th = threading.Thread(target=run, name="derender-warm-up", daemon=True)
+    th.start()
+    return th
+
+
+def _merge_stabilized_frames(stab, frames: np.ndarray, shifts: np.ndarray, valid: np.ndarray | None,
+                             weight: Any, noise_weighting: bool, threads: int | None) -> HDRResult | None:
+    """The stabilised merge of ``frames`` (N, H, W, 3) uint8, image ``j`` read shifted by
+    ``shifts[j]`` (dy, dx) (outside the frame it does not take part) and restricted to
+    ``valid`` (N, H, W) uint8 (None: everywhere), by :func:`derender.kernels.stabilized_merge_rows`."""
     tables = _stabilized_tables(stab, weight, noise_weighting)
     if tables is None:
         return None
+    from .kernels import stabilized_merge_rows
+
     values, mats, ivs = tables
     al = stab.alignment
     times = np.asarray(stab.times, dtype=np.float64)
     n = times.shape[0]
-    h, w = int(shape[0]), int(shape[1])
-    wt = weight_table(weight)
-    j_short, j_long = int(np.argmin(times)), int(np.argmax(times))
+    h, w = int(frames.shape[1]), int(frames.shape[2])
+    wt = np.ascontiguousarray(weight_table(weight), dtype=np.float32)
+    lin = np.ascontiguousarray(np.stack(values), dtype=np.float32)
+    mats64 = np.ascontiguousarray(np.stack(mats), dtype=np.float64)
+    use_iv = bool(noise_weighting)
+    if use_iv:
+        inv_var = np.ascontiguousarray(np.stack([iv[0] / np.float32(3.0) for iv in ivs]), dtype=np.float32)
+        inv_k = np.array([iv[1] for iv in ivs], dtype=np.float32)
+    else:
+        inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
+        inv_k = np.ones(n, dtype=np.float32)
+    bright = code_values() >= np.float32(0.5)
+    if valid is None:
+        valid = np.ones((n, 1, 1), dtype=np.uint8)
     radiance = np.empty((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
     mask = np.empty((h, w), dtype=np.uint8)
     t0 = time.perf_counter()
-
-    def run(y0: int, y1: int) -> tuple[int, int]:
-        got = [band(j, y0, y1) for j in range(n)]
-        sel = _registered_or([all_usable_mask(c, wt) for c, _ in got], [v for _, v in got])
-        with TableMerge((y1 - y0, w), channel_weights="min_else_brightest", domain="linear", threads=1,
-                        block_rows=block_rows, accumulator="float32", selector=sel) as eng:
-            for j, (codes, pw) in enumerate(got):
-                eng.add(codes, values[j], wt, matrix=mats[j], pixel_weights=pw, inverse_variance=ivs[j])
-            res = eng.finish((got[j_short][0], values[j_short], mats[j_short]),
-                             (got[j_long][0], values[j_long], mats[j_long]))
-        radiance[:, y0:y1] = res.radiance.transpose(2, 0, 1)
-        mask[y0:y1] = res.mask
-        return res.info["n_bright"], res.info["n_dark"]
-
-    bands = [(y0, min(h, y0 + band_rows)) for y0 in range(0, h, band_rows)]
-    nthreads = min(_n_threads(threads), len(bands))
-    with _cv2_single_thread():
-        if nthreads > 1:
-            with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-merge") as ex:
-                counts = list(ex.map(lambda b: run(*b), bands))
-        else:
-            counts = [run(*b) for b in bands]
+    with _KERNEL_LOCK:
+        _set_numba_threads(threads)
+        stabilized_merge_rows(np.ascontiguousarray(frames), np.ascontiguousarray(shifts, dtype=np.int64),
+                              np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32),
+                              mats64, wt, inv_var, inv_k, use_iv, int(np.argmin(times)), int(np.argmax(times)),
+                              bright, 0, h, radiance, mask)
     info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
-            "accumulator": "float32", "n_bright": sum(c[0] for c in counts), "n_dark": sum(c[1] for c in counts),
+            "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
+            "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),
             "weight": weight if isinstance(weight, str) else "custom",
             "merge_seconds": time.perf_counter() - t0, "noise_weighting": bool(noise_weighting),
             "reference": stab.reference, "gammas": np.asarray(stab.gammas.gammas).tolist(),
@@ -905,8 +885,7 @@ class _ShiftedFrames:
     :func:`derender.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
     clip(x + dx)]``, codes as ``k * float32(1/255)``), without making them: ``shape`` and
     ``pixels(j, ys, xs)`` for :func:`derender.stabilize.stabilize_aligned`; ``codes(j)``
-    gives the aligned uint8 frame and ``band(j, y0, y1)`` rows of it with their
-    registration mask."""
+    gives the aligned uint8 frame."""
 
     def __init__(self, frames: list[np.ndarray], shifts: np.ndarray):
         self.frames = frames
@@ -938,24 +917,6 @@ class _ShiftedFrames:
         _shift_into(out, self.frames[j], int(dy), int(dx))
         return out
 
-    def band(self, j: int, y0: int, y1: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """Rows y0:y1 of the aligned frame j (uint8) and their registration mask (None: all inside)."""
-        from .align import _shift_into
-
-        h, w = self.shape[1:3]
-        dy, dx = (int(v) for v in self.shifts[j])
-        if dy == 0 and dx == 0:
-            return self.frames[j][y0:y1], None
-        ys = np.arange(y0, y1) + dy
-        rows = self.frames[j][np.clip(ys, 0, h - 1)]
-        if dx != 0:
-            out = np.empty_like(rows)
-            _shift_into(out, rows, 0, dx)
-            rows = out
-        xs = np.arange(w) + dx
-        valid = ((ys >= 0) & (ys < h))[:, None] & ((xs >= 0) & (xs < w))[None, :]
-        return rows, (None if valid.all() else valid)
-
 
 class _ShiftedValid:
     """Registration masks of :class:`_ShiftedFrames` (``shape``, ``pixels``), never made whole."""
@@ -984,30 +945,36 @@ class _LazyAlignment:
 
 
 def _read_frames(paths: list[Path], threads: int | None, extra: Callable[[np.ndarray], Any] | None = None
-                 ) -> tuple[list[np.ndarray], list[Any]]:
-    """Decode 8-bit frames (in threads, in order), with ``extra(codes)`` computed in the decoding thread."""
+                 ) -> tuple[np.ndarray, list[Any]]:
+    """Decode 8-bit frames (in threads) into one (N, H, W, 3) uint8 array, with
+    ``extra(codes)`` computed in the decoding thread. The first frame gives the size;
+    the others are decoded straight into their slot."""
     nthreads = _n_threads(threads)
-
-    def load(p: Path):
-        codes = read_codes(p)
-        if codes is None:
-            return None
-        return codes, (extra(codes) if extra is not None else None)
-
-    frames: list[np.ndarray] = []
-    extras: list[Any] = []
-    for j, item in enumerate(_prefetch(load, paths, depth=nthreads, workers=nthreads)):
-        if item is None:
-            raise _NotStreamable("16-bit input")
-        codes, more = item
-        if frames and codes.shape != frames[0].shape:
-            raise InputError(f"images differ in size: {paths[0].name} is {frames[0].shape[1]}x"
-                             f"{frames[0].shape[0]}, {paths[j].name} is {codes.shape[1]}x{codes.shape[0]}")
-        frames.append(codes)
-        extras.append(more)
-        del item, codes, more
-    if len(frames) < 2:
+    first = read_codes(paths[0])
+    if first is None:
+        raise _NotStreamable("16-bit input")
+    if len(paths) < 2:
         raise StackError("an exposure stack needs at least two images")
+    frames = np.empty((len(paths), *first.shape), dtype=np.uint8)
+    frames[0] = first
+    del first
+
+    def load(j: int):
+        codes = read_codes(paths[j], out=frames[j]) if j else frames[0]
+        if codes is None:
+            return False, None
+        if codes.shape != frames.shape[1:]:
+            raise InputError(f"images differ in size: {paths[0].name} is {frames.shape[2]}x{frames.shape[1]}, "
+                             f"{paths[j].name} is {codes.shape[1]}x{codes.shape[0]}")
+        if not np.shares_memory(codes, frames[j]):
+            frames[j] = codes
+        return True, (extra(frames[j]) if extra is not None else None)
+
+    extras: list[Any] = []
+    for ok, more in _prefetch(load, range(len(paths)), depth=nthreads, workers=nthreads):
+        if not ok:
+            raise _NotStreamable("16-bit input")
+        extras.append(more)
     return frames, extras
 
 
@@ -1042,18 +1009,19 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
     :func:`~derender.stabilize.select_reference` does, the gamma / matrix fits read only
     their sampled blocks through :class:`_ShiftedFrames`, the Debevec curve (filmic
     cameras) comes from grid samples of the aligned frames, and the merge takes bands of
-    rows of all aligned frames (:func:`_merge_stabilized_bands`).
+    pass reads all frames through their shifts (:func:`_merge_stabilized_frames`).
     """
-    from .align import chain_transforms, to_grey8, transforms_to_shifts
+    from .align import chain_transforms, grey8_codes, transforms_to_shifts
     from .response import DEFAULT_LAMBDA, DEFAULT_SAMPLES, _grid_positions
-    from .stabilize import REF_PIXELS, select_reference, stabilize_aligned
+    from .stabilize import select_reference, stabilize_aligned
 
     align = opts["align"]
     if align not in ("mtb", "none"):
         raise _NotStreamable(f"align={align!r} warps frames")
     n = len(paths)
     t0 = time.perf_counter()
-    frames, greys = _read_frames(paths, threads, extra=to_grey8 if align == "mtb" else None)
+    _warm_up_stabilized()
+    frames, greys = _read_frames(paths, threads, extra=grey8_codes if align == "mtb" else None)
     h, w = frames[0].shape[:2]
     # response.check_usable: grid samples settle it, unless some channel shows no usable code there
     ys, xs = _grid_positions(h, w, DEFAULT_SAMPLES, int(opts["seed"]))
@@ -1062,9 +1030,7 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
         _check_usable_hists(np.stack([_histograms(f) for f in frames]))
     # reference (stabilize.select_reference reads every k-th row of the float frames)
     if opts["reference"] is None:
-        step = -(-h * w // REF_PIXELS)
-        cv = code_values()
-        ref = select_reference(np.stack([cv[f[::step]] for f in frames]))
+        ref = select_reference(frames)         # counts 8-bit codes against the code thresholds
     else:
         ref = int(opts["reference"])
         if not 0 <= ref < n:
@@ -1097,7 +1063,8 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
                              max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"], seed=seed,
                              calibrate=calibrate)
     t3 = time.perf_counter()
-    res = _merge_stabilized_bands(stab, view.band, (h, w), opts["weight"], opts["noise_weighting"], threads)
+    res = _merge_stabilized_frames(stab, frames, np.asarray(shifts, dtype=np.int64), None, opts["weight"],
+                                   opts["noise_weighting"], threads)
     if res is None:
         raise _NotStreamable("no table form for these curves")
     t4 = time.perf_counter()

@@ -108,7 +108,8 @@ def _check_images(images: Any) -> np.ndarray:
 def exposure_fractions(images: Any, low: float = REF_LOW, high: float = REF_HIGH,
                        valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fractions of over-exposed (any channel ``>= high``) and under-exposed (any channel
-    ``<= low``, and not over-exposed) pixels per image, each (N,). ``valid`` (N, H, W)
+    ``<= low``, and not over-exposed) pixels per image, each (N,), of float images in
+    [0, 1] or of uint8 codes (read as ``k / 255``). ``valid`` (N, H, W)
     restricts the count (registration borders). Frames above :data:`REF_PIXELS` pixels are
     counted on every k-th row (fractions, not counts, are compared)."""
     arr = _check_images(images)
@@ -117,6 +118,9 @@ def exposure_fractions(images: Any, low: float = REF_LOW, high: float = REF_HIGH
     if step > 1:
         arr = arr[:, ::step]
         valid = None if valid is None else np.asarray(valid)[:, ::step]
+    if arr.dtype == np.uint8:      # 8-bit codes k, read as k * float32(1/255): the same comparisons on k
+        cv = np.arange(256, dtype=np.float32) * np.float32(1.0 / 255.0)
+        high, low = int(np.argmax(cv >= high)) if (cv >= high).any() else 256, int(np.sum(cv <= low)) - 1
     over = np.empty(n)
     under = np.empty(n)
     for j in range(n):

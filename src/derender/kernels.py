@@ -1,0 +1,138 @@
+"""Compiled per-pixel loops (numba) for the streaming merges of :mod:`derender.fastmerge`.
+
+Where a merge is a short chain of table look-ups per pixel and exposure, one compiled
+pass that keeps the pixel's sums in registers beats a chain of whole-array NumPy or
+OpenCV passes (each of which reads and writes every plane). The kernels are compiled on
+first use and cached on disk (``cache=True``). The merge runs its rows in parallel
+(``prange``), every pixel independently, so results do not depend on the thread count;
+callers serialise its launches (:data:`derender.fastmerge._KERNEL_LOCK`), since numba's
+fallback thread pool cannot run two parallel kernels at once. ``grey8_rows`` and
+``half_grey`` are serial and release the GIL, for callers' threads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["stabilized_merge_rows", "grey8_rows", "half_grey"]
+
+
+@njit(parallel=True, nogil=True, cache=True)
+def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
+                          j_short, j_long, bright, y0, y1, out, mask):  # pragma: no cover - compiled
+    """Rows ``y0:y1`` of the stabilised merge of paper 1 (Algorithm 1 step 4) from 8-bit codes.
+
+    ``frames`` (N, H, W, 3) uint8; image ``j`` is read at ``(y + shifts[j, 0], x + shifts[j, 1])``
+    and takes part only inside the frame and where ``valid[j, y, x]`` (``valid`` of shape
+    (N, 1, 1) means everywhere). Image ``j`` contributes ``E_j = mats32[j] @ lin[j][z]`` with
+    weight ``w_j = w(z) * inv_k[j] / max(sum_c inv_var[j, z_c, c], 1e-30)`` (the last factor
+    only if ``use_inv_var``), where ``w(z)`` is the smallest channel weight
+    ``min_c weights[z_c, c]`` if some image sees all channels of the pixel with positive
+    weight, else the weight of the brightest channel ``weights[max_c z_c, 0]``. Both sums are
+    kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
+    comes from the shortest exposure (``mask`` 1) if its largest code is ``bright``, else
+    from the longest (``mask`` 2), with ``mats64``; elsewhere ``mask`` is 0. ``out`` is
+    (3, H, W) float32.
+    """
+    n = frames.shape[0]
+    h, w = frames.shape[1], frames.shape[2]
+    whole = valid.shape[1] == 1 and valid.shape[2] == 1
+    zero = np.float32(0.0)
+    tiny = np.float32(1e-30)
+    for y in prange(y0, y1):
+        for x in range(w):
+            usable = False
+            dm = zero
+            m0 = zero
+            m1 = zero
+            m2 = zero
+            db = zero
+            b0 = zero
+            b1 = zero
+            b2 = zero
+            for j in range(n):
+                yy = y + shifts[j, 0]
+                xx = x + shifts[j, 1]
+                if yy < 0 or yy >= h or xx < 0 or xx >= w:
+                    continue
+                if not whole and valid[j, y, x] == 0:
+                    continue
+                z0 = frames[j, yy, xx, 0]
+                z1 = frames[j, yy, xx, 1]
+                z2 = frames[j, yy, xx, 2]
+                wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
+                wbright = weights[max(max(z0, z1), z2), 0]
+                if wmin > zero:
+                    usable = True
+                elif wbright == zero:
+                    continue
+                if use_inv_var:
+                    d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+                    d = d + inv_var[j, z2, 2]
+                    f = inv_k[j] / max(d, tiny)
+                    wmin = wmin * f
+                    wbright = wbright * f
+                l0 = lin[j, z0, 0]
+                l1 = lin[j, z1, 1]
+                l2 = lin[j, z2, 2]
+                v0 = l0 * mats32[j, 0, 0] + l1 * mats32[j, 0, 1] + l2 * mats32[j, 0, 2]
+                v1 = l0 * mats32[j, 1, 0] + l1 * mats32[j, 1, 1] + l2 * mats32[j, 1, 2]
+                v2 = l0 * mats32[j, 2, 0] + l1 * mats32[j, 2, 1] + l2 * mats32[j, 2, 2]
+                dm += wmin
+                m0 += v0 * wmin
+                m1 += v1 * wmin
+                m2 += v2 * wmin
+                db += wbright
+                b0 += v0 * wbright
+                b1 += v1 * wbright
+                b2 += v2 * wbright
+            if not usable:
+                dm, m0, m1, m2 = db, b0, b1, b2
+            if dm > zero:
+                out[0, y, x] = m0 / dm
+                out[1, y, x] = m1 / dm
+                out[2, y, x] = m2 / dm
+                mask[y, x] = 0
+                continue
+            ys = min(max(y + shifts[j_short, 0], 0), h - 1)
+            xs = min(max(x + shifts[j_short, 1], 0), w - 1)
+            zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
+            jj = j_short
+            mask[y, x] = 1
+            if not bright[zmax]:
+                jj = j_long
+                mask[y, x] = 2
+            ys = min(max(y + shifts[jj, 0], 0), h - 1)
+            xs = min(max(x + shifts[jj, 1], 0), w - 1)
+            e0 = np.float64(lin[jj, frames[jj, ys, xs, 0], 0])
+            e1 = np.float64(lin[jj, frames[jj, ys, xs, 1], 1])
+            e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
+            for c in range(3):
+                out[c, y, x] = np.float32(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1] + e2 * mats64[jj, c, 2])
+
+
+@njit(nogil=True, cache=True)
+def grey8_rows(codes, out):  # pragma: no cover - compiled
+    """Ward's grey ``rint((54 R + 183 G + 19 B) / 256)`` (round half to even, as ``np.rint``)
+    of (H, W, 3) uint8 ``codes`` into (H, W) uint8 ``out``, in exact integer arithmetic."""
+    h, w = codes.shape[0], codes.shape[1]
+    for y in range(h):
+        row = codes[y]
+        dst = out[y]
+        for x in range(w):
+            s = np.int32(54) * np.int32(row[x, 0]) + np.int32(183) * np.int32(row[x, 1]) \
+                + np.int32(19) * np.int32(row[x, 2])
+            # s = 256 q + r: q + 1 if r > 128, or r == 128 and q is odd (branch-free)
+            dst[x] = np.uint8((s + np.int32(127) + ((s >> 8) & np.int32(1))) >> 8)
+
+
+@njit(nogil=True, cache=True)
+def half_grey(grey, out):  # pragma: no cover - compiled
+    """2x2 box average ``(a + b + c + d + 2) // 4`` of a uint8 (H, W) image into (H//2, W//2)
+    uint8 ``out`` (one level of Ward's MTB pyramid), in integer arithmetic."""
+    for y in range(out.shape[0]):
+        for x in range(out.shape[1]):
+            s = (np.int32(grey[2 * y, 2 * x]) + np.int32(grey[2 * y + 1, 2 * x])
+                 + np.int32(grey[2 * y, 2 * x + 1]) + np.int32(grey[2 * y + 1, 2 * x + 1]) + 2)
+            out[y, x] = np.uint8(s >> 2)

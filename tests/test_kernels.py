@@ -1,0 +1,55 @@
+"""The compiled loops of derender.kernels against their NumPy definitions."""
+
+import numpy as np
+import pytest
+
+from derender.align import _half, grey8_codes, to_grey8
+from derender.fastmerge import merge_files_fast
+
+from helpers import write_png_codes
+
+
+def test_grey8_codes_equal_rint_of_ward_weights_for_every_colour():
+    """All 2^24 colours, in chunks: round half to even exactly as np.rint of the float32 sum."""
+    codes = np.arange(1 << 24, dtype=np.uint32)
+    for c0 in range(0, codes.size, 1 << 22):
+        c = codes[c0:c0 + (1 << 22)]
+        rgb = np.stack([(c >> 16) & 255, (c >> 8) & 255, c & 255], axis=-1).astype(np.uint8).reshape(-1, 1024, 3)
+        f = rgb.astype(np.float32)
+        expect = np.clip(np.rint((np.float32(54) * f[..., 0] + np.float32(183) * f[..., 1]
+                                  + np.float32(19) * f[..., 2]) / np.float32(256)), 0, 255).astype(np.uint8)
+        np.testing.assert_array_equal(grey8_codes(rgb), expect)
+
+
+def test_to_grey8_same_bytes_for_codes_and_floats():
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(to_grey8(rgb), to_grey8(rgb.astype(np.float32) / np.float32(255)))
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (7, 9), (64, 33), (301, 480)])
+def test_half_equals_box_average(shape):
+    rng = np.random.default_rng(shape[0])
+    g = rng.integers(0, 256, shape, dtype=np.uint8)
+    h, w = shape[0] // 2 * 2, shape[1] // 2 * 2
+    u = g[:h, :w].astype(np.uint16)
+    expect = ((u[0::2, 0::2] + u[1::2, 0::2] + u[0::2, 1::2] + u[1::2, 1::2] + 2) // 4).astype(np.uint8)
+    np.testing.assert_array_equal(_half(g), expect)
+    np.testing.assert_array_equal(_half(np.asfortranarray(g)), expect)     # any memory layout
+
+
+def test_stabilized_merge_bytes_do_not_depend_on_threads(tmp_path):
+    from derender.camera import simulate_bracket
+
+    b = simulate_bracket(kind="outdoor", size=(96, 64), exposures=5, seed=2)
+    paths = []
+    for j, codes in enumerate(b.jpeg_codes):
+        p = tmp_path / f"{j}.png"
+        write_png_codes(p, codes)
+        paths.append(p)
+    one = merge_files_fast(paths, b.times, method="stabilized", threads=1)
+    two = merge_files_fast(paths, b.times, method="stabilized", threads=2)
+    assert one.info["engine_path"] == two.info["engine_path"] == "streaming"
+    np.testing.assert_array_equal(one.radiance, two.radiance)
+    np.testing.assert_array_equal(one.mask, two.mask)
+    assert np.all(np.isfinite(one.radiance))
