@@ -1,4 +1,4 @@
-"""The compiled loops of derender.kernels against their NumPy definitions."""
+"""Compiled and OpenCV shortcuts (derender.kernels, align.grey8_codes, align._half) against their NumPy definitions."""
 
 import numpy as np
 import pytest

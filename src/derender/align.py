@@ -97,16 +97,22 @@ def to_grey8(image: np.ndarray) -> np.ndarray:
     return out
 
 
-def grey8_codes(codes: np.ndarray) -> np.ndarray:
-    """:func:`to_grey8` of (H, W, 3) uint8 codes in one compiled pass (exact integer
-    arithmetic, the same bytes)."""
-    from .kernels import grey8_rows
+#: Ward's grey weights as the 1x3 matrix of ``cv2.transform``: 54/256 etc. are exact in
+#: float32, so OpenCV's sum of products is exact and its rounding (half to even) is ``np.rint``.
+_WARD_GREY = np.array([[54.0 / 256.0, 183.0 / 256.0, 19.0 / 256.0]], dtype=np.float32)
+
+
+def grey8_codes(codes: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """:func:`to_grey8` of (H, W, 3) uint8 codes in one OpenCV pass (the same bytes: tested on
+    all 2^24 colours), into ``out`` ((H, W) uint8) if given."""
+    import cv2
 
     codes = np.asarray(codes)
     if codes.dtype != np.uint8 or codes.ndim != 3 or codes.shape[-1] != 3:
         raise InputError(f"expected (H, W, 3) uint8 codes, got {codes.dtype} {codes.shape}")
-    out = np.empty(codes.shape[:2], dtype=np.uint8)
-    grey8_rows(np.ascontiguousarray(codes), out)
+    if out is None or out.shape != codes.shape[:2] or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        out = np.empty(codes.shape[:2], dtype=np.uint8)
+    cv2.transform(np.ascontiguousarray(codes), _WARD_GREY, dst=out.reshape(*out.shape, 1))
     return out
 
 
@@ -190,13 +196,12 @@ def _shift_bool(b: np.ndarray, dy: int, dx: int) -> np.ndarray:
 def _half(grey: np.ndarray) -> np.ndarray:
     """Next MTB pyramid level: 2x2 box average ``(a + b + c + d + 2) // 4`` (odd edge dropped)."""
     grey = np.asarray(grey)
-    if grey.dtype == np.uint8 and grey.shape[0] >= 2 and grey.shape[1] >= 2:
-        from .kernels import half_grey
-
-        out = np.empty((grey.shape[0] // 2, grey.shape[1] // 2), dtype=np.uint8)
-        half_grey(grey, out)
-        return out
     h, w = grey.shape[0] // 2 * 2, grey.shape[1] // 2 * 2
+    if grey.dtype == np.uint8 and h >= 2 and w >= 2:
+        import cv2
+
+        # OpenCV's area average for an exact factor 2 on uint8 is (a + b + c + d + 2) >> 2 (tested)
+        return cv2.resize(np.ascontiguousarray(grey[:h, :w]), (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     g = grey[:h, :w].astype(np.uint16)
     return ((g[0::2, 0::2] + g[1::2, 0::2] + g[0::2, 1::2] + g[1::2, 1::2] + 2) // 4).astype(np.uint8)
 

@@ -6,8 +6,9 @@ OpenCV passes (each of which reads and writes every plane). The kernels are comp
 first use and cached on disk (``cache=True``). The merge runs its rows in parallel
 (``prange``), every pixel independently, so results do not depend on the thread count;
 callers serialise its launches (:data:`derender.fastmerge._KERNEL_LOCK`), since numba's
-fallback thread pool cannot run two parallel kernels at once. ``grey8_rows`` and
-``half_grey`` are serial and release the GIL, for callers' threads.
+fallback thread pool cannot run two parallel kernels at once. Importing numba and loading
+a cached kernel costs ~0.5-0.8 s here, so the streaming merge does it in a background
+thread while it decodes (:func:`derender.fastmerge._warm_up_stabilized`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["stabilized_merge_rows", "grey8_rows", "half_grey"]
+__all__ = ["stabilized_merge_rows"]
 
 
 @njit(parallel=True, nogil=True, cache=True)
@@ -110,29 +111,3 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
             e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
             for c in range(3):
                 out[c, y, x] = np.float32(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1] + e2 * mats64[jj, c, 2])
-
-
-@njit(nogil=True, cache=True)
-def grey8_rows(codes, out):  # pragma: no cover - compiled
-    """Ward's grey ``rint((54 R + 183 G + 19 B) / 256)`` (round half to even, as ``np.rint``)
-    of (H, W, 3) uint8 ``codes`` into (H, W) uint8 ``out``, in exact integer arithmetic."""
-    h, w = codes.shape[0], codes.shape[1]
-    for y in range(h):
-        row = codes[y]
-        dst = out[y]
-        for x in range(w):
-            s = np.int32(54) * np.int32(row[x, 0]) + np.int32(183) * np.int32(row[x, 1]) \
-                + np.int32(19) * np.int32(row[x, 2])
-            # s = 256 q + r: q + 1 if r > 128, or r == 128 and q is odd (branch-free)
-            dst[x] = np.uint8((s + np.int32(127) + ((s >> 8) & np.int32(1))) >> 8)
-
-
-@njit(nogil=True, cache=True)
-def half_grey(grey, out):  # pragma: no cover - compiled
-    """2x2 box average ``(a + b + c + d + 2) // 4`` of a uint8 (H, W) image into (H//2, W//2)
-    uint8 ``out`` (one level of Ward's MTB pyramid), in integer arithmetic."""
-    for y in range(out.shape[0]):
-        for x in range(out.shape[1]):
-            s = (np.int32(grey[2 * y, 2 * x]) + np.int32(grey[2 * y + 1, 2 * x])
-                 + np.int32(grey[2 * y, 2 * x + 1]) + np.int32(grey[2 * y + 1, 2 * x + 1]) + 2)
-            out[y, x] = np.uint8(s >> 2)
