@@ -1046,7 +1046,7 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
     """
     from .align import chain_transforms, transforms_to_shifts
     from .response import DEFAULT_LAMBDA, DEFAULT_SAMPLES, _grid_positions
-    from .stabilize import select_reference, stabilize_aligned
+    from .stabilize import select_reference, stabilize_aligned, unclipped_debevec
 
     align = opts["align"]
     if align not in ("mtb", "none"):
@@ -1082,6 +1082,9 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
     seed = int(opts["seed"])
 
     def calibrate():
+        cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed)
+        if cur is not None:
+            return cur
         ys, xs = _grid_positions(h, w, DEFAULT_SAMPLES, seed)
         samples = np.stack([view.code_pixels(j, ys, xs) for j in range(n)]).astype(np.int32)
 

@@ -13,7 +13,8 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
 3. Per-image linearisation -- :func:`estimate_gammas` (a display gamma per image; with
    times or blind). When those gammas drift steadily with exposure time the tone curve
    is not a power law (film, filmic picture styles) and ``response="auto"`` switches to
-   one common Debevec & Malik curve (:func:`power_law_plausible`, :class:`Curve`).
+   one common Debevec & Malik curve (:func:`power_law_plausible`, :class:`Curve`), fitted
+   on samples away from clipped pixels (:func:`unclipped_debevec`).
 4. :func:`fit_color_matrix` / :func:`color_matrices_to_reference` -- H_j by weighted
    least squares inside a seeded RANSAC, clipped and dark pixels left out (eq. 9-10).
    **The exposure ratio is absorbed in H_j** (as the paper does after eq. 9): H_j maps
@@ -62,6 +63,8 @@ __all__ = [
     "gamma_trend",
     "power_law_plausible",
     "Curve",
+    "CURVE_CLIP",
+    "unclipped_debevec",
     "fit_color_matrix",
     "color_matrices_to_reference",
     "joint_color_matrices",
@@ -709,6 +712,60 @@ def power_law_plausible(gammas: Sequence[float], times: Sequence[float], max_tre
     return abs(gamma_trend(g, times)) <= max_trend
 
 
+#: Response fit of the curve model (:func:`unclipped_debevec`): a sample (pixel, image) is left
+#: out when any channel of it or of a pixel within CURVE_CLIP_RADIUS reaches CURVE_CLIP.
+CURVE_CLIP = REF_HIGH
+CURVE_CLIP_RADIUS = 1
+
+
+def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, seed: int = 0,
+                      high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS) -> Any:
+    """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
+    ``DEFAULT_SAMPLES`` grid samples, made non-decreasing) that leave out every sample whose
+    pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
+    image j reaches ``high`` within ``radius`` pixels (Chebyshev) of p.
+
+    Why: sensors clip *before* the colour matrix (see :data:`FIT_HIGH`). Once one raw
+    channel saturates, the pixel's other channels stop following the exposure while they
+    still render below white, and in-camera demosaicing and chroma filtering spread that
+    into the neighbours. Debevec's per-channel fit reads those codes as the top of the
+    curve and bends its shoulder (measured on the simulator's filmic style, noise-free,
+    fixed rendering: up to +0.4 to +2.4 in ``ln`` at codes 245-250; with the samples left
+    out +-0.2). The shoulder is what linearises a highlight that only the shortest exposure
+    sees unclipped. The rendered channel that does clip is (nearly) always at white: the
+    colour matrix has negative off-diagonals, so a saturated raw channel renders above 1.
+
+    ``codes_at(j, ys, xs)``: (P, 3) integer codes of aligned image j at those pixels.
+    Returns :class:`derender.response.ResponseCurves`, or None when some channel keeps no
+    usable sample (then use :func:`derender.response.calibrate_debevec`).
+    """
+    from .response import DEFAULT_LAMBDA, DEFAULT_SAMPLES, ResponseCurves, _grid_positions, _monotonic, \
+        solve_debevec
+
+    h, w = int(shape[0]), int(shape[1])
+    ys, xs = _grid_positions(h, w, DEFAULT_SAMPLES, seed)
+    top = int(np.ceil(high * 255 - 1e-9))
+    codes = np.stack([np.asarray(codes_at(j, ys, xs)) for j in range(n)]).astype(np.int32)   # (N, P, 3)
+    clipped = np.zeros(codes.shape[:2], dtype=bool)
+    r = int(radius)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            for j in range(n):
+                clipped[j] |= np.asarray(codes_at(j, yy, xx)).max(axis=-1) >= top
+    codes[clipped] = 0                       # hat weight 0: the sample drops out of every channel
+    if not np.all(((codes > 0) & (codes < 255)).any(axis=(0, 1))):
+        return None
+    log_t = np.log(np.asarray(times, dtype=np.float64))
+    g = np.empty((256, 3))
+    for c in range(3):
+        g[:, c], _ = solve_debevec(codes[:, :, c], log_t, lam=DEFAULT_LAMBDA, weights="hat", n_levels=256)
+    params = {"lambda": DEFAULT_LAMBDA, "n_samples": DEFAULT_SAMPLES, "sampling": "grid", "seed": int(seed),
+              "weights": "hat", "clip": float(high), "clip_radius": r,
+              "dropped": float(clipped.mean())}
+    return ResponseCurves(log_inverse=_monotonic(g), method="debevec-unclipped", params=params)
+
+
 def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
                  max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
                  seed: int = 0, calibrate: Any = None) -> tuple[list, dict]:
@@ -722,10 +779,13 @@ def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: fl
     style, the exponent search is biased by the S-curve (the local log-log slope of ``G``
     differs between the dark and bright parts that neighbouring exposures share: rho
     trends by +-0.2 across the bracket) and lowers PSNR; on true power laws use
-    ``response="power"``. ``calibrate()`` (optional) returns the Debevec curves of the
-    unwarped ``images`` without reading them (the streaming path samples its frames).
+    ``response="power"``. ``G`` comes from :func:`unclipped_debevec` (samples next to a
+    clipped pixel left out; plain :func:`~derender.response.calibrate_debevec` if that
+    leaves a channel without data, or for warped codes). ``calibrate()`` (optional) returns
+    the curves of the unwarped ``images`` without reading them (the streaming path
+    samples its frames).
     """
-    from .response import calibrate_debevec
+    from .response import _to_codes, calibrate_debevec
 
     n = images.shape[0]
     rho = np.ones(n)
@@ -734,6 +794,11 @@ def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: fl
     def table_for(r: np.ndarray) -> np.ndarray:
         if calibrate is not None and np.all(r == 1.0):
             return calibrate().log_inverse
+        if np.all(r == 1.0):
+            cur = unclipped_debevec(lambda j, ys, xs: _to_codes(np.asarray(images[j])[ys, xs], 256), n,
+                                    images.shape[1:3], times, seed)
+            if cur is not None:
+                return cur.log_inverse
         if np.all(r == 1.0) and images.min() >= 0.0 and images.max() <= 1.0:
             warped = images                 # no exponent warp: no full-size copy of the stack
         else:
