@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 import pytest
 
 from derender.benchmark import list_scenes, run_benchmark, simulate_dataset, write_benchmark_outputs
@@ -53,3 +55,25 @@ def test_benchmark_cli_and_errors(dataset, tmp_path, capsys):
     (tmp_path / "e").mkdir()
     with pytest.raises(InputError, match="no scene folders"):
         list_scenes(tmp_path / "e")
+
+
+def test_fusion_gain_rows_match_direct_scores():
+    """The experiment's per-scene gains are psnr_rgbl(stabilized) - psnr_rgbl(debevec) against the
+    simulator's exact radiance, and the mean row averages them."""
+    from derender.benchmark import fusion_gain, merge_seeded
+    from derender.camera import simulate_bracket
+    from derender.evaluate import psnr_rgbl
+    from derender.stack import Stack
+
+    rows = fusion_gain(styles=("camera",), kinds=("outdoor", "night"), seeds=(0,), size=(64, 48))
+    scenes = [r for r in rows if r["scene"] != "mean"]
+    mean = [r for r in rows if r["scene"] == "mean"]
+    assert [r["scene"] for r in scenes] == ["outdoor-0", "night-0"] and len(mean) == 1
+    b = simulate_bracket("nikon-d5100", kind="night", size=(64, 48), exposures=9, pipeline="auto", style="camera",
+                         seed=0)
+    st = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+    s = psnr_rgbl(merge_seeded(st, "stabilized", 0), b.truth_linear_srgb)
+    g = psnr_rgbl(merge_seeded(st, "debevec"), b.truth_linear_srgb)
+    assert scenes[1]["dL"] == pytest.approx(s["L"] - g["L"], abs=1e-9)
+    assert mean[0]["dB"] == pytest.approx((scenes[0]["dB"] + scenes[1]["dB"]) / 2)
+    assert 0.0 <= mean[0]["wins"] <= 1.0

@@ -38,6 +38,7 @@ __all__ = [
     "list_scenes",
     "evaluate_scene",
     "run_benchmark",
+    "fusion_gain",
     "BenchmarkResult",
 ]
 
@@ -296,3 +297,45 @@ def write_benchmark_outputs(result: BenchmarkResult, outdir: str | os.PathLike) 
         with atomic_output(path) as tmp:
             Path(tmp).write_text(payloads[key], encoding="utf-8")
     return files
+
+
+def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[str] = ("outdoor", "indoor", "night"),
+                seeds: Sequence[int] = (0, 1, 2), size: tuple[int, int] = (192, 128), pipeline: str = "auto",
+                methods: Sequence[str] = ("stabilized",), camera: str = "nikon-d5100", exposures: int = 9,
+                progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Paper 1's comparison on simulated brackets held in memory: PSNR (R, G, B, L against
+    the simulator's exact radiance, :func:`derender.evaluate.psnr_rgbl`) of each method
+    minus that of ``debevec``, per scene (rows with ``scene`` set) and as the mean over the
+    scenes of each rendering style (rows with ``scene="mean"``, plus ``wins``: the share of
+    scenes won on >= 3 of the 4 planes). Issue 5's acceptance figures come from the default
+    (auto pipeline, 3 scene kinds x seeds 0-2, 192x128, 9 exposures)."""
+    from .camera import simulate_bracket
+    from .evaluate import psnr_rgbl
+    from .merge import merge
+    from .stack import Stack
+
+    planes = ("R", "G", "B", "L")
+    rows: list[dict] = []
+    for style in styles:
+        per: dict[str, list] = {m: [] for m in methods}
+        for kind in kinds:
+            for seed in seeds:
+                b = simulate_bracket(camera, kind=kind, size=size, exposures=exposures, pipeline=pipeline,
+                                     style=style, seed=int(seed))
+                st = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+                base = psnr_rgbl(merge_seeded(st, "debevec"), b.truth_linear_srgb)
+                for m in methods:
+                    sc = psnr_rgbl(merge_seeded(st, m, int(seed)), b.truth_linear_srgb)
+                    d = {c: sc[c] - base[c] for c in planes}
+                    per[m].append(d)
+                    rows.append({"style": style, "scene": f"{kind}-{seed}", "method": m,
+                                 "debevec_L": base["L"], **{f"d{c}": d[c] for c in planes}})
+                    if progress is not None:
+                        progress(f"{style} {kind}-{seed} {m}: " + " ".join(f"{c} {d[c]:+.2f}" for c in planes))
+        for m in methods:
+            ds = per[m]
+            rows.append({"style": style, "scene": "mean", "method": m,
+                         "debevec_L": float("nan"),
+                         **{f"d{c}": float(np.mean([d[c] for d in ds])) for c in planes},
+                         "wins": float(np.mean([sum(d[c] > 0 for c in planes) >= 3 for d in ds]))})
+    return rows
