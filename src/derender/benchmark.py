@@ -311,7 +311,6 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[st
     (auto pipeline, 3 scene kinds x seeds 0-2, 192x128, 9 exposures)."""
     from .camera import simulate_bracket
     from .evaluate import psnr_rgbl
-    from .merge import merge
     from .stack import Stack
 
     planes = ("R", "G", "B", "L")
