@@ -323,3 +323,22 @@ def test_grey_frame_in_colour_bracket_does_not_crash():
     for method in ("stabilized", "stabilized-joint"):
         r = merge(st, method)
         assert np.all(np.isfinite(r.radiance)) and r.radiance.max() > 0
+
+
+def test_scalar_solvers_match_scipy():
+    """The bounded minimiser takes scipy's steps exactly; the root finder lands within xtol."""
+    from scipy.optimize import brentq, minimize_scalar
+
+    fs = [lambda x: (x - 0.3) ** 2, lambda x: np.cos(3 * x) + 0.1 * x, lambda x: abs(x - 0.123456),
+          lambda x: np.exp(x) - 2 * x, lambda x: (x - 5) ** 4, lambda x: 1.0]
+    for f in fs:
+        for lo, hi in [(-1.0, 1.0), (0.0, 2.0), (-3.5, 0.2)]:
+            for xatol in (1e-5, 1e-3):
+                ref = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xatol})
+                assert S._minimize_bounded(f, lo, hi, xatol) == ref.x
+    for g, lo, hi in [(lambda x: x ** 3 - 2, 0.0, 3.0), (lambda x: np.cos(x) - x, 0.0, 1.0),
+                      (lambda x: np.exp(x) - 5, -2.0, 4.0), (lambda x: x - 0.25, 0.0, 1.0)]:
+        for xtol in (1e-12, 1e-5):
+            assert abs(S._find_root(g, lo, hi, xtol) - brentq(g, lo, hi, xtol=1e-14)) <= 2 * xtol
+    with pytest.raises(ValueError):
+        S._find_root(lambda x: x * x + 1, -1.0, 1.0)
