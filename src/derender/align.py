@@ -300,6 +300,9 @@ def _mtb_counts_bands(bitmaps: list, cands: list[tuple[int, int]], step: int) ->
     starts = np.arange(0, h, band)[::step]
     rows_a = starts[:, None] + np.arange(band)[None, :]                   # (nb, band), may pass h
     rows_b = starts[:, None] + np.arange(-m, band + m)[None, :]           # (nb, band + 2m)
+    if all(isinstance(a, _RowBitmaps) and isinstance(b, _RowBitmaps) for a, b in bitmaps) \
+            and max(abs(c[0]) for c in cands) <= m:
+        return _mtb_counts_compiled(bitmaps, cands, starts, band, m)
     in_a, in_b = rows_a < h, (rows_b >= 0) & (rows_b < h)
     ra, rb = np.clip(rows_a, 0, h - 1), np.clip(rows_b, 0, h - 1)
     out = [[(0, 0)] * len(bitmaps) for _ in cands]
@@ -326,6 +329,26 @@ def _mtb_counts_bands(bitmaps: list, cands: list[tuple[int, int]], step: int) ->
                 nb = int(np.bitwise_count(both).sum(dtype=np.int64))
                 nd = int(np.bitwise_count((ta ^ tb[:, sl]) & both).sum(dtype=np.int64))
                 out[ci][i] = (nd, nb)
+    return out
+
+
+def _mtb_counts_compiled(bitmaps: list, cands: list[tuple[int, int]], starts: np.ndarray, band: int,
+                         margin: int) -> list[list[tuple[int, int]]]:
+    """:func:`_mtb_counts_bands` straight from the greys of :class:`_RowBitmaps` (the same
+    counts), by :func:`derender.kernels.mtb_band_counts`."""
+    from .kernels import mtb_band_counts
+
+    cy = np.array([c[0] for c in cands], dtype=np.int64)
+    cx = np.array([c[1] for c in cands], dtype=np.int64)
+    out = [[(0, 0)] * len(bitmaps) for _ in cands]
+    for i, (bm_a, bm_b) in enumerate(bitmaps):
+        counts = np.zeros((len(cands), 2), dtype=np.int64)
+        mtb_band_counts(np.ascontiguousarray(bm_a.grey, dtype=np.uint8),
+                        np.ascontiguousarray(bm_b.grey, dtype=np.uint8), int(bm_a.med), int(bm_b.med),
+                        int(bm_a.exclusion), np.asarray(starts, dtype=np.int64), int(band), int(margin), cy, cx,
+                        counts)
+        for ci in range(len(cands)):
+            out[ci][i] = (int(counts[ci, 0]), int(counts[ci, 1]))
     return out
 
 

@@ -651,12 +651,15 @@ def _set_numba_threads(threads: int | None) -> None:
 
 
 def _warm_up_stabilized() -> threading.Thread:
-    """Import numba and load the merge kernel from its cache (0.5-0.8 s) in a background
-    thread while the frames decode: the import holds the GIL, decoding (libjpeg-turbo) does
-    not. Failures are left for the real call to report."""
+    """Import numba and load the MTB and merge kernels from its cache (0.5-1 s) in a
+    background thread while the frames decode: the import holds the GIL, decoding
+    (libjpeg-turbo) does not. Failures are left for the real calls to report."""
     def run() -> None:
         try:
-            from .kernels import stabilized_merge_rows
+            from .kernels import mtb_band_counts, stabilized_merge_rows
+
+            mtb_band_counts(np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.uint8), 0, 0, 4, np.zeros(1, np.int64),
+                            1, 0, np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 2), np.int64))
 
             f32 = np.float32
             with _KERNEL_LOCK:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["stabilized_merge_rows"]
+__all__ = ["stabilized_merge_rows", "mtb_band_counts"]
 
 
 @njit(parallel=True, nogil=True, cache=True)
@@ -111,3 +111,88 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
             e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
             for c in range(3):
                 out[c, y, x] = np.float32(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1] + e2 * mats64[jj, c, 2])
+
+
+@njit(inline="always")
+def _popcount64(v):  # pragma: no cover - compiled
+    """Set bits of a uint64 (SWAR; LLVM turns the idiom into ``popcnt``)."""
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (v * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@njit(nogil=True, cache=True)
+def _pack_row(grey, y, shift, med, lo, hi, tw, ew):  # pragma: no cover - compiled
+    """Threshold (``g > med``) and exclusion (``g < lo or g > hi``) bits of row ``y`` read at
+    ``x + shift`` (0 outside the row), 64 pixels per word, into ``tw`` / ``ew``."""
+    w = grey.shape[1]
+    x0, x1 = max(0, -shift), min(w, w - shift)
+    for k in range(tw.shape[0]):
+        t = np.uint64(0)
+        e = np.uint64(0)
+        base = k * 64
+        for x in range(max(base, x0), min(base + 64, x1)):
+            g = np.int64(grey[y, x + shift])
+            b = np.uint64(x - base)
+            t |= np.uint64(g > med) << b
+            e |= np.uint64((g < lo) | (g > hi)) << b
+        tw[k] = t
+        ew[k] = e
+
+
+@njit(nogil=True, cache=True)
+def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margin, cand_y, cand_x,
+                    out):  # pragma: no cover - compiled
+    """Ward's MTB scores on bands of rows (:func:`derender.align._mtb_counts_bands`), from the greys.
+
+    For every candidate shift ``c`` adds to ``out[c, 0]`` the pixels whose threshold bits
+    (``g > med``) differ and to ``out[c, 1]`` the pixels outside both exclusion bitmaps
+    (``|g - med| > exclusion``), over reference rows ``s .. s + band - 1`` (below the image
+    height) of every start ``s``, comparing reference pixel ``(y, x)`` with image pixel
+    ``(y + cand_y[c], x + cand_x[c])`` where that is inside the image. Rows are packed 64
+    pixels per word, once for the reference and once per horizontal shift for the image;
+    ``margin`` >= max |cand_y|.
+    """
+    h, w = grey_a.shape
+    nw = (w + 63) // 64
+    lo_a, hi_a = med_a - exclusion, med_a + exclusion
+    lo_b, hi_b = med_b - exclusion, med_b + exclusion
+    ta = np.zeros((band, nw), dtype=np.uint64)
+    ea = np.zeros((band, nw), dtype=np.uint64)
+    tb = np.zeros((band + 2 * margin, nw), dtype=np.uint64)
+    eb = np.zeros((band + 2 * margin, nw), dtype=np.uint64)
+    done = np.zeros(cand_x.shape[0], dtype=np.bool_)
+    for s in starts:
+        for r in range(band):
+            if s + r < h:
+                _pack_row(grey_a, s + r, 0, med_a, lo_a, hi_a, ta[r], ea[r])
+            else:
+                ta[r, :] = 0
+                ea[r, :] = 0
+        done[:] = False
+        for c0 in range(cand_x.shape[0]):
+            if done[c0]:
+                continue
+            sx = cand_x[c0]
+            for rr in range(band + 2 * margin):
+                y = s - margin + rr
+                if 0 <= y < h:
+                    _pack_row(grey_b, y, sx, med_b, lo_b, hi_b, tb[rr], eb[rr])
+                else:
+                    tb[rr, :] = 0
+                    eb[rr, :] = 0
+            for c in range(c0, cand_x.shape[0]):
+                if done[c] or cand_x[c] != sx:
+                    continue
+                done[c] = True
+                off = margin + cand_y[c]
+                nd = np.uint64(0)
+                nb = np.uint64(0)
+                for r in range(band):
+                    for k in range(nw):
+                        both = ea[r, k] & eb[r + off, k]
+                        nb += _popcount64(both)
+                        nd += _popcount64((ta[r, k] ^ tb[r + off, k]) & both)
+                out[c, 0] += np.int64(nd)
+                out[c, 1] += np.int64(nb)
