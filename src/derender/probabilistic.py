@@ -34,7 +34,7 @@ which has ``predict_log``; others fall back to ``space="linear"``):
   hat weight does, but by the model's own curve.
 * **Model-error floor.** ``floor`` (log variance, default 0) is added to every
   observation's ``s2_i``. It was 0.01 (10 % relative) to stand in for what the code-noise
-  term now models explicitly; with the code noise on, floor 0.01 loses 0.45-0.75 dB mean
+  term now models explicitly; with the code noise on, floor 0.01 loses 0.45-0.96 dB mean
   (table below).
 * **Joint per-pixel weights.** The measured (uncensored) channels of one observation get
   the same precision ``1 / mean_c(s2_ic + floor)``, so the channels come from the same mix
