@@ -69,3 +69,20 @@ def test_chart_pairs_cli(tmp_path, capsys):
     code, out, err = run_cli(["chart-pairs", tmp_path, "--illuminants", "1", "--exposures", "3"], capsys)
     assert code == 0, err
     assert load_pairs(tmp_path / "nikon-d5100.npz").jpeg.shape == (420, 3)
+
+
+def test_patch_codes_match_the_large_patch_limit():
+    """A patch's averaged JPEG code must be the code of that colour as a large uniform field: reference 32 px
+    patches averaged >= 12 px inside (no margin light reaches them). The default (16 px, core 4) agrees
+    to < 1 code on average; the earlier 8 px / 1 px-margin interior was pulled dark by demosaicking and
+    the 7x7 chroma blur mixing in the black margin (mean |difference| ~10 codes)."""
+    kw = dict(n_illuminants=1, n_exposures=6, seed=0)
+    ref = chart_pairs("nikon-d5100", patch_px=32, core=12, **kw)
+    ok = (ref.jpeg > 5) & (ref.jpeg < 250)
+    new = chart_pairs("nikon-d5100", **kw)
+    old = chart_pairs("nikon-d5100", patch_px=8, core=1, **kw)
+    np.testing.assert_array_equal(new.raw, ref.raw)
+    assert np.abs(new.jpeg.astype(float) - ref.jpeg)[ok].mean() < 1.0
+    assert np.abs(old.jpeg.astype(float) - ref.jpeg)[ok].mean() > 5.0
+    with pytest.raises(InputError):
+        chart_pairs("nikon-d5100", patch_px=16, core=8, **kw)

@@ -42,3 +42,20 @@ def test_photometric_stereo_small_orders_methods(shape):
     err = {r["method"]: r["mean_angular_error_deg"] for r in rows}
     assert err["gp (weighted LS)"] < err["gamma 2.2 (LS)"]
     assert err["poly (LS)"] < err["gamma 2.2 (LS)"]
+
+
+def test_scene_estimate_without_a_valid_observation_uses_the_nearest_one():
+    """A patch never inside [lo, hi] in all channels takes its observation with the smallest excursion outside
+    the interval (here G = 9 at [10, 205]), not the one closest to mid-grey (which has R clipped at 255)."""
+    from derender.experiments import _scene_estimates
+
+    class Linear:                     # a known model: raw = code / 255, unit variance
+        def predict(self, codes):
+            c = np.asarray(codes, dtype=np.float64) / 255.0
+            return c, np.ones_like(c)
+
+    jpeg = np.array([[[255, 40, 70]], [[197, 9, 61]], [[120, 3, 30]]], dtype=np.uint8)   # (E=3, P=1, 3)
+    t_rel = np.array([4.0, 2.0, 1.0])
+    for method in ("gp", "poly"):
+        est = _scene_estimates(Linear(), method, jpeg, t_rel, 10, 205)
+        np.testing.assert_allclose(est[0], np.array([197, 9, 61]) / 255.0 / 2.0)

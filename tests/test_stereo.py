@@ -48,6 +48,26 @@ def test_weights_downweight_corrupted_measurements():
     assert e_weighted < 0.05 < e_plain
 
 
+
+def test_channel_clipped_in_every_image_does_not_dictate_the_normal():
+    """Red clipped to a constant (bright albedo) in all images, known to be uncertain: the joint
+    estimate follows the exact green and blue channels; the plain sum of pseudo-normals did not."""
+    sc = bumps(48, seed=3)
+    L = default_lights(12, seed=1)
+    shading = np.einsum("hwa,na->nhw", sc.normals, L)
+    lit = np.all(shading > 0, axis=0) & sc.mask
+    I = np.clip(shading, 0, None)[..., None] * np.array([2.0, 0.5, 0.3])
+    I[..., 0] = 1.0                     # red saturated everywhere
+    var = np.full_like(I, 1e-4)
+    var[..., 0] = 1.0                   # the model's variance for a clipped code
+    n, a = solve_normals(I, L, variances=var, mask=sc.mask)
+    assert angular_error_deg(n, sc.normals)[lit].max() < 0.5
+    # the old rule (direction of the sum of the channels' pseudo-normals) is far off here
+    b = [solve_normals(np.repeat(I[..., c:c + 1], 3, -1), L, mask=sc.mask) for c in range(3)]
+    total = sum(bc[0] * bc[1][..., :1] for bc in b)
+    old = total / np.maximum(np.linalg.norm(total, axis=-1, keepdims=True), 1e-300)
+    assert angular_error_deg(old, sc.normals)[lit].mean() > 5.0
+
 def test_frankot_chellappa_recovers_depth_up_to_offset():
     sc = bumps(96, seed=3)
     d = frankot_chellappa(sc.normals, sc.mask)

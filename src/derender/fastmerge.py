@@ -1018,7 +1018,7 @@ def _stream_probabilistic(paths: list[Path], t: np.ndarray, opts: dict, threads:
 
     model = _load(opts.get("model"))
     space, _ = _check_options(model, opts["target_time"], opts["colour_space"], opts["censor"], opts["space"],
-                              opts["floor"], opts["clip_code"])
+                              opts["floor"], opts["clip_code"], opts["code_noise"])
     if space != "log":
         raise _NotStreamable("raw-space product")
     t0 = time.perf_counter()
@@ -1026,7 +1026,8 @@ def _stream_probabilistic(paths: list[Path], t: np.ndarray, opts: dict, threads:
     t1 = time.perf_counter()
     res = merge_probabilistic_frames(frames, t, model, target_time=opts["target_time"],
                                      colour_space=opts["colour_space"], censor=opts["censor"], space=opts["space"],
-                                     floor=opts["floor"], clip_code=opts["clip_code"], threads=threads)
+                                     floor=opts["floor"], clip_code=opts["clip_code"], threads=threads,
+                                     code_noise=opts["code_noise"])
     res.info["timings"] = {"decode_s": t1 - t0, "merge_s": time.perf_counter() - t1}
     res.info["streaming"] = {"frames_kept": len(frames), "decodes": len(frames)}
     return res

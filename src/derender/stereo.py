@@ -5,8 +5,9 @@ of one pixel, the pseudo-normal ``b = rho n`` solves ``L b = I`` (eq. 4). Classi
 photometric stereo uses least squares ``b = (L^T L)^-1 L^T I`` (eq. 5); with de-rendered
 Gaussians ``I_i ~ N(mu_i, s_i^2)`` the maximum-likelihood estimate is the inverse-variance
 weighted least squares ``b = (L^T W L)^-1 L^T W mu``, ``W = diag(s_i^-2)`` (eq. 7).
-Each colour channel gives its own pseudo-normal (its own albedo); the normal is the
-direction of their sum.
+Each colour channel gives its own pseudo-normal (its own albedo); the channels share one
+normal, estimated jointly with each channel's information matrix (:func:`solve_normals`),
+so a channel clipped in every image does not dictate it.
 
 Also here: synthetic Lambertian shapes with exact normals (a sphere and a field of
 Gaussian bumps), rendering them through the camera simulator under known lights, angular
@@ -128,6 +129,18 @@ def solve_normals(intensities: np.ndarray, lights: np.ndarray, variances: np.nda
 
     ``intensities`` (N, H, W, 3) linear; ``variances`` same shape or None (plain LS, eq. 5);
     with variances the weights are 1 / variance (eq. 7).
+
+    Each channel c gives a pseudo-normal ``b_c = A_c^-1 L^T W_c I_c`` (``A_c = L^T W_c L``,
+    its information matrix); albedo ``rho_c = |b_c|``. The channels share one normal: with
+    ``I_ic ~ N(rho_c l_i.n, 1 / w_ic)`` and the albedos fixed at ``rho_c``, the ML normal
+    solves ``(sum_c rho_c^2 A_c) g = sum_c rho_c L^T W_c I_c``, ``n = g / |g|`` (one joint
+    Gauss-Newton step from the per-channel fits). A channel clipped in every image carries
+    almost no information (huge de-rendered variances) and so barely moves the normal,
+    where the plain sum ``sum_c b_c`` let its meaningless direction dominate (its albedo
+    is the largest). Measured (``derender experiment photometric-stereo``, S90, 20
+    lights): GP weighted LS mean angular error sphere 3.25 -> 1.28 deg, bumps 5.58 ->
+    2.20 deg; polynomial (unit weights, the rho-weighted sum) 6.04 -> 6.18 / 4.52 -> 4.66;
+    gamma 14.18 -> 15.47 / 9.41 -> 10.45.
     """
     I = np.asarray(intensities, dtype=np.float64)
     L = np.asarray(lights, dtype=np.float64)
@@ -146,7 +159,11 @@ def solve_normals(intensities: np.ndarray, lights: np.ndarray, variances: np.nda
     A += np.eye(3) * 1e-12 * np.trace(A, axis1=-2, axis2=-1)[..., None, None]
     b = np.linalg.solve(A, c[..., None])[..., 0]            # (H,W,3 channels,3)
     albedo = np.linalg.norm(b, axis=-1)
-    total = b.sum(axis=2)
+    # joint normal of the channels (docstring): (sum_c rho_c^2 A_c) g = sum_c rho_c c_c
+    G = np.einsum("hwc,hwcab->hwab", albedo ** 2, A)
+    g = np.einsum("hwc,hwca->hwa", albedo, c)
+    G += np.eye(3) * (1e-12 * np.trace(G, axis1=-2, axis2=-1)[..., None, None] + 1e-300)
+    total = np.linalg.solve(G, g[..., None])[..., 0]
     norm = np.linalg.norm(total, axis=-1, keepdims=True)
     normals = np.where(norm > 0, total / np.maximum(norm, 1e-300), np.array([0.0, 0.0, 1.0]))
     if mask is not None:
