@@ -59,3 +59,22 @@ def test_scene_estimate_without_a_valid_observation_uses_the_nearest_one():
     for method in ("gp", "poly"):
         est = _scene_estimates(Linear(), method, jpeg, t_rel, 10, 205)
         np.testing.assert_allclose(est[0], np.array([197, 9, 61]) / 255.0 / 2.0)
+
+
+def test_scene_estimate_without_a_valid_observation_combines_tied_nearest_ones():
+    """Two observations equally far outside [10, 205] (one too bright, one too dark) both count; a
+    farther one does not."""
+    from derender.experiments import _scene_estimates
+
+    class Linear:                     # a known model: raw = code / 255, unit variance
+        def predict(self, codes):
+            c = np.asarray(codes, dtype=np.float64) / 255.0
+            return c, np.ones_like(c)
+
+    jpeg = np.array([[[210, 150, 90]], [[100, 80, 5]], [[40, 30, 2]]], dtype=np.uint8)   # excursions 5, 5, 8
+    t_rel = np.array([4.0, 1.0, 0.5])
+    v1, v2 = np.array([210, 150, 90]) / 255.0 / 4.0, np.array([100, 80, 5]) / 255.0 / 1.0
+    # poly: plain mean; gp: inverse-variance weights, variance 1 / t^2 after scaling to exposure 1
+    for method, expect in (("poly", (v1 + v2) / 2.0), ("gp", (16.0 * v1 + 1.0 * v2) / 17.0)):
+        est = _scene_estimates(Linear(), method, jpeg, t_rel, 10, 205)
+        np.testing.assert_allclose(est[0], expect)
