@@ -27,17 +27,22 @@ def _stack(b) -> Stack:
     return Stack(images=b.jpeg_codes.astype(np.float32) / 255.0, times=b.times)
 
 
-@pytest.fixture(scope="module")
-def auto_simple():
-    """Auto pipeline (WB, gain, gamma, saturation change per exposure), simple style, one
-    bracket per scene kind, with the debevec and stabilized merges."""
+def _auto_trio(style: str, seed: int) -> dict:
+    """Auto pipeline (WB, gain, gamma, saturation change per exposure), one bracket per scene
+    kind, with the debevec and stabilized merges."""
     out = {}
     for kind in ("outdoor", "indoor", "night"):
-        b = simulate_bracket(kind=kind, size=SIZE, pipeline="auto", style="simple", seed=1)
+        b = simulate_bracket(kind=kind, size=SIZE, pipeline="auto", style=style, seed=seed)
         st = _stack(b)
         out[kind] = {"bracket": b, "stack": st,
                      "debevec": merge(st, method="debevec"), "stabilized": merge(st, method="stabilized")}
     return out
+
+
+@pytest.fixture(scope="module")
+def auto_simple():
+    """Simple style, seed 1."""
+    return _auto_trio("simple", 1)
 
 
 def _scores(res, b):
@@ -113,14 +118,8 @@ def test_fixed_pipeline_no_worse_than_debevec():
 
 @pytest.fixture(scope="module")
 def auto_camera():
-    """Auto pipeline with the filmic "camera" picture style, one bracket per scene kind."""
-    out = {}
-    for kind in ("outdoor", "indoor", "night"):
-        b = simulate_bracket(kind=kind, size=SIZE, pipeline="auto", style="camera", seed=0)
-        st = _stack(b)
-        out[kind] = {"bracket": b, "stack": st,
-                     "debevec": merge(st, method="debevec"), "stabilized": merge(st, method="stabilized")}
-    return out
+    """The filmic "camera" picture style, seed 0."""
+    return _auto_trio("camera", 0)
 
 
 def test_camera_style_switches_to_a_common_curve(auto_camera):
