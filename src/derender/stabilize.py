@@ -319,11 +319,15 @@ class Curve:
         u = np.clip(np.asarray(j, dtype=np.float64), 0.0, 1.0)
         if self.table is None:
             return u ** (self.gamma * self.rho)
-        x = (u ** self.rho) * (self.table.shape[0] - 1)
-        i0 = np.minimum(x.astype(np.int64), self.table.shape[0] - 2)
-        f = x - i0
+        x, i0 = self._segments(u)
         ch = np.arange(3)
-        return np.exp(self.table[i0, ch] + f * self._dt[i0, ch])
+        return np.exp(self.table[i0, ch] + (x - i0) * self._dt[i0, ch])
+
+    def _segments(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Table position ``x = u ** rho * (levels - 1)`` of codes ``u`` in [0, 1] and its segment."""
+        n = self.table.shape[0] - 1
+        x = (u if self.rho == 1.0 else u ** self.rho) * n
+        return x, np.minimum(x.astype(np.int64), n - 1)
 
     def code(self, lin: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`lin` (values below/above the table's range clamp to 0/1)."""
@@ -343,11 +347,19 @@ class Curve:
         if self.table is None:
             g = self.gamma * self.rho
             return g * u ** (g - 1.0)
+        return np.maximum(self.lin(u) * self.log_slope(u), 1e-300)
+
+    def log_slope(self, j: np.ndarray) -> np.ndarray:
+        """``d ln L / dJ`` (float64, positive; codes below 1e-6 count as 1e-6): ``gamma / J``
+        for a power law, ``dG * (levels - 1) * rho * J ** (rho - 1)`` (``dG`` the table
+        segment's log step) for a table. Needs no exponential."""
+        u = np.clip(np.asarray(j, dtype=np.float64), 1e-6, 1.0)
+        if self.table is None:
+            return (self.gamma * self.rho) / u
+        _, i0 = self._segments(u)
         n = self.table.shape[0] - 1
-        x = (u ** self.rho) * n
-        i0 = np.minimum(x.astype(np.int64), n - 1)
-        ch = np.arange(3)
-        return np.maximum(self.lin(u) * self._dt[i0, ch] * n * self.rho * u ** (self.rho - 1.0), 1e-300)
+        tail = n * self.rho if self.rho == 1.0 else (n * self.rho) * u ** (self.rho - 1.0)
+        return self._dt[i0, np.arange(3)] * tail
 
 
 def _as_curve(g: "float | Curve") -> Curve:
@@ -359,27 +371,32 @@ def _predict_codes(h: np.ndarray, lin_src: np.ndarray, curve_dst: "float | Curve
 
 
 def _pair_weights(j_src: np.ndarray, j_dst: np.ndarray, c_src: "float | Curve",
-                  c_dst: "float | Curve") -> tuple[np.ndarray, np.ndarray]:
+                  c_dst: "float | Curve", least_squares: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Code-domain residual weights v (equal code noise in both images, propagated through
     the map) and the linear-domain least-squares weights ``v * (dJ/dL)^2`` of the
-    destination. ``j_dst`` should be noise-free (a prediction): weights computed from
-    noisy observations bias the fit."""
+    destination (None unless ``least_squares``). ``j_dst`` should be noise-free (a
+    prediction): weights computed from noisy observations bias the fit.
+
+    For a (nearly) diagonal map ``L_d = a L_s`` the code slope ``dJ_d / dJ_s`` is
+    ``(d ln L_s / dJ_s) / (d ln L_d / dJ_d)`` (:meth:`Curve.log_slope`), so v needs no
+    linear values; only the least-squares weights need ``L_d``."""
     cs, cd = _as_curve(c_src), _as_curve(c_dst)
     if cs.table is None and cd.table is None:
-        # power laws (eq. 4): dL/dJ = g L / J, so the slope below is (g_s / g_d) J_d / J_s
-        # (same values, one power instead of four)
+        # power laws (eq. 4): d ln L / dJ = g / J, so the slope is (g_s / g_d) J_d / J_s
         gs, gd = cs.gamma * cs.rho, cd.gamma * cd.rho
         js, jd = np.clip(j_src, 1e-6, 1.0), np.clip(j_dst, 1e-6, 1.0)
-        djdl_dst = jd / (gd * jd ** gd)
         slope = (gs / gd) * (jd / js)
         v = 1.0 / (1.0 + slope * slope)
+        if not least_squares:
+            return v, None
+        djdl_dst = jd / (gd * jd ** gd)
         return v, v * djdl_dst * djdl_dst
-    js, jd = np.maximum(j_src, 1e-6), np.maximum(j_dst, 1e-6)
-    ls, ld = cs.lin(js), cd.lin(jd)
-    djdl_dst = 1.0 / cd.dlin(jd)
-    # dJ_dst / dJ_src for a (nearly) diagonal map: (dJd/dLd) (Ld / Ls) (dLs/dJs)
-    slope = djdl_dst * (ld / np.maximum(ls, 1e-300)) * cs.dlin(js)
+    dlog_dst = cd.log_slope(j_dst)
+    slope = cs.log_slope(j_src) / dlog_dst
     v = 1.0 / (1.0 + slope * slope)
+    if not least_squares:
+        return v, None
+    djdl_dst = 1.0 / np.maximum(cd.lin(np.maximum(j_dst, 1e-6)) * dlog_dst, 1e-300)
     return v, v * djdl_dst * djdl_dst
 
 
@@ -998,7 +1015,7 @@ def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
 
     def norm_resid(h: np.ndarray) -> np.ndarray:
         pred = _predict_codes(h, ls, gamma_dst)
-        v, _ = _pair_weights(src, np.clip(pred, 1e-3, 1.0), gamma_src, gamma_dst)
+        v, _ = _pair_weights(src, np.clip(pred, 1e-3, 1.0), gamma_src, gamma_dst, least_squares=False)
         return (np.abs(pred - dst) * np.sqrt(v)).max(axis=1)
 
     h_all, _ = _fit_pair(src, dst, gamma_src, gamma_dst, ridge=ridge)
@@ -1026,7 +1043,8 @@ def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
         for start in range(0, hyp.shape[0], 64):
             hh = hyp[start:start + 64]
             pred = c_dst.code(np.maximum(np.matmul(ls_s, hh.transpose(0, 2, 1)), 1e-12))
-            v, _ = _pair_weights(src_s[None], np.clip(pred, 1e-3, 1.0), gamma_src, gamma_dst)
+            v, _ = _pair_weights(src_s[None], np.clip(pred, 1e-3, 1.0), gamma_src, gamma_dst,
+                                 least_squares=False)
             inl = (np.abs(pred - dst_s[None]) * np.sqrt(v)).max(axis=2) <= threshold
             cnt = inl.sum(axis=1)
             m = int(np.argmax(cnt))
@@ -1194,7 +1212,7 @@ def joint_color_matrices(blocks: _Blocks, gammas: np.ndarray, times: np.ndarray,
         mj = cj.lin(jj) / t[j]
         mk = ck.lin(jk) / t[k]
         # relative noise of each linear value, (dL/dJ) sigma / L with equal code noise sigma
-        rel = (cj.dlin(jj) / np.maximum(cj.lin(jj), 1e-300)) ** 2 + (ck.dlin(jk) / np.maximum(ck.lin(jk), 1e-300)) ** 2
+        rel = cj.log_slope(jj) ** 2 + ck.log_slope(jk) ** 2
         scale2 = np.maximum(mj * mk, 1e-300)       # ~ E^2 in either image's rendering
         for c in range(3):
             w = 1.0 / (scale2[:, c] * rel[:, c])
