@@ -10,6 +10,7 @@ towards white), clipping, an S-shaped tone curve on the sRGB OETF, 8-bit quantis
 
 from __future__ import annotations
 
+import copy
 import zipfile
 
 import numpy as np
@@ -368,6 +369,32 @@ def test_gp_clip_pattern_clusters_and_bounded_noise(data, gp):
     sf2 = np.exp(2 * gp.theta[lab, :, 3])
     noise_max = np.exp(2 * gp.theta[lab, :, 4] + gp.theta_noise[lab, :, 7])
     assert np.all(s2 <= (sf2 + noise_max) * gp.t_std[lab] ** 2 * (1 + 1e-9))
+
+
+def test_gp_predictive_variance_never_exceeds_the_training_variance(tmp_path, data, gp):
+    # a GP extrapolating with a huge signal variance (simulated 5D II: blue log-variances of
+    # 40-48 for a few purples, a predictive mean 2.6e9x the median) is capped at var(t) of
+    # the training colours, in the exact path, the table path and tables of older files
+    cap = np.var(gp.T, axis=0)
+    codes = np.random.default_rng(4).integers(0, 256, (3000, 3)).astype(np.uint8)
+    wide = copy.deepcopy(gp)
+    wide.theta = gp.theta.copy()
+    wide.theta[..., 3] += 5.0                     # signal variance x e^10
+    wide._factors = {}
+    _, s2 = wide.predict_log(codes, exact=True)
+    assert np.all(s2 <= cap * (1 + 1e-12))
+    assert np.any(np.isclose(s2, cap))            # the cap binds for this model
+    old = copy.deepcopy(gp)
+    vals = old.table_values_.copy()
+    vals[..., 3:] = 50.0                          # an uncapped table as older files hold
+    old.table_values_ = vals
+    path = old.save(tmp_path / "old.npz")
+    back = D.load_model(path)
+    _, s2_tab = back.predict_log(codes)
+    assert np.all(s2_tab <= cap * (1 + 1e-6))
+    mean, _ = back.predict(codes)
+    med, _ = back.predict(codes, point="median")
+    assert np.all(np.isfinite(mean)) and np.all(mean <= (med + back.eps) * np.exp(cap / 2) * 1.001)
 
 
 # ----------------------------------------------------------------------------- polynomial baseline
