@@ -77,3 +77,24 @@ def test_compiled_mtb_counts_equal_bitmap_counts(percentile, step):
     assert got == A._mtb_counts_bands(explicit, cands, step)
     best = min(cands, key=lambda c: got[cands.index(c)][0][0] / max(got[cands.index(c)][0][1], 1))
     assert best == (-3, 3)      # a(y, x) = base(y + 5, x + 7) = b(y - 3, x + 3)
+
+
+def test_compiled_mtb_counts_with_shifts_across_words():
+    """Horizontal shifts of 63-130 px move the packed words by one or two (and bits across
+    them): the compiled scorer still counts exactly what the NumPy scorer counts."""
+    import cv2
+
+    from derender import align as A
+
+    rng = np.random.default_rng(7)
+    h, w = 96, 301
+    a = cv2.GaussianBlur(rng.integers(0, 256, (h, w)).astype(np.float64), (0, 0), 2).astype(np.uint8)
+    b = np.roll(a, 65, axis=1)
+    cands = [(dy, dx) for dy in (-1, 0, 1) for dx in (-130, -65, -64, -63, -1, 0, 1, 63, 64, 65, 128)]
+    ca, cb = (np.cumsum(np.bincount(g.ravel(), minlength=256)) for g in (a, b))
+    ma, mb = A._grey_threshold(a, 50.0, ca), A._grey_threshold(b, 50.0, cb)
+    lazy = [(A._RowBitmaps(a, ma, 4), A._RowBitmaps(b, mb, 4))]
+    explicit = [(A.median_threshold_bitmaps(a, 4, 50.0, ca), A.median_threshold_bitmaps(b, 4, 50.0, cb))]
+    got = A._mtb_counts_bands(lazy, cands, 1)
+    assert got == A._mtb_counts_bands(explicit, cands, 1)
+    assert got[cands.index((0, 65))][0][0] == 0      # b(y, x + 65) = a(y, x) where both exist
