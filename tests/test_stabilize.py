@@ -341,3 +341,28 @@ def test_scalar_solvers_match_scipy():
             assert abs(S._find_root(g, lo, hi, xtol) - brentq(g, lo, hi, xtol=1e-14)) <= 2 * xtol
     with pytest.raises(ValueError):
         S._find_root(lambda x: x * x + 1, -1.0, 1.0)
+
+
+def test_batched_pair_searches_equal_one_pair_at_a_time():
+    """The lock-step exponent searches with batched power-law costs give the one-pair costs
+    (to rounding) and the same log ratios, errors and inliers as :func:`_pair_log_ratio`."""
+    rng = np.random.default_rng(0)
+    items, reqs = [], []
+    mix = np.array([[1.0, 0.05, 0.0], [0.02, 0.95, 0.03], [0.0, 0.1, 1.0]])
+    for i in range(5):
+        nb = int(rng.integers(30, 70))
+        base = rng.uniform(0.05, 0.8, (nb, 1, 3)) * rng.uniform(0.9, 1.1, (nb, 4, 3))
+        pj = np.clip(base, 0, 1) ** (1 / 2.2)
+        pk = np.clip((base * 1.8) @ mix.T, 0, 1) ** (1 / rng.uniform(1.8, 2.6))
+        items.append((pj, pk, 2.2, 2.2))
+        gk = S.Curve(1.0, gamma=2.2) * np.exp(rng.uniform(-0.3, 0.3))
+        sel = None if i % 2 else rng.random(nb) > 0.2
+        reqs.append((pj, pk, S._effective_codes(pj, 2.2), S.Curve(1.0, gamma=2.2), gk, sel))
+    batched = S._pair_costs_power(reqs)
+    single = [S._pair_cost(pj, pk, cj, ck, sel, jj) for pj, pk, jj, cj, ck, sel in reqs]
+    np.testing.assert_allclose(batched, single, rtol=1e-12)
+    together = S._run_pair_searches(items, np.log(4.0), 2, batched=True)
+    for (pj, pk, bj, bk), (lr, se, sel) in zip(items, together):
+        lr1, se1, sel1 = S._pair_log_ratio(pj, pk, bj, np.log(4.0), rounds=2, base_k=bk)
+        assert abs(lr - lr1) < 1e-9 and abs(se - se1) < 1e-9 * max(se1, 1.0)
+        np.testing.assert_array_equal(sel, sel1)
