@@ -39,6 +39,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 def main() -> None:
     """Console-script entry point: user errors print one line and exit with code 2."""
     click_errors, aborts, exits = _click_exception_types()
+    _fast_exit_gc()
     try:
         rv = app(standalone_mode=False)
     except DerenderError as exc:
@@ -56,6 +57,25 @@ def main() -> None:
         typer.echo(f"error: {exc.strerror or exc}: {exc.filename}", err=True)
         sys.exit(2)
     sys.exit(rv if isinstance(rv, int) else 0)
+
+
+_FAST_EXIT = False
+
+
+def _fast_exit_gc() -> None:
+    """At interpreter exit, move every live object to the collector's permanent generation
+    (``gc.freeze``) so that shutdown does not walk them: with numba loaded (stabilised
+    merges) that walk cost 0.3-0.4 s per run here, against 0.03-0.05 s frozen. Registered
+    with atexit, so it runs only once the command is over (outputs written and closed) and
+    in-process callers keep a normal collector; other atexit handlers and module teardown
+    still run."""
+    global _FAST_EXIT
+    if not _FAST_EXIT:
+        import atexit
+        import gc
+
+        atexit.register(gc.freeze)
+        _FAST_EXIT = True
 
 
 def _console():
