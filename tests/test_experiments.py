@@ -31,6 +31,13 @@ def test_threshold_sweep_small():
     assert len(rows) == len(JPEG_INTERVALS)
     errs = [r["rel_rmse_all"] for r in rows]
     assert all(np.isfinite(errs)) and max(errs) < 0.5
+    for r in rows:   # one run: the squared all-colour error is the share-weighted in / out-of-gamut mix
+        f = r["share_oog"]
+        mix = (1 - f) * r["rel_rmse_in"] ** 2 + (f * r["rel_rmse_oog"] ** 2 if f > 0 else 0.0)
+        assert np.isclose(r["rel_rmse_all"] ** 2, mix, rtol=1e-9)
+    # nested intervals: patches without any observation inside them can only grow; none at [0, 255]
+    nv = [r["no_valid"] for r in rows]
+    assert nv[0] == 0 and all(a <= b for a, b in zip(nv, nv[1:]))
 
 
 @pytest.mark.parametrize("shape", ["sphere"])

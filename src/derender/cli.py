@@ -704,7 +704,8 @@ def exp_threshold_sweep(
     rows = threshold_sweep(_cams(cameras), methods=[m.strip() for m in methods.split(",")], n_train=n_train,
                            holdouts=ho, seed=seed, progress=lambda msg: _console().print(msg))
     typer.echo(format_table(rows, [("camera", "camera", ""), ("method", "method", ""), ("interval", "interval", ""),
-                                   ("rel_rmse_all", "rel RMSE all", ".3f"), ("rel_rmse_oog", "rel RMSE oog", ".3f"),
+                                   ("rel_rmse_all", "rel RMSE all", ".4f"), ("rel_rmse_in", "rel RMSE in-gamut", ".4f"),
+                                   ("rel_rmse_oog", "rel RMSE oog", ".4f"), ("no_valid", "patches w/o valid obs", ".1f"),
                                    ("runs", "held-out runs", "")]))
     if plot is not None:
         plot_threshold_sweep(rows, plot)
