@@ -6,7 +6,9 @@ OpenCV passes (each of which reads and writes every plane). The kernels are comp
 first use and cached on disk (``cache=True``). The merge runs its rows in parallel
 (``prange``), every pixel independently, so results do not depend on the thread count;
 callers serialise its launches (:data:`derender.fastmerge._KERNEL_LOCK`), since numba's
-fallback thread pool cannot run two parallel kernels at once. Importing numba and loading
+fallback thread pool cannot run two parallel kernels at once. The merge divides only by
+quantities it has bounded away from 0, so it uses NumPy's error model (no zero-division
+check per division; bit-identical results, 2-3 % faster). Importing numba and loading
 a cached kernel costs ~0.5-0.8 s here, so the streaming merge does it in a background
 thread while it decodes (:func:`derender.fastmerge._warm_up_stabilized`).
 """
@@ -19,7 +21,7 @@ from numba import njit, prange
 __all__ = ["stabilized_merge_rows", "mtb_band_counts"]
 
 
-@njit(parallel=True, nogil=True, cache=True)
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
                           j_short, j_long, bright, y0, y1, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the stabilised merge of paper 1 (Algorithm 1 step 4) from 8-bit codes.
