@@ -20,6 +20,13 @@ from numba import njit, prange
 
 __all__ = ["stabilized_merge_rows", "mtb_band_counts"]
 
+#: Pixels per tile of a row in :func:`stabilized_merge_rows`: every frame is added to the
+#: tile's sums in turn (one frame's tables and matrix stay in registers and L1 across the
+#: tile; the sums, 8 KB, in L1). Measured on the 24 MP bracket, 2 threads, against one
+#: pixel at a time over all frames: 128 px -22 %, 256 -23 %, 512 -28 % (noisy), 2048 and
+#: whole rows -12 to -16 %; bit-identical results.
+MERGE_TILE = 256
+
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
@@ -36,83 +43,97 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
     kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
     comes from the shortest exposure (``mask`` 1) if its largest code is ``bright``, else
     from the longest (``mask`` 2), with ``mats64``; elsewhere ``mask`` is 0. ``out`` is
-    (3, H, W) float32.
+    (3, H, W) float32. Rows run in parallel; within a row, tiles of :data:`MERGE_TILE`
+    pixels take the frames one after another (each pixel's sums still run over the frames in
+    order, so the sums are those of a per-pixel loop).
     """
     n = frames.shape[0]
     h, w = frames.shape[1], frames.shape[2]
     whole = valid.shape[1] == 1 and valid.shape[2] == 1
     zero = np.float32(0.0)
     tiny = np.float32(1e-30)
+    tile = MERGE_TILE
     for y in prange(y0, y1):
-        for x in range(w):
-            usable = False
-            dm = zero
-            m0 = zero
-            m1 = zero
-            m2 = zero
-            db = zero
-            b0 = zero
-            b1 = zero
-            b2 = zero
+        acc = np.empty((8, tile), dtype=np.float32)     # per pixel of the tile: both weight sets' sums
+        usable = np.empty(tile, dtype=np.bool_)
+        for x0 in range(0, w, tile):
+            xe = min(x0 + tile, w)
+            acc[:, :] = zero
+            usable[:] = False
             for j in range(n):
                 yy = y + shifts[j, 0]
-                xx = x + shifts[j, 1]
-                if yy < 0 or yy >= h or xx < 0 or xx >= w:
+                if yy < 0 or yy >= h:
                     continue
-                if not whole and valid[j, y, x] == 0:
+                sx = shifts[j, 1]
+                a00 = mats32[j, 0, 0]
+                a01 = mats32[j, 0, 1]
+                a02 = mats32[j, 0, 2]
+                a10 = mats32[j, 1, 0]
+                a11 = mats32[j, 1, 1]
+                a12 = mats32[j, 1, 2]
+                a20 = mats32[j, 2, 0]
+                a21 = mats32[j, 2, 1]
+                a22 = mats32[j, 2, 2]
+                ik = inv_k[j]
+                for x in range(max(x0, -sx), min(xe, w - sx)):
+                    if not whole and valid[j, y, x] == 0:
+                        continue
+                    xx = x + sx
+                    z0 = frames[j, yy, xx, 0]
+                    z1 = frames[j, yy, xx, 1]
+                    z2 = frames[j, yy, xx, 2]
+                    wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
+                    wbright = weights[max(max(z0, z1), z2), 0]
+                    t = x - x0
+                    if wmin > zero:
+                        usable[t] = True
+                    elif wbright == zero:
+                        continue
+                    if use_inv_var:
+                        d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+                        d = d + inv_var[j, z2, 2]
+                        f = ik / max(d, tiny)
+                        wmin = wmin * f
+                        wbright = wbright * f
+                    l0 = lin[j, z0, 0]
+                    l1 = lin[j, z1, 1]
+                    l2 = lin[j, z2, 2]
+                    v0 = l0 * a00 + l1 * a01 + l2 * a02
+                    v1 = l0 * a10 + l1 * a11 + l2 * a12
+                    v2 = l0 * a20 + l1 * a21 + l2 * a22
+                    acc[0, t] += wmin
+                    acc[1, t] += v0 * wmin
+                    acc[2, t] += v1 * wmin
+                    acc[3, t] += v2 * wmin
+                    acc[4, t] += wbright
+                    acc[5, t] += v0 * wbright
+                    acc[6, t] += v1 * wbright
+                    acc[7, t] += v2 * wbright
+            for x in range(x0, xe):
+                t = x - x0
+                k = 0 if usable[t] else 4
+                dm = acc[k, t]
+                if dm > zero:
+                    out[0, y, x] = acc[k + 1, t] / dm
+                    out[1, y, x] = acc[k + 2, t] / dm
+                    out[2, y, x] = acc[k + 3, t] / dm
+                    mask[y, x] = 0
                     continue
-                z0 = frames[j, yy, xx, 0]
-                z1 = frames[j, yy, xx, 1]
-                z2 = frames[j, yy, xx, 2]
-                wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
-                wbright = weights[max(max(z0, z1), z2), 0]
-                if wmin > zero:
-                    usable = True
-                elif wbright == zero:
-                    continue
-                if use_inv_var:
-                    d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
-                    d = d + inv_var[j, z2, 2]
-                    f = inv_k[j] / max(d, tiny)
-                    wmin = wmin * f
-                    wbright = wbright * f
-                l0 = lin[j, z0, 0]
-                l1 = lin[j, z1, 1]
-                l2 = lin[j, z2, 2]
-                v0 = l0 * mats32[j, 0, 0] + l1 * mats32[j, 0, 1] + l2 * mats32[j, 0, 2]
-                v1 = l0 * mats32[j, 1, 0] + l1 * mats32[j, 1, 1] + l2 * mats32[j, 1, 2]
-                v2 = l0 * mats32[j, 2, 0] + l1 * mats32[j, 2, 1] + l2 * mats32[j, 2, 2]
-                dm += wmin
-                m0 += v0 * wmin
-                m1 += v1 * wmin
-                m2 += v2 * wmin
-                db += wbright
-                b0 += v0 * wbright
-                b1 += v1 * wbright
-                b2 += v2 * wbright
-            if not usable:
-                dm, m0, m1, m2 = db, b0, b1, b2
-            if dm > zero:
-                out[0, y, x] = m0 / dm
-                out[1, y, x] = m1 / dm
-                out[2, y, x] = m2 / dm
-                mask[y, x] = 0
-                continue
-            ys = min(max(y + shifts[j_short, 0], 0), h - 1)
-            xs = min(max(x + shifts[j_short, 1], 0), w - 1)
-            zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
-            jj = j_short
-            mask[y, x] = 1
-            if not bright[zmax]:
-                jj = j_long
-                mask[y, x] = 2
-            ys = min(max(y + shifts[jj, 0], 0), h - 1)
-            xs = min(max(x + shifts[jj, 1], 0), w - 1)
-            e0 = np.float64(lin[jj, frames[jj, ys, xs, 0], 0])
-            e1 = np.float64(lin[jj, frames[jj, ys, xs, 1], 1])
-            e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
-            for c in range(3):
-                out[c, y, x] = np.float32(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1] + e2 * mats64[jj, c, 2])
+                ys = min(max(y + shifts[j_short, 0], 0), h - 1)
+                xs = min(max(x + shifts[j_short, 1], 0), w - 1)
+                zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
+                jj = j_short
+                mask[y, x] = 1
+                if not bright[zmax]:
+                    jj = j_long
+                    mask[y, x] = 2
+                ys = min(max(y + shifts[jj, 0], 0), h - 1)
+                xs = min(max(x + shifts[jj, 1], 0), w - 1)
+                e0 = np.float64(lin[jj, frames[jj, ys, xs, 0], 0])
+                e1 = np.float64(lin[jj, frames[jj, ys, xs, 1], 1])
+                e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
+                for c in range(3):
+                    out[c, y, x] = np.float32(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1] + e2 * mats64[jj, c, 2])
 
 
 @njit(inline="always")
