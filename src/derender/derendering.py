@@ -34,7 +34,9 @@ Two departures from the paper's plain local GP, both to keep the variance calibr
 where the rendering is one-to-many (paper 2, Sec. 2.1 and Fig. 2): colours with a
 clipped (255) channel are clustered separately from unclipped ones (optionally one group
 per clip pattern), and each GP has an input-dependent noise variance (most-likely heteroscedastic GP, Kersting et al.
-2007), bounded at prediction by its range over the training colours.
+2007), bounded at prediction by its range over the training colours. The whole predictive
+variance of ``t`` is also capped at the variance of ``t`` over the training colours (a
+cluster extrapolating with a huge signal variance otherwise reported log-variances of 40+).
 
 Where the error comes from (measured on the simulated S90 chart, MAP point): 75 % of the
 GP's squared relative error is colours with a channel at 255 (18 % of the colours,
