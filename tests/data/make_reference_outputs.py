@@ -1,0 +1,114 @@
+"""Record the merged radiance of every method before the package restructuring (issue 14).
+
+Run once, on the commit *before* the move (``git show 'HEAD^{/reference outputs}'``), from the
+repository root::
+
+    python tests/data/make_reference_outputs.py
+
+It writes ``tests/data/reference_outputs.npz``: the arrays, and the predictions of the small GP model
+the probabilistic methods use (fitted here and in the test from the same seeded chart session, as
+``derender calibrate`` does). ``tests/test_reference_outputs.py`` recomputes the same cases with the current code and
+compares them: every array must be bit-identical or within 1e-6 relative.
+
+The cases use only the public entry points of the time (``merge_files_fast`` is the product path of
+``derender merge``, ``merge`` the in-memory API), so the script documents what was recorded.
+Large outputs are stored subsampled (``STEP``) to keep the file small.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parents[2] / "shared" / "data"
+
+#: (case, pixel step of the stored arrays)
+STEP = {"sim-camera": 1, "sim-simple": 1, "memorial": 8, "frobisher": 8}
+METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
+MODEL_METHODS = ("probabilistic", "stabilized-probabilistic")
+
+
+def _sim_paths(tmp: Path):
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
+
+    out = {}
+    b = simulate_bracket(size=(96, 64), exposures=5, pipeline="auto", style="camera", seed=1)
+    write_bracket(b, tmp / "camera")
+    out["sim-camera"] = (bracket_paths(tmp / "camera", "jpeg"), {})
+    b = simulate_bracket(kind="indoor", size=(96, 64), exposures=5, pipeline="auto", style="simple", seed=2)
+    write_bracket(b, tmp / "simple")
+    out["sim-simple"] = (bracket_paths(tmp / "simple", "jpeg"), {})
+    return out
+
+
+def _real_paths():
+    mem = SHARED / "debevec-memorial"
+    frob = SHARED / "colour-hdri-frobisher"
+    return {
+        "memorial": (sorted(mem.glob("memorial00*.png")),
+                     {"times_file": mem / "memorial.hdr_image_list.txt", "times_file_inverse": True}),
+        "frobisher": (sorted(frob.glob("IMG_*.jpg")), {}),
+    }
+
+
+def cases(tmp: Path):
+    """Yield (name, paths, time options, methods) for every recorded case."""
+    for name, (paths, topts) in {**_sim_paths(tmp), **_real_paths()}.items():
+        methods = METHODS + (MODEL_METHODS if name.startswith("sim") else ())
+        yield name, paths, topts, methods
+
+
+def reference_model(fit_model, model_metadata):
+    """The GP of the probabilistic cases: a small seeded chart session, camera metadata as `calibrate`."""
+    from derender.chart import chart_pairs
+
+    pairs = chart_pairs("nikon-d5100", n_illuminants=4, n_exposures=10, seed=0)
+    model = fit_model("gp", pairs.jpeg, pairs.raw, seed=0, n_train=800)
+    model.metadata.update(model_metadata(pairs))
+    return model
+
+
+def main() -> int:
+    from derender.benchmark import merge_seeded
+    from derender.derendering import fit_model
+    from derender.experiments import model_metadata
+    from derender.fastmerge import merge_files_fast
+    from derender.io import read_stack
+
+    model = reference_model(fit_model, model_metadata)
+    rec: dict[str, np.ndarray] = {}
+    probe = np.stack(np.meshgrid(np.arange(0, 256, 15), np.arange(0, 256, 15), np.arange(0, 256, 15),
+                                 indexing="ij"), -1).reshape(-1, 3).astype(np.uint8)
+    mean, var = model.predict(probe / 255.0)
+    rec["model/predict_mean"], rec["model/predict_var"] = mean, var
+    with tempfile.TemporaryDirectory() as d:
+        for name, paths, topts, methods in cases(Path(d)):
+            s = STEP[name]
+            stack = read_stack(paths, **topts)
+            for method in methods:
+                opts = {"model": model} if method in MODEL_METHODS else {}
+                streamed = merge_files_fast(paths, method=method, **topts, **opts)
+                mem = merge_seeded(stack, method, 0, **opts)
+                for tag, res in (("files", streamed), ("stack", mem)):
+                    for what in ("radiance", "variance"):
+                        arr = getattr(res, what)
+                        if arr is None:
+                            continue
+                        arr = np.ascontiguousarray(arr[::s, ::s])
+                        same = rec.get(f"{name}/{method}/files/{what}")
+                        if tag == "stack" and same is not None and np.array_equal(same, arr):
+                            rec[f"{name}/{method}/stack/{what}"] = np.array("same as files")
+                        else:
+                            rec[f"{name}/{method}/{tag}/{what}"] = arr
+                print(name, method, "engine_path", streamed.info.get("engine_path"), flush=True)
+    np.savez_compressed(HERE / "reference_outputs.npz", **rec)
+    print(f"{len(rec)} arrays -> {HERE / 'reference_outputs.npz'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
