@@ -28,14 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from derender.fastmerge import _run_measured
+from runner import _run_measured
 
 IN_MEMORY = """
 import sys, time
 t0 = time.perf_counter()
-from derender.derender_io import check_8bit_rgb
-from derender.derendering import load_model
-from derender.io import write_exr
+from derender.derendering.apply import check_8bit_rgb
+from derender.derendering.models import load_model
+from derender.io.exr import write_exr
 codes = check_8bit_rgb(sys.argv[1])
 mean, var = load_model(sys.argv[2]).predict(codes)
 write_exr(sys.argv[3], mean)
@@ -47,13 +47,13 @@ print(f"in-memory {time.perf_counter() - t0:.2f} s")
 def prepare(workdir: Path, size: tuple[int, int], seed: int = 0) -> tuple[Path, Path]:
     import cv2
 
-    from derender.camera import simulate_bracket
-    from derender.chart import chart_pairs
-    from derender.derendering import fit_model
+    from derender.camera.simulate import simulate_bracket
+    from derender.camera.chart import chart_pairs
+    from derender.derendering.models import fit_model
 
     workdir.mkdir(parents=True, exist_ok=True)
-    from derender.derendering import load_model
-    from derender.errors import DerenderError
+    from derender.derendering.models import load_model
+    from derender.core.errors import DerenderError
 
     model = workdir / "nikon-d5100-gp.npz"
     try:

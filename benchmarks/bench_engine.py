@@ -15,7 +15,10 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 pytest.importorskip("pytest_benchmark")
 
-from derender.fastmerge import TableMerge, generate_bench_bracket, read_codes, weight_table, write_exr_fast  # noqa: E402
+from derender.engine.tables import TableMerge, weight_table
+from runner import generate_bench_bracket
+from derender.io.images import read_codes
+from derender.io.exr import write_exr_fast  # noqa: E402
 
 SIZE = (3000, 2000)
 
@@ -45,7 +48,7 @@ def test_table_engine_add_one_frame(benchmark, frames, acc):
 
 
 def test_reference_engine_two_frames(benchmark, frames):
-    from derender.merge import merge_linear
+    from derender.engine.reference import merge_linear
 
     imgs = np.stack(frames[1][:2]).astype(np.float32) / 255
     benchmark.pedantic(merge_linear, args=(lambda j, z: np.log(np.maximum(z, 1e-3)), [0.01, 0.04], imgs, "gaussian"),
@@ -58,7 +61,7 @@ def test_write_exr_fast(benchmark, frames, tmp_path):
 
 
 def test_write_exr_openexr(benchmark, frames, tmp_path):
-    from derender.io import write_exr
+    from derender.io.exr import write_exr
 
     img = np.exp(frames[1][1].astype(np.float32) / 40.0)
     benchmark.pedantic(write_exr, args=(tmp_path / "b.exr", img), rounds=1)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> int:
-    from derender.fastmerge import format_bench, run_bench
+    from runner import format_bench, run_bench
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="6000x4000", help="WxH of the generated JPEGs (default 6000x4000, 24 MP)")

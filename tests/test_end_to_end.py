@@ -8,10 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from derender.camera import bracket_paths, simulate_bracket, write_bracket
-from derender.evaluate import psnr_rgbl
-from derender.io import read_exr, read_image, read_stack
-from derender.merge import merge
+from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket
+from derender.evaluation.metrics import psnr_rgbl
+from derender.io.exr import read_exr
+from derender.io.images import read_image, read_stack
+from derender.hdr.registry import merge
 
 from helpers import run_cli
 

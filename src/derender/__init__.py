@@ -1,83 +1,46 @@
 """derender: linear scene radiance, with uncertainty, from rendered 8-bit camera images.
 
-The library is organised as one module per pipeline stage (see ``DESIGN.md``):
-``io`` (files), ``camera`` (spectral camera simulator), ``response`` (camera response
-curves), ``merge`` (HDR merge engine), ``groundtruth`` (RAW ground truth),
-``evaluate`` (PSNR protocol), ``derendering`` (probabilistic de-rendering models).
+The package's folders are the stages of the pipeline (docs/architecture.md); imports go
+down these layers only (checked in CI by ``tests/test_layering.py``)::
+
+    cli
+    evaluation | applications        scoring, experiments; photometric stereo
+    hdr                              merge methods: classic, paper 1, paper 2; files
+    derendering                      p(RAW colour | JPEG colour) models (paper 2)
+    response                         Debevec 1997, Robertson 2003
+    engine | camera | raw            the merge engine; the simulator; RAW development
+    io                               file formats
+    core                             types, errors, colorimetry
+
+The most used functions are re-exported here and load on first use.
 """
 
 from __future__ import annotations
 
+from derender.core.lazy import attach
+
 __version__ = "0.1.0"
 
-from .errors import DerenderError, InputError, ModelFileError, StackError
-from .io import (
-    read_exr,
-    read_hdr,
-    read_image,
-    read_radiance,
-    read_raw,
-    read_raw_stack,
-    read_stack,
-    write_exr,
-    write_png,
-    write_preview,
-)
-from .stack import HDRResult, RawFrame, Stack
-from .merge import merge, merge_linear, register_method  # noqa: E402  (the function shadows the module name;
-from .evaluate import psnr_rgbl  # noqa: E402             use importlib / "from derender.merge import" for the module)
-
-
-# de-rendering models load on first use: a CLI command that only merges does not pay for them
-_DERENDERING = ("MODEL_TYPES", "DerenderModel", "LocalGPModel", "PolynomialModel", "RBFModel", "fit_model",
-                "interval_coverage", "load_model", "relative_rmse")
-
-
-def __getattr__(name: str):
-    """Lazy access to the heavier stage functions (keeps ``import derender`` fast)."""
-    lazy = {name: ("derender.derendering", name) for name in _DERENDERING}
-    lazy.update({
-        "raw_ground_truth": ("derender.groundtruth", "raw_ground_truth"),
-        "simulate_bracket": ("derender.camera", "simulate_bracket"),
-        "calibrate_debevec": ("derender.response", "calibrate_debevec"),
-    })
-    if name in lazy:
-        import importlib
-
-        mod, attr = lazy[name]
-        return getattr(importlib.import_module(mod), attr)
-    raise AttributeError(f"module 'derender' has no attribute {name!r}")
-
-__all__ = [
-    "__version__",
-    "DerenderError",
-    "InputError",
-    "ModelFileError",
-    "StackError",
-    "Stack",
-    "RawFrame",
-    "HDRResult",
-    "merge",
-    "merge_linear",
-    "register_method",
-    "psnr_rgbl",
-    "MODEL_TYPES",
-    "DerenderModel",
-    "LocalGPModel",
-    "PolynomialModel",
-    "RBFModel",
-    "fit_model",
-    "interval_coverage",
-    "load_model",
-    "relative_rmse",
-    "read_exr",
-    "read_hdr",
-    "read_image",
-    "read_radiance",
-    "read_raw",
-    "read_raw_stack",
-    "read_stack",
-    "write_exr",
-    "write_png",
-    "write_preview",
-]
+__getattr__, __dir__, _names = attach(__name__, {
+    "core.errors": ["DerenderError", "InputError", "ModelFileError", "StackError"],
+    "core.types": ["Stack", "RawFrame", "HDRResult"],
+    "io.images": ["read_image", "read_stack", "read_codes"],
+    "io.raw": ["read_raw", "read_raw_stack"],
+    "io.exr": ["read_exr", "write_exr"],
+    "io.rgbe": ["read_hdr", "read_radiance"],
+    "io.preview": ["write_png", "write_preview"],
+    "camera.simulate": ["simulate_bracket"],
+    "raw.groundtruth": ["raw_ground_truth", "raw_to_camera_rgb"],
+    "response.debevec1997": ["calibrate_debevec"],
+    "response.robertson2003": ["calibrate_robertson"],
+    "engine.reference": ["merge_linear"],
+    "hdr.registry": ["merge", "register_method", "MERGE_METHODS"],
+    "hdr.files": ["merge_files"],
+    "derendering.models": ["MODEL_TYPES", "DerenderModel", "LocalGPModel", "PolynomialModel", "RBFModel",
+                           "fit_model", "load_model", "relative_rmse", "interval_coverage"],
+    "derendering.apply": ["derender_image", "derender_to_exr"],
+    "applications.photometric_stereo": ["solve_normals"],
+    "evaluation.metrics": ["psnr_rgbl"],
+})
+__all__ = ["__version__", *_names]
+del _names

@@ -14,7 +14,7 @@ from typing import List, Optional
 
 import typer
 
-from .errors import DerenderError, InputError
+from derender.core.errors import DerenderError, InputError
 
 
 def _click_exception_types() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
@@ -114,7 +114,7 @@ def _shared_camera_dirs() -> tuple[Path, ...]:
 
 
 def _load_camera(camera: str, camera_file: Optional[Path]):
-    from .spectral import load_camera, load_camera_file
+    from derender.camera.spectral import load_camera, load_camera_file
 
     if camera_file is not None:
         return load_camera_file(camera_file)
@@ -138,7 +138,7 @@ def simulate(
     stops: Optional[float] = typer.Option(None, "--stops", help="Stops between exposures (default: cover the scene)."),
 ) -> None:
     """Simulate a bracket with a spectral camera model: real DNG and JPEG files plus exact truth."""
-    from .camera import simulate_bracket, write_bracket
+    from derender.camera.simulate import simulate_bracket, write_bracket
 
     w, h = _parse_size(size)
     _check_choice("--pipeline", pipeline, ("fixed", "auto"))
@@ -162,7 +162,8 @@ def simulate(
 # --------------------------------------------------------------------------- merge / evaluate
 def _read_stack_from_cli(images: List[Path], times: Optional[str], times_file: Optional[Path],
                          times_inverse: bool):
-    from .io import parse_times, read_stack
+    from derender.io.exif import parse_times
+    from derender.io.images import read_stack
 
     if times is not None and times_file is not None:
         raise InputError("give either --times or --times-file, not both")
@@ -194,8 +195,9 @@ def merge_cmd(
     """Merge a bracket into a linear HDR radiance map (OpenEXR)."""
     import numpy as np
 
-    from .fastmerge import merge_files_fast
-    from .io import parse_times, write_png, write_preview
+    from derender.hdr.files import merge_files
+    from derender.io.exif import parse_times
+    from derender.io.preview import write_png, write_preview
 
     if output.suffix.lower() != ".exr":
         raise InputError(f"--output must end in .exr, got {output.name}")
@@ -205,34 +207,34 @@ def merge_cmd(
         raise InputError(f"--variance must end in .exr, got {variance.name}")
     t0 = time.perf_counter()
     inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
-    from .io import check_output
+    from derender.io.files import check_output
 
     check_output(output, inputs)
     if variance is not None:
         if variance.resolve() == output.resolve():
             raise InputError(f"--variance and --output are the same file: {output}")
         check_output(variance, inputs)
-        from .merge import MERGE_METHODS, _load_plugins
+        from derender.hdr.registry import MERGE_METHODS, load_plugins
 
-        _load_plugins()
+        load_plugins()
         if method in MERGE_METHODS and not getattr(MERGE_METHODS[method], "gives_variance", False):
             raise InputError(f"method {method!r} gives no variance (drop --variance)")
     extra = {}
     if model is not None:
-        from .derender_io import resolve_model
+        from derender.derendering.apply import resolve_model
 
         model_obj, used = resolve_model(model, images[0])
         typer.echo(f"de-rendering model: {used}", err=True)
         extra["model"] = model_obj
     # 8-bit files stream (frame by frame or band by band, table merge, parallel EXR write);
     # others: read_stack + merge
-    result = merge_files_fast(images, parse_times(times) if times is not None else None, method,
+    result = merge_files(images, parse_times(times) if times is not None else None, method,
                               times_file=times_file, times_file_inverse=times_inverse, output=output, half=half,
                               inputs=inputs, seed=seed, **extra)
     if variance is not None:
         if result.variance is None:
             raise InputError(f"method {method!r} gives no variance")
-        from .fastmerge import write_exr_fast
+        from derender.io.exr import write_exr_fast
 
         write_exr_fast(variance, result.variance, half=half, inputs=inputs + [output])
     if preview is not None:
@@ -246,7 +248,7 @@ def merge_cmd(
         curves = result.info.get("curves")
         if curves is None:
             raise InputError(f"method {method!r} has no response curves to plot")
-        from .response import plot_response
+        from derender.response.curves import plot_response
 
         plot_response(curves, plot, inputs=inputs)
     n_bright = int((result.mask == 1).sum())
@@ -258,9 +260,9 @@ def merge_cmd(
 @app.command("methods")
 def methods_cmd() -> None:
     """List the merge methods."""
-    from .merge import MERGE_METHODS, _load_plugins
+    from derender.hdr.registry import MERGE_METHODS, load_plugins
 
-    _load_plugins()
+    load_plugins()
     for name, fn in sorted(MERGE_METHODS.items()):
         doc = (fn.__doc__ or "").strip().splitlines()[0] if fn.__doc__ else ""
         typer.echo(f"{name:20s} {doc}")
@@ -274,8 +276,8 @@ def evaluate(
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """PSNR on R, G, B and luminance L after the protocol of DESIGN.md (scale fitted per plane)."""
-    from .evaluate import psnr_rgbl
-    from .io import read_radiance
+    from derender.evaluation.metrics import psnr_rgbl
+    from derender.io.rgbe import read_radiance
 
     _check_choice("--remap", remap, ("lstsq", "minmax"))
     scores = psnr_rgbl(read_radiance(result), read_radiance(truth), remap=remap)
@@ -295,7 +297,7 @@ def diagnose(
     seed: int = typer.Option(0, "--seed", help="Sampling seed."),
 ) -> None:
     """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response)."""
-    from .diagnose import diagnose_constant_response, plot_diagnose
+    from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
 
     stack = _read_stack_from_cli(images, times, times_file, times_inverse)
     result = diagnose_constant_response(stack, seed=seed)
@@ -316,8 +318,11 @@ def groundtruth(
     preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview."),
 ) -> None:
     """Ground truth from RAW (paper 1 Sec. 4.2, Alg. 2): binary-weight merge, WB, Malvar demosaic, sRGB."""
-    from .groundtruth import raw_ground_truth
-    from .io import parse_times, read_raw_stack, write_exr, write_preview
+    from derender.raw.groundtruth import raw_ground_truth
+    from derender.io.exif import parse_times
+    from derender.io.raw import read_raw_stack
+    from derender.io.exr import write_exr
+    from derender.io.preview import write_preview
 
     if output.suffix.lower() != ".exr":
         raise InputError(f"--output must end in .exr, got {output.name}")
@@ -362,7 +367,7 @@ def simulate_dataset_cmd(
     seed: int = typer.Option(0, "--seed", help="Dataset seed."),
 ) -> None:
     """Simulate a dataset of brackets (raw/ + jpeg/ + truth per scene) for 'derender benchmark'."""
-    from .benchmark import simulate_dataset
+    from derender.evaluation.table1 import simulate_dataset
 
     pl = [p.strip() for p in pipelines.split(",") if p.strip()]
     st = [p.strip() for p in renders.split(",") if p.strip()]
@@ -389,7 +394,7 @@ def benchmark(
     seed: int = typer.Option(0, "--seed", help="Seed passed to every method."),
 ) -> None:
     """Paper 1's Table 1: every method on every scene, PSNR R/G/B/L against the RAW ground truth."""
-    from .benchmark import run_benchmark, write_benchmark_outputs
+    from derender.evaluation.table1 import run_benchmark, write_benchmark_outputs
 
     ms = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
     with _progress() as prog:
@@ -413,7 +418,7 @@ def chart_pairs_cmd(
     seed: int = typer.Option(0, "--seed", help="Random seed."),
 ) -> None:
     """Simulate paper 2's calibration session (ColorChecker SG, 16 illuminants) into RAW/JPEG pairs."""
-    from .chart import chart_pairs, save_pairs
+    from derender.camera.chart import chart_pairs, save_pairs
 
     _check_choice("--render", render, ("simple", "camera"))
     cams = [_load_camera("", camera_file)] if camera_file else [_load_camera(c, None) for c in camera]
@@ -432,8 +437,10 @@ def chart_pairs_cmd(
 def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, exposures: int = 9,
              pipeline: str = "auto", render: str = "camera") -> list[dict]:
     """The demo job (library form): simulate, merge with every method, score against truth."""
-    from .camera import bracket_paths, simulate_bracket, write_bracket
-    from .io import read_exr, read_stack, write_exr, write_preview
+    from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket
+    from derender.io.exr import read_exr, write_exr
+    from derender.io.images import read_stack
+    from derender.io.preview import write_preview
 
     console = _console()
     outdir.mkdir(parents=True, exist_ok=True)
@@ -446,15 +453,16 @@ def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, ex
     write_preview(outdir / "truth.png", truth)
     stack = read_stack(bracket_paths(outdir, "jpeg"))
     rows: list[dict] = []
-    from .evaluate import psnr_rgbl
-    from .benchmark import default_methods, merge_seeded
+    from derender.evaluation.metrics import psnr_rgbl
+    from derender.evaluation.table1 import default_methods
+    from derender.hdr.registry import merge_seeded
 
     methods = default_methods()
     with _progress() as prog:
         task = prog.add_task("merging", total=len(methods) + 1)
         try:
-            from .groundtruth import raw_ground_truth
-            from .io import read_raw_stack
+            from derender.raw.groundtruth import raw_ground_truth
+            from derender.io.raw import read_raw_stack
 
             t0 = time.perf_counter()
             gt = raw_ground_truth(read_raw_stack(bracket_paths(outdir, "raw")))
@@ -511,7 +519,7 @@ def merge_batch_cmd(
     half: bool = typer.Option(False, "--half", help="Half-float EXR."),
 ) -> None:
     """Merge many brackets in parallel (Dask); one EXR per stack folder; identical to a serial run."""
-    from .batch import merge_batch
+    from derender.hdr.batch import merge_batch
 
     with _progress() as prog:
         task = prog.add_task("stacks", total=len(stacks))
@@ -522,21 +530,6 @@ def merge_batch_cmd(
         typer.echo(f"{r['stack']}: " + (f"{r['output']} ({r['seconds']:.2f} s)" if r["ok"] else f"error: {r['error']}"))
     if failed:
         raise InputError(f"{len(failed)} of {len(rows)} stacks failed (see above)")
-
-
-@app.command()
-def bench(
-    size: str = typer.Option("1200x800", "--size", help="Frame size WxH of the generated bracket."),
-    frames: int = typer.Option(5, "--frames", help="Frames in the bracket."),
-    memory_frames: int = typer.Option(0, "--memory-frames", help="Also measure peak memory with this many frames."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Where to cache the generated bracket."),
-) -> None:
-    """Time 'derender merge' against OpenCV's Debevec (and colour-hdri if installed), with peak memory."""
-    from .fastmerge import format_bench, run_bench
-
-    res = run_bench(size=_parse_size(size), frames=frames, workdir=workdir, memory_frames=memory_frames or None,
-                    progress=lambda m: _console().print(m))
-    typer.echo(format_bench(res))
 
 
 # --------------------------------------------------------------------------- de-rendering
@@ -551,8 +544,8 @@ def calibrate(
     seed: int = typer.Option(0, "--seed", help="Random seed (subset, k-means)."),
 ) -> None:
     """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
-    from .derendering import fit_model
-    from .derender_io import pairs_from_images
+    from derender.derendering.models import fit_model
+    from derender.derendering.apply import pairs_from_images
 
     if output.suffix.lower() != ".npz":
         raise InputError(f"--output must end in .npz, got {output.name}")
@@ -561,8 +554,8 @@ def calibrate(
     if pairs is not None and raw:
         raise InputError("give either --pairs or --raw/--jpeg, not both")
     if pairs is not None:
-        from .chart import load_pairs
-        from .experiments import model_metadata
+        from derender.camera.chart import load_pairs
+        from derender.derendering.models import model_metadata
 
         pr = load_pairs(pairs)
         jp, rw, meta = pr.jpeg, pr.raw, model_metadata(pr)
@@ -580,7 +573,7 @@ def calibrate(
     t0 = time.perf_counter()
     model = fit_model(method, jp, rw, seed=seed, **kw)
     model.metadata.update(meta)
-    from .io import check_not_input
+    from derender.io.files import check_not_input
 
     check_not_input(output, inputs)
     model.save(output)
@@ -598,15 +591,15 @@ def derender_cmd(
                                     help="EXR compression: none (fastest) or zip (~30 % smaller files, ~3x slower at 24 MP)."),
 ) -> None:
     """De-render an image: per-pixel Gaussian over the linear RAW colour (mean and variance)."""
-    from .derender_io import derender_to_exr
+    from derender.derendering.apply import derender_to_exr
 
     for out in (output, variance):
         if out is not None and out.suffix.lower() != ".exr":
             raise InputError(f"outputs must end in .exr, got {out.name}")
-    from .fastmerge import _EXR_COMPRESSION
+    from derender.io.exr import EXR_COMPRESSION
 
-    if compression not in _EXR_COMPRESSION:
-        raise InputError(f"--compression must be one of {', '.join(_EXR_COMPRESSION)}, got {compression!r}")
+    if compression not in EXR_COMPRESSION:
+        raise InputError(f"--compression must be one of {', '.join(EXR_COMPRESSION)}, got {compression!r}")
     t0 = time.perf_counter()
     info = derender_to_exr(image, model, output, variance=variance, srgb=srgb, compression=compression)
     typer.echo(f"de-rendered {image.name} ({info['width']}x{info['height']}, {info['distinct_colours']} distinct "
@@ -625,8 +618,9 @@ def stereo(
     """Lambertian photometric stereo; with a model, inverse-variance weighted least squares (paper 2 eq. 7)."""
     import numpy as np
 
-    from .io import read_image, write_exr
-    from .stereo import frankot_chellappa, read_lights, solve_normals
+    from derender.io.images import read_image
+    from derender.io.exr import write_exr
+    from derender.applications.photometric_stereo import frankot_chellappa, read_lights, solve_normals
 
     L = read_lights(lights)
     if len(images) != L.shape[0]:
@@ -642,7 +636,7 @@ def stereo(
     codes = np.rint(np.stack(imgs) * 255).astype(np.uint8)
     mask = codes.max(axis=(0, 3)) > mask_threshold
     if model is not None:
-        from .derender_io import resolve_model
+        from derender.derendering.apply import resolve_model
 
         m, used = resolve_model(model, images[0])
         mean, var = m.predict(codes, point="map")
@@ -673,7 +667,7 @@ def exp_derender_table(
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
     """Paper 2 Table 1: RMSE / relative RMSE, all and out-of-gamut, plus 95 % interval coverage."""
-    from .experiments import derender_table, format_table
+    from derender.evaluation.experiments import derender_table, format_table
 
     rows = derender_table(_cams(cameras), methods=[m.strip() for m in methods.split(",")], n_train=n_train,
                           seed=seed, progress=lambda msg: _console().print(msg))
@@ -698,7 +692,7 @@ def exp_threshold_sweep(
     seed: int = typer.Option(0, "--seed", help="Seed."),
 ) -> None:
     """Paper 2 Fig. 4: relative RMSE of scene colour from exposure sequences vs the JPEG interval used."""
-    from .experiments import format_table, plot_threshold_sweep, threshold_sweep
+    from derender.evaluation.experiments import format_table, plot_threshold_sweep, threshold_sweep
 
     ho = [int(v) for v in holdouts.split(",")] if holdouts else None
     rows = threshold_sweep(_cams(cameras), methods=[m.strip() for m in methods.split(",")], n_train=n_train,
@@ -721,7 +715,7 @@ def exp_photometric_stereo(
     seed: int = typer.Option(0, "--seed", help="Seed."),
 ) -> None:
     """Paper 2 Sec. 4.3: GP weighted LS vs polynomial LS vs gamma-2.2 LS on a sphere and bumps."""
-    from .experiments import format_table, photometric_stereo_experiment
+    from derender.evaluation.experiments import format_table, photometric_stereo_experiment
 
     rows = photometric_stereo_experiment(camera, n_lights=lights, size=size, seed=seed, plot=plot,
                                          progress=lambda msg: _console().print(msg))
@@ -740,8 +734,8 @@ def exp_fusion_gain(
     methods: str = typer.Option("stabilized", "--methods", help="Methods compared with debevec."),
 ) -> None:
     """Paper 1: PSNR gain of the stabilised merge over debevec on simulated brackets, per scene and mean."""
-    from .benchmark import fusion_gain
-    from .experiments import format_table
+    from derender.evaluation.table1 import fusion_gain
+    from derender.evaluation.experiments import format_table
 
     w, h = _parse_size(size)
     try:

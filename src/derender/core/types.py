@@ -1,0 +1,170 @@
+"""Small dataclasses passed between pipeline stages.
+
+:class:`Stack` holds a bracket of rendered (8/16-bit) images as float32 in [0, 1];
+:class:`RawFrame` one RAW mosaic with the metadata needed to linearise and colour it;
+:class:`HDRResult` the output of every merge method.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field
+from typing import Any
+
+import numpy as np
+
+from derender.core.errors import InputError, StackError
+
+__all__ = [
+    "validate_times",
+    "Stack",
+    "RawFrame",
+    "HDRResult",
+]
+
+
+def validate_times(times: Any, n_images: int) -> np.ndarray:
+    """Check exposure times: one per image, finite, positive, distinct.
+
+    Returns them as a float64 array (seconds). Raises :class:`InputError` otherwise.
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size != n_images:
+        raise InputError(f"{t.size} exposure time(s) given for {n_images} image(s)")
+    if not np.all(np.isfinite(t)) or np.any(t <= 0):
+        raise InputError(f"exposure times must be positive finite seconds, got {t.tolist()}")
+    uniq, counts = np.unique(t, return_counts=True)
+    if np.any(counts > 1):
+        dup = ", ".join(f"{v:g}" for v in uniq[counts > 1])
+        raise InputError(f"duplicate exposure time(s): {dup} s; every exposure needs its own time")
+    return t
+
+
+@dataclass
+class Stack:
+    """A bracketed exposure stack of rendered images, sorted by exposure time.
+
+    Attributes
+    ----------
+    images : (N, H, W, 3) float32, code values divided by the maximum code (255 or 65535).
+    times : (N,) float64 exposure times in seconds, strictly increasing.
+    bit_depth : 8 or 16 for files; 0 when built from float arrays.
+    paths : source file per image ("" for in-memory images).
+    metadata : per-image dict (camera make/model, EXIF fields found, ...).
+    """
+
+    images: np.ndarray
+    times: np.ndarray
+    bit_depth: int = 8
+    paths: tuple[str, ...] = ()
+    metadata: tuple[dict, ...] = ()
+
+    def __post_init__(self) -> None:
+        imgs = np.asarray(self.images)
+        if imgs.ndim != 4 or imgs.shape[-1] != 3:
+            raise InputError(f"a stack needs images of shape (N, H, W, 3), got {imgs.shape}")
+        if imgs.shape[0] < 2:
+            raise StackError("an exposure stack needs at least two images")
+        self.images = np.ascontiguousarray(imgs, dtype=np.float32)
+        t = validate_times(self.times, imgs.shape[0])
+        order = np.argsort(t, kind="stable")
+        if np.any(order != np.arange(t.size)):
+            self.images = np.ascontiguousarray(self.images[order])
+            if self.paths:
+                self.paths = tuple(self.paths[i] for i in order)
+            if self.metadata:
+                self.metadata = tuple(self.metadata[i] for i in order)
+        self.times = t[order]
+        if not self.paths:
+            self.paths = ("",) * self.n
+        if not self.metadata:
+            self.metadata = tuple({} for _ in range(self.n))
+
+    @property
+    def n(self) -> int:
+        """Number of exposures."""
+        return int(self.images.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of every image."""
+        return int(self.images.shape[1]), int(self.images.shape[2])
+
+    @property
+    def max_code(self) -> int:
+        """Largest code value of the source files (255 for 8-bit)."""
+        return 65535 if self.bit_depth == 16 else 255
+
+    def codes(self) -> np.ndarray:
+        """Integer code values (uint8 for 8-bit stacks, else uint16), shape (N, H, W, 3)."""
+        dtype = np.uint16 if self.bit_depth == 16 else np.uint8
+        return np.rint(np.clip(self.images, 0.0, 1.0) * self.max_code).astype(dtype)
+
+
+@dataclass
+class RawFrame:
+    """One RAW (Bayer) frame and the metadata to turn it into linear colour.
+
+    Attributes
+    ----------
+    mosaic : (H, W) uint16 sensor values (visible area).
+    cfa_pattern : 4-letter Bayer pattern of the top-left 2x2 block, e.g. ``"RGGB"``.
+    black_level : per-CFA-position black level, (2, 2) float in mosaic layout.
+    white_level : saturation value (sensor counts).
+    as_shot_wb : (3,) white-balance multipliers for R, G, B (G = 1) as shot.
+    xyz_to_camera : (3, 3) matrix mapping CIE XYZ to camera RGB (DNG ColorMatrix
+        semantics, before any normalisation) or None when the file has none.
+    exposure_time : seconds, or None when unknown.
+    """
+
+    mosaic: np.ndarray
+    cfa_pattern: str
+    black_level: np.ndarray
+    white_level: float
+    as_shot_wb: np.ndarray
+    xyz_to_camera: np.ndarray | None
+    exposure_time: float | None = None
+    path: str = ""
+    make: str = ""
+    model: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def cfa_channel_index(self) -> np.ndarray:
+        """(H, W) int array: 0 for R, 1 for G, 2 for B at every photosite."""
+        lut = {"R": 0, "G": 1, "B": 2}
+        tile = np.array([[lut[self.cfa_pattern[0]], lut[self.cfa_pattern[1]]],
+                         [lut[self.cfa_pattern[2]], lut[self.cfa_pattern[3]]]])
+        h, w = self.mosaic.shape
+        return np.tile(tile, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+
+    def black_level_map(self) -> np.ndarray:
+        """(H, W) float32 black level at every photosite."""
+        h, w = self.mosaic.shape
+        bl = np.asarray(self.black_level, dtype=np.float32).reshape(2, 2)
+        return np.tile(bl, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+
+    def normalised(self) -> np.ndarray:
+        """(H, W) float32 ``(mosaic - black) / (white - black)`` (not clipped)."""
+        bl = self.black_level_map()
+        return (self.mosaic.astype(np.float32) - bl) / (np.float32(self.white_level) - bl)
+
+
+@dataclass
+class HDRResult:
+    """Output of a merge.
+
+    radiance : (H, W, 3) float32 linear radiance (relative units), finite everywhere.
+    mask : (H, W) uint8, 0 = well exposed somewhere, 1 = taken from the shortest
+        exposure (over-exposed everywhere), 2 = from the longest (under-exposed).
+    variance : (H, W, 3) float32 or None (probabilistic methods).
+    info : free-form details (curves, gammas, matrices, reference index, timings).
+    """
+
+    radiance: np.ndarray
+    mask: np.ndarray
+    variance: np.ndarray | None = None
+    info: dict = field(default_factory=dict)
+
+    MASK_OK = 0
+    MASK_BRIGHT = 1
+    MASK_DARK = 2

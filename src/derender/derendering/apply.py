@@ -1,0 +1,309 @@
+"""File-level de-rendering: pairs from registered RAW/JPEG images, model libraries, images.
+
+* :func:`pairs_from_images` turns registered RAW + JPEG files of the same shot into
+  calibration pairs (``derender calibrate --raw ... --jpeg ...``).
+* :func:`resolve_model` loads a model file, or picks from a *folder* of models the one
+  whose camera make/model matches the image's EXIF (paper 2 imagines such per-camera
+  libraries looked up by the metadata of an Internet image).
+* :func:`derender_image` predicts per-pixel mean and variance of the linear RAW colour;
+  :func:`derender_to_exr` does the same straight into EXR files, block by block (a
+  24-megapixel JPEG never exists as full float images in memory).
+* :func:`index_colours` finds the distinct colours of an 8-bit image: a prediction is a
+  function of the colour alone, so it is made once per distinct colour and gathered.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+import os
+import re
+import time
+
+import numpy as np
+
+from derender.core.errors import InputError, ModelFileError
+
+__all__ = [
+    "check_8bit_rgb",
+    "pairs_from_images",
+    "resolve_model",
+    "derender_image",
+    "pack_codes",
+    "ColourIndex",
+    "ColourIndexBuilder",
+    "index_colours",
+    "derender_to_exr",
+]
+
+
+def check_8bit_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Read an 8-bit RGB image as uint8 codes (H, W, 3); refuse alpha channels and 16-bit files."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    if path.suffix.lower() in (".jpg", ".jpeg"):
+        # JPEG is always 8-bit without alpha: the fast libjpeg-turbo decoder of fastmerge
+        from derender.io.images import read_codes
+
+        codes = read_codes(path)
+        if codes is not None:
+            return codes
+    img = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    if img is None:
+        raise InputError(f"not a readable image (corrupt or unsupported format): {path}")
+    if img.dtype != np.uint8:
+        raise InputError(f"{path} is {img.dtype.itemsize * 8}-bit; de-rendering models map 8-bit rendered colours")
+    if img.ndim == 3 and img.shape[2] == 4:
+        raise InputError(f"{path} has an alpha channel; de-rendering needs plain RGB (flatten it first)")
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    elif img.shape[2] != 3:
+        raise InputError(f"{path} has {img.shape[2]} channels; expected RGB")
+    else:
+        img = img[:, :, ::-1]
+    return np.ascontiguousarray(img)
+
+
+def pairs_from_images(raw_paths: Sequence[str | os.PathLike], jpeg_paths: Sequence[str | os.PathLike],
+                      saturation: float = 0.92, max_pairs_per_image: int = 200_000, seed: int = 0
+                      ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Pairs (jpeg codes, raw camera RGB) from registered RAW/JPEG shots of the same scene.
+
+    Each RAW is demosaiced (Malvar) without white balance or colour matrix, normalised by
+    its black and white level (sensor units, not divided by the exposure time); pixels with
+    a RAW channel above ``saturation`` are left out (one shot cannot extrapolate them);
+    the JPEG must have the RAW's visible size. Metadata (make/model) comes from the RAW.
+    """
+    from derender.raw.groundtruth import raw_to_camera_rgb
+    from derender.io.raw import read_raw
+
+    if len(raw_paths) != len(jpeg_paths) or not raw_paths:
+        raise InputError(f"give one --jpeg per --raw ({len(raw_paths)} RAW, {len(jpeg_paths)} JPEG)")
+    rng = np.random.default_rng(seed)
+    jp_all, rw_all = [], []
+    make = model = ""
+    for rp, jpth in zip(raw_paths, jpeg_paths):
+        frame = read_raw(rp)
+        make, model = make or frame.make, model or frame.model
+        frame.exposure_time = None
+        cam = raw_to_camera_rgb([frame], clip_negative=True).radiance
+        codes = check_8bit_rgb(jpth)
+        if codes.shape[:2] != cam.shape[:2]:
+            raise InputError(f"{jpth} is {codes.shape[1]}x{codes.shape[0]} but {rp} is "
+                             f"{cam.shape[1]}x{cam.shape[0]}: pairs must be registered at the RAW's size")
+        ok = np.all(cam < saturation, axis=-1) & np.all(np.isfinite(cam), axis=-1)
+        idx = np.flatnonzero(ok)
+        if idx.size > max_pairs_per_image:
+            idx = np.sort(rng.choice(idx, size=max_pairs_per_image, replace=False))
+        jp_all.append(codes.reshape(-1, 3)[idx])
+        rw_all.append(cam.reshape(-1, 3)[idx].astype(np.float64))
+    jp = np.concatenate(jp_all)
+    rw = np.concatenate(rw_all)
+    if jp.shape[0] < 10:
+        raise InputError("fewer than 10 usable (unsaturated) pixel pairs in the given images")
+    return jp, rw, {"camera": {"name": "", "make": make, "model": model}}
+
+
+def _norm(s: str) -> str:
+    return re.sub(r"[^a-z0-9]+", " ", s.lower()).strip()
+
+
+def _camera_matches(meta_cam: dict, exif: dict) -> bool:
+    em = _norm(str(exif.get("Model", "")))
+    mm = _norm(str(meta_cam.get("model", "")))
+    if not em or not mm:
+        return False
+    return em == mm or em in mm or mm in em
+
+
+def resolve_model(model_path: str | os.PathLike, image_path: str | os.PathLike | None = None):
+    """Load ``model_path``; if it is a folder, pick the model matching the image's EXIF camera.
+
+    Returns ``(model, description)``; raises :class:`InputError` when no model matches.
+    """
+    from derender.derendering.models import load_model
+    from derender.io.exif import read_exif
+
+    p = Path(model_path)
+    if p.is_file():
+        m = load_model(p)
+        return m, p.name
+    if not p.is_dir():
+        raise InputError(f"no such model file or folder: {p}")
+    exif = read_exif(image_path) if image_path is not None else {}
+    candidates = []
+    for f in sorted(p.glob("*.npz")):
+        try:
+            m = load_model(f)
+        except (ModelFileError, InputError):
+            continue
+        cam = m.metadata.get("camera", {}) if isinstance(m.metadata, dict) else {}
+        candidates.append((f, m, cam))
+        if _camera_matches(cam, exif):
+            return m, f"{f.name} (camera {cam.get('make', '')} {cam.get('model', '')} matches the image EXIF)"
+    known = ", ".join(f"{f.name}: {c.get('model', '?')}" for f, _, c in candidates) or "none"
+    who = f"{exif.get('Make', '?')} {exif.get('Model', '?')}" if exif else "unknown (no EXIF)"
+    raise InputError(f"no model in {p} for camera {who}; models: {known}")
+
+
+def derender_image(image_path: str | os.PathLike, model_path: str | os.PathLike, srgb: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, str]:
+    """Mean and variance (float32 (H, W, 3)) of the linear colour of every pixel, and the model used."""
+    codes = check_8bit_rgb(image_path)
+    model, used = resolve_model(model_path, image_path)
+    index = index_colours(codes)
+    mean_tab, var_tab = _colour_tables(model, index, srgb)
+    rows = index.rows(codes)
+    return np.take(mean_tab, rows, axis=0), np.take(var_tab, rows, axis=0), used
+
+
+# --------------------------------------------------------------------------- colour tables
+_N_PACKED = 1 << 24
+
+
+def pack_codes(codes: np.ndarray) -> np.ndarray:
+    """uint8 RGB codes (..., 3) -> int32 ``R << 16 | G << 8 | B`` (...,)."""
+    packed = codes[..., 0].astype(np.int32)
+    packed <<= 8
+    packed |= codes[..., 1]
+    packed <<= 8
+    packed |= codes[..., 2]
+    return packed
+
+
+@dataclass
+class ColourIndex:
+    """The distinct colours of an 8-bit image and where each packed colour sits among them.
+
+    packed : (M,) int32, sorted packed codes (:func:`pack_codes`) present in the image.
+    lut : (2**24,) int32, ``lut[packed[i]] == i``; entries of absent colours are undefined.
+    """
+
+    packed: np.ndarray
+    lut: np.ndarray
+
+    @property
+    def codes(self) -> np.ndarray:
+        """(M, 3) int32 RGB codes of the distinct colours."""
+        p = self.packed
+        return np.stack([(p >> 16) & 255, (p >> 8) & 255, p & 255], axis=1).astype(np.int32)
+
+    def rows(self, codes: np.ndarray) -> np.ndarray:
+        """Row of each pixel's colour in the tables (int32, shape ``codes.shape[:-1]``)."""
+        return np.take(self.lut, pack_codes(codes), mode="clip")
+
+
+class ColourIndexBuilder:
+    """Collects the distinct colours of several 8-bit images (a presence bitmap over the 2**24
+    colours, filled in row blocks without full-size temporaries); :meth:`finish` gives the
+    :class:`ColourIndex` of their union."""
+
+    def __init__(self, block_rows: int = 64):
+        self.present = np.zeros(_N_PACKED, dtype=bool)
+        self.block_rows = int(block_rows)
+
+    def add(self, codes: np.ndarray) -> None:
+        if codes.dtype != np.uint8 or codes.shape[-1] != 3:
+            raise InputError(f"colour indexing needs uint8 RGB codes, got {codes.dtype} {codes.shape}")
+        rows = codes.reshape(-1, codes.shape[-2] if codes.ndim == 3 else 1, 3)
+        for y in range(0, rows.shape[0], self.block_rows):
+            self.present[pack_codes(rows[y:y + self.block_rows]).reshape(-1)] = True
+
+    def finish(self) -> ColourIndex:
+        packed = np.flatnonzero(self.present).astype(np.int32)
+        lut = np.empty(_N_PACKED, dtype=np.int32)   # only the present entries are ever read
+        lut[packed] = np.arange(packed.shape[0], dtype=np.int32)
+        return ColourIndex(packed=packed, lut=lut)
+
+
+def index_colours(codes: np.ndarray, block_rows: int = 64) -> ColourIndex:
+    """Distinct colours of uint8 codes (H, W, 3) or (P, 3), scanned in row blocks.
+
+    The cost grows with the pixels, and the tables built from the index with the distinct
+    colours (a photograph has ~10^5-10^6 of them among 2.4 10^7 pixels).
+    """
+    builder = ColourIndexBuilder(block_rows)
+    builder.add(codes)
+    return builder.finish()
+
+
+def _colour_tables(model, index: ColourIndex, srgb: bool, chunk: int = 1 << 18) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance (float32, finite, (M, 3)) of each distinct colour, optionally in linear sRGB."""
+    from derender.derendering.models import finite32
+
+    m = index.packed.shape[0]
+    mean = np.empty((m, 3), dtype=np.float32)
+    var = np.empty((m, 3), dtype=np.float32)
+    codes = index.codes
+    for s in range(0, m, chunk):       # temporaries of the model bounded by the chunk
+        mc, vc = model._predict_codes(codes[s:s + chunk], True, False, False)
+        mean[s:s + chunk], var[s:s + chunk] = finite32(np.asarray(mc), np.asarray(vc))
+    if srgb:
+        mean, var = _to_linear_srgb(model, mean, var)
+    return mean, var
+
+
+def _to_linear_srgb(model, mean: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera RGB Gaussians -> linear sRGB through the model's camera matrix (independent channels)."""
+    from derender.derendering.models import model_camera_to_srgb
+
+    a = model_camera_to_srgb(model)
+    if a is None:
+        raise InputError("the model has no camera colour metadata; drop --srgb to get camera RGB")
+    mean = mean @ a.T.astype(np.float32)
+    var = var @ (a * a).T.astype(np.float32)
+    big = np.float32(np.finfo(np.float32).max / 4)
+    mean = np.nan_to_num(mean, nan=0.0, posinf=big, neginf=-big).astype(np.float32)
+    var = np.nan_to_num(np.clip(var, 0, big), nan=big).astype(np.float32)
+    return mean, var
+
+
+def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike, output: str | os.PathLike,
+                    variance: str | os.PathLike | None = None, srgb: bool = False,
+                    compression: str = "zip", threads: int | None = None) -> dict:
+    """De-render an image straight into ``output`` (mean) and ``variance`` EXR files.
+
+    The same numbers as :func:`derender_image` (each distinct colour predicted once,
+    :func:`index_colours`), but the full-size mean and variance images are never formed:
+    the EXR writer (:func:`derender.fastmerge.write_exr_lines`) asks for 16-row blocks
+    and each is gathered from the per-colour tables in its worker thread. Outputs are
+    written atomically and never overwrite the input. Returns what was used and the
+    timings of the stages.
+    """
+    from derender.io.exr import write_exr_lines
+    from derender.io.files import check_output
+
+    outs = [Path(output)] + ([Path(variance)] if variance is not None else [])
+    if len(outs) == 2 and outs[0].resolve() == outs[1].resolve():
+        raise InputError(f"mean and variance outputs are the same file: {outs[0]}")
+    for out in outs:
+        check_output(out, [image_path])
+    t0 = time.perf_counter()
+    codes = check_8bit_rgb(image_path)
+    model, used = resolve_model(model_path, image_path)
+    t1 = time.perf_counter()
+    index = index_colours(codes)
+    t2 = time.perf_counter()
+    mean_tab, var_tab = _colour_tables(model, index, srgb)
+    t3 = time.perf_counter()
+    h, w = codes.shape[:2]
+    timings = {"read_s": t1 - t0, "index_s": t2 - t1, "predict_s": t3 - t2}
+    for name, out, table in (("mean", outs[0], mean_tab), ("variance", variance, var_tab)):
+        if out is None:
+            continue
+        planes = [np.ascontiguousarray(table[:, c]) for c in (2, 1, 0)]   # B, G, R
+
+        def lines(y0: int, y1: int, buf: np.ndarray, planes=planes) -> None:
+            rows = index.rows(codes[y0:y1])
+            for k in range(3):
+                np.take(planes[k], rows, out=buf[:, k, :], mode="clip")  # clip: unbuffered out
+
+        ts = time.perf_counter()
+        write_exr_lines(out, w, h, lines, inputs=[image_path], compression=compression, threads=threads)
+        timings[f"write_{name}_s"] = time.perf_counter() - ts
+    return {"model": used, "width": w, "height": h, "distinct_colours": int(index.packed.shape[0]),
+            "timings": timings}

@@ -1,0 +1,13 @@
+"""Scoring: the PSNR protocol, paper 1 Table 1 on datasets (Dask), paper 2 experiments, response diagnostics.
+
+Modules: :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`, :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.table1`.
+"""
+
+from derender.core.lazy import attach
+
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "diagnose": ["DiagnoseResult", "diagnose_constant_response", "plot_diagnose"],
+    "experiments": ["JPEG_INTERVALS", "METHODS", "default_experiment_cameras", "derender_table", "format_table", "threshold_sweep", "plot_threshold_sweep", "photometric_stereo_experiment"],
+    "metrics": ["PSNR_CAP", "fit_scale", "remap_minmax", "psnr", "psnr_rgbl"],
+    "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
+})

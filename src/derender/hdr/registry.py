@@ -1,0 +1,121 @@
+"""The merge methods by name: registration, dispatch, and the seeded call used by experiments.
+
+Methods register themselves with :func:`register_method`; :func:`merge` dispatches an
+in-memory :class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files`
+image files. The methods live in :mod:`derender.hdr.classic` (``debevec``,
+``robertson``), :mod:`derender.hdr.stabilize` (``stabilized``, ``stabilized-joint``,
+paper 1) and :mod:`derender.hdr.probabilistic` (``probabilistic``,
+``stabilized-probabilistic``, paper 2); they are imported on first use.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+from typing import Callable
+import importlib
+import inspect
+
+from derender.core.errors import InputError
+from derender.core.types import HDRResult, Stack
+
+__all__ = [
+    "MERGE_METHODS",
+    "register_method",
+    "BUILTIN_METHODS",
+    "load_plugins",
+    "get_method",
+    "method_options",
+    "merge",
+    "merge_seeded",
+]
+
+
+# --------------------------------------------------------------------------- registry
+#: Merge methods by name: ``fn(stack, **options) -> HDRResult`` (filled as their modules load).
+MERGE_METHODS: dict[str, Callable[..., HDRResult]] = {}
+
+#: Where the built-in methods live: a merge imports only the module of its method (the
+#: stabiliser and the de-rendering models cost ~1 s of start-up a Debevec merge need not pay).
+BUILTIN_METHODS = {
+    "debevec": "derender.hdr.classic",
+    "robertson": "derender.hdr.classic",
+    "stabilized": "derender.hdr.stabilize",
+    "stabilized-joint": "derender.hdr.stabilize",
+    "probabilistic": "derender.hdr.probabilistic",
+    "stabilized-probabilistic": "derender.hdr.probabilistic",
+}
+
+
+def register_method(name: str, gives_variance: bool = False
+                    ) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
+    """Decorator registering ``fn(stack, **options) -> HDRResult`` under ``name``
+    (``gives_variance``: its results carry a per-pixel variance)."""
+
+    def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
+        fn.gives_variance = bool(gives_variance)
+        MERGE_METHODS[name] = fn
+        return fn
+
+    return deco
+
+
+def load_plugins() -> None:
+    """Import the modules of every built-in method (they register themselves)."""
+    for mod in dict.fromkeys(BUILTIN_METHODS.values()):
+        importlib.import_module(mod)
+
+
+def get_method(method: str) -> Callable[..., HDRResult]:
+    """The merge function registered as ``method``; an :class:`InputError` lists the known ones."""
+    if method not in MERGE_METHODS:
+        mod = BUILTIN_METHODS.get(method)
+        if mod is not None:
+            importlib.import_module(mod)
+        else:
+            load_plugins()
+    fn = MERGE_METHODS.get(method)
+    if fn is None:
+        load_plugins()
+        raise InputError(f"unknown merge method {method!r}; known: {', '.join(sorted(MERGE_METHODS))}")
+    return fn
+
+
+def method_options(method: str, options: dict) -> dict:
+    """Options of merge ``method`` with its defaults filled in; an unknown option is an :class:`InputError`."""
+    params = inspect.signature(get_method(method)).parameters
+    names = [p for p in params][1:]
+    bad = [k for k in options if k not in names]
+    if bad:
+        raise InputError(f"merge method {method!r} does not accept option(s) {', '.join(bad)}; "
+                         f"accepted: {', '.join(names)}")
+    out = {k: params[k].default for k in names}
+    out.update(options)
+    return out
+
+
+def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
+    """Merge a :class:`~derender.core.types.Stack` into an HDR radiance map with a registered method.
+
+    Unknown methods or options raise :class:`InputError` (listing what is known).
+    """
+    if not isinstance(stack, Stack):
+        raise InputError(f"merge() needs a Stack, got {type(stack).__name__}")
+    fn = get_method(method)
+    try:
+        inspect.signature(fn).bind(stack, **options)
+    except TypeError:
+        params = [p for p in inspect.signature(fn).parameters][1:]
+        bad = [k for k in options if k not in params]
+        raise InputError(
+            f"merge method {method!r} does not accept option(s) {', '.join(bad) or '?'}; "
+            f"accepted: {', '.join(params)}"
+        ) from None
+    return fn(stack, **options)
+
+
+def merge_seeded(stack: Stack, method: str, seed: int = 0, **options: Any) -> HDRResult:
+    """:func:`merge`, passing ``seed`` to methods that take one."""
+    fn = get_method(method)
+    if "seed" in inspect.signature(fn).parameters:
+        options["seed"] = seed
+    return merge(stack, method=method, **options)

@@ -1,0 +1,200 @@
+"""Exposure times and camera metadata: EXIF tags, ``--times`` strings and times files.
+
+Exposure times are seconds (floats). ``parse_times`` accepts ``1/30,1/8,0.5`` style lists;
+``read_times_file`` reads ``name time`` lines (``inverse=True`` for lists of ``1/t`` such
+as Debevec's Memorial ``hdr_image_list.txt``); ``file_times`` picks the source for a list
+of files (explicit times, else a times file, else EXIF ``ExposureTime``).
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from pathlib import Path
+from typing import Sequence
+import os
+import re
+
+import numpy as np
+
+from derender.core.errors import InputError
+from derender.core.types import validate_times
+from derender.io.files import RAW_SUFFIXES
+
+__all__ = [
+    "read_exif",
+    "read_exposure_time",
+    "parse_times",
+    "read_times_file",
+    "file_times",
+]
+
+
+def _ratio_to_float(value) -> float | None:
+    try:
+        if hasattr(value, "num") and hasattr(value, "den"):
+            return float(value.num) / float(value.den) if value.den else None
+        if hasattr(value, "numerator") and hasattr(value, "denominator"):
+            return float(value.numerator) / float(value.denominator) if value.denominator else None
+        return float(Fraction(str(value)))
+    except (ValueError, ZeroDivisionError, TypeError):
+        return None
+
+
+def read_exif(path: str | os.PathLike) -> dict:
+    """EXIF fields we use: ``ExposureTime`` (s), ``Make``, ``Model``, ``ISO``, ``FNumber``.
+
+    Missing fields are absent from the dict; unreadable EXIF gives an empty dict.
+    """
+    info: dict = {}
+    try:
+        import logging
+
+        import exifread
+
+        logging.getLogger("exifread").setLevel(logging.ERROR)   # "PNG file does not have exif data." etc.
+
+        with open(path, "rb") as fh:
+            tags = exifread.process_file(fh, details=False)
+        mapping = {
+            "EXIF ExposureTime": "ExposureTime",
+            "Image ExposureTime": "ExposureTime",
+            "EXIF FNumber": "FNumber",
+            "EXIF ISOSpeedRatings": "ISO",
+            "Image Make": "Make",
+            "Image Model": "Model",
+        }
+        for key, name in mapping.items():
+            if key in tags and name not in info:
+                val = tags[key]
+                if name in ("Make", "Model"):
+                    info[name] = str(val.printable).strip().strip("\x00")
+                else:
+                    v = _ratio_to_float(val.values[0] if getattr(val, "values", None) else val)
+                    if v is not None and np.isfinite(v) and v > 0:
+                        info[name] = v
+    except Exception:  # noqa: BLE001 - any EXIF parser failure means "no EXIF"
+        pass
+    if "ExposureTime" not in info:
+        try:
+            from PIL import Image
+
+            with Image.open(path) as im:
+                exif = im.getexif()
+                sub = exif.get_ifd(0x8769) if exif else {}
+                for src in (sub, exif):
+                    if src and 0x829A in src:
+                        v = _ratio_to_float(src[0x829A])
+                        if v is not None and np.isfinite(v) and v > 0:
+                            info["ExposureTime"] = v
+                            break
+                if exif:
+                    info.setdefault("Make", str(exif.get(0x010F, "")).strip("\x00 ") or None)
+                    info.setdefault("Model", str(exif.get(0x0110, "")).strip("\x00 ") or None)
+        except Exception:  # noqa: BLE001
+            pass
+    return {k: v for k, v in info.items() if v is not None}
+
+
+def read_exposure_time(path: str | os.PathLike) -> float | None:
+    """EXIF ``ExposureTime`` of a file in seconds, or None."""
+    return read_exif(path).get("ExposureTime")
+
+
+_NUMBER = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)(?:\s*/\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?))?\s*$")
+
+
+def _parse_number(text: str, what: str) -> float:
+    m = _NUMBER.match(text)
+    if not m:
+        raise InputError(f"cannot read {what} {text!r}: use numbers like 0.01 or 1/60")
+    num = float(m.group(1))
+    if m.group(2) is not None:
+        den = float(m.group(2))
+        if den == 0:
+            raise InputError(f"cannot read {what} {text!r}: division by zero")
+        num /= den
+    return num
+
+
+def parse_times(text: str) -> list[float]:
+    """Parse ``"0.01,0.1,1/30"`` into seconds."""
+    parts = [p for p in re.split(r"[,\s]+", text.strip()) if p]
+    if not parts:
+        raise InputError("--times is empty")
+    return [_parse_number(p, "exposure time") for p in parts]
+
+
+def read_times_file(path: str | os.PathLike, inverse: bool = False) -> dict[str, float]:
+    """Read ``FILENAME SECONDS`` lines (``#`` comments allowed) into ``{name: seconds}``.
+
+    With ``inverse=True`` the second column is 1/time, as in HDRShop/Debevec image
+    lists such as ``memorial.hdr_image_list.txt``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such times file: {path}")
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except UnicodeDecodeError:
+        raise InputError(f"times file is not text: {path}") from None
+    out: dict[str, float] = {}
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        fields = line.split()
+        if len(fields) < 2:
+            raise InputError(f"{path}:{lineno}: expected 'FILENAME SECONDS', got {line!r}")
+        value = _parse_number(fields[1], f"time on line {lineno} of {path.name}")
+        if value <= 0:
+            raise InputError(f"{path}:{lineno}: exposure value must be positive")
+        name = Path(fields[0]).name
+        if name in out:
+            raise InputError(f"{path}:{lineno}: {name} listed twice")
+        out[name] = 1.0 / value if inverse else value
+    if not out:
+        raise InputError(f"times file lists no images: {path}")
+    return out
+
+
+def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None,
+               times_file: str | os.PathLike | None = None, times_file_inverse: bool = False) -> np.ndarray:
+    """Exposure times of image files without decoding them, in the order of ``paths``.
+
+    From ``times`` (one per path), else ``times_file`` (matched by file name), else each
+    file's EXIF ``ExposureTime``; checks the paths exist, are distinct and not RAW files.
+    """
+    paths = [Path(p) for p in paths]
+    if len(paths) < 2:
+        raise InputError("an exposure stack needs at least two images")
+    seen: set[Path] = set()
+    for p in paths:
+        r = p.resolve()
+        if r in seen:
+            raise InputError(f"the same file is given twice: {p}")
+        seen.add(r)
+    for p in paths:
+        if not p.is_file():
+            raise InputError(f"no such file: {p}")
+        if p.suffix.lower() in RAW_SUFFIXES:
+            raise InputError(f"{p} is a RAW file; use 'derender groundtruth' for RAW brackets")
+    if times is not None:
+        t = [float(x) for x in times]
+        if len(t) != len(paths):
+            raise InputError(f"{len(t)} exposure time(s) given for {len(paths)} image(s)")
+    elif times_file is not None:
+        table = read_times_file(times_file, inverse=times_file_inverse)
+        missing = [p.name for p in paths if p.name not in table]
+        if missing:
+            raise InputError(f"times file {times_file} has no entry for: {', '.join(missing)}")
+        t = [table[p.name] for p in paths]
+    else:
+        t, missing = [], []
+        for p in paths:
+            v = read_exposure_time(p)
+            if v is None:
+                missing.append(p.name)
+            t.append(v if v is not None else 0.0)
+        if missing:
+            raise InputError(f"no EXIF ExposureTime in {', '.join(missing)}; give --times or --times-file")
+    return validate_times(t, len(paths))

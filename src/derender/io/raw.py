@@ -1,0 +1,151 @@
+"""RAW frames: LibRaw (``rawpy``) for camera RAW files, DNG tags read with ``tifffile``.
+
+:func:`read_raw` returns a :class:`~derender.core.types.RawFrame`: the Bayer mosaic
+(uint16), CFA pattern, black and white level, as-shot white balance, the DNG
+``ColorMatrix`` (XYZ -> camera) and the exposure time. RAW *development* (merging, white
+balance, demosaicing, colour) is :mod:`derender.raw`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+import os
+
+import numpy as np
+
+from derender.core.errors import InputError
+from derender.core.types import RawFrame, validate_times
+from derender.io.exif import read_exposure_time
+
+__all__ = [
+    "read_raw",
+    "read_raw_stack",
+]
+
+
+# --------------------------------------------------------------------------- RAW
+def _dng_tags(path: Path) -> dict:
+    """Colour tags of a DNG read directly (LibRaw does not expose ColorMatrix1 for all DNGs)."""
+    import tifffile
+
+    tags: dict = {}
+    try:
+        with tifffile.TiffFile(path) as tif:
+            for page in tif.pages:
+                for tag in page.tags.values():
+                    if tag.name in ("ColorMatrix1", "ColorMatrix2", "AsShotNeutral", "CalibrationIlluminant1",
+                                    "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel"):
+                        tags.setdefault(tag.name, tag.value)
+                exif = page.tags.get("ExifTag")
+                if exif is not None and isinstance(exif.value, dict) and "ExposureTime" in exif.value:
+                    tags.setdefault("ExposureTime", exif.value["ExposureTime"])
+                break
+    except Exception:  # noqa: BLE001
+        return {}
+    return tags
+
+
+def _rationals(values) -> np.ndarray:
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if v.size % 2 == 0 and v.size >= 2:
+        num, den = v[0::2], v[1::2]
+        if np.all(den != 0):
+            return num / den
+    return v
+
+
+def read_raw(path: str | os.PathLike) -> RawFrame:
+    """Read a RAW/DNG file with rawpy (LibRaw): mosaic, CFA, levels, WB, colour matrix, time."""
+    import rawpy
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    try:
+        with rawpy.imread(str(path)) as raw:
+            mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
+            desc = raw.color_desc.decode("ascii", "replace")
+            pattern = np.asarray(raw.raw_pattern)
+            if raw.num_colors != 3 or pattern.shape != (2, 2) or mosaic.ndim != 2:
+                raise InputError(f"{path}: only 2x2 Bayer RAW files are supported")
+            cfa = "".join(desc[int(c)] for c in pattern.reshape(-1))
+            cfa = cfa.replace("g", "G")
+            black_ch = np.asarray(raw.black_level_per_channel, dtype=np.float64)
+            black = black_ch[pattern]
+            white = float(raw.white_level)
+            wb4 = np.asarray(raw.camera_whitebalance, dtype=np.float64)
+            xyz_cam = np.asarray(raw.rgb_xyz_matrix, dtype=np.float64)[:3, :3]
+            cmat = np.asarray(raw.color_matrix, dtype=np.float64)[:3, :3]
+            shutter = float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - LibRaw raises many types
+        raise InputError(f"cannot read RAW file {path}: {type(exc).__name__}: {exc}".rstrip(": ")) from None
+    if set(cfa) != {"R", "G", "B"}:
+        raise InputError(f"{path}: unsupported CFA pattern {cfa}")
+    tags = _dng_tags(path) if path.suffix.lower() == ".dng" else {}
+    # white balance multipliers as R, G, B with G = 1
+    if "AsShotNeutral" in tags:
+        neutral = _rationals(tags["AsShotNeutral"])[:3]
+        wb = neutral[1] / neutral if np.all(neutral > 0) else np.ones(3)
+    else:
+        g = wb4[1] if wb4[1] > 0 else 1.0
+        wb = np.array([wb4[0], g, wb4[2]]) / g
+        if not np.all(wb > 0):
+            wb = np.ones(3)
+    # XYZ -> camera matrix (DNG ColorMatrix semantics)
+    if "ColorMatrix1" in tags:
+        xyz_to_camera = _rationals(tags["ColorMatrix1"])[:9].reshape(3, 3)
+    elif np.any(xyz_cam != 0):
+        xyz_to_camera = xyz_cam
+    elif np.any(cmat != 0) and abs(np.linalg.det(cmat)) > 1e-9:
+        from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
+
+        xyz_to_camera = np.linalg.inv(LINEAR_SRGB_TO_XYZ @ cmat)
+    else:
+        xyz_to_camera = None
+    exposure = None
+    if "ExposureTime" in tags:
+        v = _rationals(tags["ExposureTime"])
+        if v.size and v[0] > 0:
+            exposure = float(v[0])
+    if exposure is None and shutter > 0 and shutter != 1.0:
+        exposure = shutter
+    if exposure is None:
+        exposure = read_exposure_time(path)
+    make = str(tags.get("Make", "")).strip("\x00 ")
+    model = str(tags.get("Model", tags.get("UniqueCameraModel", ""))).strip("\x00 ")
+    return RawFrame(
+        mosaic=mosaic,
+        cfa_pattern=cfa,
+        black_level=black,
+        white_level=white,
+        as_shot_wb=wb,
+        xyz_to_camera=xyz_to_camera,
+        exposure_time=exposure,
+        path=str(path),
+        make=make,
+        model=model,
+    )
+
+
+def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None) -> list[RawFrame]:
+    """Read RAW frames sorted by exposure time (times from the files unless given)."""
+    frames = [read_raw(p) for p in paths]
+    if not frames:
+        raise InputError("no RAW files given")
+    if times is not None:
+        t = validate_times(times, len(frames))
+        for f, v in zip(frames, t):
+            f.exposure_time = float(v)
+    shapes = {f.mosaic.shape for f in frames}
+    if len(shapes) > 1:
+        raise InputError(f"RAW frames differ in size: {sorted(shapes)}")
+    if len(frames) > 1:
+        missing = [Path(f.path).name for f in frames if f.exposure_time is None]
+        if missing:
+            raise InputError(f"no exposure time in {', '.join(missing)}; give --times")
+        validate_times([f.exposure_time for f in frames], len(frames))
+        frames.sort(key=lambda f: f.exposure_time)
+    return frames

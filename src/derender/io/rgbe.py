@@ -1,0 +1,134 @@
+"""Radiance RGBE (``.hdr``) files, read by our own parser.
+
+Why our own: Debevec's own ``memorial.hdr`` starts with a ``VIEW=`` line before
+``#?RADIANCE``, which OpenCV's and imageio's strict readers refuse; the parser accepts
+the header lines in any order, flat and run-length-encoded scanlines and the ``-Y +X``
+orientation. :func:`read_radiance` reads either format by suffix.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import contextlib
+import os
+
+import numpy as np
+
+from derender.core.errors import InputError
+from derender.io.exr import read_exr
+
+__all__ = [
+    "read_hdr",
+    "read_radiance",
+]
+
+
+def read_hdr(path: str | os.PathLike) -> np.ndarray:
+    """Read a Radiance RGBE ``.hdr`` file tolerantly as float32 (H, W, 3).
+
+    Accepts header lines before ``#?RADIANCE`` (Debevec's ``memorial.hdr`` starts
+    with ``VIEW=``), flat and new-style run-length encoded scanlines, and the
+    ``-Y H +X W`` orientation (others are flipped into it).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    data = path.read_bytes()
+    # header: lines up to an empty line
+    pos = 0
+    header_lines = []
+    while True:
+        nl = data.find(b"\n", pos)
+        if nl < 0:
+            raise InputError(f"not a Radiance HDR file (no header end): {path}")
+        line = data[pos:nl].rstrip(b"\r")
+        pos = nl + 1
+        if not line:
+            break
+        header_lines.append(line)
+        if len(header_lines) > 1000:
+            raise InputError(f"not a Radiance HDR file: {path}")
+    if not any(h.startswith(b"#?") for h in header_lines) and not any(
+        h.startswith(b"FORMAT=32-bit_rle_rgbe") for h in header_lines
+    ):
+        raise InputError(f"not a Radiance HDR file: {path}")
+    if any(h.startswith(b"FORMAT=") and b"32-bit_rle_rgbe" not in h for h in header_lines):
+        raise InputError(f"{path}: only RGBE Radiance files are supported (not XYZE)")
+    exposure = 1.0
+    for h in header_lines:
+        if h.startswith(b"EXPOSURE="):
+            with contextlib.suppress(ValueError):
+                exposure *= float(h.split(b"=", 1)[1])
+    nl = data.find(b"\n", pos)
+    res = data[pos:nl].decode("ascii", "replace").split()
+    pos = nl + 1
+    if len(res) != 4:
+        raise InputError(f"{path}: bad resolution line {' '.join(res)!r}")
+    try:
+        dims = {res[0][1]: (res[0][0], int(res[1])), res[2][1]: (res[2][0], int(res[3]))}
+        height, width = dims["Y"][1], dims["X"][1]
+    except (KeyError, ValueError, IndexError):
+        raise InputError(f"{path}: bad resolution line {' '.join(res)!r}") from None
+    if height <= 0 or width <= 0 or height * width > 2**31:
+        raise InputError(f"{path}: bad image size {width}x{height}")
+    buf = np.frombuffer(data, dtype=np.uint8, offset=pos)
+    rgbe = np.zeros((height, width, 4), dtype=np.uint8)
+    i = 0
+    try:
+        for y in range(height):
+            if width >= 8 and width < 32768 and buf[i] == 2 and buf[i + 1] == 2 and (buf[i + 2] & 0x80) == 0:
+                if (int(buf[i + 2]) << 8 | int(buf[i + 3])) != width:
+                    raise InputError(f"{path}: scanline width mismatch")
+                i += 4
+                for c in range(4):
+                    x = 0
+                    row = rgbe[y, :, c]
+                    while x < width:
+                        count = int(buf[i])
+                        i += 1
+                        if count > 128:
+                            count -= 128
+                            if x + count > width:
+                                raise InputError(f"{path}: corrupt run length data")
+                            row[x:x + count] = buf[i]
+                            i += 1
+                        else:
+                            if count == 0 or x + count > width or i + count > buf.size:
+                                raise InputError(f"{path}: corrupt or truncated run length data")
+                            row[x:x + count] = buf[i:i + count]
+                            i += count
+                        x += count
+            else:
+                n = width * 4
+                if i + n > buf.size:
+                    raise InputError(f"{path}: file truncated")
+                rgbe[y] = buf[i:i + n].reshape(width, 4)
+                i += n
+    except IndexError:
+        raise InputError(f"{path}: file truncated") from None
+    e = rgbe[:, :, 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0).astype(np.float32)
+    img = rgbe[:, :, :3].astype(np.float32) * scale[:, :, None]
+    # orientation to -Y +X (top row first, left to right)
+    if dims["Y"][0] == "+":
+        img = img[::-1]
+    if dims["X"][0] == "-":
+        img = img[:, ::-1]
+    if res[0][1] == "X":  # X major: transpose
+        img = np.transpose(img, (1, 0, 2))
+    img /= np.float32(exposure)
+    return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def read_radiance(path: str | os.PathLike) -> np.ndarray:
+    """Read a linear radiance map from ``.exr`` or ``.hdr`` as float32 (H, W, 3)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".exr":
+        img = read_exr(path)
+    elif suffix in (".hdr", ".pic", ".rgbe"):
+        img = read_hdr(path)
+    else:
+        raise InputError(f"unknown radiance file type {suffix!r}: use .exr or .hdr")
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    return img

@@ -1,0 +1,320 @@
+"""Camera response curves: Debevec & Malik (1997) and Robertson et al. (2003).
+
+A response curve here is ``g = ln f^-1`` per channel, tabulated on ``n_levels`` code
+levels (256 for 8-bit stacks): ``exp(g(z))`` is proportional to the exposure
+``radiance * t`` that produced code ``z``. Each channel is recovered independently,
+and each is anchored by ``g(mid) = 0`` with ``mid = n_levels // 2`` (Debevec & Malik
+1997, Sec. 2.1: the curves are known up to one scale factor each). Consequently the
+three channels are tied by the convention that the mid code ``(128, 128, 128)`` is
+neutral: the radiance map's white balance is that of the camera's rendered grey, and
+the relative scale of R, G, B is otherwise unknown (the paper white-balances
+afterwards; the PSNR protocol fits one scale per channel).
+
+16-bit stacks are reduced to ``n_levels`` by binning: code ``z in [0, 1]`` goes to
+level ``rint(z * (n_levels - 1))`` for calibration; the merge interpolates ``g``
+linearly between levels, so the full 16-bit precision is kept there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field
+from pathlib import Path
+from typing import Any
+import os
+
+import numpy as np
+
+from derender.core.errors import InputError, StackError
+from derender.core.types import Stack
+from derender.core.memory import N_CODES, import_cv2
+from derender.engine.weights import get_weight, weight_hat
+
+__all__ = [
+    "histogram_samples",
+    "code_histograms",
+    "check_usable_histograms",
+    "DEFAULT_LAMBDA",
+    "DEFAULT_SAMPLES",
+    "CHANNELS",
+    "ResponseCurves",
+    "to_codes",
+    "stack_codes",
+    "check_usable",
+    "raise_unusable",
+    "grid_positions",
+    "sample_pixels",
+    "level_weights",
+    "isotonic_increasing",
+    "make_monotonic",
+    "as_stack",
+    "plot_response",
+]
+
+
+def histogram_samples(hists: np.ndarray, n_samples: int) -> np.ndarray:
+    """Grossberg & Nayar histogram samples from per-image histograms (N, 3, 256): as ``sample_pixels(method="histogram")``."""
+    n_img = hists.shape[0]
+    u = np.linspace(0.0, 1.0, int(n_samples))
+    out = np.empty((n_img, u.size, 3), dtype=np.int32)
+    for j in range(n_img):
+        for c in range(3):
+            cdf = np.cumsum(hists[j, c]).astype(np.float64)
+            cdf /= cdf[-1]
+            out[j, :, c] = np.argmin(np.abs(cdf[None, :] - u[:, None]), axis=1)
+    return out
+
+
+def code_histograms(codes: np.ndarray) -> np.ndarray:
+    cv2 = import_cv2()
+    return np.stack([cv2.calcHist([codes], [c], None, [N_CODES], [0, N_CODES]).ravel().astype(np.int64)
+                     for c in range(3)])
+
+
+def check_usable_histograms(hists: np.ndarray) -> None:
+    """:func:`derender.response.check_usable` from per-image histograms (N, 3, 256)."""
+    raise_unusable(hists[:, :, 1:N_CODES - 1].sum(axis=(0, 2)) > 0)
+
+
+#: Smoothness weight lambda of the Debevec system (the data rows have hat weights <= 1).
+DEFAULT_LAMBDA = 30.0
+
+
+#: Number of sampled pixel positions per channel for the Debevec system.
+DEFAULT_SAMPLES = 256
+
+
+CHANNELS = "RGB"
+
+
+@dataclass
+class ResponseCurves:
+    """Inverse camera response per channel.
+
+    log_inverse : (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0``.
+    method : ``"debevec"``, ``"robertson"`` or ``"external"``.
+    params : how it was obtained (lambda, samples, sampling, seed, iterations ...).
+    """
+
+    log_inverse: np.ndarray
+    method: str = "external"
+    params: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        g = np.asarray(self.log_inverse, dtype=np.float64)
+        if g.ndim == 1:
+            g = np.repeat(g[:, None], 3, axis=1)
+        if g.ndim != 2 or g.shape[1] != 3 or g.shape[0] < 2:
+            raise InputError(f"response curves must have shape (n_levels, 3), got {g.shape}")
+        if not np.all(np.isfinite(g)):
+            raise InputError("response curves contain NaN or inf")
+        self.log_inverse = g
+
+    @property
+    def n_levels(self) -> int:
+        """Number of tabulated code levels."""
+        return int(self.log_inverse.shape[0])
+
+    def inverse(self) -> np.ndarray:
+        """``f^-1 = exp(g)`` per channel, (n_levels, 3), relative exposure units."""
+        return np.exp(self.log_inverse)
+
+    def log_linearise(self, image: np.ndarray) -> np.ndarray:
+        """``g(z)`` of an (..., 3) image in [0, 1], linearly interpolated between levels, float32."""
+        z = np.asarray(image, dtype=np.float32)
+        if z.shape[-1] != 3:
+            raise InputError(f"expected (..., 3) image, got {z.shape}")
+        lv = self.n_levels
+        x = np.clip(z, 0.0, 1.0) * np.float32(lv - 1)
+        i0 = np.minimum(x.astype(np.int32), lv - 2)
+        frac = x - i0.astype(np.float32)
+        g = self.log_inverse.astype(np.float32)
+        flat_idx = i0 * 3 + np.arange(3, dtype=np.int32)
+        g0 = np.take(g.ravel(), flat_idx)
+        dg = np.take(np.diff(g, axis=0).ravel(), flat_idx)
+        return g0 + frac * dg
+
+    def linearise(self, image: np.ndarray) -> np.ndarray:
+        """``exp(g(z))``: values proportional to exposure (radiance * time), float32."""
+        return np.exp(self.log_linearise(image))
+
+
+# --------------------------------------------------------------------------- inputs
+def to_codes(arr: np.ndarray, n_levels: int) -> np.ndarray:
+    if arr.dtype.kind in "ui":
+        if arr.size and (arr.min() < 0 or arr.max() > n_levels - 1):
+            raise InputError(f"integer codes must lie in [0, {n_levels - 1}]")
+        return arr.astype(np.int32)
+    return np.rint(np.clip(arr, 0.0, 1.0) * (n_levels - 1)).astype(np.int32)
+
+
+def _images_of(stack_or_images: Any) -> np.ndarray:
+    arr = stack_or_images.images if isinstance(stack_or_images, Stack) else np.asarray(stack_or_images)
+    if arr.ndim != 4 or arr.shape[-1] != 3:
+        raise InputError(f"expected images of shape (N, H, W, 3), got {arr.shape}")
+    return arr
+
+
+def stack_codes(stack_or_images: Any, n_levels: int = 256) -> np.ndarray:
+    """Integer code levels (N, H, W, 3) in ``[0, n_levels - 1]`` of a Stack or array.
+
+    Float arrays are taken as values in [0, 1] and binned with ``rint(z * (n_levels - 1))``;
+    integer arrays are used as they are (and must lie in range).
+    """
+    return to_codes(_images_of(stack_or_images), n_levels)
+
+
+def check_usable(stack_or_codes: Any, n_levels: int = 256) -> None:
+    """Raise :class:`StackError` unless every channel has some code strictly inside (0, n_levels - 1).
+
+    Float images count as usable where ``rint(z * (n_levels - 1))`` is neither 0 nor
+    ``n_levels - 1``.
+    """
+    arr = _images_of(stack_or_codes)
+    if arr.dtype.kind in "ui":
+        lo, hi = 0.5, n_levels - 1.5
+    else:
+        lo, hi = 0.5 / (n_levels - 1), 1.0 - 0.5 / (n_levels - 1)
+    usable = np.zeros(3, dtype=bool)
+    for j in range(arr.shape[0]):
+        zj = arr[j]
+        usable |= ((zj > lo) & (zj < hi)).any(axis=(0, 1))
+        if usable.all():
+            return
+    raise_unusable(usable)
+
+
+def raise_unusable(usable: np.ndarray) -> None:
+    """Raise :class:`StackError` for per-channel usability flags (3,) that are not all true."""
+    if usable.all():
+        return
+    if not usable.any():
+        raise StackError("no pixel of any image is exposed within the usable range "
+                         "(every value is black or clipped); nothing to merge")
+    bad = ", ".join(CHANNELS[c] for c in range(3) if not usable[c])
+    raise StackError(f"channel {bad} is black or clipped in every pixel of every image; cannot recover its response")
+
+
+def grid_positions(h: int, w: int, n: int, seed: int, border: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Regular grid of about ``n`` positions, ``border`` fraction away from the edges, jittered by ``seed``."""
+    n = max(1, int(n))
+    ny = max(1, int(round(np.sqrt(n * h / max(w, 1)))))
+    nx = max(1, int(np.ceil(n / ny)))
+    ny, nx = min(ny, h), min(nx, w)
+    y0, y1 = border * (h - 1), (1 - border) * (h - 1)
+    x0, x1 = border * (w - 1), (1 - border) * (w - 1)
+    rng = np.random.default_rng(seed)
+    jy, jx = rng.uniform(-0.5, 0.5, size=2)
+    sy, sx = (y1 - y0) / ny, (x1 - x0) / nx
+    ys = np.clip(np.rint(y0 + (np.arange(ny) + 0.5 + 0.5 * jy) * sy), 0, h - 1).astype(int)
+    xs = np.clip(np.rint(x0 + (np.arange(nx) + 0.5 + 0.5 * jx) * sx), 0, w - 1).astype(int)
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    return yy.ravel()[:n], xx.ravel()[:n]
+
+
+def sample_pixels(stack_or_codes: Any, n_samples: int = DEFAULT_SAMPLES, method: str = "grid",
+                  seed: int = 0, n_levels: int = 256) -> np.ndarray:
+    """Samples for response recovery, (N_img, P, 3) int32 code levels.
+
+    ``"grid"``: the codes at ``P = n_samples`` pixel positions on a regular grid over
+    the image minus a 5 % border (ny x nx cells with the image's aspect ratio; the
+    grid is shifted by up to half a cell by ``seed``). Needs an aligned stack.
+
+    ``"histogram"``: Grossberg & Nayar (2003, Sec. 5) histogram matching: for ``P``
+    equally spaced quantiles ``u`` in [0, 1], the code of each image whose cumulative
+    histogram is closest to ``u`` (first such code). Codes at equal quantiles
+    correspond if the response is monotonic, so no registration is needed; ``seed`` is
+    unused. Matches colour-hdri's ``samples_Grossberg2003`` for 8-bit input.
+    """
+    arr = _images_of(stack_or_codes)
+    n_img, h, w, _ = arr.shape
+    if n_samples < 1:
+        raise InputError(f"n_samples must be positive, got {n_samples}")
+    if method == "grid":
+        ys, xs = grid_positions(h, w, n_samples, seed)
+        return np.ascontiguousarray(to_codes(arr[:, ys, xs, :], n_levels))
+    if method == "histogram":
+        codes = to_codes(arr, n_levels)
+        u = np.linspace(0.0, 1.0, int(n_samples))
+        out = np.empty((n_img, u.size, 3), dtype=np.int32)
+        for j in range(n_img):
+            for c in range(3):
+                hist = np.bincount(codes[j, :, :, c].ravel(), minlength=n_levels)
+                cdf = np.cumsum(hist).astype(np.float64)
+                cdf /= cdf[-1]
+                out[j, :, c] = np.argmin(np.abs(cdf[None, :] - u[:, None]), axis=1)
+        return out
+    raise InputError(f"unknown sampling method {method!r}; use 'grid' or 'histogram'")
+
+
+# --------------------------------------------------------------------------- Debevec
+def level_weights(weights: Any, n_levels: int) -> np.ndarray:
+    if weights is None:
+        weights = weight_hat
+    if callable(weights) or isinstance(weights, str):
+        fn = get_weight(weights)
+        return np.asarray(fn(np.linspace(0.0, 1.0, n_levels)), dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.size != n_levels:
+        raise InputError(f"weights table has {w.size} entries, expected {n_levels}")
+    return w
+
+
+def isotonic_increasing(y: np.ndarray) -> np.ndarray:
+    """Least-squares non-decreasing fit to ``y`` (pool-adjacent-violators), 1-D."""
+    y = np.asarray(y, dtype=np.float64)
+    vals: list[float] = []
+    counts: list[int] = []
+    for v in y:
+        vals.append(float(v))
+        counts.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            c = counts[-2] + counts[-1]
+            vals[-2] = (vals[-2] * counts[-2] + vals[-1] * counts[-1]) / c
+            counts[-2] = c
+            vals.pop()
+            counts.pop()
+    return np.repeat(np.asarray(vals), counts)
+
+
+def make_monotonic(g: np.ndarray) -> np.ndarray:
+    """Make each column non-decreasing by isotonic regression, then re-anchor ``g(mid) = 0``."""
+    out = np.empty_like(g)
+    mid = g.shape[0] // 2
+    for c in range(g.shape[1]):
+        col = g[:, c] if np.all(np.diff(g[:, c]) >= 0) else isotonic_increasing(g[:, c])
+        out[:, c] = col - col[mid]
+    return out
+
+
+def as_stack(stack: Any) -> Stack:
+    if not isinstance(stack, Stack):
+        raise InputError(f"expected a Stack, got {type(stack).__name__}")
+    return stack
+
+
+# --------------------------------------------------------------------------- plots
+def plot_response(curves: ResponseCurves, path: str | os.PathLike, inputs=()) -> Path:
+    """Plot ``g = ln f^-1`` per channel against the code level (PNG/PDF/SVG by suffix), atomically."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from derender.io.files import atomic_output
+
+    g = curves.log_inverse
+    fig = Figure(figsize=(5.5, 4.0), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.arange(curves.n_levels)
+    for c, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
+        ax.plot(x, g[:, c], color=colour, label=CHANNELS[c])
+    ax.set_xlabel("code level z")
+    ax.set_ylabel("g(z) = ln f$^{-1}$(z)  (relative log exposure)")
+    ax.set_title(f"Response curves ({curves.method})")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path, inputs) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".").lower() or "png")
+    return path

@@ -1,0 +1,142 @@
+"""Response recovery of Debevec & Malik (1997), "Recovering High Dynamic Range Radiance Maps from Photographs".
+
+Sec. 2.1, eq. 3: minimise ``sum_ij {w(Z_ij) [g(Z_ij) - ln E_i - ln t_j]}^2 + lambda sum_z
+[w(z) g''(z)]^2`` over the curve ``g = ln f^-1`` and the log irradiances of sampled
+pixels, one channel at a time, with ``g(128) = 0``; solved as a sparse least-squares
+system. Hat weights, lambda 30 and 256 grid samples by default; a curve that is not
+monotonic is made so (isotonic regression).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+from typing import Callable
+
+import numpy as np
+
+from derender.core.errors import InputError
+from derender.core.types import Stack
+from derender.core.memory import N_CODES
+from derender.response.curves import ResponseCurves, make_monotonic, DEFAULT_LAMBDA, DEFAULT_SAMPLES, as_stack, check_usable, histogram_samples, level_weights, sample_pixels
+
+__all__ = [
+    "calibrate_debevec_from_samples",
+    "solve_debevec",
+    "calibrate_debevec",
+]
+
+
+def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray],
+                            lam: float, n_samples: int, sampling: str, seed: int):
+    """:func:`derender.response.calibrate_debevec` (hat weights, monotonic) from pre-drawn samples."""
+    from derender.response.curves import ResponseCurves, make_monotonic
+
+    if lam < 0 or not np.isfinite(lam):
+        raise InputError(f"lambda must be a non-negative number, got {lam}")
+    log_t = np.log(times)
+    g = np.empty((N_CODES, 3))
+    fixed = []
+    for c in range(3):
+        zc = samples[:, :, c]
+        if not np.any((zc > 0) & (zc < N_CODES - 1)):
+            extra = histogram_samples(hists_fn(), n_samples)[:, :, c]
+            zc = np.concatenate([zc, extra], axis=1)
+        g[:, c], _ = solve_debevec(zc, log_t, lam=lam, weights="hat", n_levels=N_CODES)
+        fixed.append(bool(np.any(np.diff(g[:, c]) < 0)))
+    g = make_monotonic(g)
+    params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
+              "weights": "hat", "monotonic_fixed": fixed}
+    return ResponseCurves(log_inverse=g, method="debevec", params=params)
+
+
+def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT_LAMBDA,
+                  weights: Any = None, n_levels: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares response recovery of Debevec & Malik (1997), Sec. 2.1 (their ``gsolve``).
+
+    Minimises ``sum_ij [w(Z_ij) (g(Z_ij) - ln E_i - ln dt_j)]^2
+    + sum_z [lam w(z) g''(z)]^2`` subject to ``g(mid) = 0`` (one equation of weight 1,
+    ``mid = n_levels // 2``), for one channel. ``codes`` is (N_img, P), ``log_times``
+    (N_img,), ``weights`` a name, a callable on [0, 1] (default hat) or an
+    (n_levels,) table. Returns ``(g (n_levels,), ln E (P,))``.
+
+    Solved exactly (same minimiser as the dense system) via the normal equations with
+    the diagonal ``ln E`` block eliminated (Schur complement): an ``n_levels`` square
+    system, fast for any number of samples. Samples with zero weight in every image
+    get ``ln E = 0`` (their value is undetermined).
+    """
+    z = np.asarray(codes)
+    if z.ndim != 2:
+        raise InputError(f"codes must be (N_img, P), got {z.shape}")
+    z = z.astype(np.int64)
+    b = np.asarray(log_times, dtype=np.float64).reshape(-1)
+    n_img, p = z.shape
+    if b.size != n_img:
+        raise InputError(f"{b.size} log times for {n_img} images")
+    if z.size and (z.min() < 0 or z.max() >= n_levels):
+        raise InputError(f"codes must lie in [0, {n_levels - 1}]")
+    wl = level_weights(weights, n_levels)
+    w2 = wl[z] ** 2  # (N, P) squared data-row weights
+    d = w2.sum(axis=0)  # diagonal of the ln E block
+    # g-g block: data + constraint + smoothness
+    a_gg = np.diag(np.bincount(z.ravel(), weights=w2.ravel(), minlength=n_levels))
+    mid = n_levels // 2
+    a_gg[mid, mid] += 1.0
+    k = np.arange(1, n_levels - 1)
+    s = (lam * wl[k]) ** 2
+    stencil = np.array([1.0, -2.0, 1.0])
+    for a in range(3):
+        for c in range(3):
+            a_gg[k - 1 + a, k - 1 + c] += s * stencil[a] * stencil[c]
+    b_g = np.bincount(z.ravel(), weights=(w2 * b[:, None]).ravel(), minlength=n_levels)
+    b_e = -(w2 * b[:, None]).sum(axis=0)
+    # g-E coupling: M[z, p] = -sum_j w2[j, p] [z_jp = z]
+    m = np.zeros((n_levels, p))
+    np.add.at(m, (z, np.broadcast_to(np.arange(p), z.shape)), -w2)
+    live = d > 0
+    dinv = np.zeros(p)
+    dinv[live] = 1.0 / d[live]
+    schur = a_gg - (m * dinv) @ m.T
+    rhs = b_g - m @ (dinv * b_e)
+    try:
+        g = np.linalg.solve(schur, rhs)
+        if not np.all(np.isfinite(g)):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        g = np.linalg.lstsq(schur, rhs, rcond=None)[0]
+    log_e = np.zeros(p)
+    log_e[live] = ((w2 * (g[z] - b[:, None])).sum(axis=0))[live] * dinv[live]
+    return g, log_e
+
+
+def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
+                      sampling: str = "grid", seed: int = 0, weights: Any = "hat", n_levels: int = 256,
+                      monotonic: bool = True) -> ResponseCurves:
+    """Recover ``g = ln f^-1`` per channel with :func:`solve_debevec` (Debevec & Malik 1997).
+
+    Samples by :func:`sample_pixels`; channels solved independently, each with
+    ``g(mid) = 0`` (see the module docstring for what that implies for colour).
+    With ``monotonic=True`` a non-monotonic least-squares solution is replaced by its
+    isotonic (pool-adjacent-violators) least-squares fit, so ``g`` is non-decreasing;
+    ``params["monotonic_fixed"]`` says per channel whether that was needed. If a
+    grid sample misses every usable code of a channel, histogram samples are added.
+    """
+    stack = as_stack(stack)
+    if lam < 0 or not np.isfinite(lam):
+        raise InputError(f"lambda must be a non-negative number, got {lam}")
+    check_usable(stack, n_levels)
+    samples = sample_pixels(stack, n_samples=n_samples, method=sampling, seed=seed, n_levels=n_levels)
+    log_t = np.log(stack.times)
+    g = np.empty((n_levels, 3))
+    fixed = []
+    for c in range(3):
+        zc = samples[:, :, c]
+        if not np.any((zc > 0) & (zc < n_levels - 1)):
+            extra = sample_pixels(stack, n_samples=n_samples, method="histogram", n_levels=n_levels)[:, :, c]
+            zc = np.concatenate([zc, extra], axis=1)
+        g[:, c], _ = solve_debevec(zc, log_t, lam=lam, weights=weights, n_levels=n_levels)
+        fixed.append(bool(np.any(np.diff(g[:, c]) < 0)))
+    if monotonic:
+        g = make_monotonic(g)
+    params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
+              "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed}
+    return ResponseCurves(log_inverse=g, method="debevec", params=params)
