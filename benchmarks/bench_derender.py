@@ -27,7 +27,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-
 from runner import _run_measured
 
 IN_MEMORY = """
@@ -47,13 +46,13 @@ print(f"in-memory {time.perf_counter() - t0:.2f} s")
 def prepare(workdir: Path, size: tuple[int, int], seed: int = 0) -> tuple[Path, Path]:
     import cv2
 
-    from derender.camera.simulate import simulate_bracket
     from derender.camera.chart import chart_pairs
+    from derender.camera.simulate import simulate_bracket
     from derender.derendering.models import fit_model
 
     workdir.mkdir(parents=True, exist_ok=True)
-    from derender.derendering.models import load_model
     from derender.core.errors import DerenderError
+    from derender.derendering.models import load_model
 
     model = workdir / "nikon-d5100-gp.npz"
     try:

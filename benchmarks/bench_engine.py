@@ -15,10 +15,11 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 pytest.importorskip("pytest_benchmark")
 
-from derender.engine.tables import TableMerge, weight_table
 from runner import generate_bench_bracket
-from derender.io.images import read_codes
+
+from derender.engine.tables import TableMerge, weight_table
 from derender.io.exr import write_exr_fast  # noqa: E402
+from derender.io.images import read_codes
 
 SIZE = (3000, 2000)
 

@@ -8,16 +8,14 @@ tool's own time, peak RSS and CPU time; :func:`format_bench` prints the table.
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
-from typing import Callable
-from typing import Sequence
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
 
 import numpy as np
 

@@ -7,14 +7,13 @@ import json
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket
 from derender.evaluation.metrics import psnr_rgbl
+from derender.hdr.registry import merge
 from derender.io.exr import read_exr
 from derender.io.images import read_image, read_stack
-from derender.hdr.registry import merge
-
-from helpers import run_cli
 
 
 @pytest.fixture(scope="module", params=["fixed", "auto"])

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import require_shared
 
 DATA = Path(__file__).resolve().parent / "data" / "reference_outputs.npz"

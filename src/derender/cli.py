@@ -318,11 +318,11 @@ def groundtruth(
     preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview."),
 ) -> None:
     """Ground truth from RAW (paper 1 Sec. 4.2, Alg. 2): binary-weight merge, WB, Malvar demosaic, sRGB."""
-    from derender.raw.groundtruth import raw_ground_truth
     from derender.io.exif import parse_times
-    from derender.io.raw import read_raw_stack
     from derender.io.exr import write_exr
     from derender.io.preview import write_preview
+    from derender.io.raw import read_raw_stack
+    from derender.raw.groundtruth import raw_ground_truth
 
     if output.suffix.lower() != ".exr":
         raise InputError(f"--output must end in .exr, got {output.name}")
@@ -461,8 +461,8 @@ def run_demo(outdir: Path, size: tuple[int, int] = (480, 320), seed: int = 0, ex
     with _progress() as prog:
         task = prog.add_task("merging", total=len(methods) + 1)
         try:
-            from derender.raw.groundtruth import raw_ground_truth
             from derender.io.raw import read_raw_stack
+            from derender.raw.groundtruth import raw_ground_truth
 
             t0 = time.perf_counter()
             gt = raw_ground_truth(read_raw_stack(bracket_paths(outdir, "raw")))
@@ -544,8 +544,8 @@ def calibrate(
     seed: int = typer.Option(0, "--seed", help="Random seed (subset, k-means)."),
 ) -> None:
     """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
-    from derender.derendering.models import fit_model
     from derender.derendering.apply import pairs_from_images
+    from derender.derendering.models import fit_model
 
     if output.suffix.lower() != ".npz":
         raise InputError(f"--output must end in .npz, got {output.name}")
@@ -618,9 +618,9 @@ def stereo(
     """Lambertian photometric stereo; with a model, inverse-variance weighted least squares (paper 2 eq. 7)."""
     import numpy as np
 
-    from derender.io.images import read_image
-    from derender.io.exr import write_exr
     from derender.applications.photometric_stereo import frankot_chellappa, read_lights, solve_normals
+    from derender.io.exr import write_exr
+    from derender.io.images import read_image
 
     L = read_lights(lights)
     if len(images) != L.shape[0]:
@@ -734,8 +734,8 @@ def exp_fusion_gain(
     methods: str = typer.Option("stabilized", "--methods", help="Methods compared with debevec."),
 ) -> None:
     """Paper 1: PSNR gain of the stabilised merge over debevec on simulated brackets, per scene and mean."""
-    from derender.evaluation.table1 import fusion_gain
     from derender.evaluation.experiments import format_table
+    from derender.evaluation.table1 import fusion_gain
 
     w, h = _parse_size(size)
     try:

@@ -5,9 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derender.core.errors import InputError
+from derender.applications.photometric_stereo import (
+    angular_error_deg,
+    bumps,
+    default_lights,
+    frankot_chellappa,
+    read_lights,
+    render_photometric_images,
+    solve_normals,
+    sphere,
+)
 from derender.camera.spectral import load_camera
-from derender.applications.photometric_stereo import angular_error_deg, bumps, default_lights, frankot_chellappa, read_lights, render_photometric_images, solve_normals, sphere
+from derender.core.errors import InputError
 
 
 @pytest.mark.parametrize("make", [lambda: sphere(64), lambda: bumps(64, seed=1)])

@@ -7,13 +7,24 @@ import hashlib
 import numpy as np
 import pytest
 
-from derender.camera.simulate import bracket_paths, bracket_times, expose_mosaic, gamut_compress, isp_render, make_scene, RenderSettings, scene_camera_rgb, simulate_bracket, write_bracket
+from derender.camera.simulate import (
+    RenderSettings,
+    bracket_paths,
+    bracket_times,
+    expose_mosaic,
+    gamut_compress,
+    isp_render,
+    make_scene,
+    scene_camera_rgb,
+    simulate_bracket,
+    write_bracket,
+)
+from derender.camera.spectral import load_camera
 from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
 from derender.core.errors import InputError
 from derender.io.exr import read_exr
-from derender.io.raw import read_raw
 from derender.io.images import read_stack
-from derender.camera.spectral import load_camera
+from derender.io.raw import read_raw
 
 
 @pytest.fixture(scope="module")

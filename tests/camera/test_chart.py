@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from derender.camera.chart import chart_pairs, colorchecker_sg_reflectances, gel_illuminants, load_pairs, save_pairs
 from derender.core.errors import InputError
-
-from helpers import run_cli
 
 
 def test_sg_reflectances_reproduce_published_chromaticities():

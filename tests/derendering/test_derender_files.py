@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
-from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket, write_jpeg
 from derender.camera.chart import chart_pairs, save_pairs
+from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket, write_jpeg
+from derender.core.types import Stack
 from derender.derendering.models import load_model
 from derender.io.exr import read_exr
-from derender.core.types import Stack
-
-from helpers import run_cli
 
 
 @pytest.fixture(scope="module")
@@ -161,9 +160,9 @@ def test_probabilistic_beats_debevec_on_jpeg_files_and_variance_marks_censored(m
     """Issue 7 acceptance: PSNR L >= Debevec on a simulator bracket (JPEG files); variance high exactly where
     a channel is censored (>= clip_code) in every exposure."""
     from derender.evaluation.metrics import psnr_rgbl
-    from derender.io.images import read_stack
-    from derender.hdr.registry import merge
     from derender.hdr.probabilistic import merge_probabilistic
+    from derender.hdr.registry import merge
+    from derender.io.images import read_stack
 
     m = load_model(model_file)
     for kind in ("indoor", "night"):

@@ -16,8 +16,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from derender.derendering import models as D
 from derender.core.errors import InputError, ModelFileError
+from derender.derendering import models as D
 
 CAM_TO_SRGB = np.array([[1.55, -0.45, -0.10], [-0.20, 1.45, -0.25], [0.03, -0.40, 1.37]])
 WB = np.array([1.9, 1.0, 1.6])

@@ -2,11 +2,10 @@
 
 import numpy as np
 import pytest
+from helpers import write_png_codes
 
 from derender.hdr.align import _half, grey8_codes, to_grey8
 from derender.hdr.files import merge_files as merge_files_fast
-
-from helpers import write_png_codes
 
 
 def test_grey8_codes_equal_rint_of_ward_weights_for_every_colour():

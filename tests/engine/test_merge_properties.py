@@ -8,9 +8,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derender.core.errors import DerenderError
-from derender.hdr.registry import merge
-from derender.engine.reference import merge_linear
 from derender.core.types import Stack
+from derender.engine.reference import merge_linear
+from derender.hdr.registry import merge
 
 _codes = st.sampled_from(["random", "zeros", "full", "binary", "one-channel-dead", "ramp"])
 

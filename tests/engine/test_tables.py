@@ -4,22 +4,27 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import run_cli, write_png_codes
 
 from derender.core.errors import InputError
-from derender.engine.tables import TableMerge, code_values, curve_value_tables, merge_curves_table, stack_codes_exact, weight_table
-from derender.hdr.files import merge_files as merge_files_fast
-from derender.hdr.stabilize import merge_stabilized_table
-from derender.io.images import read_codes
-from derender.io.exr import write_exr_fast
-from derender.io.exr import read_exr
-from derender.io.images import read_image, read_stack
-from derender.hdr.classic import _curve_lineariser
-from derender.hdr.registry import merge
+from derender.core.types import HDRResult, Stack
 from derender.engine.reference import merge_linear
+from derender.engine.tables import (
+    TableMerge,
+    code_values,
+    curve_value_tables,
+    merge_curves_table,
+    stack_codes_exact,
+    weight_table,
+)
+from derender.hdr.classic import _curve_lineariser
+from derender.hdr.files import merge_files as merge_files_fast
+from derender.hdr.registry import merge
+from derender.hdr.stabilize import merge_stabilized_table
+from derender.io.exr import read_exr, write_exr_fast
+from derender.io.images import read_codes, read_image, read_stack
 from derender.response.curves import ResponseCurves
 from derender.response.debevec1997 import calibrate_debevec
-from derender.core.types import HDRResult, Stack
-from helpers import run_cli, write_png_codes
 
 cv2 = pytest.importorskip("cv2")
 
@@ -316,8 +321,8 @@ def test_streamed_stabilized_equals_reference_engine(tmp_path, method):
     """merge_files_fast streams stabilized brackets (8-bit frames, shifts, sampled fits) to the
     in-memory method's numbers, the reference engine (merge_linear) included."""
     from derender.camera.simulate import simulate_bracket, write_jpeg
-    from derender.io.images import read_stack
     from derender.hdr.stabilize import stabilize, stabilized_merge
+    from derender.io.images import read_stack
 
     b = simulate_bracket(size=(160, 112), exposures=6, seed=5, style="camera")
     paths = []
@@ -340,8 +345,8 @@ def test_streamed_stabilized_refuses_unusable_stacks(tmp_path):
     """All-white frames: the streaming path raises the same StackError as the in-memory method."""
     from derender.camera.simulate import write_jpeg
     from derender.core.errors import StackError
-    from derender.io.images import read_stack
     from derender.hdr.registry import merge
+    from derender.io.images import read_stack
 
     white = np.full((40, 64, 3), 255, np.uint8)
     paths = [write_jpeg(tmp_path / f"{j}.jpg", white, t, "Sim", "Cam") for j, t in enumerate((0.01, 0.04))]

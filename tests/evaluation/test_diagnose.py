@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
 from derender.core.errors import StackError
 from derender.core.types import Stack
+from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
 
 GAMMAS, KNEES = (2.0, 2.2, 2.5), (0.4, 0.5, 0.6)
 

@@ -7,7 +7,13 @@ import pytest
 
 from derender.camera.chart import chart_pairs
 from derender.derendering.models import fit_model
-from derender.evaluation.experiments import JPEG_INTERVALS, derender_table, format_table, photometric_stereo_experiment, threshold_sweep
+from derender.evaluation.experiments import (
+    JPEG_INTERVALS,
+    derender_table,
+    format_table,
+    photometric_stereo_experiment,
+    threshold_sweep,
+)
 
 
 def test_derender_table_small():

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from derender.core.errors import InputError
-from derender.evaluation.metrics import PSNR_CAP, fit_scale, psnr_rgbl
 from derender.core.types import HDRResult
+from derender.evaluation.metrics import PSNR_CAP, fit_scale, psnr_rgbl
 
 
 def _reference_psnr(result, truth, remap):

@@ -5,13 +5,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
 import pytest
-
-from derender.evaluation.table1 import list_scenes, run_benchmark, simulate_dataset, write_benchmark_outputs
-from derender.core.errors import InputError
-
 from helpers import run_cli
+
+from derender.core.errors import InputError
+from derender.evaluation.table1 import list_scenes, run_benchmark, simulate_dataset, write_benchmark_outputs
 
 
 @pytest.fixture(scope="module")
@@ -60,11 +58,11 @@ def test_benchmark_cli_and_errors(dataset, tmp_path, capsys):
 def test_fusion_gain_rows_match_direct_scores():
     """The experiment's per-scene gains are psnr_rgbl(stabilized) - psnr_rgbl(debevec) against the
     simulator's exact radiance, and the mean row averages them."""
+    from derender.camera.simulate import simulate_bracket
+    from derender.core.types import Stack
+    from derender.evaluation.metrics import psnr_rgbl
     from derender.evaluation.table1 import fusion_gain
     from derender.hdr.registry import merge_seeded
-    from derender.camera.simulate import simulate_bracket
-    from derender.evaluation.metrics import psnr_rgbl
-    from derender.core.types import Stack
 
     rows = fusion_gain(styles=("camera",), kinds=("outdoor", "night"), seeds=(0,), size=(64, 48))
     scenes = [r for r in rows if r["scene"] != "mean"]

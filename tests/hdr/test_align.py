@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derender.hdr.align import align_images, median_threshold_bitmaps, mtb_shift, shift_image, to_grey8
 from derender.camera.simulate import simulate_bracket
 from derender.core.errors import InputError
+from derender.hdr.align import align_images, median_threshold_bitmaps, mtb_shift, shift_image, to_grey8
 
 
 @pytest.fixture(scope="module")

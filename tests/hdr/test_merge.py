@@ -7,12 +7,12 @@ import pytest
 
 from derender.core.colorimetry import luminance
 from derender.core.errors import InputError, StackError
+from derender.core.types import HDRResult, Stack
+from derender.engine.reference import merge_linear
+from derender.engine.weights import WEIGHTS, weight_gaussian, weight_hat, weight_trapezoid
 from derender.evaluation.metrics import psnr_rgbl
 from derender.hdr.registry import MERGE_METHODS, merge, register_method
-from derender.engine.weights import WEIGHTS, weight_gaussian, weight_hat, weight_trapezoid
-from derender.engine.reference import merge_linear
 from derender.response.curves import ResponseCurves
-from derender.core.types import HDRResult, Stack
 
 cv2 = pytest.importorskip("cv2")
 
@@ -226,8 +226,8 @@ def test_robertson_merge_close_to_truth_and_opencv():
 # --------------------------------------------------------------------------- real data
 @pytest.mark.shared_data
 def test_memorial_debevec_agrees_with_debevec_radiance_map(memorial_dir):
-    from derender.io.rgbe import read_hdr
     from derender.io.images import read_stack
+    from derender.io.rgbe import read_hdr
 
     paths = sorted(memorial_dir.glob("memorial00*.png"))
     st = read_stack(paths, times_file=memorial_dir / "memorial.hdr_image_list.txt", times_file_inverse=True)

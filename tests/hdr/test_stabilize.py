@@ -15,9 +15,10 @@ import pytest
 import derender.hdr.stabilize as S
 from derender.camera.simulate import simulate_bracket
 from derender.core.errors import InputError
-from derender.evaluation.metrics import psnr_rgbl
-from derender.hdr.registry import merge
 from derender.core.types import HDRResult, Stack
+from derender.evaluation.metrics import psnr_rgbl
+from derender.evaluation.table1 import reference_spread
+from derender.hdr.registry import merge
 
 SIZE = (192, 128)
 PLANES = ("R", "G", "B", "L")
@@ -98,7 +99,7 @@ def test_result_conventions(auto_simple):
 
 def test_reference_spread_is_small(auto_simple):
     d = auto_simple["outdoor"]
-    rep = S.reference_spread(d["stack"], d["bracket"].truth_linear_srgb, method="stabilized")
+    rep = reference_spread(d["stack"], d["bracket"].truth_linear_srgb, method="stabilized")
     assert len(rep["references"]) >= 3
     assert rep["spread"]["L"] <= 0.5, rep["psnr"]
     # the reference-free variant: the colour fit never sees the reference (only the
@@ -190,8 +191,8 @@ def test_memorial_stack(memorial_dir):
     """Debevec's Memorial PNGs (film-like response, 16 exposures), downsampled 6x."""
     import cv2
 
-    from derender.io.rgbe import read_hdr
     from derender.io.images import read_stack
+    from derender.io.rgbe import read_hdr
 
     paths = sorted(memorial_dir.glob("memorial00*.png"))
     st = read_stack(paths, times_file=memorial_dir / "memorial.hdr_image_list.txt", times_file_inverse=True)

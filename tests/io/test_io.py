@@ -4,20 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import write_png_codes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derender.core.errors import InputError, StackError
-from derender.io.files import atomic_output
+from derender.core.types import Stack
 from derender.io.exif import parse_times, read_times_file
 from derender.io.exr import read_exr, write_exr
-from derender.io.rgbe import read_hdr
+from derender.io.files import atomic_output
 from derender.io.images import read_image, read_stack
-from derender.io.raw import read_raw
 from derender.io.preview import write_png, write_preview
-from derender.core.types import Stack
-
-from helpers import write_png_codes
+from derender.io.raw import read_raw
+from derender.io.rgbe import read_hdr
 
 
 def _codes(seed=0, shape=(12, 16, 3), dtype=np.uint8):

@@ -5,12 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derender.core.colorimetry import D65_XYZ, LINEAR_SRGB_TO_XYZ, XYZ_TO_LINEAR_SRGB
+from derender.core.colorimetry import (
+    D65_XYZ,
+    LINEAR_SRGB_TO_XYZ,
+    XYZ_TO_LINEAR_SRGB,
+    camera_to_linear_srgb_matrix,
+    camera_to_xyz_matrix,
+)
 from derender.core.errors import InputError
-from derender.core.colorimetry import camera_to_linear_srgb_matrix, camera_to_xyz_matrix
-from derender.raw.mosaic import demosaic_bayer, merge_raw_mosaics, wb_from_patch
-from derender.raw.groundtruth import raw_ground_truth, raw_to_camera_rgb
 from derender.core.types import HDRResult, RawFrame
+from derender.raw.groundtruth import raw_ground_truth, raw_to_camera_rgb
+from derender.raw.mosaic import demosaic_bayer, merge_raw_mosaics, wb_from_patch
 
 # A plausible XYZ -> camera matrix (DNG ColorMatrix semantics, un-normalised): Canon-like.
 XYZ_TO_CAMERA = np.array([[0.6461, -0.1164, -0.0857],

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from derender.core.errors import InputError, StackError
+from derender.core.types import Stack
 from derender.response.curves import ResponseCurves, isotonic_increasing, plot_response, sample_pixels
 from derender.response.debevec1997 import calibrate_debevec, solve_debevec
 from derender.response.robertson2003 import calibrate_robertson
-from derender.core.types import Stack
 
 GAMMAS, KNEES = (2.0, 2.2, 2.5), (0.4, 0.5, 0.6)
 

@@ -16,9 +16,9 @@ error, and depth from normals by Frankot & Chellappa (1988) integration.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
-import os
 
 import numpy as np
 
@@ -213,9 +213,16 @@ def render_photometric_images(scene: PhotometricScene, camera, lights: np.ndarra
     (some sensor clipping, as in real captures). Returns (codes (N,H,W,3) uint8,
     raw camera RGB (N,H,W,3) noise-free unclipped, camera_to_srgb, wb).
     """
-    from derender.camera.simulate import RenderSettings, expose_mosaic, fit_xyz_to_camera, isp_render, mosaic_signal, white_balance_for
-    from derender.core.colorimetry import camera_to_linear_srgb_matrix
+    from derender.camera.simulate import (
+        RenderSettings,
+        expose_mosaic,
+        fit_xyz_to_camera,
+        isp_render,
+        mosaic_signal,
+        white_balance_for,
+    )
     from derender.camera.spectral import illuminant_spd, reflectance_library
+    from derender.core.colorimetry import camera_to_linear_srgb_matrix
 
     names, lib, groups = reflectance_library()
     h, w = scene.mask.shape

@@ -28,15 +28,15 @@ The result has 140 x 16 x 22 = 49,280 pairs, within the paper's 30,000-50,000.
 
 from __future__ import annotations
 
+import functools
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
-import functools
-import os
 
 import numpy as np
 
-from derender.camera.spectral import CameraSpectral, WAVELENGTHS, illuminant_spd, load_camera
+from derender.camera.spectral import WAVELENGTHS, CameraSpectral, illuminant_spd, load_camera
 from derender.core.errors import InputError
 
 __all__ = [
@@ -132,7 +132,15 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int
                 style: str = "camera", patch_px: int = 16, seed: int = 0, core: int = 4,
                 progress: Callable[[int, int], None] | None = None) -> ChartPairs:
     """Simulate the paper-2 calibration session for one camera (see module doc)."""
-    from derender.camera.simulate import CFA_PATTERN, RenderSettings, expose_mosaic, fit_xyz_to_camera, isp_render, mosaic_signal, white_balance_for
+    from derender.camera.simulate import (
+        CFA_PATTERN,
+        RenderSettings,
+        expose_mosaic,
+        fit_xyz_to_camera,
+        isp_render,
+        mosaic_signal,
+        white_balance_for,
+    )
     from derender.core.colorimetry import camera_to_linear_srgb_matrix
 
     if isinstance(camera, str):

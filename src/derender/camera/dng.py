@@ -9,9 +9,9 @@ UniqueCameraModel. Adobe DNG Specification 1.4, chapter 4.
 
 from __future__ import annotations
 
+import os
 from fractions import Fraction
 from pathlib import Path
-import os
 
 import numpy as np
 

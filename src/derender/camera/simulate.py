@@ -47,19 +47,23 @@ sRGB: finite slope at black). The ``simple`` style keeps the pure power law of p
 
 from __future__ import annotations
 
-from dataclasses import asdict
-from dataclasses import dataclass
-from dataclasses import field
-from fractions import Fraction
-from pathlib import Path
-from typing import Callable
-from typing import Sequence
 import json
 import os
+from dataclasses import asdict, dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Callable, Sequence
 
 import numpy as np
 
-from derender.camera.spectral import CameraSpectral, WAVELENGTHS, cmfs_xyz, illuminant_spd, load_camera, reflectance_library
+from derender.camera.spectral import (
+    WAVELENGTHS,
+    CameraSpectral,
+    cmfs_xyz,
+    illuminant_spd,
+    load_camera,
+    reflectance_library,
+)
 from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709, camera_to_linear_srgb_matrix
 from derender.core.errors import InputError
 

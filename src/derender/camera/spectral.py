@@ -12,14 +12,13 @@ loaded with :func:`load_camera_file`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import field
-from pathlib import Path
-from typing import Sequence
 import functools
 import json
 import os
 import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 

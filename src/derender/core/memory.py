@@ -9,11 +9,11 @@ the thread count.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from typing import Any
 import mmap
 import os
 import threading
+from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 

@@ -10,9 +10,7 @@ scheduler gives the same results.
 
 from __future__ import annotations
 
-from typing import Any
-from typing import Callable
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
 __all__ = [
     "run_tasks",

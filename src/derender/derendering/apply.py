@@ -14,12 +14,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Sequence
 import os
 import re
 import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -78,8 +78,8 @@ def pairs_from_images(raw_paths: Sequence[str | os.PathLike], jpeg_paths: Sequen
     a RAW channel above ``saturation`` are left out (one shot cannot extrapolate them);
     the JPEG must have the RAW's visible size. Metadata (make/model) comes from the RAW.
     """
-    from derender.raw.groundtruth import raw_to_camera_rgb
     from derender.io.raw import read_raw
+    from derender.raw.groundtruth import raw_to_camera_rgb
 
     if len(raw_paths) != len(jpeg_paths) or not raw_paths:
         raise InputError(f"give one --jpeg per --raw ({len(raw_paths)} RAW, {len(jpeg_paths)} JPEG)")

@@ -61,13 +61,12 @@ Model files are ``.npz`` (never pickled) with ``format="derender-model"``,
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
-from typing import ClassVar
 import json
 import os
 import time
 import zipfile
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 

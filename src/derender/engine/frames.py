@@ -11,10 +11,7 @@ from __future__ import annotations
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
-from typing import Callable
-from typing import Iterator
-from typing import Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -76,16 +73,17 @@ class FramePool:
             self.free.append(buf)
 
 
-def read_frames(paths: list[Path], threads: int | None, grey: bool = False,
-                 grey_alloc: Callable[[int, int, int], np.ndarray] | None = None
-                 ) -> tuple[np.ndarray, np.ndarray | None]:
+def read_frames(paths: list[Path], threads: int | None,
+                derive: Callable[[np.ndarray, np.ndarray], Any] | None = None,
+                derive_alloc: Callable[[int, int, int], np.ndarray] | None = None
+                ) -> tuple[np.ndarray, np.ndarray | None]:
     """Decode 8-bit frames (in threads) into one (N, H, W, 3) uint8 array (pages populated
-    up front, :func:`populated_zeros`) and, with ``grey``, their Ward greys (N, H, W)
-    (:func:`derender.align.grey8_codes`, made in the decoding threads). The first frame
-    gives the size; the others are decoded straight into their slot. ``grey_alloc(H, W,
-    nbytes)``, if given, returns the uint8 memory (at least ``nbytes``) the greys go to, so
-    that a later stage can reuse it."""
-    from derender.hdr.align import grey8_codes
+    up front, :func:`populated_zeros`) and, with ``derive(frame, out)``, one uint8 plane
+    (N, H, W) per frame computed in the decoding threads (e.g. Ward's grey images for MTB
+    registration, :func:`derender.hdr.align.grey8_codes`). The first frame gives the size;
+    the others are decoded straight into their slot. ``derive_alloc(H, W, nbytes)``, if
+    given, returns the uint8 memory (at least ``nbytes``) the planes go to, so that a later
+    stage can reuse it."""
 
     nthreads = thread_count(threads)
     first = read_codes(paths[0])
@@ -96,11 +94,11 @@ def read_frames(paths: list[Path], threads: int | None, grey: bool = False,
     frames = populated_zeros((len(paths), *first.shape), dtype=np.uint8)
     frames[0] = first
     del first
-    greys = None
-    if grey:
-        n_grey = int(np.prod(frames.shape[:3]))
-        mem = populated_zeros(n_grey, np.uint8) if grey_alloc is None else grey_alloc(*frames.shape[1:3], n_grey)
-        greys = mem.reshape(-1)[:n_grey].reshape(frames.shape[:3])
+    planes = None
+    if derive is not None:
+        n_plane = int(np.prod(frames.shape[:3]))
+        mem = populated_zeros(n_plane, np.uint8) if derive_alloc is None else derive_alloc(*frames.shape[1:3], n_plane)
+        planes = mem.reshape(-1)[:n_plane].reshape(frames.shape[:3])
 
     def load(j: int):
         codes = read_codes(paths[j], out=frames[j]) if j else frames[0]
@@ -111,11 +109,11 @@ def read_frames(paths: list[Path], threads: int | None, grey: bool = False,
                              f"{paths[j].name} is {codes.shape[1]}x{codes.shape[0]}")
         if not np.shares_memory(codes, frames[j]):
             frames[j] = codes
-        if greys is not None:
-            grey8_codes(frames[j], out=greys[j])
+        if planes is not None:
+            derive(frames[j], planes[j])
         return True
 
     for ok in prefetch(load, range(len(paths)), depth=nthreads, workers=nthreads):
         if not ok:
             raise NotStreamable("16-bit input")
-    return frames, greys
+    return frames, planes

@@ -15,9 +15,8 @@ thread while it decodes (:func:`derender.fastmerge._warm_up_stabilized`).
 
 from __future__ import annotations
 
-from numba import njit
-from numba import prange
 import numpy as np
+from numba import njit, prange
 
 __all__ = [
     "MERGE_TILE",

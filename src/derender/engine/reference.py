@@ -12,9 +12,8 @@ warped frames): a 65536-entry table per channel would not fit OpenCV's 8-bit ``L
 
 from __future__ import annotations
 
-from typing import Any
-from typing import Callable
 import time
+from typing import Any, Callable
 
 import numpy as np
 

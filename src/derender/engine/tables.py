@@ -21,17 +21,15 @@ tested to 1e-5).
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-from typing import Any
-from typing import Callable
-from typing import Sequence
 import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.core.types import HDRResult, Stack
 from derender.core.memory import N_CODES, import_cv2, opencv_single_thread, populated_zeros, thread_count
+from derender.core.types import HDRResult, Stack
 
 __all__ = [
     "F32_MAX",

@@ -29,11 +29,10 @@ this one), which says nothing about the constant-response assumption.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import field
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-import os
 
 import numpy as np
 

@@ -29,11 +29,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Callable
-from typing import Sequence
 import os
 import time
+from pathlib import Path
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -60,8 +59,7 @@ METHODS = ("gp", "poly", "rbf")
 
 def default_experiment_cameras() -> list[str]:
     """Canon PowerShot S90 (used by paper 2) and others when the rawtoaces data is present, plus the built-in one."""
-    from derender.camera.spectral import camera_search_dirs
-    from derender.camera.spectral import load_camera
+    from derender.camera.spectral import camera_search_dirs, load_camera
 
     names = []
     for n in ("canon-powershot-s90", "canon-eos-5d-mark-ii", "nikon-d5100"):
@@ -74,8 +72,7 @@ def default_experiment_cameras() -> list[str]:
 
 
 def _camera(name: str):
-    from derender.camera.spectral import camera_search_dirs
-    from derender.camera.spectral import load_camera
+    from derender.camera.spectral import camera_search_dirs, load_camera
 
     return load_camera(name, search_dirs=camera_search_dirs())
 
@@ -88,7 +85,14 @@ def derender_table(cameras: Sequence[str] | None = None, methods: Sequence[str] 
     """Paper 2 Table 1 on simulated cameras; one row per (camera, method), plus a ``floor`` row
     per camera when ``floor`` (lower bound for any predictor from the code, see module doc)."""
     from derender.camera.chart import chart_pairs
-    from derender.derendering.models import code_floor_errors, fit_model, interval_coverage, median_relative_error, relative_rmse, rmse
+    from derender.derendering.models import (
+        code_floor_errors,
+        fit_model,
+        interval_coverage,
+        median_relative_error,
+        relative_rmse,
+        rmse,
+    )
 
     rows = []
     for cam_name in cameras or default_experiment_cameras():
@@ -299,9 +303,17 @@ def photometric_stereo_experiment(camera: str = "canon-powershot-s90", n_lights:
                                   models: dict | None = None, plot: str | os.PathLike | None = None,
                                   progress: Callable[[str], None] | None = None) -> list[dict]:
     """Paper 2 Sec. 4.3 on simulated Lambertian shapes; rows with mean angular error per method."""
+    from derender.applications.photometric_stereo import (
+        angular_error_deg,
+        bumps,
+        default_lights,
+        frankot_chellappa,
+        render_photometric_images,
+        solve_normals,
+        sphere,
+    )
     from derender.camera.chart import chart_pairs
     from derender.derendering.models import fit_model
-    from derender.applications.photometric_stereo import angular_error_deg, bumps, default_lights, frankot_chellappa, render_photometric_images, solve_normals, sphere
 
     cam = _camera(camera)
     if models is None:
@@ -342,8 +354,8 @@ def _plot_stereo(depth_rows, path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from derender.io.files import atomic_output
     from derender.applications.photometric_stereo import frankot_chellappa
+    from derender.io.files import atomic_output
 
     shapes = sorted({r[0] for r in depth_rows})
     methods = [r[1] for r in depth_rows if r[0] == shapes[0]]

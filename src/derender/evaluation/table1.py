@@ -5,7 +5,7 @@ A *dataset* is a folder of scenes; each scene folder holds ``raw/`` (DNG/RAW fra
 ``scene.json`` (simulated scenes). For every scene the benchmark builds the ground truth
 from the RAW frames (:func:`derender.groundtruth.raw_ground_truth`, paper 1 Sec. 4.2,
 Algorithm 2), merges the JPEG bracket with every merge method, and scores PSNR on R, G, B
-and luminance L (:func:`derender.evaluate.psnr_rgbl`: least-squares scale, peak = max of
+and luminance L (:func:`derender.evaluation.metrics.psnr_rgbl`: least-squares scale, peak = max of
 the ground truth). The table reports means over scenes and, per method, the share of
 scenes in which it beats the baseline (``debevec``) on at least 3 of the 4 planes.
 
@@ -16,22 +16,21 @@ deterministic, and results are sorted by scene name, so all three give identical
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import field
-from pathlib import Path
-from typing import Callable
-from typing import Sequence
 import csv
 import inspect
 import io as _io
 import json
 import os
 import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from derender.camera.spectral import camera_search_dirs
 from derender.core.errors import InputError
+from derender.core.types import Stack
 from derender.hdr.registry import merge_seeded
 
 __all__ = [
@@ -164,10 +163,10 @@ def _scene_files(scene_dir: Path) -> tuple[list[Path], list[Path]]:
 def evaluate_scene(scene_dir: str | os.PathLike, methods: Sequence[str], seed: int = 0) -> dict:
     """Ground truth from RAW, every method on the JPEGs, PSNR R/G/B/L of each against it."""
     from derender.evaluation.metrics import psnr_rgbl
-    from derender.raw.groundtruth import raw_ground_truth
     from derender.io.exr import read_exr
-    from derender.io.raw import read_raw_stack
     from derender.io.images import read_stack
+    from derender.io.raw import read_raw_stack
+    from derender.raw.groundtruth import raw_ground_truth
     scene_dir = Path(scene_dir)
     raws, jpgs = _scene_files(scene_dir)
     t0 = time.perf_counter()
@@ -286,14 +285,14 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[st
                 methods: Sequence[str] = ("stabilized",), camera: str = "nikon-d5100", exposures: int = 9,
                 progress: Callable[[str], None] | None = None) -> list[dict]:
     """Paper 1's comparison on simulated brackets held in memory: PSNR (R, G, B, L against
-    the simulator's exact radiance, :func:`derender.evaluate.psnr_rgbl`) of each method
+    the simulator's exact radiance, :func:`derender.evaluation.metrics.psnr_rgbl`) of each method
     minus that of ``debevec``, per scene (rows with ``scene`` set) and as the mean over the
     scenes of each rendering style (rows with ``scene="mean"``, plus ``wins``: the share of
     scenes won on >= 3 of the 4 planes). Issue 5's acceptance figures come from the default
     (auto pipeline, 3 scene kinds x seeds 0-2, 192x128, 9 exposures)."""
     from derender.camera.simulate import simulate_bracket
-    from derender.evaluation.metrics import psnr_rgbl
     from derender.core.types import Stack
+    from derender.evaluation.metrics import psnr_rgbl
 
     planes = ("R", "G", "B", "L")
     rows: list[dict] = []
@@ -320,3 +319,23 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[st
                          **{f"d{c}": float(np.mean([d[c] for d in ds])) for c in planes},
                          "wins": float(np.mean([sum(d[c] > 0 for c in planes) >= 3 for d in ds]))})
     return rows
+
+
+def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = "stabilized",
+                     references: Sequence[int] | None = None, **options: Any) -> dict:
+    """PSNR (R, G, B, L; :func:`derender.evaluation.metrics.psnr_rgbl`) of ``method`` for every
+    reference in ``references`` (default :func:`derender.hdr.stabilize.reasonable_references`) and the spread
+    (max - min) of each plane over them (paper 1, Fig. 5)."""
+    from derender.evaluation.metrics import psnr_rgbl
+    from derender.hdr.registry import merge
+    from derender.hdr.stabilize import reasonable_references
+
+    refs = reasonable_references(stack.images) if references is None else [int(r) for r in references]
+    if not refs:
+        raise InputError("no reference images to compare")
+    scores = {}
+    for r in refs:
+        res = merge(stack, method=method, reference=r, **options)
+        scores[r] = psnr_rgbl(res.radiance, truth_linear_srgb)
+    spread = {c: float(max(s[c] for s in scores.values()) - min(s[c] for s in scores.values())) for c in "RGBL"}
+    return {"method": method, "references": refs, "psnr": scores, "spread": spread}

@@ -27,10 +27,9 @@ weights leave them out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import field
-from typing import Sequence
 import os
+from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 

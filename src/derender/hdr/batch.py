@@ -7,11 +7,10 @@ A *stack folder* holds one bracket: its images directly or in a ``jpeg/`` subfol
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Callable
-from typing import Sequence
 import os
 import time
+from pathlib import Path
+from typing import Callable, Sequence
 
 from derender.core.errors import DerenderError, InputError
 

@@ -8,9 +8,8 @@ estimate ``sum w t I / sum w t^2`` in the linear domain with Gaussian-like weigh
 
 from __future__ import annotations
 
-from typing import Any
-from typing import Callable
 import time
+from typing import Any, Callable
 
 import numpy as np
 
@@ -139,8 +138,8 @@ def merge_robertson(
 
     ``engine`` as in :func:`merge_debevec` (8-bit stacks use the table engine by default).
     """
-    from derender.response.robertson2003 import calibrate_robertson
     from derender.response.curves import check_usable
+    from derender.response.robertson2003 import calibrate_robertson
 
     check_usable(stack)
     t0 = time.perf_counter()

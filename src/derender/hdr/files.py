@@ -9,26 +9,24 @@ and :func:`derender.hdr.registry.merge`. ``info["engine_path"]`` says which ran.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
-from typing import Iterable
-from typing import Sequence
-import inspect
 import os
 import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from derender.hdr.registry import get_method, method_options
-from derender.io.exif import file_times
 from derender.core.errors import InputError
-from derender.core.types import HDRResult
-from derender.engine.frames import NotStreamable, FramePool, prefetch, read_frames
-from derender.engine.matrix import stabilized_output_bytes, warm_up_kernels
 from derender.core.memory import N_CODES, populated_zeros, thread_count
+from derender.core.types import HDRResult
+from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
+from derender.engine.matrix import stabilized_output_bytes, warm_up_kernels
 from derender.engine.tables import TableMerge, code_values, curve_value_tables, weight_table
+from derender.hdr.align import grey8_codes
+from derender.hdr.registry import get_method, method_options
 from derender.hdr.stabilize import merge_stabilized_frames
+from derender.io.exif import file_times
 from derender.io.exr import write_exr_fast
 from derender.io.images import read_codes
 from derender.response.curves import check_usable_histograms, code_histograms, histogram_samples
@@ -113,7 +111,7 @@ class _LazyAlignment:
 
 def _stream_probabilistic(paths: list[Path], t: np.ndarray, opts: dict, threads: int | None) -> HDRResult:
     """:func:`derender.probabilistic.merge_probabilistic` on 8-bit files, band by band (same numbers)."""
-    from derender.hdr.probabilistic import check_options, as_model, merge_probabilistic_frames
+    from derender.hdr.probabilistic import as_model, check_options, merge_probabilistic_frames
 
     model = as_model(opts.get("model"))
     space, _ = check_options(model, opts["target_time"], opts["colour_space"], opts["censor"], opts["space"],
@@ -146,8 +144,8 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
     pass reads all frames through their shifts (:func:`merge_stabilized_frames`).
     """
     from derender.hdr.align import chain_transforms, transforms_to_shifts
-    from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, grid_positions
     from derender.hdr.stabilize import select_reference, stabilize_aligned, unclipped_debevec
+    from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, grid_positions
 
     align = opts["align"]
     if align not in ("mtb", "none"):
@@ -163,7 +161,8 @@ def _stream_stabilized(paths: list[Path], t: np.ndarray, method: str, opts: dict
         held["buffer"] = populated_zeros(max(nbytes, stabilized_output_bytes(h, w)), np.uint8)
         return held["buffer"]
 
-    frames, greys = read_frames(paths, threads, grey=align == "mtb", grey_alloc=grey_alloc)
+    frames, greys = read_frames(paths, threads, derive=(lambda f, out: grey8_codes(f, out=out)) if align == "mtb" else None,
+                                derive_alloc=grey_alloc)
     out_buffer = held.pop("buffer", None)
     h, w = frames[0].shape[:2]
     # response.check_usable: grid samples settle it, unless some channel shows no usable code there

@@ -119,9 +119,9 @@ sRGB, the variance propagated through the same 3x3 map (diagonal of ``A S A^T``)
 
 from __future__ import annotations
 
-from typing import Any
 import os
 import time
+from typing import Any
 
 import numpy as np
 

@@ -10,10 +10,9 @@ paper 1) and :mod:`derender.hdr.probabilistic` (``probabilistic``,
 
 from __future__ import annotations
 
-from typing import Any
-from typing import Callable
 import importlib
 import inspect
+from typing import Any, Callable
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack

@@ -42,20 +42,17 @@ with the reference.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import field
-from typing import Any
-from typing import Callable
-from typing import Sequence
 import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709
 from derender.core.errors import InputError, StackError
+from derender.core.memory import N_CODES, populated_zeros
 from derender.core.types import HDRResult, Stack
 from derender.engine.matrix import KERNEL_LOCK, set_numba_threads, stabilized_output_bytes
-from derender.core.memory import N_CODES, populated_zeros
 from derender.engine.tables import code_values, stack_codes_exact, weight_table
 
 __all__ = [
@@ -94,7 +91,6 @@ __all__ = [
     "merge_stabilized",
     "merge_stabilized_joint",
     "reasonable_references",
-    "reference_spread",
 ]
 
 
@@ -1708,8 +1704,8 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
     weights (normalised per pixel). 8-bit stacks with integer alignment and no
     ``pixel_weights`` take the table path of :func:`derender.fastmerge.merge_stabilized_table` (same result to 1e-5)."""
-    from derender.engine.weights import get_weight
     from derender.engine.reference import merge_linear
+    from derender.engine.weights import get_weight
 
     fast = merge_stabilized_table(stab, weight, noise_weighting) if pixel_weights is None else None
     if fast is not None:
@@ -1817,20 +1813,3 @@ def reasonable_references(images: Any, max_bad: float = 0.5) -> list[int]:
     return sorted(set(refs) | {best})
 
 
-def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = "stabilized",
-                     references: Sequence[int] | None = None, **options: Any) -> dict:
-    """PSNR (R, G, B, L; :func:`derender.evaluate.psnr_rgbl`) of ``method`` for every
-    reference in ``references`` (default :func:`reasonable_references`) and the spread
-    (max - min) of each plane over them (paper 1, Fig. 5)."""
-    from derender.evaluation.metrics import psnr_rgbl
-    from derender.hdr.registry import merge
-
-    refs = reasonable_references(stack.images) if references is None else [int(r) for r in references]
-    if not refs:
-        raise InputError("no reference images to compare")
-    scores = {}
-    for r in refs:
-        res = merge(stack, method=method, reference=r, **options)
-        scores[r] = psnr_rgbl(res.radiance, truth_linear_srgb)
-    spread = {c: float(max(s[c] for s in scores.values()) - min(s[c] for s in scores.values())) for c in "RGBL"}
-    return {"method": method, "references": refs, "psnr": scores, "spread": spread}

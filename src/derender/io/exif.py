@@ -8,11 +8,11 @@ of files (explicit times, else a times file, else EXIF ``ExposureTime``).
 
 from __future__ import annotations
 
+import os
+import re
 from fractions import Fraction
 from pathlib import Path
 from typing import Sequence
-import os
-import re
 
 import numpy as np
 

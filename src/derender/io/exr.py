@@ -12,21 +12,19 @@
 
 from __future__ import annotations
 
-from collections import deque
-from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
-from typing import Callable
-from typing import Iterable
-from typing import Sequence
 import os
 import struct
 import zlib
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from derender.io.files import atomic_output
 from derender.core.errors import InputError
 from derender.core.memory import thread_count
+from derender.io.files import atomic_output
 
 __all__ = [
     "write_exr",

@@ -8,11 +8,11 @@ given (:func:`check_not_input`, symlinks resolved). Readers raise
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Iterable
 import contextlib
 import os
 import tempfile
+from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 

@@ -9,17 +9,17 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Sequence
-import os
 
 import numpy as np
 
-from derender.io.files import read_bytes
 from derender.core.errors import InputError
-from derender.core.types import Stack
 from derender.core.memory import import_cv2
+from derender.core.types import Stack
 from derender.io.exif import file_times, read_exif
+from derender.io.files import read_bytes
 
 __all__ = [
     "read_image",

@@ -9,9 +9,9 @@ largest scaled luminance (burn-out) unless given. Paper 1 uses it for its figure
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Iterable
-import os
 
 import numpy as np
 

@@ -8,9 +8,9 @@ balance, demosaicing, colour) is :mod:`derender.raw`.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Sequence
-import os
 
 import numpy as np
 

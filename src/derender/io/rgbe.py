@@ -8,9 +8,9 @@ orientation. :func:`read_radiance` reads either format by suffix.
 
 from __future__ import annotations
 
-from pathlib import Path
 import contextlib
 import os
+from pathlib import Path
 
 import numpy as np
 

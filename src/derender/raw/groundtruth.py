@@ -27,7 +27,17 @@ import numpy as np
 from derender.core.colorimetry import camera_to_linear_srgb_matrix, camera_to_xyz_matrix
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
-from derender.raw.mosaic import HIGH, LOW, demosaic_bayer, finite_float32, merge_raw_mosaics, sorted_raw_frames, spread_mask, wb_from_patch, white_balance_mosaic
+from derender.raw.mosaic import (
+    HIGH,
+    LOW,
+    demosaic_bayer,
+    finite_float32,
+    merge_raw_mosaics,
+    sorted_raw_frames,
+    spread_mask,
+    wb_from_patch,
+    white_balance_mosaic,
+)
 
 __all__ = [
     "raw_to_camera_rgb",

@@ -17,17 +17,16 @@ linearly between levels, so the full 16-bit precision is kept there.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import field
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-import os
 
 import numpy as np
 
 from derender.core.errors import InputError, StackError
-from derender.core.types import Stack
 from derender.core.memory import N_CODES, import_cv2
+from derender.core.types import Stack
 from derender.engine.weights import get_weight, weight_hat
 
 __all__ = [

@@ -9,15 +9,24 @@ monotonic is made so (isotonic regression).
 
 from __future__ import annotations
 
-from typing import Any
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.core.types import Stack
 from derender.core.memory import N_CODES
-from derender.response.curves import ResponseCurves, make_monotonic, DEFAULT_LAMBDA, DEFAULT_SAMPLES, as_stack, check_usable, histogram_samples, level_weights, sample_pixels
+from derender.core.types import Stack
+from derender.response.curves import (
+    DEFAULT_LAMBDA,
+    DEFAULT_SAMPLES,
+    ResponseCurves,
+    as_stack,
+    check_usable,
+    histogram_samples,
+    level_weights,
+    make_monotonic,
+    sample_pixels,
+)
 
 __all__ = [
     "calibrate_debevec_from_samples",

@@ -14,7 +14,16 @@ import numpy as np
 
 from derender.core.errors import StackError
 from derender.core.types import Stack
-from derender.response.curves import CHANNELS, ResponseCurves, as_stack, check_usable, grid_positions, level_weights, make_monotonic, to_codes
+from derender.response.curves import (
+    CHANNELS,
+    ResponseCurves,
+    as_stack,
+    check_usable,
+    grid_positions,
+    level_weights,
+    make_monotonic,
+    to_codes,
+)
 
 __all__ = [
     "calibrate_robertson",
