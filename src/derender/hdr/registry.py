@@ -38,8 +38,8 @@ MERGE_METHODS: dict[str, Callable[..., HDRResult]] = {}
 BUILTIN_METHODS = {
     "debevec": "derender.hdr.classic",
     "robertson": "derender.hdr.classic",
-    "stabilized": "derender.hdr.stabilize",
-    "stabilized-joint": "derender.hdr.stabilize",
+    "stabilized": "derender.hdr.stabilize.method",
+    "stabilized-joint": "derender.hdr.stabilize.method",
     "probabilistic": "derender.hdr.probabilistic",
     "stabilized-probabilistic": "derender.hdr.probabilistic",
 }

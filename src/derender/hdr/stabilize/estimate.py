@@ -1,43 +1,6 @@
-"""Pipeline-aware exposure fusion (paper 1, Sec. 3, Algorithm 1) and a reference-free variant.
+"""Estimation for paper 1's stabiliser: reference choice, per-image exponents, curve models, 3x3 colour matrices.
 
-Model (paper 1, eq. 4 and 8): image ``j`` of a bracket renders the sensor exposure
-``x t_j`` as ``J_j = clip(A_j x t_j, 0, 1) ** (1 / gamma_j)`` with a per-image 3x3 matrix
-``A_j`` (white balance, colour matrix, gain) and a per-image *display gamma*
-``gamma_j`` (the encoding exponent is ``1 / gamma_j``; every gamma in this module is the
-display gamma, ~2.2). Undoing the gamma gives linear images ``L_j = J_j ** gamma_j``
-which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
-``H_j = A_ref A_j^-1 t_ref / t_j``. Steps (Algorithm 1):
-
-1. :func:`select_reference` -- the best-exposed image (fewest over/under-exposed pixels).
-2. Registration -- :func:`derender.align.align_images` (MTB translation by default).
-3. Per-image linearisation -- :func:`estimate_gammas` (a display gamma per image; with
-   times or blind). When those gammas drift steadily with exposure time the tone curve
-   is not a power law (film, filmic picture styles) and ``response="auto"`` switches to
-   one common Debevec & Malik curve (:func:`power_law_plausible`, :class:`Curve`), fitted
-   on samples away from clipped pixels (:func:`unclipped_debevec`). A quick search runs
-   first and sends clearly filmic brackets to the curve straight away
-   (:data:`SCREEN_TREND`).
-4. :func:`fit_color_matrix` / :func:`color_matrices_to_reference` -- H_j by weighted
-   least squares inside a seeded RANSAC, clipped and dark pixels left out (eq. 9-10).
-   **The exposure ratio is absorbed in H_j** (as the paper does after eq. 9): H_j maps
-   image j's linear values onto the reference's, so the stabilised images
-   ``I'_j = H_j L_j`` (eq. 10) are all in the reference's exposure and colour rendering;
-   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not
-   bias the colours (times serve the gamma level, the noise weights and the joint gauge).
-5. :func:`stabilized_merge` -- trapezoid-weighted average through
-   :func:`derender.merge.merge_linear` (method ``"stabilized"``), by default also
-   weighted by each estimate's inverse noise variance.
-
-Fits use 2x2-pixel block means of the linearised values (noise in both images biases
-pixel-wise fits; block means keep the linear relation exact) and pixels whose
-channels all lie in (FIT_LOW, FIT_HIGH) in the brighter image of a pair.
-
-Beyond the paper (its Fig. 5: the result depends on the reference):
-:func:`joint_color_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
-every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
-i.e. a common linear space equal to the bracket's *average* rendering, no reference at
-all (method ``"stabilized-joint"``). :func:`reference_spread` reports how PSNR varies
-with the reference.
+See :mod:`derender.hdr.stabilize` for the method and its steps.
 """
 
 from __future__ import annotations
@@ -50,15 +13,13 @@ import numpy as np
 
 from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709
 from derender.core.errors import InputError, StackError
-from derender.core.memory import N_CODES, populated_zeros
-from derender.core.types import HDRResult, Stack
-from derender.engine.matrix import KERNEL_LOCK, set_numba_threads, stabilized_output_bytes
-from derender.engine.tables import code_values, stack_codes_exact, weight_table
+from derender.core.types import Stack
 
 __all__ = [
-    "merge_stabilized_table",
-    "stabilized_tables",
-    "merge_stabilized_frames",
+    "make_blocks",
+    "estimate_gammas_blocks",
+    "screen_gamma_trend",
+    "curve_model",
     "REF_LOW",
     "REF_HIGH",
     "REF_PIXELS",
@@ -83,129 +44,8 @@ __all__ = [
     "fit_color_matrix",
     "color_matrices_to_reference",
     "joint_color_matrices",
-    "Stabilization",
-    "stabilize",
-    "stabilize_aligned",
-    "stabilized_merge",
-    "stabilization_info",
-    "merge_stabilized",
-    "merge_stabilized_joint",
     "reasonable_references",
 ]
-
-
-def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                           threads: int | None = None) -> HDRResult | None:
-    """:func:`derender.stabilize.stabilized_merge` on 8-bit codes (paper 1, Algorithm 1 step 4).
-
-    Image ``j`` contributes ``H'_j L_j(z) / t_j`` with the per-channel table
-    ``L_j = stab.curves[j].lin`` on the 256 codes and the 3x3 matrix ``H'_j``
-    (``H_j t_j / t_ref`` in reference mode, ``K_j`` in joint mode). One weight for all
-    channels, times the registration mask: the smallest channel weight where some
-    exposure has all channels usable, else the weight of the brightest channel; with
-    ``noise_weighting`` times ``t_j^2 / mean_c (dL_j/dJ)^2`` (the reference also divides
-    by the per-pixel maximum over images, a common factor that cancels). One compiled
-    pass per pixel (:func:`derender.kernels.stabilized_merge_rows`), float32 sums (every
-    sum is of a few same-sign weights; measured 2e-7 to 4e-7 relative to the float64
-    reference engine). Returns None when the aligned images are not 8-bit codes
-    (sub-pixel warps), so the caller keeps the reference path.
-    """
-    al = stab.alignment
-    codes = stack_codes_exact(al.images)
-    if codes is None:
-        return None
-    valid = getattr(al, "valid", None)
-    if valid is not None:
-        valid = np.asarray(valid)
-        valid = None if valid.all() else np.ascontiguousarray(valid, dtype=np.uint8)
-    return merge_stabilized_frames(stab, codes, np.zeros((codes.shape[0], 2), dtype=np.int64), valid,
-                                    weight, noise_weighting, threads)
-
-
-def stabilized_tables(stab, weight: Any, noise_weighting: bool):
-    """Per image: linearisation table (256, 3), matrix ``H'_j / t_j`` and inverse-variance table; None if unsupported."""
-    times = np.asarray(stab.times, dtype=np.float64)
-    z3 = np.repeat(code_values()[:, None], 3, axis=1)
-    curves = list(getattr(stab, "curves", None) or [])
-    values, mats, ivs = [], [], []
-    t2max = float(np.max(times ** 2))
-    for j in range(times.shape[0]):
-        if curves:
-            lin = np.asarray(curves[j].lin(z3), dtype=np.float64)
-        else:  # power law of the gamma estimate (paper 1, eq. 4)
-            lin = np.clip(z3.astype(np.float64), 0.0, 1.0) ** float(stab.gammas.gammas[j])
-        values.append(lin.astype(np.float32))
-        m = np.asarray(stab.matrices[j], dtype=np.float64)
-        if stab.mode == "reference":
-            m = m * (times[j] / times[stab.reference])
-        mats.append(m / times[j])
-        if noise_weighting:
-            if not curves:
-                return None
-            d2 = np.asarray(curves[j].dlin(z3), dtype=np.float64) ** 2
-            ivs.append((d2.astype(np.float32), times[j] ** 2 / t2max))  # common 1/t2max keeps float32 in range
-        else:
-            ivs.append(None)
-    return values, mats, ivs
-
-
-def merge_stabilized_frames(stab, frames: np.ndarray, shifts: np.ndarray, valid: np.ndarray | None,
-                             weight: Any, noise_weighting: bool, threads: int | None,
-                             buffer: np.ndarray | None = None) -> HDRResult | None:
-    """The stabilised merge of ``frames`` (N, H, W, 3) uint8, image ``j`` read shifted by
-    ``shifts[j]`` (dy, dx) (outside the frame it does not take part) and restricted to
-    ``valid`` (N, H, W) uint8 (None: everywhere), by :func:`derender.kernels.stabilized_merge_rows`.
-    ``buffer``: uint8 memory of at least :func:`stabilized_output_bytes` to hold the radiance
-    and mask (the kernel writes every pixel of both, so it need not be zero)."""
-    tables = stabilized_tables(stab, weight, noise_weighting)
-    if tables is None:
-        return None
-    from derender.engine.kernels import stabilized_merge_rows
-
-    values, mats, ivs = tables
-    al = stab.alignment
-    times = np.asarray(stab.times, dtype=np.float64)
-    n = times.shape[0]
-    h, w = int(frames.shape[1]), int(frames.shape[2])
-    wt = np.ascontiguousarray(weight_table(weight), dtype=np.float32)
-    lin = np.ascontiguousarray(np.stack(values), dtype=np.float32)
-    mats64 = np.ascontiguousarray(np.stack(mats), dtype=np.float64)
-    use_iv = bool(noise_weighting)
-    if use_iv:
-        inv_var = np.ascontiguousarray(np.stack([iv[0] / np.float32(3.0) for iv in ivs]), dtype=np.float32)
-        inv_k = np.array([iv[1] for iv in ivs], dtype=np.float32)
-    else:
-        inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
-        inv_k = np.ones(n, dtype=np.float32)
-    bright = code_values() >= np.float32(0.5)
-    if valid is None:
-        valid = np.ones((n, 1, 1), dtype=np.uint8)
-    if buffer is not None and buffer.nbytes >= stabilized_output_bytes(h, w):
-        flat = buffer.reshape(-1)
-        radiance = flat[:12 * h * w].view(np.float32).reshape(3, h, w)
-        mask = flat[12 * h * w:13 * h * w].reshape(h, w)
-    else:
-        radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
-        mask = populated_zeros((h, w), dtype=np.uint8)
-    t0 = time.perf_counter()
-    with KERNEL_LOCK:
-        set_numba_threads(threads)
-        stabilized_merge_rows(np.ascontiguousarray(frames), np.ascontiguousarray(shifts, dtype=np.int64),
-                              np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32),
-                              mats64, wt, inv_var, inv_k, use_iv, int(np.argmin(times)), int(np.argmax(times)),
-                              bright, 0, h, radiance, mask)
-    info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
-            "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
-            "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),
-            "weight": weight if isinstance(weight, str) else "custom",
-            "merge_seconds": time.perf_counter() - t0, "noise_weighting": bool(noise_weighting),
-            "reference": stab.reference, "gammas": np.asarray(stab.gammas.gammas).tolist(),
-            "gamma_method": getattr(stab.gammas, "method", None),
-            "matrices": np.asarray(stab.matrices).tolist(), "mode": stab.mode, "how": stab.how,
-            "align": getattr(al, "method", None)}
-    if getattr(al, "shifts", None) is not None:
-        info["shifts"] = np.asarray(al.shifts).tolist()
-    return HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
 
 
 #: Reference selection: a pixel is over-exposed when any channel is >= REF_HIGH and
@@ -332,7 +172,7 @@ def _pixels(images: Any, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
     return np.asarray(images[j])[ys, xs]
 
 
-def _make_blocks(images: np.ndarray, valid: np.ndarray | None, block: int, max_blocks: int,
+def make_blocks(images: np.ndarray, valid: np.ndarray | None, block: int, max_blocks: int,
                  seed: int, times: np.ndarray | None = None) -> _Blocks:
     n, h, w, _ = images.shape
     bs = max(1, int(block))
@@ -1033,13 +873,13 @@ def estimate_gammas(images: Any, times: Sequence[float] | None = None, valid: np
     tarr = None if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
     if tarr is not None and tarr.size != n:
         raise InputError(f"{tarr.size} exposure time(s) for {n} image(s)")
-    blocks = _make_blocks(arr, valid, block, max_blocks, seed, tarr)
-    return _estimate_gammas_blocks(blocks, tarr, low=low, high=high, floor=floor, max_gap=max_gap,
+    blocks = make_blocks(arr, valid, block, max_blocks, seed, tarr)
+    return estimate_gammas_blocks(blocks, tarr, low=low, high=high, floor=floor, max_gap=max_gap,
                                    prior_sd=prior_sd, min_blocks=min_blocks, base=base, bounds=bounds,
                                    info={"block": block, "max_blocks": max_blocks})
 
 
-def _estimate_gammas_blocks(blocks: _Blocks, tarr: np.ndarray | None, low: float, high: float, floor: float,
+def estimate_gammas_blocks(blocks: _Blocks, tarr: np.ndarray | None, low: float, high: float, floor: float,
                             max_gap: int, prior_sd: float, min_blocks: int, base: float,
                             bounds: tuple[float, float], info: dict) -> GammaEstimate:
     n = blocks.codes.shape[0]
@@ -1102,7 +942,7 @@ def gamma_trend(gammas: Sequence[float], times: Sequence[float]) -> float:
     return float((tc @ (lg - lg.mean())) / den * (tau.max() - tau.min()))
 
 
-#: Screening of ``response="auto"`` (:func:`_screen_gamma_trend`): a bracket whose quick
+#: Screening of ``response="auto"`` (:func:`screen_gamma_trend`): a bracket whose quick
 #: relative-exponent trend exceeds this goes straight to the curve model. Twice
 #: :func:`power_law_plausible`'s ``max_trend``. Measured quick (full) trends: power-law
 #: brackets (auto and fixed pipelines, simple style, 18 simulated) |0.13| at most (|0.12|);
@@ -1115,7 +955,7 @@ SCREEN_TREND = 0.6
 SCREEN_BLOCKS, SCREEN_ROUNDS = 200, 1
 
 
-def _screen_gamma_trend(blocks: "_Blocks", times: Sequence[float], low: float = FIT_LOW, high: float = FIT_HIGH,
+def screen_gamma_trend(blocks: "_Blocks", times: Sequence[float], low: float = FIT_LOW, high: float = FIT_HIGH,
                        floor: float = FIT_FLOOR, max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12,
                        base: float = 2.2, bounds: tuple[float, float] = (1.0, 4.0)) -> float:
     """:func:`gamma_trend` of the relative exponents from a quick search (:data:`SCREEN_BLOCKS`
@@ -1213,7 +1053,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
 
 
-def _curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
+def curve_model(blocks: _Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
                  max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
                  seed: int = 0, calibrate: Any = None) -> tuple[list, dict]:
     """Response model ``L_j = G(J_j ** rho_j)``: one response table ``G`` per channel common to
@@ -1534,274 +1374,6 @@ def joint_color_matrices(blocks: _Blocks, gammas: np.ndarray, times: np.ndarray,
         h = _neighbour_matrix(blocks, j, a, gammas, low, high, floor, n_iter, seed)
         mats[j] = mats[a] @ (h * (t[j] / t[a]) if h is not None else np.eye(3))
     return mats
-
-
-# --------------------------------------------------------------------------- driver
-@dataclass
-class Stabilization:
-    """Everything :func:`stabilize` found for a bracket.
-
-    mode : ``"reference"`` (paper 1: ``matrices[j] = H_j`` maps image j's linear values
-        onto the reference's, exposure ratio included) or ``"joint"`` (``matrices[j] = K_j``
-        maps ``L_j / t_j`` into the common average rendering).
-    reference : reference image index (also the registration target).
-    gammas : :class:`GammaEstimate` (display gammas; for the curve model the effective
-        gamma of each image's curve).
-    curves : per-image :class:`Curve` linearisations actually used.
-    alignment : :class:`derender.align.Alignment`.
-    how : per image, how its matrix was obtained.
-    """
-
-    mode: str
-    reference: int
-    gammas: GammaEstimate
-    matrices: np.ndarray
-    alignment: Any
-    times: np.ndarray
-    curves: list = field(default_factory=list)
-    how: list = field(default_factory=list)
-    info: dict = field(default_factory=dict)
-
-    def linear_exposure(self, j: int) -> np.ndarray:
-        """Stabilised image j (eq. 10) scaled to exposure ``radiance * t_j`` for the merge engine, float32."""
-        lin = self.curves[j].lin(self.alignment.images[j])
-        m = self.matrices[j]
-        if self.mode == "reference":
-            m = m * (self.times[j] / self.times[self.reference])
-        return np.ascontiguousarray(lin @ m.T, dtype=np.float32)
-
-
-def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mode: str = "reference",
-              response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
-              path: str = "auto", block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW,
-              high: float = FIT_HIGH, floor: float = FIT_FLOOR, ransac_iter: int = 100,
-              seed: int = 0) -> Stabilization:
-    """Paper 1, Algorithm 1 steps 1-3 (reference, registration, per-image linearisation and
-    H_j), or the reference-free joint fit (``mode="joint"``).
-
-    ``response``: ``"power"`` -- paper 1's model, a display gamma per image
-    (:func:`estimate_gammas`; ``use_times=False`` estimates them blind); ``"curve"`` -- a
-    common non-parametric response (Debevec & Malik) with the per-image H_j on top
-    (:func:`_curve_model`; for cameras whose tone curve is not a power law, e.g. film or
-    filmic picture styles); ``"auto"`` (default) -- the power model unless
-    :func:`power_law_plausible` rejects its gammas, then the curve model (the choice and
-    the gamma trend are in ``info``). ``gammas`` (display gammas, one per image) skips the
-    estimation. Randomness follows ``seed``.
-    """
-    if not isinstance(stack, Stack):
-        raise InputError(f"stabilize() needs a Stack, got {type(stack).__name__}")
-    _check_modes(mode, response)
-    from derender.hdr.align import align_images
-    from derender.response.curves import check_usable
-
-    check_usable(stack)
-    t0 = time.perf_counter()
-    images = stack.images
-    n = stack.n
-    if reference is None:
-        ref = select_reference(images)
-    else:
-        ref = int(reference)
-        if not 0 <= ref < n:
-            raise InputError(f"reference image {reference} is out of range 0..{n - 1}")
-    al = align_images(images, method=align, reference=ref, seed=seed)
-    t1 = time.perf_counter()
-    stab = stabilize_aligned(al, stack.times, mode=mode, response=response, gammas=gammas, use_times=use_times,
-                             path=path, block=block, max_blocks=max_blocks, low=low, high=high, floor=floor,
-                             ransac_iter=ransac_iter, seed=seed)
-    stab.info["timings"] = {"align_s": t1 - t0, **stab.info["timings"]}
-    return stab
-
-
-def _check_modes(mode: str, response: str) -> None:
-    if mode not in ("reference", "joint"):
-        raise InputError(f"mode must be 'reference' or 'joint', got {mode!r}")
-    if response not in ("auto", "power", "curve"):
-        raise InputError(f"response must be 'auto', 'power' or 'curve', got {response!r}")
-
-
-def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", response: str = "auto",
-                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
-                      block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW, high: float = FIT_HIGH,
-                      floor: float = FIT_FLOOR, ransac_iter: int = 100, seed: int = 0,
-                      calibrate: Any = None) -> Stabilization:
-    """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
-
-    ``al`` is an :class:`derender.align.Alignment`, or a lazy equivalent with ``images``
-    and ``valid`` offering ``shape`` and ``pixels(j, ys, xs)`` (the streaming path of
-    :func:`derender.fastmerge.merge_files_fast`, which also passes ``calibrate``, see
-    :func:`_curve_model`). The reference is ``al.reference``.
-    """
-    _check_modes(mode, response)
-    t1 = time.perf_counter()
-    ref = int(al.reference)
-    times = np.asarray(times, dtype=np.float64)
-    n = times.shape[0]
-    blocks = _make_blocks(al.images, al.valid, block, max_blocks, seed, times)
-    info: dict = {}
-    if gammas is not None:
-        g = np.asarray(gammas, dtype=np.float64).reshape(-1)
-        if g.size != n or not np.all(np.isfinite(g)) or np.any(g <= 0):
-            raise InputError(f"gammas must be {n} positive numbers, got {np.asarray(gammas).tolist()}")
-        ge = GammaEstimate(gammas=g, method="given")
-        curves = [Curve(1.0, gamma=float(v)) for v in g]
-    else:
-        ge = curves = None
-        screened = False
-        if response == "auto":
-            # quick trend first: clearly filmic brackets skip the full exponent search, whose
-            # gammas power_law_plausible would reject anyway
-            quick = _screen_gamma_trend(blocks, times, low, high, floor)
-            info["screen_trend"] = quick
-            screened = abs(quick) > SCREEN_TREND
-            if screened:
-                info["gamma_trend"] = quick
-        if response == "power" or (response == "auto" and not screened):
-            ge = _estimate_gammas_blocks(blocks, times if use_times else None, low=low, high=high, floor=floor,
-                                         max_gap=2, prior_sd=0.1, min_blocks=12, base=2.2, bounds=(1.0, 4.0),
-                                         info={"block": block, "max_blocks": max_blocks})
-            curves = [Curve(1.0, gamma=float(v)) for v in ge.gammas]
-            info["gamma_trend"] = gamma_trend(ge.gammas, times)
-            info["response"] = "power"
-        if response == "curve" or (response == "auto" and (screened or not power_law_plausible(ge.gammas, times))):
-            cc, cinfo = _curve_model(blocks, al.images, times, low, high, floor, seed=seed, calibrate=calibrate)
-            if ge is not None:
-                cinfo["rejected_power_gammas"] = ge.gammas.tolist()
-            ge = GammaEstimate(gammas=np.array([c.effective_gamma for c in cc]), method="curve", info=cinfo)
-            curves = cc
-            info["response"] = "curve"
-    t2 = time.perf_counter()
-    if mode == "reference":
-        mats, how = color_matrices_to_reference(blocks, curves, ref, low=low, high=high, floor=floor,
-                                                path=path, seed=seed, n_iter=ransac_iter, times=times)
-    else:
-        mats = joint_color_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
-                                    n_iter=ransac_iter)
-        how = ["joint"] * n
-    t3 = time.perf_counter()
-    info["timings"] = {"response_s": t2 - t1, "matrices_s": t3 - t2}
-    return Stabilization(mode=mode, reference=ref, gammas=ge, matrices=mats, alignment=al, times=times,
-                         curves=curves, how=how, info=info)
-
-
-def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
-                     pixel_weights: np.ndarray | None = None) -> HDRResult:
-    """Paper 1, Algorithm 1 step 4: weighted average of the stabilised linear images through
-    :func:`derender.merge.merge_linear`. H_j mixes channels, so a pixel of image j gets one
-    weight for all channels, times its registration mask: the smallest trapezoid weight
-    of its three channels (every channel usable), or, for pixels that no image exposes
-    well in all channels, the trapezoid of the *brightest* channel. The latter keeps
-    saturated and out-of-gamut colours whose weakest channel renders as 0 in every
-    exposure (a blue sky behind a window), which would otherwise fall to the saturation
-    fallback. The engine's fallback (a pixel without any weight) sees the brightest
-    channel, so a pixel clipped everywhere takes the shortest exposure in all channels.
-    ``noise_weighting`` (default; beyond the paper's plain trapezoid) multiplies the weight
-    by the inverse variance of image j's radiance estimate for equal code noise,
-    ``t_j^2 / (dL_j/dJ)^2``: a dark code of a short exposure, inverted through a steep
-    curve, otherwise counts as much as a well-exposed one and dominates a linear average
-    with its noise. Linear result: the reference's colour rendering
-    (``mode="reference"``, radiance per second of the reference's exposure) or the common
-    average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
-    weights (normalised per pixel). 8-bit stacks with integer alignment and no
-    ``pixel_weights`` take the table path of :func:`derender.fastmerge.merge_stabilized_table` (same result to 1e-5)."""
-    from derender.engine.reference import merge_linear
-    from derender.engine.weights import get_weight
-
-    fast = merge_stabilized_table(stab, weight, noise_weighting) if pixel_weights is None else None
-    if fast is not None:
-        fast.info.update(stabilization_info(stab))
-        return fast
-
-    wfun = get_weight(weight)
-    al = stab.alignment
-    n, h = al.images.shape[0], al.images.shape[1]
-    lin = np.stack([stab.linear_exposure(j) for j in range(n)])
-    valid = al.valid.astype(np.float32)
-    # per image: all-channel weight (min over channels) and brightest-channel weight
-    w_all = np.stack([np.asarray(wfun(al.images[j]), np.float32).min(axis=-1) for j in range(n)]) * valid
-    w_max = np.stack([np.asarray(wfun(al.images[j].max(axis=-1)), np.float32) for j in range(n)]) * valid
-    use_all = w_all.sum(axis=0) > 0
-    wts = np.where(use_all[None], w_all, w_max)
-    if noise_weighting:
-        # inverse variance of the radiance estimate L_j / t_j for equal code noise:
-        # var ~ (dL/dJ)^2 / t_j^2 (mean over channels), normalised per pixel for range
-        inv = np.stack([stab.times[j] ** 2 / np.maximum(np.mean(stab.curves[j].dlin(al.images[j]) ** 2, axis=-1),
-                                                           1e-30) for j in range(n)])
-        inv = inv / np.maximum(inv.max(axis=0, keepdims=True), 1e-300)
-        wts = (wts * inv).astype(np.float32)
-    if pixel_weights is not None:
-        # extra per-image, per-pixel reliability (e.g. inverse relative variance of a de-rendering model)
-        pw = np.asarray(pixel_weights, dtype=np.float64)
-        if pw.shape != wts.shape or not np.all(np.isfinite(pw)) or np.any(pw < 0):
-            raise InputError(f"pixel_weights must be finite, non-negative, shape {wts.shape}")
-        pw = pw / np.maximum(pw.max(axis=0, keepdims=True), 1e-300)
-        wts = (wts * pw).astype(np.float32)
-    # the engine's saturation fallback then sees the brightest channel of each pixel
-    zmax = np.repeat(al.images.max(axis=-1, keepdims=True), 3, axis=-1)
-
-    def weight_fn(j: int, block: np.ndarray) -> np.ndarray:
-        if block.shape[0] != h:          # cannot happen with block_rows=h; keep the engine honest
-            raise RuntimeError("stabilized merge expects the whole image in one block")
-        return wts[j]
-
-    info = stabilization_info(stab)
-    return merge_linear(lin, stab.times, zmax, weight, weight_fn=weight_fn, channel_weights="min",
-                        domain="linear", block_rows=h, info=info)
-
-
-def stabilization_info(stab: Stabilization) -> dict:
-    """What a stabilised merge reports in ``HDRResult.info``."""
-    al = stab.alignment
-    info = {"reference": stab.reference, "gammas": stab.gammas.gammas.tolist(),
-            "gamma_method": stab.gammas.method, "matrices": stab.matrices.tolist(), "mode": stab.mode,
-            "how": stab.how, "align": al.method, "response": stab.info.get("response", "given"),
-            "gamma_trend": stab.info.get("gamma_trend")}
-    if al.shifts is not None:
-        info["shifts"] = al.shifts.tolist()
-    return info
-
-
-def _register(name: str):
-    from derender.hdr.registry import register_method
-
-    return register_method(name)
-
-
-@_register("stabilized")
-def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "mtb", response: str = "auto",
-                     gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
-                     weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
-                     max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0) -> HDRResult:
-    """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
-    gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering."""
-    t0 = time.perf_counter()
-    stab = stabilize(stack, reference=reference, align=align, mode="reference", response=response, gammas=gammas,
-                     use_times=use_times, path=path, block=block, max_blocks=max_blocks,
-                     ransac_iter=ransac_iter, seed=seed)
-    t1 = time.perf_counter()
-    res = stabilized_merge(stab, weight=weight, noise_weighting=noise_weighting)
-    res.info.update({"method": "stabilized", "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
-                                                             total_s=time.perf_counter() - t0)})
-    return res
-
-
-@_register("stabilized-joint")
-def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: str = "mtb",
-                           response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
-                           weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
-                           max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0) -> HDRResult:
-    """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
-    (:func:`joint_color_matrices`); ``reference`` only chooses the registration target."""
-    t0 = time.perf_counter()
-    stab = stabilize(stack, reference=reference, align=align, mode="joint", response=response, gammas=gammas,
-                     use_times=use_times, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter,
-                     seed=seed)
-    t1 = time.perf_counter()
-    res = stabilized_merge(stab, weight=weight, noise_weighting=noise_weighting)
-    res.info.update({"method": "stabilized-joint",
-                     "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
-                                     total_s=time.perf_counter() - t0)})
-    return res
 
 
 def reasonable_references(images: Any, max_bad: float = 0.5) -> list[int]:
