@@ -226,17 +226,10 @@ def merge_cmd(
         model_obj, used = resolve_model(model, images[0])
         typer.echo(f"de-rendering model: {used}", err=True)
         extra["model"] = model_obj
-    # 8-bit files stream (frame by frame or band by band, table merge, parallel EXR write);
-    # others: read_stack + merge
+    # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
     result = merge_files(images, parse_times(times) if times is not None else None, method,
-                              times_file=times_file, times_file_inverse=times_inverse, output=output, half=half,
-                              inputs=inputs, seed=seed, **extra)
-    if variance is not None:
-        if result.variance is None:
-            raise InputError(f"method {method!r} gives no variance")
-        from derender.io.exr import write_exr_fast
-
-        write_exr_fast(variance, result.variance, half=half, inputs=inputs + [output])
+                         times_file=times_file, times_file_inverse=times_inverse, output=output,
+                         variance_output=variance, half=half, inputs=inputs, seed=seed, **extra)
     if preview is not None:
         write_preview(preview, result.radiance, inputs=inputs)
     if mask is not None:

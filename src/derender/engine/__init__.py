@@ -8,8 +8,11 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "frames": ["NotStreamable", "prefetch", "FramePool", "read_frames"],
     "kernels": ["MERGE_TILE", "stabilized_merge_rows", "mtb_band_counts"],
-    "matrix": ["stabilized_output_bytes", "KERNEL_LOCK", "set_numba_threads", "warm_up_kernels"],
+    "matrix": ["merge_matrix_frames", "matrix_output_bytes", "stabilized_output_bytes", "KERNEL_LOCK", "set_numba_threads", "warm_up_kernels"],
     "reference": ["merge_linear"],
-    "tables": ["F32_MAX", "code_values", "weight_table", "curve_value_tables", "stack_codes_exact", "TableMerge", "merge_codes", "merge_curves_table"],
+    "tables": ["code_histograms", "F32_MAX", "code_values", "weight_table", "curve_value_tables", "stack_codes_exact", "TableMerge", "merge_codes", "merge_curves_table"],
     "weights": ["F32_MAX", "weight_hat", "weight_trapezoid", "weight_gaussian", "WEIGHTS", "get_weight"],
+    "gaussian": ["LogGaussianProduct", "merge_gaussian_frames"],
+    "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"],
+    "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "ENGINES"],
 })

@@ -12,12 +12,18 @@ cannot run two parallel kernels at once).
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 
-from derender.core.memory import N_CODES, thread_count
+from derender.core.memory import N_CODES, populated_zeros, thread_count
+from derender.core.types import HDRResult
+from derender.engine.plans import MatrixPlan
+from derender.engine.tables import code_values
 
 __all__ = [
+    "merge_matrix_frames",
+    "matrix_output_bytes",
     "stabilized_output_bytes",
     "KERNEL_LOCK",
     "set_numba_threads",
@@ -25,9 +31,13 @@ __all__ = [
 ]
 
 
-def stabilized_output_bytes(h: int, w: int) -> int:
-    """Bytes of the stabilised merge's outputs: planar float32 radiance and a uint8 mask."""
+def matrix_output_bytes(h: int, w: int) -> int:
+    """Bytes of the matrix kernel's outputs: planar float32 radiance and a uint8 mask."""
     return 13 * int(h) * int(w)
+
+
+#: The name the stabilised merge used for :func:`matrix_output_bytes`.
+stabilized_output_bytes = matrix_output_bytes
 
 
 #: Serialises launches of the parallel numba kernels (see :mod:`derender.kernels`).
@@ -65,3 +75,53 @@ def warm_up_kernels() -> threading.Thread:
     th = threading.Thread(target=run, name="derender-warm-up", daemon=True)
     th.start()
     return th
+
+
+def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray, valid: np.ndarray | None = None,
+                        threads: int | None = None, buffer: np.ndarray | None = None) -> HDRResult:
+    """Run a :class:`~derender.engine.plans.MatrixPlan` on held frames (N, H, W, 3) uint8.
+
+    Frame ``j`` is read through ``plan.shifts[j]`` and restricted to ``valid`` (N, H, W)
+    uint8 (None: everywhere). ``times`` (sorted or not) name the shortest and the longest
+    exposure for the saturation policy. ``buffer``: uint8 memory of at least
+    :func:`matrix_output_bytes` to hold the radiance and mask (the kernel writes every
+    pixel of both, so it need not be zero). The radiance is an (H, W, 3) view of planar
+    float32 memory; sums are float32 (2e-7 to 4e-7 relative to the float64 reference).
+    """
+    from derender.engine.kernels import stabilized_merge_rows
+
+    times = np.asarray(times, dtype=np.float64)
+    n = times.shape[0]
+    h, w = int(frames.shape[1]), int(frames.shape[2])
+    wt = np.ascontiguousarray(plan.weights, dtype=np.float32)
+    lin = np.ascontiguousarray(plan.values, dtype=np.float32)
+    mats64 = np.ascontiguousarray(plan.matrices, dtype=np.float64)
+    use_iv = plan.inverse_variance is not None
+    if use_iv:
+        inv_var = np.ascontiguousarray(plan.inverse_variance, dtype=np.float32)
+        inv_k = np.ascontiguousarray(plan.inverse_variance_k, dtype=np.float32)
+    else:
+        inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
+        inv_k = np.ones(n, dtype=np.float32)
+    bright = code_values() >= np.float32(0.5)
+    if valid is None:
+        valid = np.ones((n, 1, 1), dtype=np.uint8)
+    if buffer is not None and buffer.nbytes >= matrix_output_bytes(h, w):
+        flat = buffer.reshape(-1)
+        radiance = flat[:12 * h * w].view(np.float32).reshape(3, h, w)
+        mask = flat[12 * h * w:13 * h * w].reshape(h, w)
+    else:
+        radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
+        mask = populated_zeros((h, w), dtype=np.uint8)
+    t0 = time.perf_counter()
+    with KERNEL_LOCK:
+        set_numba_threads(threads)
+        stabilized_merge_rows(np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
+                              np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32),
+                              mats64, wt, inv_var, inv_k, use_iv, int(np.argmin(times)), int(np.argmax(times)),
+                              bright, 0, h, radiance, mask)
+    info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
+            "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
+            "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),
+            "merge_seconds": time.perf_counter() - t0}
+    return HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)

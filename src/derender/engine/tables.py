@@ -32,6 +32,7 @@ from derender.core.memory import N_CODES, import_cv2, opencv_single_thread, popu
 from derender.core.types import HDRResult, Stack
 
 __all__ = [
+    "code_histograms",
     "F32_MAX",
     "code_values",
     "weight_table",
@@ -480,3 +481,10 @@ def merge_curves_table(stack: Stack, curves, weight: Any = "gaussian", *, domain
                       contiguous=True)
     res.info["weight"] = weight if isinstance(weight, str) else "custom"
     return res
+
+
+def code_histograms(codes: np.ndarray) -> np.ndarray:
+    """Histograms (3, 256) int64 of the channels of an (H, W, 3) uint8 image."""
+    cv2 = import_cv2()
+    return np.stack([cv2.calcHist([codes], [c], None, [N_CODES], [0, N_CODES]).ravel().astype(np.int64)
+                     for c in range(3)])

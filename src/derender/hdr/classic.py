@@ -1,9 +1,15 @@
 """The classic merges: Debevec & Malik (1997) and Robertson, Borman & Stevenson (2003).
 
 Both recover one response curve per channel for the whole bracket
-(:mod:`derender.response`) and average the per-image radiance estimates with the
-engine (eq. 6 of Debevec & Malik in the log domain with hat weights; Robertson's ML
-estimate ``sum w t I / sum w t^2`` in the linear domain with Gaussian-like weights).
+(:mod:`derender.response`) and average the per-image radiance estimates on the engine
+(:mod:`derender.engine.run`): eq. 6 of Debevec & Malik in the log domain, Robertson's ML
+estimate ``sum w t I / sum w t^2`` in the linear domain. Both stream: the calibration
+reads the codes of sampled pixels (pass 1), the merge adds one frame at a time (pass 2),
+through 256-entry tables (:class:`~derender.engine.plans.TablePlan`).
+
+Stacks whose values are not 8-bit codes (16-bit TIFFs) have no table form: they go to
+the float reference engine (:func:`derender.engine.reference.merge_linear`), which is
+also what the table engine is tested against.
 """
 
 from __future__ import annotations
@@ -15,13 +21,105 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
+from derender.engine.plans import FrameAccess, TablePlan
 from derender.engine.reference import merge_linear
+from derender.engine.run import run_stack
+from derender.engine.tables import curve_value_tables, weight_table
 from derender.hdr.registry import register_method
+from derender.response.curves import (
+    DEFAULT_LAMBDA,
+    DEFAULT_SAMPLES,
+    check_usable,
+    check_usable_samples,
+    grid_positions,
+    histogram_samples,
+)
 
-__all__ = [
-    "merge_debevec",
-    "merge_robertson",
-]
+__all__ = ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"]
+
+
+class DebevecMethod:
+    """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables."""
+
+    name = "debevec"
+    holds_frames = False
+
+    def __init__(self, curves=None, lam: float | None = None, n_samples: int | None = None, sampling: str = "grid",
+                 seed: int = 0, weight: Any = "gaussian", domain: str = "log", channel_weights: str = "mean",
+                 block_rows: int | None = None, engine: str = "auto"):
+        self.curves = curves
+        self.lam = DEFAULT_LAMBDA if lam is None else float(lam)
+        self.n_samples = DEFAULT_SAMPLES if n_samples is None else int(n_samples)
+        self.sampling, self.seed = sampling, int(seed)
+        if sampling not in ("grid", "histogram"):
+            raise InputError(f"unknown sampling method {sampling!r}; use 'grid' or 'histogram'")
+        if self.n_samples < 1:
+            raise InputError(f"n_samples must be positive, got {self.n_samples}")
+        self.weight, self.domain, self.channel_weights = weight, domain, channel_weights
+        self.block_rows = block_rows
+        self.wants_histograms = sampling == "histogram"
+
+    def derive(self) -> None:
+        return None
+
+    def sample_positions(self, h: int, w: int):
+        return grid_positions(h, w, self.n_samples, self.seed) if self.sampling == "grid" else None
+
+    def plan(self, access: FrameAccess) -> TablePlan:
+        from derender.response.debevec1997 import calibrate_debevec_from_samples
+
+        samples = access.samples if self.sampling == "grid" else histogram_samples(access.histograms(),
+                                                                                   self.n_samples)
+        check_usable_samples(samples, access.histograms)
+        curves = self.curves
+        if curves is None:
+            curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, self.lam,
+                                                    self.n_samples, self.sampling, self.seed)
+        self.fitted = curves
+        return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
+                         weights=weight_table(self.weight), channel_weights=self.channel_weights,
+                         domain=self.domain, block_rows=self.block_rows)
+
+    def finish(self, result: HDRResult, access: FrameAccess) -> None:
+        result.info.update({"method": "debevec", "curves": self.fitted,
+                            "weight": self.weight if isinstance(self.weight, str) else "custom"})
+
+
+class RobertsonMethod:
+    """Robertson et al. (2003) on the engine: grid samples, iterative curves, the ML merge in tables."""
+
+    name = "robertson"
+    holds_frames = False
+    wants_histograms = False
+
+    def __init__(self, curves=None, n_iter: int = 30, max_pixels: int = 40_000, weight: Any = "gaussian",
+                 seed: int = 0, block_rows: int | None = None, engine: str = "auto"):
+        self.curves, self.n_iter, self.max_pixels = curves, int(n_iter), int(max_pixels)
+        self.weight, self.seed, self.block_rows = weight, int(seed), block_rows
+
+    def derive(self) -> None:
+        return None
+
+    def sample_positions(self, h: int, w: int):
+        from derender.response.robertson2003 import robertson_positions
+
+        return robertson_positions(h, w, self.max_pixels, self.seed)
+
+    def plan(self, access: FrameAccess) -> TablePlan:
+        from derender.response.robertson2003 import robertson_from_samples
+
+        check_usable_samples(access.samples, access.histograms)
+        curves = self.curves
+        if curves is None:
+            curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
+                                            max_pixels=self.max_pixels, weight=self.weight)
+        self.fitted = curves
+        return TablePlan(values=curve_value_tables(curves, access.times, "linear"), weights=weight_table(self.weight),
+                         image_weights=access.times ** 2, channel_weights="independent", domain="linear")
+
+    def finish(self, result: HDRResult, access: FrameAccess) -> None:
+        result.info.update({"method": "robertson", "curves": self.fitted,
+                            "weight": self.weight if isinstance(self.weight, str) else "custom"})
 
 
 def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
@@ -33,30 +131,15 @@ def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
     return lin
 
 
-_ENGINES = ("auto", "table", "reference")
+def _debevec_engine(opts: dict) -> DebevecMethod:
+    return DebevecMethod(**opts)
 
 
-def _table_engine(stack: Stack, curves, weight, engine: str, **kw: Any) -> HDRResult | None:
-    """Merge with the 8-bit table engine (:mod:`derender.fastmerge`) when ``engine`` allows it.
-
-    ``"auto"``: the table engine when every value of the stack is an 8-bit code / 255
-    (same result as :func:`merge_linear` to ~1e-6 relative, several times faster), else
-    None (the caller runs :func:`merge_linear`); ``"table"``: the table engine or an
-    :class:`InputError`; ``"reference"``: None.
-    """
-    if engine not in _ENGINES:
-        raise InputError(f"engine must be one of {', '.join(_ENGINES)}, got {engine!r}")
-    if engine == "reference":
-        return None
-    from derender.engine.tables import merge_curves_table
-
-    res = merge_curves_table(stack, curves, weight, **kw)
-    if res is None and engine == "table":
-        raise InputError("engine='table' needs an 8-bit stack (every value a code / 255)")
-    return res
+def _robertson_engine(opts: dict) -> RobertsonMethod:
+    return RobertsonMethod(**opts)
 
 
-@register_method("debevec")
+@register_method("debevec", engine=_debevec_engine)
 def merge_debevec(
     stack: Stack,
     curves=None,
@@ -72,7 +155,7 @@ def merge_debevec(
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
-    ``curves`` (a :class:`~derender.response.ResponseCurves`) skips the calibration
+    ``curves`` (a :class:`~derender.response.curves.ResponseCurves`) skips the calibration
     (which always uses the paper's hat weights). Merge defaults: eq. 6's log-domain
     average, with a Gaussian weight shared by the three channels of a pixel (the mean of
     the channel weights, as OpenCV's MergeDebevec shares them). ``weight="hat",
@@ -94,36 +177,30 @@ def merge_debevec(
     other two: shared weights avoid trusting them; the Gaussian weight trusts codes near
     the ends of the range (toe and shoulder of the tone curve) less than the hat does.
 
-    ``engine``: ``"auto"`` merges 8-bit stacks with 256-entry tables
-    (:mod:`derender.fastmerge`, equal to the reference to ~1e-6 relative; ``block_rows``
-    then does not apply), ``"reference"`` always uses :func:`merge_linear`.
+    ``engine``: ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to
+    the reference to ~1e-6 relative; ``block_rows`` then sets the engine's row blocks),
+    ``"table"`` insists on it, ``"reference"`` always uses :func:`merge_linear`.
     """
-    from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, check_usable
+    method = DebevecMethod(curves, lam, n_samples, sampling, seed, weight, domain, channel_weights, block_rows, engine)
+    res = run_stack(method, stack, engine)
+    if res is not None:
+        return res
     from derender.response.debevec1997 import calibrate_debevec
 
     check_usable(stack)
     t0 = time.perf_counter()
     if curves is None:
-        curves = calibrate_debevec(
-            stack,
-            lam=DEFAULT_LAMBDA if lam is None else lam,
-            n_samples=DEFAULT_SAMPLES if n_samples is None else n_samples,
-            sampling=sampling,
-            seed=seed,
-        )
+        curves = calibrate_debevec(stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed)
     t1 = time.perf_counter()
-    res = _table_engine(stack, curves, weight, engine, domain=domain, channel_weights=channel_weights)
-    if res is None:
-        res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
-                           channel_weights=channel_weights, domain=domain, block_rows=block_rows)
-        res.info["engine"] = "reference"
+    res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
+                       channel_weights=channel_weights, domain=domain, block_rows=block_rows)
     t2 = time.perf_counter()
-    res.info.update({"method": "debevec", "curves": curves,
+    res.info.update({"method": "debevec", "curves": curves, "engine": "reference",
                      "timings": {"calibrate_s": t1 - t0, "merge_s": t2 - t1}})
     return res
 
 
-@register_method("robertson")
+@register_method("robertson", engine=_robertson_engine)
 def merge_robertson(
     stack: Stack,
     curves=None,
@@ -136,9 +213,12 @@ def merge_robertson(
 ) -> HDRResult:
     """Robertson, Borman & Stevenson (2003): iterative ``f^-1`` and the ML merge ``sum w t I / sum w t^2``.
 
-    ``engine`` as in :func:`merge_debevec` (8-bit stacks use the table engine by default).
+    ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
-    from derender.response.curves import check_usable
+    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine)
+    res = run_stack(method, stack, engine)
+    if res is not None:
+        return res
     from derender.response.robertson2003 import calibrate_robertson
 
     check_usable(stack)
@@ -146,13 +226,9 @@ def merge_robertson(
     if curves is None:
         curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed)
     t1 = time.perf_counter()
-    res = _table_engine(stack, curves, weight, engine, domain="linear", channel_weights="independent",
-                        image_weights=stack.times ** 2)
-    if res is None:
-        res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
-                           image_weights=stack.times ** 2, domain="linear", block_rows=block_rows)
-        res.info["engine"] = "reference"
+    res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
+                       image_weights=stack.times ** 2, domain="linear", block_rows=block_rows)
     t2 = time.perf_counter()
-    res.info.update({"method": "robertson", "curves": curves,
+    res.info.update({"method": "robertson", "curves": curves, "engine": "reference",
                      "timings": {"calibrate_s": t1 - t0, "merge_s": t2 - t1}})
     return res

@@ -125,9 +125,12 @@ from typing import Any
 
 import numpy as np
 
-from derender.core.errors import InputError, StackError
+from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 from derender.derendering.models import model_camera_to_srgb
+from derender.engine.frames import NotStreamable
+from derender.engine.plans import FrameAccess, GaussianPlan
+from derender.engine.run import ArrayFrames, run
 from derender.hdr.registry import register_method
 
 __all__ = [
@@ -138,7 +141,8 @@ __all__ = [
     "saturation_mask",
     "finite_outputs",
     "check_options",
-    "merge_probabilistic_frames",
+    "ProbabilisticMethod",
+    "log_product_moments",
     "merge_stabilized_probabilistic",
 ]
 
@@ -239,7 +243,12 @@ def as_model(model: Any):
     return model
 
 
-@register_method("probabilistic", gives_variance=True)
+def _engine(opts: dict) -> "ProbabilisticMethod | None":
+    method = ProbabilisticMethod(opts)
+    return method if method.space == "log" else None
+
+
+@register_method("probabilistic", gives_variance=True, engine=_engine)
 def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colour_space: str = "linear_srgb",
                         censor: bool = True, seed: int = 0, space: str | None = None, floor: float = 0.0,
                         clip_code: int = 245, code_noise: float = CODE_NOISE) -> HDRResult:
@@ -258,19 +267,18 @@ def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colo
     model = as_model(model)
     if stack.bit_depth == 16:
         raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
-    space, a = check_options(model, target_time, colour_space, censor, space, floor, clip_code, code_noise)
+    opts = dict(model=model, target_time=target_time, colour_space=colour_space, censor=censor, seed=seed,
+                space=space, floor=floor, clip_code=clip_code, code_noise=code_noise)
+    method = ProbabilisticMethod(opts)
+    if method.space == "log":
+        return run(method, ArrayFrames(stack.codes(), stack.times))
     t0 = time.perf_counter()
     codes = stack.codes()
-    h, w = stack.shape
-    if space == "log":
-        mean0, var0 = _product_log(model, codes, stack.times, float(target_time), censor, float(floor), int(clip_code),
-                                   code_noise=float(code_noise))
-    else:
-        mean0, var0 = _product_linear(model, codes, stack.times, float(target_time), censor)
-    radiance, variance = finite_outputs(mean0, var0, a)
+    mean0, var0 = _product_linear(model, codes, stack.times, float(target_time), censor)
+    radiance, variance = finite_outputs(mean0, var0, method.a)
     return HDRResult(radiance=radiance, mask=saturation_mask(codes[0], codes[-1]), variance=variance,
-                     info=_info(model, colour_space, target_time, space, censor, floor, time.perf_counter() - t0,
-                               code_noise))
+                     info=_info(model, colour_space, target_time, "linear", censor, floor, time.perf_counter() - t0,
+                                code_noise))
 
 
 def _info(model, colour_space: str, target_time: float, space: str, censor: bool, floor: float,
@@ -332,64 +340,62 @@ def check_options(model, target_time: float, colour_space: str, censor: bool, sp
     return space, a
 
 
-def merge_probabilistic_frames(frames: list[np.ndarray], times: np.ndarray, model: Any, target_time: float = 1.0,
-                               colour_space: str = "linear_srgb", censor: bool = True, space: str | None = None,
-                               floor: float = 0.0, clip_code: int = 245, threads: int | None = None,
-                               band_rows: int = 32, seed: int = 0, code_noise: float = CODE_NOISE) -> HDRResult:
-    """:func:`merge_probabilistic` on 8-bit frames (uint8 (H, W, 3), sorted by time), band by band.
+class ProbabilisticMethod:
+    """Paper 2's probabilistic merge on the engine (log-space product; GP models).
 
-    The same numbers with the memory of the frames themselves: every distinct colour of
-    the bracket is de-rendered once (:func:`_log_tables` on the union of the frames'
-    colours), and bands of ``band_rows`` rows gather their tables and multiply the
-    exposures' Gaussians in ``threads`` threads. Log-space product only (GP models);
-    raw-space models go through :func:`merge_probabilistic`."""
-    from concurrent.futures import ThreadPoolExecutor
+    Every frame is held once as 8-bit codes; every distinct colour of the bracket is
+    de-rendered once (:func:`_log_tables` on the union of the frames' colours, in
+    chunks), and the engine's Gaussian kernel multiplies the exposures band by band
+    (:func:`derender.engine.gaussian.merge_gaussian_frames`). Raw-space models
+    (deterministic baselines) have no log-space Gaussians: :func:`merge_probabilistic`
+    multiplies them in memory (:func:`_product_linear`)."""
 
-    from derender.derendering.apply import ColourIndexBuilder
+    name = "probabilistic"
+    holds_frames = True
+    wants_histograms = False
 
-    model = as_model(model)
-    space, a = check_options(model, target_time, colour_space, censor, space, floor, clip_code, code_noise)
-    if space != "log":
-        raise InputError("the banded probabilistic merge needs a log-space model (gp)")
-    times = np.asarray(times, dtype=np.float64).reshape(-1)
-    if len(frames) < 2:
-        raise StackError("an exposure stack needs at least two images")
-    if len(frames) != times.shape[0] or not np.all(np.isfinite(times) & (times > 0)) or np.any(np.diff(times) < 0):
-        raise InputError("give one positive exposure time per frame, sorted by exposure time")
-    shape = frames[0].shape
-    if any(f.dtype != np.uint8 or f.shape != shape or f.ndim != 3 or f.shape[2] != 3 for f in frames):
-        raise InputError("frames must be uint8 RGB images (H, W, 3) of one size")
-    t0 = time.perf_counter()
-    builder = ColourIndexBuilder()
-    for f in frames:
-        builder.add(f)
-    index = builder.finish()
-    table = _log_planes(model, index.codes.astype(np.uint8), float(floor), int(clip_code), censor,
-                        code_noise=float(code_noise))
-    h, w = frames[0].shape[:2]
-    radiance = np.empty((h, w, 3), dtype=np.float32)
-    variance = np.empty((h, w, 3), dtype=np.float32)
-    mask = np.empty((h, w), dtype=np.uint8)
-    log_scales = [float(np.log(target_time / t)) for t in times]
+    def __init__(self, opts: dict):
+        self.model = as_model(opts.get("model"))
+        self.opts = opts
+        self.space, self.a = check_options(self.model, opts["target_time"], opts["colour_space"], opts["censor"],
+                                           opts["space"], opts["floor"], opts["clip_code"], opts["code_noise"])
 
-    def run(y0: int, y1: int) -> None:
-        prod = _LogProduct((y1 - y0, w))
-        for f, ls in zip(frames, log_scales):
-            prod.add_rows(table, index.rows(f[y0:y1]), ls)
-        radiance[y0:y1], variance[y0:y1] = finite_outputs(*prod.moments(censor), a)
-        mask[y0:y1] = saturation_mask(frames[0][y0:y1], frames[-1][y0:y1])
+    def derive(self) -> None:
+        return None
 
-    bands = [(y0, min(h, y0 + band_rows)) for y0 in range(0, h, band_rows)]
-    nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
-    if nthreads > 1 and len(bands) > 1:
-        with ThreadPoolExecutor(min(nthreads, len(bands)), thread_name_prefix="derender-prob") as ex:
-            list(ex.map(lambda b: run(*b), bands))
-    else:
-        for b in bands:
-            run(*b)
-    info = _info(model, colour_space, target_time, space, censor, floor, time.perf_counter() - t0, code_noise)
-    info["distinct_colours"] = int(index.packed.shape[0])
-    return HDRResult(radiance=radiance, mask=mask, variance=variance, info=info)
+    def sample_positions(self, h: int, w: int) -> None:
+        return None
+
+    def plan(self, access: FrameAccess) -> GaussianPlan:
+        from derender.derendering.apply import ColourIndexBuilder
+
+        if self.space != "log":
+            raise NotStreamable("raw-space product")
+        opts, a = self.opts, self.a
+        t0 = time.perf_counter()
+        builder = ColourIndexBuilder()
+        for f in access.frames:
+            builder.add(f)
+        index = builder.finish()
+        planes = _log_planes(self.model, index.codes.astype(np.uint8), float(opts["floor"]), int(opts["clip_code"]),
+                             opts["censor"], code_noise=float(opts["code_noise"]))
+        censor = bool(opts["censor"])
+        self.distinct = int(index.packed.shape[0])
+        self.t_plan = t0
+
+        def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return finite_outputs(*log_product_moments(prec, acc, bound, censor), a)
+
+        return GaussianPlan(planes=planes, index=index,
+                            log_scales=np.array([np.log(opts["target_time"] / t) for t in access.times]),
+                            moments=moments, mask=saturation_mask)
+
+    def finish(self, result: HDRResult, access: FrameAccess) -> None:
+        o = self.opts
+        info = _info(self.model, o["colour_space"], o["target_time"], self.space, o["censor"], o["floor"],
+                     time.perf_counter() - self.t_plan, o["code_noise"])
+        info["distinct_colours"] = self.distinct
+        result.info.update(info)
 
 
 def _product_linear(model, codes: np.ndarray, times: np.ndarray, target_time: float, censor: bool
@@ -476,44 +482,21 @@ def _log_tables(model, colours: np.ndarray, floor: float, clip_code: int, censor
     return lg, p, low
 
 
-class _LogProduct:
-    """Accumulators of the log-space product (eq. 3) for a block of pixels, channel planes (3, ...)."""
-
-    def __init__(self, shape: tuple[int, ...]):
-        self.prec = np.zeros((3, *shape), dtype=np.float64)
-        self.acc = np.zeros((3, *shape), dtype=np.float64)
-        self.bound = np.full((3, *shape), -np.inf)
-
-    def add_rows(self, planes: np.ndarray, rows: np.ndarray, log_scale: float) -> None:
-        """One exposure: ``planes`` (9, M) = ``[lg; p; low]`` per channel of its colours (from
-        :func:`_log_tables`, transposed), ``rows`` (...) the row of each pixel's colour, and
-        ``log(t_0 / t_i)``."""
-        t = np.empty(rows.shape, dtype=np.float64)
-        p = np.empty(rows.shape, dtype=np.float64)
-        for c in range(3):
-            np.take(planes[3 + c], rows, out=p, mode="clip")       # clip: rows are valid; unbuffered out
-            self.prec[c] += p
-            np.take(planes[c], rows, out=t, mode="clip")
-            t += log_scale
-            t *= p
-            self.acc[c] += t
-            np.take(planes[6 + c], rows, out=t, mode="clip")
-            t += log_scale
-            np.maximum(self.bound[c], t, out=self.bound[c])
-
-    def moments(self, censor: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Raw-space mean and variance (..., 3) of the (censored) log-normal product, camera RGB."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            v = np.where(self.prec > 0, 1.0 / self.prec, np.inf)
-            m = np.where(self.prec > 0, self.acc * v, 0.0)
-        if censor:
-            m, v = _truncate_below_log(m, v, self.bound)
-        m = np.clip(m, -_MAX_LOG, _MAX_LOG)
-        v = np.clip(v, 0.0, 60.0)
-        with np.errstate(over="ignore"):
-            mean0 = np.exp(m + 0.5 * v)
-            var0 = np.expm1(v) * np.exp(2.0 * m + v)
-        return np.moveaxis(mean0, 0, -1), np.moveaxis(var0, 0, -1)
+def log_product_moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, censor: bool
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Raw-space mean and variance (..., 3) of the (censored) log-normal product, camera RGB,
+    from the log-space sums of :class:`~derender.engine.gaussian.LogGaussianProduct` (3, ...)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.where(prec > 0, 1.0 / prec, np.inf)
+        m = np.where(prec > 0, acc * v, 0.0)
+    if censor:
+        m, v = _truncate_below_log(m, v, bound)
+    m = np.clip(m, -_MAX_LOG, _MAX_LOG)
+    v = np.clip(v, 0.0, 60.0)
+    with np.errstate(over="ignore"):
+        mean0 = np.exp(m + 0.5 * v)
+        var0 = np.expm1(v) * np.exp(2.0 * m + v)
+    return np.moveaxis(mean0, 0, -1), np.moveaxis(var0, 0, -1)
 
 
 def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
@@ -526,24 +509,6 @@ def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor
         for k, arr in enumerate(part):
             planes[3 * k:3 * k + 3, s:s + chunk] = arr.T
     return planes
-
-
-def _product_log(model, codes: np.ndarray, times: np.ndarray, target_time: float, censor: bool, floor: float,
-                 clip_code: int, per_channel: bool = True, code_noise: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 3 on the GP's log-space Gaussians (module docstring); raw-space mean and variance, camera RGB.
-
-    Each exposure's contribution is tabulated once per distinct colour (:func:`_log_tables`)
-    and gathered per pixel."""
-    from derender.derendering.apply import index_colours
-
-    n, h, w = codes.shape[:3]
-    index = index_colours(np.ascontiguousarray(codes).reshape(-1, w, 3))
-    table = _log_planes(model, index.codes.astype(np.uint8), floor, clip_code, censor, per_channel,
-                        code_noise=code_noise)
-    prod = _LogProduct((h, w))
-    for i in range(n):
-        prod.add_rows(table, index.rows(codes[i]), float(np.log(target_time / times[i])))
-    return prod.moments(censor)
 
 
 @register_method("stabilized-probabilistic")

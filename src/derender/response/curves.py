@@ -20,19 +20,19 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from derender.core.errors import InputError, StackError
-from derender.core.memory import N_CODES, import_cv2
+from derender.core.memory import N_CODES
 from derender.core.types import Stack
 from derender.engine.weights import get_weight, weight_hat
 
 __all__ = [
     "histogram_samples",
-    "code_histograms",
     "check_usable_histograms",
+    "check_usable_samples",
     "DEFAULT_LAMBDA",
     "DEFAULT_SAMPLES",
     "CHANNELS",
@@ -64,15 +64,16 @@ def histogram_samples(hists: np.ndarray, n_samples: int) -> np.ndarray:
     return out
 
 
-def code_histograms(codes: np.ndarray) -> np.ndarray:
-    cv2 = import_cv2()
-    return np.stack([cv2.calcHist([codes], [c], None, [N_CODES], [0, N_CODES]).ravel().astype(np.int64)
-                     for c in range(3)])
-
-
 def check_usable_histograms(hists: np.ndarray) -> None:
-    """:func:`derender.response.check_usable` from per-image histograms (N, 3, 256)."""
+    """:func:`check_usable` from per-image histograms (N, 3, 256)."""
     raise_unusable(hists[:, :, 1:N_CODES - 1].sum(axis=(0, 2)) > 0)
+
+
+def check_usable_samples(samples: np.ndarray, hists_fn: Callable[[], np.ndarray]) -> None:
+    """:func:`check_usable` from sampled codes (N, P, 3): they settle it unless some channel
+    shows no usable code among them, then the per-image histograms (``hists_fn()``) do."""
+    if not np.all(((samples > 0) & (samples < N_CODES - 1)).any(axis=(0, 1))):
+        check_usable_histograms(hists_fn())
 
 
 #: Smoothness weight lambda of the Debevec system (the data rows have hat weights <= 1).

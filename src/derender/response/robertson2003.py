@@ -27,6 +27,8 @@ from derender.response.curves import (
 
 __all__ = [
     "calibrate_robertson",
+    "robertson_positions",
+    "robertson_from_samples",
 ]
 
 
@@ -46,10 +48,23 @@ def calibrate_robertson(stack: Stack, n_iter: int = 30, tol: float = 1e-6, max_p
     stack = as_stack(stack)
     check_usable(stack, n_levels)
     n_img, h, w_, _ = stack.images.shape
-    ys, xs = grid_positions(h, w_, min(max_pixels, h * w_), seed, border=0.0)
+    ys, xs = robertson_positions(h, w_, max_pixels, seed)
     z = to_codes(stack.images[:, ys, xs, :], n_levels)  # (N, P, 3)
+    return robertson_from_samples(z, stack.times, n_iter=n_iter, tol=tol, max_pixels=max_pixels, weight=weight,
+                                  n_levels=n_levels)
+
+
+def robertson_positions(h: int, w: int, max_pixels: int = 40_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels :func:`calibrate_robertson` reads: at most ``max_pixels`` on a regular grid (no border)."""
+    return grid_positions(h, w, min(int(max_pixels), h * w), seed, border=0.0)
+
+
+def robertson_from_samples(z: np.ndarray, times: np.ndarray, n_iter: int = 30, tol: float = 1e-6,
+                           max_pixels: int = 40_000, weight: Any = "gaussian", n_levels: int = 256) -> ResponseCurves:
+    """:func:`calibrate_robertson` on sampled codes ``z`` (N, P, 3) int of a bracket with ``times`` (s)."""
+    times = np.asarray(times, dtype=np.float64)
     wl = level_weights(weight, n_levels)
-    t = stack.times[:, None, None]
+    t = times[:, None, None]
     wz = wl[z]
     wt = wz * t  # (N, P, 3)
     den = (wz * t * t).sum(axis=0)  # (P, 3), constant over iterations

@@ -44,5 +44,5 @@ from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "estimate": ["make_blocks", "estimate_gammas_blocks", "screen_gamma_trend", "curve_model", "REF_LOW", "REF_HIGH", "REF_PIXELS", "FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "exposure_fractions", "select_reference", "RIDGE", "Curve", "NARROW", "XATOL", "GammaEstimate", "estimate_gammas", "gamma_trend", "SCREEN_TREND", "power_law_plausible", "CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "unclipped_debevec", "fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices", "reasonable_references"],
-    "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_tables", "merge_stabilized_frames"],
+    "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],
 })

@@ -15,10 +15,16 @@ from typing import Any, Sequence
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.core.memory import N_CODES, populated_zeros
 from derender.core.types import HDRResult, Stack
-from derender.engine.matrix import KERNEL_LOCK, set_numba_threads, stabilized_output_bytes
-from derender.engine.tables import code_values, stack_codes_exact, weight_table
+from derender.engine.frames import NotStreamable
+from derender.engine.matrix import (
+    matrix_output_bytes,
+    merge_matrix_frames,
+    warm_up_kernels,
+)
+from derender.engine.plans import FrameAccess, MatrixPlan
+from derender.engine.run import run_stack
+from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
 from derender.hdr.stabilize.estimate import (
     FIT_FLOOR,
     FIT_HIGH,
@@ -35,49 +41,33 @@ from derender.hdr.stabilize.estimate import (
     power_law_plausible,
     screen_gamma_trend,
     select_reference,
+    unclipped_debevec,
 )
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
-           "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_tables",
-           "merge_stabilized_frames"]
+           "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
+           "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"]
 
 
-def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                           threads: int | None = None) -> HDRResult | None:
-    """:func:`derender.stabilize.stabilized_merge` on 8-bit codes (paper 1, Algorithm 1 step 4).
+def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
+                    shifts: np.ndarray | None = None) -> MatrixPlan | None:
+    """Paper 1, Algorithm 1 step 4 as the engine's :class:`~derender.engine.plans.MatrixPlan`.
 
     Image ``j`` contributes ``H'_j L_j(z) / t_j`` with the per-channel table
     ``L_j = stab.curves[j].lin`` on the 256 codes and the 3x3 matrix ``H'_j``
     (``H_j t_j / t_ref`` in reference mode, ``K_j`` in joint mode). One weight for all
-    channels, times the registration mask: the smallest channel weight where some
-    exposure has all channels usable, else the weight of the brightest channel; with
-    ``noise_weighting`` times ``t_j^2 / mean_c (dL_j/dJ)^2`` (the reference also divides
-    by the per-pixel maximum over images, a common factor that cancels). One compiled
-    pass per pixel (:func:`derender.kernels.stabilized_merge_rows`), float32 sums (every
-    sum is of a few same-sign weights; measured 2e-7 to 4e-7 relative to the float64
-    reference engine). Returns None when the aligned images are not 8-bit codes
-    (sub-pixel warps), so the caller keeps the reference path.
-    """
-    al = stab.alignment
-    codes = stack_codes_exact(al.images)
-    if codes is None:
-        return None
-    valid = getattr(al, "valid", None)
-    if valid is not None:
-        valid = np.asarray(valid)
-        valid = None if valid.all() else np.ascontiguousarray(valid, dtype=np.uint8)
-    return merge_stabilized_frames(stab, codes, np.zeros((codes.shape[0], 2), dtype=np.int64), valid,
-                                    weight, noise_weighting, threads)
-
-
-def stabilized_tables(stab, weight: Any, noise_weighting: bool):
-    """Per image: linearisation table (256, 3), matrix ``H'_j / t_j`` and inverse-variance table; None if unsupported."""
+    channels: the smallest channel weight where some exposure has all channels usable,
+    else the weight of the brightest channel; with ``noise_weighting`` times
+    ``t_j^2 / mean_c (dL_j/dJ)^2`` (the reference engine also divides by the per-pixel
+    maximum over images, a common factor that cancels). None when there is no table form
+    (noise weighting without per-image curves)."""
     times = np.asarray(stab.times, dtype=np.float64)
+    n = times.shape[0]
     z3 = np.repeat(code_values()[:, None], 3, axis=1)
     curves = list(getattr(stab, "curves", None) or [])
-    values, mats, ivs = [], [], []
+    values, mats, ivs, iks = [], [], [], []
     t2max = float(np.max(times ** 2))
-    for j in range(times.shape[0]):
+    for j in range(n):
         if curves:
             lin = np.asarray(curves[j].lin(z3), dtype=np.float64)
         else:  # power law of the gamma estimate (paper 1, eq. 4)
@@ -91,69 +81,204 @@ def stabilized_tables(stab, weight: Any, noise_weighting: bool):
             if not curves:
                 return None
             d2 = np.asarray(curves[j].dlin(z3), dtype=np.float64) ** 2
-            ivs.append((d2.astype(np.float32), times[j] ** 2 / t2max))  # common 1/t2max keeps float32 in range
-        else:
-            ivs.append(None)
-    return values, mats, ivs
+            ivs.append(d2.astype(np.float32) / np.float32(3.0))
+            iks.append(times[j] ** 2 / t2max)          # common 1/t2max keeps float32 in range
+    if shifts is None:
+        shifts = np.zeros((n, 2), dtype=np.int64)
+    return MatrixPlan(values=np.ascontiguousarray(np.stack(values), dtype=np.float32),
+                      matrices=np.ascontiguousarray(np.stack(mats), dtype=np.float64),
+                      weights=np.ascontiguousarray(weight_table(weight), dtype=np.float32),
+                      shifts=np.asarray(shifts, dtype=np.int64),
+                      inverse_variance=np.ascontiguousarray(np.stack(ivs), dtype=np.float32) if noise_weighting else None,
+                      inverse_variance_k=np.array(iks, dtype=np.float32) if noise_weighting else None)
 
 
-def merge_stabilized_frames(stab, frames: np.ndarray, shifts: np.ndarray, valid: np.ndarray | None,
-                             weight: Any, noise_weighting: bool, threads: int | None,
-                             buffer: np.ndarray | None = None) -> HDRResult | None:
-    """The stabilised merge of ``frames`` (N, H, W, 3) uint8, image ``j`` read shifted by
-    ``shifts[j]`` (dy, dx) (outside the frame it does not take part) and restricted to
-    ``valid`` (N, H, W) uint8 (None: everywhere), by :func:`derender.kernels.stabilized_merge_rows`.
-    ``buffer``: uint8 memory of at least :func:`stabilized_output_bytes` to hold the radiance
-    and mask (the kernel writes every pixel of both, so it need not be zero)."""
-    tables = stabilized_tables(stab, weight, noise_weighting)
-    if tables is None:
-        return None
-    from derender.engine.kernels import stabilized_merge_rows
+def _merge_info(stab, weight: Any, noise_weighting: bool) -> dict:
+    info = {"weight": weight if isinstance(weight, str) else "custom", "noise_weighting": bool(noise_weighting)}
+    info.update(stabilization_info(stab))
+    return info
 
-    values, mats, ivs = tables
+
+def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
+                           threads: int | None = None) -> HDRResult | None:
+    """:func:`stabilized_merge` of an in-memory :class:`Stabilization` on the engine's matrix
+    kernel (:func:`~derender.engine.matrix.merge_matrix_frames`): one compiled pass per pixel,
+    float32 sums (2e-7 to 4e-7 relative to the float64 reference engine), the registration
+    mask applied. None when the aligned images are not 8-bit codes (sub-pixel warps) or
+    there is no table form, so the caller keeps the reference engine."""
     al = stab.alignment
-    times = np.asarray(stab.times, dtype=np.float64)
-    n = times.shape[0]
-    h, w = int(frames.shape[1]), int(frames.shape[2])
-    wt = np.ascontiguousarray(weight_table(weight), dtype=np.float32)
-    lin = np.ascontiguousarray(np.stack(values), dtype=np.float32)
-    mats64 = np.ascontiguousarray(np.stack(mats), dtype=np.float64)
-    use_iv = bool(noise_weighting)
-    if use_iv:
-        inv_var = np.ascontiguousarray(np.stack([iv[0] / np.float32(3.0) for iv in ivs]), dtype=np.float32)
-        inv_k = np.array([iv[1] for iv in ivs], dtype=np.float32)
-    else:
-        inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
-        inv_k = np.ones(n, dtype=np.float32)
-    bright = code_values() >= np.float32(0.5)
-    if valid is None:
-        valid = np.ones((n, 1, 1), dtype=np.uint8)
-    if buffer is not None and buffer.nbytes >= stabilized_output_bytes(h, w):
-        flat = buffer.reshape(-1)
-        radiance = flat[:12 * h * w].view(np.float32).reshape(3, h, w)
-        mask = flat[12 * h * w:13 * h * w].reshape(h, w)
-    else:
-        radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
-        mask = populated_zeros((h, w), dtype=np.uint8)
-    t0 = time.perf_counter()
-    with KERNEL_LOCK:
-        set_numba_threads(threads)
-        stabilized_merge_rows(np.ascontiguousarray(frames), np.ascontiguousarray(shifts, dtype=np.int64),
-                              np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32),
-                              mats64, wt, inv_var, inv_k, use_iv, int(np.argmin(times)), int(np.argmax(times)),
-                              bright, 0, h, radiance, mask)
-    info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
-            "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
-            "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),
-            "weight": weight if isinstance(weight, str) else "custom",
-            "merge_seconds": time.perf_counter() - t0, "noise_weighting": bool(noise_weighting),
-            "reference": stab.reference, "gammas": np.asarray(stab.gammas.gammas).tolist(),
-            "gamma_method": getattr(stab.gammas, "method", None),
-            "matrices": np.asarray(stab.matrices).tolist(), "mode": stab.mode, "how": stab.how,
-            "align": getattr(al, "method", None)}
-    if getattr(al, "shifts", None) is not None:
-        info["shifts"] = np.asarray(al.shifts).tolist()
-    return HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
+    codes = stack_codes_exact(al.images)
+    if codes is None:
+        return None
+    plan = stabilized_plan(stab, weight, noise_weighting)
+    if plan is None:
+        return None
+    valid = getattr(al, "valid", None)
+    if valid is not None:
+        valid = np.asarray(valid)
+        valid = None if valid.all() else np.ascontiguousarray(valid, dtype=np.uint8)
+    res = merge_matrix_frames(codes, plan, stab.times, valid=valid, threads=threads)
+    res.info.update(_merge_info(stab, weight, noise_weighting))
+    return res
+
+
+class ShiftedFrames:
+    """8-bit frames seen through integer registration shifts, as the float images
+    :func:`derender.hdr.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
+    clip(x + dx)]``, codes as ``k * float32(1/255)``), without making them: ``shape`` and
+    ``pixels(j, ys, xs)`` for :func:`stabilize_aligned`; ``codes(j)`` gives the aligned
+    uint8 frame."""
+
+    def __init__(self, frames: np.ndarray, shifts: np.ndarray):
+        self.frames = frames
+        self.shifts = np.asarray(shifts, dtype=int)
+        h, w = frames[0].shape[:2]
+        self.shape = (len(frames), h, w, 3)
+        self.valid_view = ShiftedValid(self)
+
+    def _where(self, j: int, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h, w = self.shape[1:3]
+        dy, dx = self.shifts[j]
+        return np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+
+    def pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        yy, xx = self._where(j, ys, xs)
+        return code_values()[self.frames[j][yy, xx]]
+
+    def code_pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        yy, xx = self._where(j, ys, xs)
+        return self.frames[j][yy, xx]
+
+    def codes(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
+        from derender.hdr.align import shift_into
+
+        dy, dx = self.shifts[j]
+        if dy == 0 and dx == 0:
+            return self.frames[j]
+        out = np.empty_like(self.frames[j]) if out is None else out
+        shift_into(out, self.frames[j], int(dy), int(dx))
+        return out
+
+
+class ShiftedValid:
+    """Registration masks of :class:`ShiftedFrames` (``shape``, ``pixels``), never made whole."""
+
+    def __init__(self, frames: ShiftedFrames):
+        self.f = frames
+        self.shape = frames.shape[:3]
+
+    def pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        h, w = self.shape[1:3]
+        dy, dx = self.f.shifts[j]
+        return (ys + dy >= 0) & (ys + dy < h) & (xs + dx >= 0) & (xs + dx < w)
+
+
+@dataclass
+class LazyAlignment:
+    """What :func:`stabilize_aligned` reads of an :class:`~derender.hdr.align.Alignment`."""
+
+    images: ShiftedFrames
+    valid: ShiftedValid
+    transforms: np.ndarray
+    method: str
+    reference: int
+    shifts: np.ndarray
+    info: dict
+
+
+class StabilizedMethod:
+    """Paper 1's stabilised merge on the engine (methods ``"stabilized"`` and ``"stabilized-joint"``).
+
+    Every frame is held once as 8-bit codes (72 MB per 24 MP frame, a quarter of the
+    float image the reference path holds); Ward's grey images are made in the decoding
+    threads (registration, :func:`derender.hdr.align.chain_transforms`); the reference is
+    chosen on the codes as :func:`select_reference` does; the gamma / matrix fits read
+    only their sampled blocks through :class:`ShiftedFrames`; the Debevec curve (filmic
+    cameras) comes from grid samples of the aligned frames; the merge is the engine's
+    matrix kernel over all frames through their shifts. Same numbers as
+    :func:`stabilize` + :func:`stabilized_merge` on the same codes.
+    """
+
+    holds_frames = True
+    wants_histograms = False
+
+    def __init__(self, name: str, opts: dict):
+        align = opts.get("align", "mtb")
+        if align not in ("mtb", "none"):
+            raise NotStreamable(f"align={align!r} warps frames")
+        self.name, self.opts, self.align = name, opts, align
+        self.seed = int(opts.get("seed", 0))
+        self.output_bytes = matrix_output_bytes
+        warm_up_kernels()
+
+    def derive(self):
+        if self.align != "mtb":
+            return None
+        from derender.hdr.align import grey8_codes
+
+        return lambda frame, out: grey8_codes(frame, out=out)
+
+    def sample_positions(self, h: int, w: int) -> None:
+        return None
+
+    def plan(self, access: FrameAccess) -> MatrixPlan:
+        from derender.hdr.align import chain_transforms, transforms_to_shifts
+        from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, check_usable_samples, grid_positions
+        from derender.response.debevec1997 import calibrate_debevec_from_samples
+
+        opts, seed, frames, t = self.opts, self.seed, access.frames, access.times
+        n = access.n
+        h, w = access.shape
+        # response.check_usable: grid samples settle it, unless some channel shows no usable code there
+        ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
+        check_usable_samples(np.stack([f[ys, xs] for f in frames]), access.histograms)
+        t0 = time.perf_counter()
+        if opts.get("reference") is None:
+            ref = select_reference(frames)         # counts 8-bit codes against the code thresholds
+        else:
+            ref = int(opts["reference"])
+            if not 0 <= ref < n:
+                raise InputError(f"reference image {opts['reference']} is out of range 0..{n - 1}")
+        if self.align == "mtb":
+            transforms, ainfo = chain_transforms(access.planes, "mtb", ref, seed=seed, threads=access.threads)
+        else:
+            transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
+        shifts = transforms_to_shifts(transforms)
+        view = ShiftedFrames(frames, shifts)
+        al = LazyAlignment(images=view, valid=view.valid_view, transforms=transforms, method=self.align,
+                           reference=ref, shifts=shifts, info=ainfo)
+        t1 = time.perf_counter()
+
+        def calibrate():
+            cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed)
+            if cur is not None:
+                return cur
+            ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
+            samples = np.stack([view.code_pixels(j, ys, xs) for j in range(n)]).astype(np.int32)
+
+            def aligned_hists() -> np.ndarray:
+                return np.stack([code_histograms(np.ascontiguousarray(view.codes(j))) for j in range(n)])
+
+            return calibrate_debevec_from_samples(samples, t, aligned_hists, DEFAULT_LAMBDA, DEFAULT_SAMPLES, "grid",
+                                                  seed)
+
+        mode = "joint" if self.name == "stabilized-joint" else "reference"
+        stab = stabilize_aligned(al, t, mode=mode, response=opts["response"], gammas=opts["gammas"],
+                                 use_times=opts["use_times"], path=opts.get("path", "auto"), block=opts["block"],
+                                 max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"], seed=seed,
+                                 calibrate=calibrate)
+        self.stab = stab
+        self.align_s = t1 - t0
+        plan = stabilized_plan(stab, opts["weight"], opts["noise_weighting"], shifts=shifts)
+        if plan is None:
+            raise NotStreamable("no table form for these curves")
+        return plan
+
+    def finish(self, result: HDRResult, access: FrameAccess) -> None:
+        result.info.update(_merge_info(self.stab, self.opts["weight"], self.opts["noise_weighting"]))
+        result.info["method"] = self.name
+        timings = result.info.setdefault("timings", {})
+        timings.update({"align_s": self.align_s, **self.stab.info["timings"]})
 
 
 # --------------------------------------------------------------------------- driver
@@ -329,7 +454,6 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
 
     fast = merge_stabilized_table(stab, weight, noise_weighting) if pixel_weights is None else None
     if fast is not None:
-        fast.info.update(stabilization_info(stab))
         return fast
 
     wfun = get_weight(weight)
@@ -384,7 +508,16 @@ def stabilization_info(stab: Stabilization) -> dict:
 def _register(name: str):
     from derender.hdr.registry import register_method
 
-    return register_method(name)
+    return register_method(name, engine=lambda opts: StabilizedMethod(name, opts))
+
+
+def _on_engine(name: str, stack: Stack, opts: dict) -> HDRResult | None:
+    """The merge of an 8-bit stack on the engine (None: warped alignment or no 8-bit codes)."""
+    try:
+        method = StabilizedMethod(name, opts)
+    except NotStreamable:
+        return None
+    return run_stack(method, stack)
 
 
 @_register("stabilized")
@@ -393,7 +526,17 @@ def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "m
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                      max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
-    gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering."""
+    gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
+
+    8-bit stacks with translation-only alignment run on the engine
+    (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
+    reference engine (:func:`stabilize` + :func:`stabilized_merge`), same numbers to 1e-5."""
+    res = _on_engine("stabilized", stack, dict(reference=reference, align=align, response=response, gammas=gammas,
+                                               use_times=use_times, path=path, weight=weight,
+                                               noise_weighting=noise_weighting, block=block, max_blocks=max_blocks,
+                                               ransac_iter=ransac_iter, seed=seed))
+    if res is not None:
+        return res
     t0 = time.perf_counter()
     stab = stabilize(stack, reference=reference, align=align, mode="reference", response=response, gammas=gammas,
                      use_times=use_times, path=path, block=block, max_blocks=max_blocks,
@@ -411,7 +554,14 @@ def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: st
                            weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                            max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
-    (:func:`joint_color_matrices`); ``reference`` only chooses the registration target."""
+    (:func:`joint_color_matrices`); ``reference`` only chooses the registration target.
+    Runs on the engine as :func:`merge_stabilized` does."""
+    res = _on_engine("stabilized-joint", stack, dict(reference=reference, align=align, response=response,
+                                                     gammas=gammas, use_times=use_times, weight=weight,
+                                                     noise_weighting=noise_weighting, block=block,
+                                                     max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed))
+    if res is not None:
+        return res
     t0 = time.perf_counter()
     stab = stabilize(stack, reference=reference, align=align, mode="joint", response=response, gammas=gammas,
                      use_times=use_times, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter,

@@ -1,0 +1,139 @@
+"""What a merge method tells the engine: how each frame's codes become radiance, and with what weight.
+
+A method plugs into the engine (:func:`derender.engine.run.run`) by implementing
+:class:`EngineMethod`: it says how it needs the frames (streamed twice, or held once)
+and, once it has seen what it asked for (:class:`FrameAccess`), returns one of three
+*plans*; the engine does everything else (decoding, shifts, bands, accumulation,
+saturation policy, masks, outputs) and calls :meth:`EngineMethod.finish` on the result.
+
+* :class:`TablePlan` -- per-channel 256-entry tables per frame: the value ``v_j(z)``
+  each code contributes (Debevec & Malik 1997, eq. 6: ``g(z) - ln t_j`` in the log
+  domain, ``f^-1(z) / t_j`` in the linear one) and its weight ``w(z)``. Run by
+  :class:`~derender.engine.tables.TableMerge` (OpenCV LUTs, row blocks in threads);
+  streams: the frames need not be in memory together.
+* :class:`MatrixPlan` -- per-channel linearisation tables, a 3x3 matrix per frame, an
+  optional inverse-variance table and integer registration shifts (paper 1, eq. 10).
+  Run by :func:`~derender.engine.matrix.merge_matrix_frames` (one compiled pass per
+  pixel over all held frames).
+* :class:`GaussianPlan` -- a Gaussian per distinct colour (log-space mean, precision and
+  censoring bound) and a scale per frame (paper 2, eq. 3). Run by
+  :func:`~derender.engine.gaussian.merge_gaussian_frames` (bands of rows in threads).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"]
+
+
+@dataclass
+class FrameAccess:
+    """What a method's :meth:`~EngineMethod.plan` can read of the bracket (sorted by time).
+
+    ``samples``: (N, P, 3) int32 codes at the method's :meth:`~EngineMethod.sample_positions`
+    (streamed methods); ``frames``: (N, H, W, 3) uint8 (held methods); ``planes``: the
+    per-frame uint8 planes of :meth:`~EngineMethod.derive` (held methods, else None).
+    :meth:`histograms` gives the per-frame code histograms (N, 3, 256), computed on
+    first use (from the held frames, or by decoding the frames again).
+    """
+
+    times: np.ndarray
+    shape: tuple[int, int]
+    samples: np.ndarray | None = None
+    frames: np.ndarray | None = None
+    planes: np.ndarray | None = None
+    histogram_fn: Callable[[], np.ndarray] | None = None
+    threads: int | None = None
+    info: dict = field(default_factory=dict)
+    _hists: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.times.shape[0])
+
+    def histograms(self) -> np.ndarray:
+        if self._hists is None:
+            self._hists = self.histogram_fn()
+        return self._hists
+
+
+@dataclass
+class TablePlan:
+    """Per-channel tables of every frame (see the module docstring).
+
+    ``values`` (N, 256, 3) float32; ``weights`` (256, 3) or (N, 256, 3); ``image_weights``
+    (N,) multiplies frame j's weights; ``channel_weights`` and ``domain`` as
+    :class:`~derender.engine.tables.TableMerge`.
+    """
+
+    values: np.ndarray
+    weights: np.ndarray
+    image_weights: np.ndarray | None = None
+    channel_weights: str = "mean"
+    domain: str = "log"
+    block_rows: int | None = None
+
+    def weight_of(self, j: int) -> np.ndarray:
+        w = np.asarray(self.weights)
+        return w[j] if w.ndim == 3 else w
+
+
+@dataclass
+class MatrixPlan:
+    """Linearisation tables (N, 256, 3) float32, matrices (N, 3, 3) (frame j contributes
+    ``matrices[j] @ values[j](z)``), a weight table (256, 3), an optional inverse-variance
+    table (N, 256, 3) with per-frame factors (N,), and registration shifts (N, 2) (dy, dx):
+    frame j is read at ``(y + dy, x + dx)``; outside the frame it does not take part."""
+
+    values: np.ndarray
+    matrices: np.ndarray
+    weights: np.ndarray
+    shifts: np.ndarray
+    inverse_variance: np.ndarray | None = None
+    inverse_variance_k: np.ndarray | None = None
+
+
+@dataclass
+class GaussianPlan:
+    """Per distinct colour of the bracket, what one observation contributes to the product of
+    Gaussians (paper 2, eq. 3), before its frame's scale: ``planes`` (9, M) float64 =
+    ``[mean; precision; censoring bound]`` per channel; ``index`` maps a block of codes to
+    rows of ``planes`` (:class:`derender.derendering.apply.ColourIndex`); ``log_scales`` (N,)
+    is added to means and bounds of frame j; ``moments(prec, acc, bound)`` turns the
+    accumulated sums of a band (3, rows, W) into (mean, variance) (rows, W, 3) float32;
+    ``mask(short_codes, long_codes)`` gives the result mask of a band."""
+
+    planes: np.ndarray
+    index: Any
+    log_scales: np.ndarray
+    moments: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    mask: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    band_rows: int = 32
+
+
+class EngineMethod(Protocol):
+    """A merge method as the engine runs it.
+
+    ``name``; ``holds_frames``: True if :meth:`plan` needs every frame in memory (as one
+    (N, H, W, 3) uint8 array), False to stream (frames decoded one at a time, twice);
+    :meth:`derive` (held methods): ``fn(frame, out)`` computing one uint8 plane per frame
+    in the decoding threads, or None; :meth:`sample_positions` (streamed methods): the
+    pixels whose codes the calibration reads, or None; ``wants_histograms``: streamed
+    methods that calibrate from code histograms get them in the first pass.
+    """
+
+    name: str
+    holds_frames: bool
+    wants_histograms: bool
+
+    def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None: ...
+
+    def sample_positions(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray] | None: ...
+
+    def plan(self, access: FrameAccess) -> TablePlan | MatrixPlan | GaussianPlan: ...
+
+    def finish(self, result: Any, access: FrameAccess) -> None: ...

@@ -1,0 +1,306 @@
+"""The one merge engine: every method runs through :func:`run`.
+
+A method (:class:`~derender.engine.plans.EngineMethod`) says how it needs the frames and
+returns a plan; :func:`run` does the rest, for files (:class:`FileFrames`, decoded with
+:func:`derender.io.images.read_codes`) and in-memory 8-bit stacks (:class:`ArrayFrames`)
+alike, so the two give the same numbers by construction:
+
+* **streamed** methods (``holds_frames=False``, e.g. Debevec & Malik, Robertson): pass 1
+  decodes each frame (in threads, in time order), keeps the codes at the method's sample
+  positions (and the frame histograms if asked) and holds on to the last frames that fit
+  ``keep_bytes``; the method calibrates and returns a
+  :class:`~derender.engine.plans.TablePlan`; pass 2 decodes the other frames again,
+  longest exposure first, and accumulates them with
+  :class:`~derender.engine.tables.TableMerge`. Memory: the accumulators (32 bytes per pixel
+  for Debevec's defaults), the mask and a few frames, whatever the number of exposures.
+* **held** methods (``holds_frames=True``: paper 1's stabiliser, which registers and
+  samples the frames; paper 2's probabilistic merge, which de-renders every distinct
+  colour once): every frame is decoded once into one (N, H, W, 3) uint8 array (plus the
+  method's derived planes, e.g. grey images for registration, made in the decoding
+  threads); the plan then runs on the held codes
+  (:func:`~derender.engine.matrix.merge_matrix_frames`,
+  :func:`~derender.engine.gaussian.merge_gaussian_frames`, or the table engine).
+
+:func:`run` writes the radiance (and the variance) to OpenEXR when asked
+(:func:`derender.io.exr.write_exr_fast`, blocks of lines compressed in threads).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from derender.core.errors import InputError, StackError
+from derender.core.memory import N_CODES, populated_zeros, thread_count
+from derender.core.types import HDRResult, Stack
+from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
+from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
+from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
+from derender.io.exr import write_exr_fast
+from derender.io.images import read_codes
+
+__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "ENGINES"]
+
+#: ``engine=`` choices of the in-memory merge methods.
+ENGINES = ("auto", "table", "reference")
+
+
+class FileFrames:
+    """8-bit frames of image files, sorted by exposure time (``times`` in the order of ``paths``).
+
+    Decoding a 16-bit file raises :class:`~derender.engine.frames.NotStreamable` (the caller
+    falls back to the float reference engine)."""
+
+    def __init__(self, paths: Sequence[str | os.PathLike], times: Sequence[float]):
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        order = np.argsort(t, kind="stable")
+        self.paths = [Path(paths[i]) for i in order]
+        self.times = t[order]
+
+    @property
+    def n(self) -> int:
+        return len(self.paths)
+
+    def name(self, j: int) -> str:
+        return self.paths[j].name
+
+    def read(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
+        codes = read_codes(self.paths[j], out=out)
+        if codes is None:
+            raise NotStreamable("16-bit input")
+        return codes
+
+    def read_all(self, threads: int | None, derive=None, derive_alloc=None) -> tuple[np.ndarray, np.ndarray | None]:
+        return read_frames(self.paths, threads, derive=derive, derive_alloc=derive_alloc)
+
+
+class ArrayFrames:
+    """In-memory 8-bit frames (N, H, W, 3) uint8 with their times (sorted here by time)."""
+
+    def __init__(self, codes: np.ndarray, times: Sequence[float]):
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        codes = np.asarray(codes)
+        if codes.dtype != np.uint8 or codes.ndim != 4 or codes.shape[-1] != 3 or codes.shape[0] != t.size:
+            raise InputError(f"frames must be (N, H, W, 3) uint8 with one time each, got {codes.dtype} {codes.shape}")
+        order = np.argsort(t, kind="stable")
+        self.codes = codes if np.all(order == np.arange(t.size)) else codes[order]
+        self.times = t[order]
+
+    @property
+    def n(self) -> int:
+        return int(self.codes.shape[0])
+
+    def name(self, j: int) -> str:
+        return f"frame {j}"
+
+    def read(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
+        return self.codes[j]
+
+    def read_all(self, threads: int | None, derive=None, derive_alloc=None) -> tuple[np.ndarray, np.ndarray | None]:
+        if self.n < 2:
+            raise StackError("an exposure stack needs at least two images")
+        frames = np.ascontiguousarray(self.codes)
+        planes = None
+        if derive is not None:
+            n_plane = int(np.prod(frames.shape[:3]))
+            mem = (populated_zeros(n_plane, np.uint8) if derive_alloc is None
+                   else derive_alloc(*frames.shape[1:3], n_plane))
+            planes = mem.reshape(-1)[:n_plane].reshape(frames.shape[:3])
+            for j in range(self.n):
+                derive(frames[j], planes[j])
+        return frames, planes
+
+
+def _size_error(source, shape: tuple, j: int, got: tuple) -> InputError:
+    return InputError(f"images differ in size: {source.name(0)} is {shape[1]}x{shape[0]}, "
+                      f"{source.name(j)} is {got[1]}x{got[0]}")
+
+
+def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames: int | None,
+                  keep_bytes: int) -> HDRResult:
+    n = source.n
+    if n < 2:
+        raise StackError("an exposure stack needs at least two images")
+    t = source.times
+    t0 = time.perf_counter()
+    shape = None
+    samples = None
+    hists = np.zeros((n, 3, N_CODES), dtype=np.int64) if method.wants_histograms else None
+    kept: dict[int, np.ndarray] = {}
+    keep = keep_frames
+    ys = xs = None
+    nthreads = thread_count(threads)
+    pool = FramePool()
+    for j, codes in enumerate(prefetch(lambda i: source.read(i, out=pool.get()), range(n), depth=nthreads,
+                                       workers=nthreads)):
+        if shape is None:
+            shape = pool.shape = codes.shape
+            h, w = shape[:2]
+            if keep is None:
+                keep = int(keep_bytes // max(codes.nbytes, 1))
+            keep = int(min(max(keep, 1), n))
+            pos = method.sample_positions(h, w)
+            if pos is not None:
+                ys, xs = pos
+                samples = np.empty((n, ys.size, 3), dtype=np.int32)
+        elif codes.shape != shape:
+            raise _size_error(source, shape, j, codes.shape)
+        if samples is not None:
+            samples[j] = codes[ys, xs]
+        if hists is not None:
+            hists[j] = code_histograms(codes)
+        if j >= n - keep:
+            kept[j] = codes
+        else:
+            pool.put(codes)
+        del codes
+    t1 = time.perf_counter()
+
+    def histograms() -> np.ndarray:
+        if hists is not None:
+            return hists
+        return np.stack([code_histograms(kept[j] if j in kept else source.read(j)) for j in range(n)])
+
+    access = FrameAccess(times=t, shape=shape[:2], samples=samples, histogram_fn=histograms, threads=threads)
+    plan = method.plan(access)
+    if not isinstance(plan, TablePlan):
+        raise TypeError(f"a streamed method must return a TablePlan, {method.name} returned {type(plan).__name__}")
+    t2 = time.perf_counter()
+    h, w = shape[:2]
+    order = list(range(n - 1, -1, -1))      # longest exposure first: kept frames need no decoding
+    long_codes = short_codes = None
+    iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
+
+    def load(j: int) -> np.ndarray:
+        return kept[j] if j in kept else source.read(j, out=pool.get())
+
+    with TableMerge((h, w), channel_weights=plan.channel_weights, domain=plan.domain, threads=threads,
+                    block_rows=plan.block_rows) as eng:
+        for j, codes in zip(order, prefetch(load, order)):
+            if codes.shape != shape:
+                raise InputError(f"{source.name(j)} changed while merging")
+            eng.add(codes, plan.values[j], plan.weight_of(j), image_weight=float(iw[j]))
+            kept.pop(j, None)
+            if j == n - 1:
+                long_codes = codes
+            elif j == 0:
+                short_codes = codes
+            else:
+                pool.put(codes)
+            del codes
+        t3 = time.perf_counter()
+        res = eng.finish((short_codes, plan.values[0]), (long_codes, plan.values[n - 1]))
+    t4 = time.perf_counter()
+    res.info.update({
+        "merge_seconds": t4 - t2,
+        "timings": {"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2, "finish_s": t4 - t3},
+        "streaming": {"frames_kept": keep, "decodes": n + n - keep},
+    })
+    method.finish(res, access)
+    return res
+
+
+def _run_held(method: EngineMethod, source, threads: int | None) -> HDRResult:
+    t0 = time.perf_counter()
+    held: dict = {}
+    out_bytes = getattr(method, "output_bytes", None)
+
+    def derive_alloc(h: int, w: int, nbytes: int) -> np.ndarray:
+        # the derived planes' memory is reused for the outputs once the plan is made: fresh
+        # memory costs 0.5-3 ms/MB here (page population), 216 MB of it per 24 MP bracket
+        extra = out_bytes(h, w) if out_bytes is not None else 0
+        held["buffer"] = populated_zeros(max(nbytes, extra), np.uint8)
+        return held["buffer"]
+
+    frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
+    t1 = time.perf_counter()
+    access = FrameAccess(times=source.times, shape=frames.shape[1:3], frames=frames, planes=planes, threads=threads,
+                         histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]))
+    del planes
+    plan = method.plan(access)
+    access.planes = None
+    t2 = time.perf_counter()
+    buffer = held.pop("buffer", None)
+    if isinstance(plan, MatrixPlan):
+        from derender.engine.matrix import merge_matrix_frames
+
+        res = merge_matrix_frames(frames, plan, source.times, threads=threads, buffer=buffer)
+    elif isinstance(plan, GaussianPlan):
+        from derender.engine.gaussian import merge_gaussian_frames
+
+        res = merge_gaussian_frames(frames, plan, threads=threads)
+    elif isinstance(plan, TablePlan):
+        from derender.engine.tables import merge_codes
+
+        res = merge_codes(frames, source.times, plan.values, plan.weights, image_weights=plan.image_weights,
+                          channel_weights=plan.channel_weights, domain=plan.domain, threads=threads,
+                          block_rows=plan.block_rows, contiguous=False)
+    else:
+        raise TypeError(f"{method.name} returned an unknown plan {type(plan).__name__}")
+    del buffer
+    t3 = time.perf_counter()
+    res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "plan_s": t2 - t1, "merge_s": t3 - t2})
+    res.info["streaming"] = {"frames_kept": source.n, "decodes": source.n if isinstance(source, FileFrames) else 0}
+    method.finish(res, access)
+    return res
+
+
+def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
+                  variance_output: str | os.PathLike | None = None, *, half: bool = False, compression: str = "zip",
+                  inputs: Iterable[str | os.PathLike] = (), threads: int | None = None, name: str = "this method") -> None:
+    """Write a result's radiance (and variance) to OpenEXR (:func:`derender.io.exr.write_exr_fast`)."""
+    inputs = list(inputs)
+    if variance_output is not None and res.variance is None:
+        raise InputError(f"method {name!r} gives no variance")
+    if output is not None:
+        tw = time.perf_counter()
+        write_exr_fast(output, res.radiance, half=half, inputs=inputs, compression=compression, threads=threads)
+        res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
+    if variance_output is not None:
+        write_exr_fast(variance_output, res.variance, half=half, inputs=inputs + ([output] if output else []),
+                       compression=compression, threads=threads)
+
+
+def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,
+        keep_frames: int | None = None, keep_bytes: int = 256 << 20, output: str | os.PathLike | None = None,
+        variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
+        inputs: Iterable[str | os.PathLike] = ()) -> HDRResult:
+    """Merge ``source`` with ``method`` (see the module docstring); optionally write the
+    radiance to ``output`` and the variance to ``variance_output`` (OpenEXR).
+
+    ``keep_frames`` (streamed methods): frames held between the passes (default: as many
+    as fit in ``keep_bytes``, at least 1). Raises
+    :class:`~derender.engine.frames.NotStreamable` for inputs without 8-bit codes.
+    """
+    t0 = time.perf_counter()
+    if method.holds_frames:
+        res = _run_held(method, source, threads)
+    else:
+        res = _run_streamed(method, source, threads, keep_frames, keep_bytes)
+    res.info["engine_path"] = "streaming"
+    write_outputs(res, output, variance_output, half=half, compression=compression, inputs=inputs, threads=threads,
+                  name=method.name)
+    res.info["total_seconds"] = time.perf_counter() - t0
+    return res
+
+
+def run_stack(method, stack: Stack, engine: str = "auto") -> HDRResult | None:
+    """Run an engine ``method`` on an in-memory stack when its values are 8-bit codes; None
+    when they are not (or ``engine="reference"``), so the caller uses the reference engine."""
+    if engine not in ENGINES:
+        raise InputError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    if engine == "reference":
+        return None
+    codes = None if stack.bit_depth == 16 else stack_codes_exact(stack.images)
+    if codes is None:
+        if engine == "table":
+            raise InputError("engine='table' needs an 8-bit stack (every value a code / 255)")
+        return None
+    try:
+        return run(method, ArrayFrames(codes, stack.times))
+    except NotStreamable:
+        return None
