@@ -113,11 +113,52 @@ print(json.dumps({"inner_s": time.perf_counter() - t1}))
 """
 
 
+#: Runs a Python child (``-c CODE`` or ``-m MODULE`` and its arguments) and reports, at its exit, its
+#: own peak RSS (``VmHWM`` of ``/proc/self/status``). The parent cannot ask the kernel: a forked
+#: child's ``ru_maxrss`` (``wait4``) starts from the parent's RSS at fork and keeps it through exec,
+#: so every small child reported the benchmark runner's own ~290 MB (issue 15).
+_PEAK_WRAPPER = r"""
+import atexit, runpy, sys
+
+def _peak():
+    try:
+        with open("/proc/self/status") as fh:
+            kb = next(int(line.split()[1]) for line in fh if line.startswith("VmHWM:"))
+        sys.stderr.write(f"\n__DERENDER_PEAK_RSS_KB__ {kb}\n")
+        sys.stderr.flush()
+    except (OSError, StopIteration):
+        pass
+
+atexit.register(_peak)
+mode, target, *rest = sys.argv[1:]
+if mode == "-m":
+    sys.argv = [target, *rest]
+    runpy.run_module(target, run_name="__main__", alter_sys=True)
+else:
+    sys.argv = ["-c", *rest]
+    exec(compile(target, "<benchmark worker>", "exec"), {"__name__": "__main__"})
+"""
+
+
+def peak_rss_kb(stderr: str) -> int | None:
+    """The child's own peak RSS (kB) reported by :data:`_PEAK_WRAPPER`, or None."""
+    import re
+
+    found = re.findall(r"__DERENDER_PEAK_RSS_KB__ (\d+)", stderr)
+    return int(found[-1]) if found else None
+
+
 def _run_measured(cmd: list[str], cwd: str | os.PathLike | None = None) -> dict:
-    """Run ``cmd``; wall time, exit code, stdout/stderr tails and the child's peak RSS (``wait4``)."""
+    """Run ``cmd``; wall time, exit code, stdout/stderr tails, CPU time (``wait4``) and the peak RSS.
+
+    A Python child (``python -c CODE ...`` or ``python -m MODULE ...``) runs under
+    :data:`_PEAK_WRAPPER`, which reports the child's own ``VmHWM``; other commands fall back
+    to ``wait4``'s ``ru_maxrss``, which includes the runner's RSS at fork time."""
+    wrapped = (len(cmd) >= 3 and cmd[1] in ("-c", "-m"))
+    run_cmd = [cmd[0], "-c", _PEAK_WRAPPER, *cmd[1:]] if wrapped else cmd
     with tempfile.TemporaryFile() as fo, tempfile.TemporaryFile() as fe:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=fo, stderr=fe, cwd=cwd)
+        proc = subprocess.Popen(run_cmd, stdout=fo, stderr=fe, cwd=cwd)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
         proc.returncode = os.waitstatus_to_exitcode(status)
@@ -125,7 +166,11 @@ def _run_measured(cmd: list[str], cwd: str | os.PathLike | None = None) -> dict:
         fe.seek(0)
         out = fo.read().decode("utf-8", "replace")
         err = fe.read().decode("utf-8", "replace")
-    return {"returncode": proc.returncode, "wall_s": wall, "peak_rss_mb": usage.ru_maxrss / 1024.0,
+    own = peak_rss_kb(err) if wrapped else None
+    err = err.replace(f"\n__DERENDER_PEAK_RSS_KB__ {own}\n", "\n") if own is not None else err
+    peak = own / 1024.0 if own is not None else usage.ru_maxrss / 1024.0
+    return {"returncode": proc.returncode, "wall_s": wall, "peak_rss_mb": peak,
+            "peak_rss_source": "VmHWM (child)" if own is not None else "wait4 ru_maxrss",
             "cpu_s": usage.ru_utime + usage.ru_stime, "stdout": out[-2000:], "stderr": err[-2000:]}
 
 
