@@ -266,18 +266,23 @@ def evaluate(
     result: Path = typer.Argument(..., help="Radiance map to score (.exr or .hdr)."),
     truth: Path = typer.Argument(..., help="Ground truth radiance map (.exr or .hdr)."),
     remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
+    fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale'."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """PSNR on R, G, B and luminance L after the protocol of DESIGN.md (scale fitted per plane)."""
-    from derender.evaluation.metrics import psnr_rgbl
+    """PSNR on R, G, B and luminance L (scale fitted per plane), per-pixel relative error
+    (median, p90, after a 3x3 fit weighted 1/||g||^2) and log-luminance PSNR."""
+    from derender.evaluation.metrics import hdr_scores
     from derender.io.rgbe import read_radiance
 
     _check_choice("--remap", remap, ("lstsq", "minmax"))
-    scores = psnr_rgbl(read_radiance(result), read_radiance(truth), remap=remap)
+    _check_choice("--fit", fit, ("matrix", "scale"))
+    scores = hdr_scores(read_radiance(result), read_radiance(truth), remap=remap, fit=fit)
     if as_json:
-        typer.echo(json.dumps({k: round(float(v), 4) for k, v in scores.items()}))
+        typer.echo(json.dumps({k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}))
     else:
-        typer.echo("  ".join(f"{k} {v:.2f} dB" for k, v in scores.items()))
+        typer.echo("  ".join(f"{k} {scores[k]:.2f} dB" for k in "RGBL"))
+        typer.echo(f"relative error ({fit} fit): median {scores['rel_median']:.4f}, p90 {scores['rel_p90']:.4f};  "
+                   f"log-luminance PSNR {scores['log_psnr_L']:.2f} dB")
 
 
 @app.command()

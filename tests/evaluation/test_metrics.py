@@ -114,3 +114,74 @@ def test_input_errors():
         psnr_rgbl(a, a, mask=np.zeros((4, 4), np.uint8))  # HDRResult masks are not evaluation masks
     with pytest.raises(InputError):
         psnr_rgbl(a, np.zeros((4, 4, 3)))  # PSNR undefined without a positive peak
+
+
+# --------------------------------------------------------------------------- issue 18: every pixel counts
+def _hdr_truth(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.exp(rng.normal(0.0, 2.0, size=(40, 50, 3)))          # five decades of radiance
+
+
+def test_relative_errors_are_zero_under_the_fitted_transform():
+    from derender.evaluation.metrics import log_psnr, relative_errors
+
+    g = _hdr_truth()
+    a = np.array([[1.2, 0.1, -0.05], [0.05, 0.9, 0.1], [0.0, -0.1, 1.4]])
+    r = g @ np.linalg.inv(a).T                                        # r = A^-1 g: a 3x3 rendering change
+    rel = relative_errors(r, g, fit="matrix")
+    assert rel["median"] < 1e-12 and rel["p90"] < 1e-12
+    np.testing.assert_allclose(rel["matrix"], a, atol=1e-10)
+    assert relative_errors(3.7 * g, g, fit="scale")["p90"] < 1e-12
+    assert relative_errors(r, g, fit="scale")["median"] > 0.01        # one scale cannot undo a matrix
+    assert log_psnr(5.0 * g, g) == 200.0
+
+
+def test_relative_errors_median_and_p90_of_known_errors():
+    """Every pixel off by a known factor; the weighted scale fit of a symmetric error set is exact enough
+    to read the median and 90th percentile back."""
+    from derender.evaluation.metrics import relative_errors
+
+    g = _hdr_truth(1)
+    f = np.linspace(-0.2, 0.2, g.shape[0] * g.shape[1]).reshape(g.shape[:2])   # pixel factors 1 + f
+    r = g * (1.0 + f)[..., None]
+    rel = relative_errors(r, g, fit="scale")
+    k = rel["matrix"][0][0]
+    e = np.abs(k * (1 + f) - 1).ravel()
+    assert rel["median"] == pytest.approx(np.median(e), rel=1e-9)
+    assert rel["p90"] == pytest.approx(np.percentile(e, 90), rel=1e-9)
+    assert 0.09 < rel["median"] < 0.11 and 0.17 < rel["p90"] < 0.19
+
+
+def test_log_psnr_sees_the_shadows_that_psnr_misses():
+    """A 20 % error in the darkest half of an HDR image barely moves PSNR L, but log-PSNR drops."""
+    from derender.evaluation.metrics import hdr_scores
+
+    g = _hdr_truth(2)
+    lum = g @ np.array([0.2126, 0.7152, 0.0722])
+    dark = lum < np.median(lum)
+    r = g.copy()
+    r[dark] *= 1.2
+    s = hdr_scores(r, g)
+    assert s["L"] > 60.0                           # the highlights dominate the squared error
+    assert s["log_psnr_L"] < 45.0
+    assert s["rel_median"] > 0.05 and s["rel_fit"] == "matrix"
+    perfect = hdr_scores(g, g)
+    assert perfect["log_psnr_L"] == 200.0 and perfect["rel_p90"] < 1e-12
+
+
+def test_evaluate_cli_json_has_the_new_metrics(tmp_path, capsys):
+    import json
+
+    from derender.io.exr import write_exr
+    from helpers import run_cli
+
+    g = _hdr_truth(3).astype(np.float32)
+    write_exr(tmp_path / "g.exr", g)
+    write_exr(tmp_path / "r.exr", (g * 2.0).astype(np.float32))
+    code, out, err = run_cli(["evaluate", tmp_path / "r.exr", tmp_path / "g.exr", "--json"], capsys)
+    assert code == 0, err
+    d = json.loads(out)
+    assert set(d) >= {"R", "G", "B", "L", "rel_median", "rel_p90", "rel_fit", "log_psnr_L"}
+    assert d["rel_p90"] < 1e-5 and d["L"] > 100
+    code, out, err = run_cli(["evaluate", tmp_path / "r.exr", tmp_path / "g.exr", "--fit", "nope"], capsys)
+    assert code == 2 and "error:" in out + err

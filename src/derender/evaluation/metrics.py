@@ -12,6 +12,25 @@ and scaled on its own) the result ``r`` is first mapped onto the truth ``g``:
 Then ``PSNR = 10 log10(max(g)^2 / MSE)`` with ``max(g)`` the largest truth value of
 the plane (over the evaluated pixels). Identical planes (MSE = 0) score
 :data:`PSNR_CAP` dB so that every output stays finite (JSON-safe).
+
+PSNR on radiance only sees the highlights: on HDR scenes the brightest few per cent of
+the pixels carry nearly all of the squared error (issue 18). Two measures in which every
+pixel counts alike are reported beside it:
+
+* :func:`relative_errors` -- per-pixel relative error ``e_i = ||M r_i - g_i|| / ||g_i||``
+  after the 3x3 matrix ``M`` (``fit="matrix"``, default: absorbs white balance and colour
+  rendering differences that the per-channel PSNR also forgives) or the one scale ``k I``
+  (``fit="scale"``) minimising ``sum_i ||M r_i - g_i||^2 / ||g_i||^2`` (weighted least
+  squares with weights ``1 / ||g_i||^2``, so each pixel's *relative* error counts alike);
+  the median and the 90th percentile of ``e_i`` over pixels with ``||g_i|| > 0``.
+* :func:`log_psnr` -- PSNR of log10 luminance: ``l = log10(max(L, eps))`` with
+  ``eps = 1e-6 max(L_g)``, the result shifted by the mean log offset (its best scale in the
+  log domain), ``10 log10(range^2 / MSE)`` with ``range = max(l_g) - min(l_g)`` (the
+  truth's dynamic range in decades). Logarithmic encodings of luminance are the simplest
+  of the perceptually uniform encodings HDR image-quality work uses (Aydin, Mantiuk &
+  Seidel, "Extending quality metrics to full luminance range images", SPIE 2008, whose
+  PU encoding is logarithmic above ~1 cd/m^2); we use plain log10, which needs no
+  absolute calibration of the radiance.
 """
 
 from __future__ import annotations
@@ -30,6 +49,10 @@ __all__ = [
     "remap_minmax",
     "psnr",
     "psnr_rgbl",
+    "fit_colour_matrix",
+    "relative_errors",
+    "log_psnr",
+    "hdr_scores",
 ]
 
 
@@ -118,4 +141,87 @@ def psnr_rgbl(result_linear_srgb: Any, truth_linear_srgb: Any, remap: str = "lst
         r, g = r.reshape(-1, 3), g.reshape(-1, 3)
     out = {name: psnr(r[:, c], g[:, c], remap) for c, name in enumerate("RGB")}
     out["L"] = psnr(luminance(r), luminance(g), remap)
+    return out
+
+
+def _pixels(result: Any, truth: Any, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    r = _as_array(result, "result")
+    g = _as_array(truth, "truth")
+    if r.shape != g.shape or r.ndim != 3 or r.shape[-1] != 3:
+        raise InputError(f"result {r.shape} and truth {g.shape} must be (H, W, 3) images of one size")
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != r.shape[:2]:
+            raise InputError(f"mask shape {m.shape} differs from image shape {r.shape[:2]}")
+        return r[m], g[m]
+    return r.reshape(-1, 3), g.reshape(-1, 3)
+
+
+def fit_colour_matrix(result: np.ndarray, truth: np.ndarray, weights: np.ndarray | None = None,
+                      fit: str = "matrix") -> np.ndarray:
+    """The 3x3 ``M`` (``fit="matrix"``) or ``k I`` (``fit="scale"``) minimising
+    ``sum_i w_i ||M r_i - g_i||^2`` over pixel rows ``r``, ``g`` (P, 3)."""
+    r = np.asarray(result, dtype=np.float64).reshape(-1, 3)
+    g = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    w = np.ones(r.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    if fit == "scale":
+        rr = float(np.sum(w * np.sum(r * r, axis=1)))
+        k = float(np.sum(w * np.sum(r * g, axis=1)) / rr) if rr > 0 else 1.0
+        return k * np.eye(3)
+    if fit != "matrix":
+        raise InputError(f"fit must be 'matrix' or 'scale', got {fit!r}")
+    a = (r * w[:, None]).T @ r
+    b = (r * w[:, None]).T @ g
+    try:
+        m = np.linalg.solve(a, b).T
+    except np.linalg.LinAlgError:
+        m = np.linalg.lstsq(a, b, rcond=None)[0].T
+    return m if np.all(np.isfinite(m)) else np.eye(3)
+
+
+def relative_errors(result: Any, truth: Any, fit: str = "matrix", mask: np.ndarray | None = None
+                    ) -> dict[str, Any]:
+    """Median and 90th percentile of ``||M r_i - g_i|| / ||g_i||`` (see the module docstring).
+
+    Returns ``{"median", "p90", "fit", "matrix"}`` (the fitted ``M`` as nested lists)."""
+    r, g = _pixels(result, truth, mask)
+    n2 = np.sum(g * g, axis=1)
+    ok = n2 > 0
+    if not ok.any():
+        raise InputError("the ground truth has no non-zero pixel; relative error is undefined")
+    r, g, n2 = r[ok], g[ok], n2[ok]
+    m = fit_colour_matrix(r, g, 1.0 / n2, fit)
+    e = np.sqrt(np.sum((r @ m.T - g) ** 2, axis=1) / n2)
+    return {"median": float(np.median(e)), "p90": float(np.percentile(e, 90)), "fit": fit,
+            "matrix": m.tolist()}
+
+
+def log_psnr(result: Any, truth: Any, mask: np.ndarray | None = None) -> float:
+    """PSNR (dB) of log10 luminance after the best log offset (see the module docstring)."""
+    r, g = _pixels(result, truth, mask)
+    lr, lg = luminance(r), luminance(g)
+    peak = float(np.max(lg))
+    if peak <= 0:
+        raise InputError("the ground truth has no positive luminance; log PSNR is undefined")
+    eps = 1e-6 * peak
+    a = np.log10(np.maximum(lr, eps))
+    b = np.log10(np.maximum(lg, eps))
+    a = a + float(np.mean(b - a))
+    rng = float(np.max(b) - np.min(b))
+    mse = float(np.mean((a - b) ** 2))
+    if mse <= 0.0:
+        return PSNR_CAP
+    if rng <= 0:
+        rng = 1.0
+    return float(min(PSNR_CAP, 10.0 * np.log10(rng * rng / mse)))
+
+
+def hdr_scores(result: Any, truth: Any, remap: str = "lstsq", mask: np.ndarray | None = None,
+               fit: str = "matrix") -> dict[str, Any]:
+    """Everything :command:`derender evaluate` reports: PSNR R/G/B/L, relative-error median and
+    p90 (``rel_median``, ``rel_p90``, ``rel_fit``) and ``log_psnr_L``."""
+    out: dict[str, Any] = dict(psnr_rgbl(result, truth, remap=remap, mask=mask))
+    rel = relative_errors(result, truth, fit=fit, mask=mask)
+    out.update({"rel_median": rel["median"], "rel_p90": rel["p90"], "rel_fit": fit,
+                "log_psnr_L": log_psnr(result, truth, mask=mask)})
     return out
