@@ -19,23 +19,18 @@ from derender.core.memory import N_CODES, populated_zeros
 from derender.core.types import HDRResult, Stack
 from derender.engine.matrix import KERNEL_LOCK, set_numba_threads, stabilized_output_bytes
 from derender.engine.tables import code_values, stack_codes_exact, weight_table
-from derender.hdr.stabilize.estimate import (
-    FIT_FLOOR,
-    FIT_HIGH,
-    FIT_LOW,
+from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
+from derender.hdr.stabilize.colour_matrices import color_matrices_to_reference, joint_color_matrices
+from derender.hdr.stabilize.curves import Curve
+from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
+from derender.hdr.stabilize.filmic import (
     SCREEN_TREND,
-    Curve,
-    GammaEstimate,
-    color_matrices_to_reference,
     curve_model,
-    estimate_gammas_blocks,
     gamma_trend,
-    joint_color_matrices,
-    make_blocks,
     power_law_plausible,
     screen_gamma_trend,
-    select_reference,
 )
+from derender.hdr.stabilize.reference import select_reference
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_tables",
