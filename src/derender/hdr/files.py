@@ -23,9 +23,9 @@ from derender.core.types import HDRResult
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
 from derender.engine.matrix import stabilized_output_bytes, warm_up_kernels
 from derender.engine.tables import TableMerge, code_values, curve_value_tables, weight_table
-from derender.hdr.align import grey8_codes
 from derender.hdr.registry import get_method, method_options
 from derender.hdr.stabilize import merge_stabilized_frames
+from derender.hdr.ward2003 import grey8_codes
 from derender.io.exif import file_times
 from derender.io.exr import write_exr_fast
 from derender.io.images import read_codes
