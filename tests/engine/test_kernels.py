@@ -1,11 +1,11 @@
-"""Compiled and OpenCV shortcuts (derender.kernels, align.grey8_codes, align._half) against their NumPy definitions."""
+"""Compiled and OpenCV shortcuts (derender.engine.kernels, ward2003.grey8_codes and _half) against their NumPy definitions."""
 
 import numpy as np
 import pytest
 from helpers import write_png_codes
 
-from derender.hdr.align import _half, grey8_codes, to_grey8
 from derender.hdr.files import merge_files as merge_files_fast
+from derender.hdr.ward2003 import _half, grey8_codes, to_grey8
 
 
 def test_grey8_codes_equal_rint_of_ward_weights_for_every_colour():
@@ -60,7 +60,7 @@ def test_compiled_mtb_counts_equal_bitmap_counts(percentile, step):
     scorer counts on explicit bitmaps, for every candidate shift (width not a multiple of 64)."""
     import cv2
 
-    from derender.hdr import align as A
+    from derender.hdr import ward2003 as A
 
     rng = np.random.default_rng(int(percentile))
     h, w = 300, 901
@@ -83,7 +83,7 @@ def test_compiled_mtb_counts_with_shifts_across_words():
     them): the compiled scorer still counts exactly what the NumPy scorer counts."""
     import cv2
 
-    from derender.hdr import align as A
+    from derender.hdr import ward2003 as A
 
     rng = np.random.default_rng(7)
     h, w = 96, 301

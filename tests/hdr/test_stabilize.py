@@ -13,7 +13,10 @@ import numpy as np
 import pytest
 
 import derender.hdr.stabilize as S
-import derender.hdr.stabilize.estimate as SE
+import derender.hdr.stabilize.blocks as SB
+import derender.hdr.stabilize.exponents as SX
+import derender.hdr.stabilize.pair_fit as SP
+import derender.hdr.stabilize.solvers as SV
 from derender.camera.simulate import simulate_bracket
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
@@ -273,9 +276,9 @@ def test_blocks_gathered_without_full_copies_match_block_view():
     rng = np.random.default_rng(4)
     imgs = rng.random((3, 37, 51, 3))
     valid = rng.random((3, 37, 51)) > 0.05
-    blocks = SE.make_blocks(imgs, valid, 2, 200, seed=5)
-    full = np.stack([SE._block_view(imgs[j], 2) for j in range(3)])
-    vfull = np.stack([SE._block_view(np.repeat(valid[j][..., None], 3, axis=2).astype(float), 2).min(axis=(1, 2)) > 0.5
+    blocks = SB.make_blocks(imgs, valid, 2, 200, seed=5)
+    full = np.stack([SB._block_view(imgs[j], 2) for j in range(3)])
+    vfull = np.stack([SB._block_view(np.repeat(valid[j][..., None], 3, axis=2).astype(float), 2).min(axis=(1, 2)) > 0.5
                       for j in range(3)])
     # the kept blocks are a subset of the full view's, in order, with matching validity
     flat = full.reshape(3, full.shape[1], -1)
@@ -337,13 +340,13 @@ def test_scalar_solvers_match_scipy():
         for lo, hi in [(-1.0, 1.0), (0.0, 2.0), (-3.5, 0.2)]:
             for xatol in (1e-5, 1e-3):
                 ref = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xatol})
-                assert SE._minimize_bounded(f, lo, hi, xatol) == ref.x
+                assert SV.minimize_bounded(f, lo, hi, xatol) == ref.x
     for g, lo, hi in [(lambda x: x ** 3 - 2, 0.0, 3.0), (lambda x: np.cos(x) - x, 0.0, 1.0),
                       (lambda x: np.exp(x) - 5, -2.0, 4.0), (lambda x: x - 0.25, 0.0, 1.0)]:
         for xtol in (1e-12, 1e-5):
-            assert abs(SE._find_root(g, lo, hi, xtol) - brentq(g, lo, hi, xtol=1e-14)) <= 2 * xtol
+            assert abs(SV.find_root(g, lo, hi, xtol) - brentq(g, lo, hi, xtol=1e-14)) <= 2 * xtol
     with pytest.raises(ValueError):
-        SE._find_root(lambda x: x * x + 1, -1.0, 1.0)
+        SV.find_root(lambda x: x * x + 1, -1.0, 1.0)
 
 
 def test_batched_pair_searches_equal_one_pair_at_a_time():
@@ -360,12 +363,12 @@ def test_batched_pair_searches_equal_one_pair_at_a_time():
         items.append((pj, pk, 2.2, 2.2))
         gk = S.Curve(1.0, gamma=2.2) * np.exp(rng.uniform(-0.3, 0.3))
         sel = None if i % 2 else rng.random(nb) > 0.2
-        reqs.append((pj, pk, SE._effective_codes(pj, 2.2), S.Curve(1.0, gamma=2.2), gk, sel))
-    batched = SE._pair_costs_power(reqs)
-    single = [SE._pair_cost(pj, pk, cj, ck, sel, jj) for pj, pk, jj, cj, ck, sel in reqs]
+        reqs.append((pj, pk, SP.effective_codes(pj, 2.2), S.Curve(1.0, gamma=2.2), gk, sel))
+    batched = SP.pair_costs_power(reqs)
+    single = [SP.pair_cost(pj, pk, cj, ck, sel, jj) for pj, pk, jj, cj, ck, sel in reqs]
     np.testing.assert_allclose(batched, single, rtol=1e-12)
-    together = SE._run_pair_searches(items, np.log(4.0), 2, batched=True)
+    together = SX._run_pair_searches(items, np.log(4.0), 2, batched=True)
     for (pj, pk, bj, bk), (lr, se, sel) in zip(items, together):
-        lr1, se1, sel1 = SE._pair_log_ratio(pj, pk, bj, np.log(4.0), rounds=2, base_k=bk)
+        lr1, se1, sel1 = SX._pair_log_ratio(pj, pk, bj, np.log(4.0), rounds=2, base_k=bk)
         assert abs(lr - lr1) < 1e-9 and abs(se - se1) < 1e-9 * max(se1, 1.0)
         np.testing.assert_array_equal(sel, sel1)

@@ -1,16 +1,17 @@
 """HDR merge methods: the registry, the classic merges, paper 1 (alignment, stabilisation) and paper 2 (probabilistic HDR).
 
-Modules: :mod:`derender.hdr.align`, :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`.
+Modules: :mod:`derender.hdr.align`, :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.ward2003`.
 """
 
 from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "align": ["ALIGN_METHODS", "Alignment", "to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "MTB_PIXELS", "mtb_shift", "shift_into", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
+    "align": ["ALIGN_METHODS", "Alignment", "shift_into", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
     "batch": ["stack_files", "merge_one_stack", "merge_batch"],
     "classic": ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"],
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments", "merge_stabilized_probabilistic"],
     "registry": ["MERGE_METHODS", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded"],
     "stabilize": ["merge_stabilized_table", "stabilized_tables", "merge_stabilized_frames", "REF_LOW", "REF_HIGH", "REF_PIXELS", "FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "exposure_fractions", "select_reference", "RIDGE", "Curve", "NARROW", "XATOL", "GammaEstimate", "estimate_gammas", "gamma_trend", "SCREEN_TREND", "power_law_plausible", "CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "unclipped_debevec", "fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices", "Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "reasonable_references"],
+    "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
 })

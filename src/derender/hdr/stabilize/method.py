@@ -17,32 +17,23 @@ import numpy as np
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
-from derender.engine.matrix import (
-    matrix_output_bytes,
-    merge_matrix_frames,
-    warm_up_kernels,
-)
+from derender.engine.matrix import matrix_output_bytes, merge_matrix_frames, warm_up_kernels
 from derender.engine.plans import FrameAccess, MatrixPlan
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
-from derender.hdr.stabilize.estimate import (
-    FIT_FLOOR,
-    FIT_HIGH,
-    FIT_LOW,
+from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
+from derender.hdr.stabilize.colour_matrices import color_matrices_to_reference, joint_color_matrices
+from derender.hdr.stabilize.curves import Curve
+from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
+from derender.hdr.stabilize.filmic import (
     SCREEN_TREND,
-    Curve,
-    GammaEstimate,
-    color_matrices_to_reference,
     curve_model,
-    estimate_gammas_blocks,
     gamma_trend,
-    joint_color_matrices,
-    make_blocks,
     power_law_plausible,
     screen_gamma_trend,
-    select_reference,
     unclipped_debevec,
 )
+from derender.hdr.stabilize.reference import select_reference
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
@@ -214,7 +205,7 @@ class StabilizedMethod:
     def derive(self):
         if self.align != "mtb":
             return None
-        from derender.hdr.align import grey8_codes
+        from derender.hdr.ward2003 import grey8_codes
 
         return lambda frame, out: grey8_codes(frame, out=out)
 
@@ -293,7 +284,7 @@ class Stabilization:
     gammas : :class:`GammaEstimate` (display gammas; for the curve model the effective
         gamma of each image's curve).
     curves : per-image :class:`Curve` linearisations actually used.
-    alignment : :class:`derender.align.Alignment`.
+    alignment : :class:`derender.hdr.align.Alignment`.
     how : per image, how its matrix was obtained.
     """
 
@@ -372,9 +363,9 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
                       calibrate: Any = None) -> Stabilization:
     """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
 
-    ``al`` is an :class:`derender.align.Alignment`, or a lazy equivalent with ``images``
+    ``al`` is an :class:`derender.hdr.align.Alignment`, or a lazy equivalent with ``images``
     and ``valid`` offering ``shape`` and ``pixels(j, ys, xs)`` (the streaming path of
-    :func:`derender.fastmerge.merge_files_fast`, which also passes ``calibrate``, see
+    :func:`derender.hdr.files.merge_files`, which also passes ``calibrate``, see
     :func:`curve_model`). The reference is ``al.reference``.
     """
     _check_modes(mode, response)
@@ -432,7 +423,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
 def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
                      pixel_weights: np.ndarray | None = None) -> HDRResult:
     """Paper 1, Algorithm 1 step 4: weighted average of the stabilised linear images through
-    :func:`derender.merge.merge_linear`. H_j mixes channels, so a pixel of image j gets one
+    :func:`derender.engine.reference.merge_linear`. H_j mixes channels, so a pixel of image j gets one
     weight for all channels, times its registration mask: the smallest trapezoid weight
     of its three channels (every channel usable), or, for pixels that no image exposes
     well in all channels, the trapezoid of the *brightest* channel. The latter keeps
@@ -448,7 +439,7 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     (``mode="reference"``, radiance per second of the reference's exposure) or the common
     average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
     weights (normalised per pixel). 8-bit stacks with integer alignment and no
-    ``pixel_weights`` take the table path of :func:`derender.fastmerge.merge_stabilized_table` (same result to 1e-5)."""
+    ``pixel_weights`` take the table path of :func:`merge_stabilized_table` (same result to 1e-5)."""
     from derender.engine.reference import merge_linear
     from derender.engine.weights import get_weight
 

@@ -1,0 +1,205 @@
+"""Tone curves that are not power laws: the ``response="auto"`` decision and a common Debevec & Malik curve.
+
+Beyond paper 1, whose pipeline model (eq. 4) renders through a power law. Film and filmic
+picture styles render through S-shaped curves; per-image gammas (:mod:`.exponents`) then
+drift steadily with exposure time, because neighbouring exposures share different parts
+of the curve, whose local log-log slope the pairwise search reports (:func:`gamma_trend`).
+``response="auto"`` of :func:`derender.hdr.stabilize.method.stabilize` first runs a quick
+search and sends clearly filmic brackets to the curve straight away
+(:func:`screen_gamma_trend`, :data:`SCREEN_TREND`), otherwise it checks the full estimate
+(:func:`power_law_plausible`). A rejected bracket gets one Debevec & Malik (1997) curve
+per channel common to all images (:func:`curve_model`), fitted on samples away from
+clipped pixels (:func:`unclipped_debevec`), with the per-image 3x3 matrices H_j of eq. 9-10
+on top: ``L_j = G(J_j)`` takes the place of ``J_j ** gamma_j``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from derender.core.types import Stack
+from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
+from derender.hdr.stabilize.curves import Curve
+from derender.hdr.stabilize.exponents import relative_exponents
+from derender.hdr.stabilize.reference import REF_HIGH
+
+__all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP",
+           "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "unclipped_debevec", "curve_model"]
+
+
+def gamma_trend(gammas: Sequence[float], times: Sequence[float]) -> float:
+    """Change of ``log gamma_j`` across the bracket explained by a straight line in
+    ``log t_j`` (least-squares slope times the log-time range)."""
+    lg = np.log(np.asarray(gammas, dtype=np.float64))
+    tau = np.log(np.asarray(times, dtype=np.float64))
+    tc = tau - tau.mean()
+    den = float(tc @ tc)
+    if den <= 0:
+        return 0.0
+    return float((tc @ (lg - lg.mean())) / den * (tau.max() - tau.min()))
+
+
+#: Screening of ``response="auto"`` (:func:`screen_gamma_trend`): a bracket whose quick
+#: relative-exponent trend exceeds this goes straight to the curve model. Twice
+#: :func:`power_law_plausible`'s ``max_trend``. Measured quick (full) trends: power-law
+#: brackets (auto and fixed pipelines, simple style, 18 simulated) |0.13| at most (|0.12|);
+#: filmic camera style (18) 1.77 to 2.39 (1.35 to 1.76); Memorial 0.93-1.08 (0.76-0.89),
+#: Frobisher 0.83 (0.75): the same decisions.
+SCREEN_TREND = 0.6
+
+
+#: Pair blocks and search rounds of the screening (the full search: 800 and 2).
+SCREEN_BLOCKS, SCREEN_ROUNDS = 200, 1
+
+
+def screen_gamma_trend(blocks: Blocks, times: Sequence[float], low: float = FIT_LOW, high: float = FIT_HIGH,
+                       floor: float = FIT_FLOOR, max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12,
+                       base: float = 2.2, bounds: tuple[float, float] = (1.0, 4.0)) -> float:
+    """:func:`gamma_trend` of the relative exponents from a quick search (:data:`SCREEN_BLOCKS`
+    blocks per pair, :data:`SCREEN_ROUNDS` round; the absolute level does not change a
+    trend of log gammas), over the images the pairs connect; 0 with fewer than 3."""
+    n = blocks.codes.shape[0]
+    u, _, connected = relative_exponents(blocks, [base] * n, low, high, floor, max_gap, prior_sd, min_blocks,
+                                         float(np.log(bounds[1] / bounds[0])), max_pair_blocks=SCREEN_BLOCKS,
+                                         rounds=SCREEN_ROUNDS)
+    if int(connected.sum()) < 3:
+        return 0.0
+    t = np.asarray(times, dtype=np.float64)
+    return gamma_trend(base * np.exp(u[connected]), t[connected])
+
+
+def power_law_plausible(gammas: Sequence[float], times: Sequence[float], max_trend: float = 0.3,
+                        bounds: tuple[float, float] = (1.0, 4.0)) -> bool:
+    """False when per-image gammas look like the signature of a fixed tone curve that is
+    not a power law: they drift steadily with exposure time (``|gamma_trend| > max_trend``,
+    i.e. more than ~35 % across the bracket: each pair of neighbours sees a different part
+    of an S-shaped curve, whose local log-log slope the pairwise search reports), or some
+    gamma sits on the search bound. Measured: auto-pipeline power-law brackets (random
+    gamma per image) trend by at most 0.12; filmic brackets by 1.3-1.8; Debevec's Memorial
+    stack by ~0.8."""
+    g = np.asarray(gammas, dtype=np.float64)
+    if np.any(g <= bounds[0] * 1.001) or np.any(g >= bounds[1] * 0.999):
+        return False
+    return abs(gamma_trend(g, times)) <= max_trend
+
+
+#: Response fit of the curve model (:func:`unclipped_debevec`): a sample (pixel, image) is left
+#: out when any channel of it or of a pixel within CURVE_CLIP_RADIUS reaches CURVE_CLIP.
+CURVE_CLIP = REF_HIGH
+
+
+CURVE_CLIP_RADIUS = 1
+
+
+#: Grid samples of that fit (the Schur-complement solver costs little per sample; lambda
+#: grows with sqrt(samples / 256)). With Debevec's 256 the camera-style gain over debevec
+#: swung by up to 2.6 dB per scene with the sampling seed; measured with ``derender
+#: experiment fusion-gain --styles camera`` (9 scenes, seeds 0-2 / 3-5): 256 samples
+#: +1.76 / +1.97 dB L, 1024 +2.19 / +2.36.
+CURVE_SAMPLES = 1024
+
+
+def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, seed: int = 0,
+                      high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS) -> Any:
+    """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
+    :data:`CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
+    pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
+    image j reaches ``high`` within ``radius`` pixels (Chebyshev) of p.
+
+    Why: sensors clip *before* the colour matrix (see :data:`FIT_HIGH`). Once one raw
+    channel saturates, the pixel's other channels stop following the exposure while they
+    still render below white, and in-camera demosaicing and chroma filtering spread that
+    into the neighbours. Debevec's per-channel fit reads those codes as the top of the
+    curve and bends its shoulder (measured on the simulator's filmic style, noise-free,
+    fixed rendering: up to +0.4 to +2.4 in ``ln`` at codes 245-250; with the samples left
+    out +-0.2). The shoulder is what linearises a highlight that only the shortest exposure
+    sees unclipped. The rendered channel that does clip is (nearly) always at white: the
+    colour matrix has negative off-diagonals, so a saturated raw channel renders above 1.
+
+    ``codes_at(j, ys, xs)``: (P, 3) integer codes of aligned image j at those pixels.
+    Returns :class:`derender.response.ResponseCurves`, or None when some channel keeps no
+    usable sample (then use :func:`derender.response.calibrate_debevec`).
+    """
+    from derender.response.curves import DEFAULT_LAMBDA, ResponseCurves, grid_positions, make_monotonic
+    from derender.response.debevec1997 import solve_debevec
+
+    h, w = int(shape[0]), int(shape[1])
+    ys, xs = grid_positions(h, w, CURVE_SAMPLES, seed)
+    top = int(np.ceil(high * 255 - 1e-9))
+    codes = np.stack([np.asarray(codes_at(j, ys, xs)) for j in range(n)]).astype(np.int32)   # (N, P, 3)
+    clipped = np.zeros(codes.shape[:2], dtype=bool)
+    r = int(radius)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            for j in range(n):
+                clipped[j] |= np.asarray(codes_at(j, yy, xx)).max(axis=-1) >= top
+    codes[clipped] = 0                       # hat weight 0: the sample drops out of every channel
+    if not np.all(((codes > 0) & (codes < 255)).any(axis=(0, 1))):
+        return None
+    log_t = np.log(np.asarray(times, dtype=np.float64))
+    # Debevec's lambda is set for 256 samples: scale it so that smoothness keeps its weight
+    # against a data term that grows with the number of samples
+    lam = DEFAULT_LAMBDA * float(np.sqrt(codes.shape[1] / 256.0))
+    g = np.empty((256, 3))
+    for c in range(3):
+        g[:, c], _ = solve_debevec(codes[:, :, c], log_t, lam=lam, weights="hat", n_levels=256)
+    params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
+              "weights": "hat", "clip": float(high), "clip_radius": r,
+              "dropped": float(clipped.mean())}
+    return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
+
+
+def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
+                 max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
+                 seed: int = 0, calibrate: Any = None) -> tuple[list, dict]:
+    """Response model ``L_j = G(J_j ** rho_j)``: one response table ``G`` per channel common to
+    the bracket (Debevec & Malik 1997, on the exponent-warped codes) and a relative
+    exponent ``rho_j`` (geometric mean 1) per image from the pairwise 3x3-linearity
+    searches, alternated ``rounds`` times before ``G`` is refitted.
+
+    Default ``rounds=0``: ``rho_j = 1``, i.e. a common non-parametric response with the
+    per-image colour matrices H_j on top. Measured on the simulator's filmic "camera"
+    style, the exponent search is biased by the S-curve (the local log-log slope of ``G``
+    differs between the dark and bright parts that neighbouring exposures share: rho
+    trends by +-0.2 across the bracket) and lowers PSNR; on true power laws use
+    ``response="power"``. ``G`` comes from :func:`unclipped_debevec` (samples next to a
+    clipped pixel left out; plain :func:`~derender.response.calibrate_debevec` if that
+    leaves a channel without data, or for warped codes). ``calibrate()`` (optional) returns
+    the curves of the unwarped ``images`` without reading them (the streaming path
+    samples its frames).
+    """
+    from derender.response.curves import to_codes
+    from derender.response.debevec1997 import calibrate_debevec
+
+    n = images.shape[0]
+    rho = np.ones(n)
+    pairs: list = []
+
+    def table_for(r: np.ndarray) -> np.ndarray:
+        if calibrate is not None and np.all(r == 1.0):
+            return calibrate().log_inverse
+        if np.all(r == 1.0):
+            cur = unclipped_debevec(lambda j, ys, xs: to_codes(np.asarray(images[j])[ys, xs], 256), n,
+                                    images.shape[1:3], times, seed)
+            if cur is not None:
+                return cur.log_inverse
+        if np.all(r == 1.0) and images.min() >= 0.0 and images.max() <= 1.0:
+            warped = images                 # no exponent warp: no full-size copy of the stack
+        else:
+            warped = np.clip(images, 0.0, 1.0) ** r[:, None, None, None].astype(np.float32)
+        return calibrate_debevec(Stack(images=warped, times=times), seed=seed).log_inverse
+
+    table = table_for(rho)
+    for _ in range(int(rounds)):
+        bases = [Curve(rho[j], log_table=table) for j in range(n)]
+        u, pairs, _ = relative_exponents(blocks, bases, low, high, floor, max_gap, prior_sd, min_blocks,
+                                         max_lr=float(np.log(2.0)))
+        rho = rho * np.exp(u)
+        rho = rho / np.exp(np.mean(np.log(rho)))
+        table = table_for(rho)
+    curves = [Curve(rho[j], log_table=table) for j in range(n)]
+    info = {"rho": rho.tolist(), "pairs": [{k: v for k, v in p.items() if k not in ("sel", "common")} for p in pairs]}
+    return curves, info
