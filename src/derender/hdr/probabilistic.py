@@ -127,7 +127,7 @@ import numpy as np
 
 from derender.core.errors import InputError, StackError
 from derender.core.types import HDRResult, Stack
-from derender.derendering.models import model_camera_to_srgb
+from derender.derendering.base import model_camera_to_srgb
 from derender.hdr.registry import register_method
 
 __all__ = [
@@ -230,7 +230,7 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
 
 
 def as_model(model: Any):
-    from derender.derendering.models import DerenderModel, load_model
+    from derender.derendering.base import DerenderModel, load_model
 
     if isinstance(model, (str, os.PathLike)):
         return load_model(model)
