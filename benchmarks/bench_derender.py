@@ -33,7 +33,7 @@ IN_MEMORY = """
 import sys, time
 t0 = time.perf_counter()
 from derender.derendering.apply import check_8bit_rgb
-from derender.derendering.models import load_model
+from derender.derendering.base import load_model
 from derender.io.exr import write_exr
 codes = check_8bit_rgb(sys.argv[1])
 mean, var = load_model(sys.argv[2]).predict(codes)
@@ -48,11 +48,11 @@ def prepare(workdir: Path, size: tuple[int, int], seed: int = 0) -> tuple[Path, 
 
     from derender.camera.chart import chart_pairs
     from derender.camera.simulate import simulate_bracket
-    from derender.derendering.models import fit_model
+    from derender.derendering.base import fit_model
 
     workdir.mkdir(parents=True, exist_ok=True)
     from derender.core.errors import DerenderError
-    from derender.derendering.models import load_model
+    from derender.derendering.base import load_model
 
     model = workdir / "nikon-d5100-gp.npz"
     try:

@@ -32,7 +32,7 @@ def reference():
 @pytest.fixture(scope="module")
 def model():
     from derender.camera.chart import chart_pairs
-    from derender.derendering.models import fit_model, model_metadata
+    from derender.derendering.base import fit_model, model_metadata
 
     pairs = chart_pairs("nikon-d5100", n_illuminants=4, n_exposures=10, seed=0)
     m = fit_model("gp", pairs.jpeg, pairs.raw, seed=0, n_train=800)

@@ -36,11 +36,14 @@ __getattr__, __dir__, _names = attach(__name__, {
     "engine.reference": ["merge_linear"],
     "hdr.registry": ["merge", "register_method", "MERGE_METHODS"],
     "hdr.files": ["merge_files"],
-    "derendering.models": ["MODEL_TYPES", "DerenderModel", "LocalGPModel", "PolynomialModel", "RBFModel",
-                           "fit_model", "load_model", "relative_rmse", "interval_coverage"],
+    "derendering.base": ["MODEL_TYPES", "DerenderModel", "fit_model", "load_model"],
+    "derendering.local_gp": ["LocalGPModel"],
+    "derendering.polynomial": ["PolynomialModel"],
+    "derendering.rbf": ["RBFModel"],
     "derendering.apply": ["derender_image", "derender_to_exr"],
     "applications.photometric_stereo": ["solve_normals"],
     "evaluation.metrics": ["psnr_rgbl"],
+    "evaluation.derendering_metrics": ["relative_rmse", "interval_coverage"],
 })
 __all__ = ["__version__", *_names]
 del _names

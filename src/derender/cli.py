@@ -221,7 +221,7 @@ def merge_cmd(
             raise InputError(f"method {method!r} gives no variance (drop --variance)")
     extra = {}
     if model is not None:
-        from derender.derendering.apply import resolve_model
+        from derender.derendering.library import resolve_model
 
         model_obj, used = resolve_model(model, images[0])
         typer.echo(f"de-rendering model: {used}", err=True)
@@ -542,8 +542,8 @@ def calibrate(
     seed: int = typer.Option(0, "--seed", help="Random seed (subset, k-means)."),
 ) -> None:
     """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
-    from derender.derendering.apply import pairs_from_images
-    from derender.derendering.models import fit_model
+    from derender.derendering.base import fit_model
+    from derender.derendering.calibration import pairs_from_images
 
     if output.suffix.lower() != ".npz":
         raise InputError(f"--output must end in .npz, got {output.name}")
@@ -553,7 +553,7 @@ def calibrate(
         raise InputError("give either --pairs or --raw/--jpeg, not both")
     if pairs is not None:
         from derender.camera.chart import load_pairs
-        from derender.derendering.models import model_metadata
+        from derender.derendering.base import model_metadata
 
         pr = load_pairs(pairs)
         jp, rw, meta = pr.jpeg, pr.raw, model_metadata(pr)
@@ -634,7 +634,7 @@ def stereo(
     codes = np.rint(np.stack(imgs) * 255).astype(np.uint8)
     mask = codes.max(axis=(0, 3)) > mask_threshold
     if model is not None:
-        from derender.derendering.apply import resolve_model
+        from derender.derendering.library import resolve_model
 
         m, used = resolve_model(model, images[0])
         mean, var = m.predict(codes, point="map")

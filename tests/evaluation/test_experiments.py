@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from derender.camera.chart import chart_pairs
-from derender.derendering.models import fit_model
+from derender.derendering.base import fit_model
 from derender.evaluation.experiments import (
     JPEG_INTERVALS,
     derender_table,

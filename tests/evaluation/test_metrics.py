@@ -172,8 +172,9 @@ def test_log_psnr_sees_the_shadows_that_psnr_misses():
 def test_evaluate_cli_json_has_the_new_metrics(tmp_path, capsys):
     import json
 
-    from derender.io.exr import write_exr
     from helpers import run_cli
+
+    from derender.io.exr import write_exr
 
     g = _hdr_truth(3).astype(np.float32)
     write_exr(tmp_path / "g.exr", g)

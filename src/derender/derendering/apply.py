@@ -1,34 +1,32 @@
-"""File-level de-rendering: pairs from registered RAW/JPEG images, model libraries, images.
+"""Applying a de-rendering model to 8-bit images: per-pixel mean and variance of the raw colour.
 
-* :func:`pairs_from_images` turns registered RAW + JPEG files of the same shot into
-  calibration pairs (``derender calibrate --raw ... --jpeg ...``).
-* :func:`resolve_model` loads a model file, or picks from a *folder* of models the one
-  whose camera make/model matches the image's EXIF (paper 2 imagines such per-camera
-  libraries looked up by the metadata of an Internet image).
-* :func:`derender_image` predicts per-pixel mean and variance of the linear RAW colour;
-  :func:`derender_to_exr` does the same straight into EXR files, block by block (a
-  24-megapixel JPEG never exists as full float images in memory).
+* :func:`derender_image` predicts per-pixel mean and variance of the linear RAW colour
+  (``derender derender``) with the model :func:`~derender.derendering.library.resolve_model`
+  picks; :func:`derender_to_exr` does the same straight into EXR files, block by block (a
+  24-megapixel JPEG never exists as full float images in memory). ``srgb=True`` maps the
+  camera-RGB Gaussians to linear sRGB with ``A = camera_to_srgb diag(wb)`` of the model's
+  metadata: ``mean' = A mean``, ``var' = (A o A) var`` (channels taken as independent).
 * :func:`index_colours` finds the distinct colours of an 8-bit image: a prediction is a
   function of the colour alone, so it is made once per distinct colour and gathered.
+* :func:`check_8bit_rgb` reads an image as uint8 codes and refuses what the models do not
+  describe (alpha, 16-bit).
 """
 
 from __future__ import annotations
 
 import os
-import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from derender.core.errors import InputError, ModelFileError
+from derender.core.errors import InputError
+from derender.derendering.base import finite32, model_camera_to_srgb
+from derender.derendering.library import resolve_model
 
 __all__ = [
     "check_8bit_rgb",
-    "pairs_from_images",
-    "resolve_model",
     "derender_image",
     "pack_codes",
     "ColourIndex",
@@ -66,88 +64,6 @@ def check_8bit_rgb(path: str | os.PathLike) -> np.ndarray:
     else:
         img = img[:, :, ::-1]
     return np.ascontiguousarray(img)
-
-
-def pairs_from_images(raw_paths: Sequence[str | os.PathLike], jpeg_paths: Sequence[str | os.PathLike],
-                      saturation: float = 0.92, max_pairs_per_image: int = 200_000, seed: int = 0
-                      ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Pairs (jpeg codes, raw camera RGB) from registered RAW/JPEG shots of the same scene.
-
-    Each RAW is demosaiced (Malvar) without white balance or colour matrix, normalised by
-    its black and white level (sensor units, not divided by the exposure time); pixels with
-    a RAW channel above ``saturation`` are left out (one shot cannot extrapolate them);
-    the JPEG must have the RAW's visible size. Metadata (make/model) comes from the RAW.
-    """
-    from derender.io.raw import read_raw
-    from derender.raw.groundtruth import raw_to_camera_rgb
-
-    if len(raw_paths) != len(jpeg_paths) or not raw_paths:
-        raise InputError(f"give one --jpeg per --raw ({len(raw_paths)} RAW, {len(jpeg_paths)} JPEG)")
-    rng = np.random.default_rng(seed)
-    jp_all, rw_all = [], []
-    make = model = ""
-    for rp, jpth in zip(raw_paths, jpeg_paths):
-        frame = read_raw(rp)
-        make, model = make or frame.make, model or frame.model
-        frame.exposure_time = None
-        cam = raw_to_camera_rgb([frame], clip_negative=True).radiance
-        codes = check_8bit_rgb(jpth)
-        if codes.shape[:2] != cam.shape[:2]:
-            raise InputError(f"{jpth} is {codes.shape[1]}x{codes.shape[0]} but {rp} is "
-                             f"{cam.shape[1]}x{cam.shape[0]}: pairs must be registered at the RAW's size")
-        ok = np.all(cam < saturation, axis=-1) & np.all(np.isfinite(cam), axis=-1)
-        idx = np.flatnonzero(ok)
-        if idx.size > max_pairs_per_image:
-            idx = np.sort(rng.choice(idx, size=max_pairs_per_image, replace=False))
-        jp_all.append(codes.reshape(-1, 3)[idx])
-        rw_all.append(cam.reshape(-1, 3)[idx].astype(np.float64))
-    jp = np.concatenate(jp_all)
-    rw = np.concatenate(rw_all)
-    if jp.shape[0] < 10:
-        raise InputError("fewer than 10 usable (unsaturated) pixel pairs in the given images")
-    return jp, rw, {"camera": {"name": "", "make": make, "model": model}}
-
-
-def _norm(s: str) -> str:
-    return re.sub(r"[^a-z0-9]+", " ", s.lower()).strip()
-
-
-def _camera_matches(meta_cam: dict, exif: dict) -> bool:
-    em = _norm(str(exif.get("Model", "")))
-    mm = _norm(str(meta_cam.get("model", "")))
-    if not em or not mm:
-        return False
-    return em == mm or em in mm or mm in em
-
-
-def resolve_model(model_path: str | os.PathLike, image_path: str | os.PathLike | None = None):
-    """Load ``model_path``; if it is a folder, pick the model matching the image's EXIF camera.
-
-    Returns ``(model, description)``; raises :class:`InputError` when no model matches.
-    """
-    from derender.derendering.models import load_model
-    from derender.io.exif import read_exif
-
-    p = Path(model_path)
-    if p.is_file():
-        m = load_model(p)
-        return m, p.name
-    if not p.is_dir():
-        raise InputError(f"no such model file or folder: {p}")
-    exif = read_exif(image_path) if image_path is not None else {}
-    candidates = []
-    for f in sorted(p.glob("*.npz")):
-        try:
-            m = load_model(f)
-        except (ModelFileError, InputError):
-            continue
-        cam = m.metadata.get("camera", {}) if isinstance(m.metadata, dict) else {}
-        candidates.append((f, m, cam))
-        if _camera_matches(cam, exif):
-            return m, f"{f.name} (camera {cam.get('make', '')} {cam.get('model', '')} matches the image EXIF)"
-    known = ", ".join(f"{f.name}: {c.get('model', '?')}" for f, _, c in candidates) or "none"
-    who = f"{exif.get('Make', '?')} {exif.get('Model', '?')}" if exif else "unknown (no EXIF)"
-    raise InputError(f"no model in {p} for camera {who}; models: {known}")
 
 
 def derender_image(image_path: str | os.PathLike, model_path: str | os.PathLike, srgb: bool = False
@@ -233,8 +149,6 @@ def index_colours(codes: np.ndarray, block_rows: int = 64) -> ColourIndex:
 
 def _colour_tables(model, index: ColourIndex, srgb: bool, chunk: int = 1 << 18) -> tuple[np.ndarray, np.ndarray]:
     """Mean and variance (float32, finite, (M, 3)) of each distinct colour, optionally in linear sRGB."""
-    from derender.derendering.models import finite32
-
     m = index.packed.shape[0]
     mean = np.empty((m, 3), dtype=np.float32)
     var = np.empty((m, 3), dtype=np.float32)
@@ -249,8 +163,6 @@ def _colour_tables(model, index: ColourIndex, srgb: bool, chunk: int = 1 << 18) 
 
 def _to_linear_srgb(model, mean: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera RGB Gaussians -> linear sRGB through the model's camera matrix (independent channels)."""
-    from derender.derendering.models import model_camera_to_srgb
-
     a = model_camera_to_srgb(model)
     if a is None:
         raise InputError("the model has no camera colour metadata; drop --srgb to get camera RGB")
@@ -269,7 +181,7 @@ def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike
 
     The same numbers as :func:`derender_image` (each distinct colour predicted once,
     :func:`index_colours`), but the full-size mean and variance images are never formed:
-    the EXR writer (:func:`derender.fastmerge.write_exr_lines`) asks for 16-row blocks
+    the EXR writer (:func:`derender.io.exr.write_exr_lines`) asks for 16-row blocks
     and each is gathered from the per-colour tables in its worker thread. Outputs are
     written atomically and never overwrite the input. Returns what was used and the
     timings of the stages.

@@ -1,6 +1,6 @@
 """Scoring: the PSNR protocol, paper 1 Table 1 on datasets (Dask), paper 2 experiments, response diagnostics.
 
-Modules: :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`, :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.table1`.
+Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`, :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.table1`.
 """
 
 from derender.core.lazy import attach
@@ -10,4 +10,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "experiments": ["JPEG_INTERVALS", "METHODS", "default_experiment_cameras", "derender_table", "format_table", "threshold_sweep", "plot_threshold_sweep", "photometric_stereo_experiment"],
     "metrics": ["PSNR_CAP", "fit_scale", "remap_minmax", "psnr", "psnr_rgbl"],
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
+    "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage"],
 })

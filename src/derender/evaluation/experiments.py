@@ -9,7 +9,7 @@
   model row also carries ``ratio_to_poly`` (its relative RMSE over the ``poly`` row's). A
   ``floor`` row per camera gives the smallest relative RMSE *any* function of the JPEG code
   can reach on the same test colours (best point per distinct code, fitted to the test
-  colours themselves; :func:`derender.derendering.code_floor_errors`): the error that is
+  colours themselves; :func:`derender.evaluation.derendering_metrics.code_floor_errors`): the error that is
   not the model's fault but the rendering's (clipped and near-black codes are one-to-many).
 * :func:`threshold_sweep` - Fig. 4: hold out one illuminant's exposure sequence, train on
   5000 pairs from the rest, estimate each patch's scene colour from the held-out JPEG
@@ -85,9 +85,9 @@ def derender_table(cameras: Sequence[str] | None = None, methods: Sequence[str] 
     """Paper 2 Table 1 on simulated cameras; one row per (camera, method), plus a ``floor`` row
     per camera when ``floor`` (lower bound for any predictor from the code, see module doc)."""
     from derender.camera.chart import chart_pairs
-    from derender.derendering.models import (
+    from derender.derendering.base import fit_model
+    from derender.evaluation.derendering_metrics import (
         code_floor_errors,
-        fit_model,
         interval_coverage,
         median_relative_error,
         relative_rmse,
@@ -220,7 +220,8 @@ def threshold_sweep(cameras: Sequence[str] | None = None, methods: Sequence[str]
     are correlated across exposures (n * mean(z)^2 per patch 2.5-4 instead of 1), which eq. 3's
     product of independent Gaussians cannot average out."""
     from derender.camera.chart import chart_pairs
-    from derender.derendering.models import fit_model, relative_rmse
+    from derender.derendering.base import fit_model
+    from derender.evaluation.derendering_metrics import relative_rmse
 
     rows = []
     for cam_name in cameras or default_experiment_cameras():
@@ -313,7 +314,7 @@ def photometric_stereo_experiment(camera: str = "canon-powershot-s90", n_lights:
         sphere,
     )
     from derender.camera.chart import chart_pairs
-    from derender.derendering.models import fit_model
+    from derender.derendering.base import fit_model
 
     cam = _camera(camera)
     if models is None:

@@ -127,7 +127,7 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
-from derender.derendering.models import model_camera_to_srgb
+from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess, GaussianPlan
 from derender.engine.run import ArrayFrames, run
@@ -234,7 +234,7 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
 
 
 def as_model(model: Any):
-    from derender.derendering.models import DerenderModel, load_model
+    from derender.derendering.base import DerenderModel, load_model
 
     if isinstance(model, (str, os.PathLike)):
         return load_model(model)

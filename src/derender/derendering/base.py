@@ -1,0 +1,612 @@
+"""De-rendering models, common part: p(raw camera colour | 8-bit rendered colour).
+
+Paper 2 (``papers/probabilistic-color-derendering.txt``), Sec. 2.2 and 4.1, learns from
+calibration pairs (rendered code ``y``, raw camera colour ``x``) a predictive
+distribution of ``x`` given ``y``. One module per published method, each a
+:class:`DerenderModel`:
+
+* ``"gp"`` -- :class:`~derender.derendering.local_gp.LocalGPModel`, the offline local
+  Gaussian process of paper 2 (Sec. 2.2, 4);
+* ``"poly"`` -- :class:`~derender.derendering.polynomial.PolynomialModel`, the
+  deterministic baseline of Chakrabarti et al. (ref. [3]);
+* ``"rbf"`` -- :class:`~derender.derendering.rbf.RBFModel`, the radial-basis-function
+  baseline of Lin et al. (ref. [18]).
+
+This module holds what they share: the interface, input validation, the log-space output
+and its prediction table, the model file format and the method registry
+(:data:`MODEL_TYPES`, :func:`fit_model`, :func:`load_model`).
+
+Output space. Raw values span several decades, so the GP and RBF model the *log* raw
+colour ``t = log(max(raw, 0) + eps)`` with ``eps = eps_rel * raw_white`` (``raw_white``
+= median raw maximum of bright, unclipped training colours; eps_rel = 1e-4 puts eps
+below one 8-bit code step). Rendering errors are multiplicative (quantisation of a
+gamma-encoded code is a relative error), so a Gaussian is a far better noise model for
+``t`` than for ``raw``, and predictions are scale-equivariant in the raw units. The
+Gaussian over ``t`` is returned as the moments of the implied log-normal in raw space
+(:func:`lognormal_moments`): ``mean = exp(mu + s2/2) - eps``,
+``var = (exp(s2) - 1) exp(2 mu + s2)``, where ``s2`` includes the noise variance
+(predictive distribution of an observation). The log-space Gaussian itself is available
+from :meth:`LocalGPModel.predict_log <derender.derendering.local_gp.LocalGPModel.predict_log>`
+(``exp(mu) - eps`` is the predictive median).
+
+Speed path. :meth:`DerenderModel.predict` computes one prediction per *distinct*
+colour (24-bit packed codes; a 2^24 bincount for large images) and gathers. For the
+GP and RBF the per-colour prediction is a trilinear interpolation of a table of the
+latent ``(mu, log s2)`` (:class:`LatentTable`), evaluated exactly on a rectilinear grid
+of codes (denser where the log curve bends, see :func:`table_nodes`; exact at the grid
+nodes) and expanded once to every (G, B) code pair, so a colour costs one interpolation
+along R. ``exact=True`` evaluates the GP/RBF itself (slow; for evaluation). The table is
+built at fit time and stored in the model file.
+
+Model files are ``.npz`` (never pickled) with ``format="derender-model"``,
+``format_version=2``, ``method``, ``p_*`` parameter arrays and ``metadata_json``. The
+``method`` entry names the class through :data:`MODEL_TYPES`, which imports a method's
+module only when it is used.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import time
+import zipfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from derender.core.errors import InputError, ModelFileError
+
+__all__ = [
+    "model_camera_to_srgb",
+    "MODEL_FORMAT",
+    "MODEL_FORMAT_VERSION",
+    "MAX_LOG_VAR",
+    "as_colour_array",
+    "srgb_decode64",
+    "estimate_raw_white",
+    "log_training_targets",
+    "lognormal_moments",
+    "lognormal_moments_inplace",
+    "table_nodes",
+    "LatentTable",
+    "DerenderModel",
+    "finite32",
+    "load_model",
+    "ModelTypes",
+    "MODEL_TYPES",
+    "model_metadata",
+    "fit_model",
+]
+
+
+def model_camera_to_srgb(model) -> np.ndarray | None:
+    """``A = camera_to_srgb @ diag(wb)`` from the model's metadata, or None when absent."""
+    meta = getattr(model, "metadata", {}) or {}
+    m = meta.get("camera_to_srgb")
+    wb = meta.get("wb")
+    if m is None or wb is None:
+        return None
+    m = np.asarray(m, dtype=np.float64).reshape(3, 3)
+    wb = np.asarray(wb, dtype=np.float64).reshape(3)
+    return m * wb[None, :]
+
+
+MODEL_FORMAT = "derender-model"
+MODEL_FORMAT_VERSION = 2       # 2: GP inputs may be warped (p_input_warp), clip-pattern cluster groups
+MAX_LOG_VAR = 60.0             # cap on the latent log-space variance (keeps moments finite in float32)
+_MAX_LOG_MEAN = 80.0           # cap on |latent log mean|
+_BINCOUNT_THRESHOLD = 1 << 20  # above this many pixels, find distinct codes by a 2^24 bincount
+
+
+# ============================================================================ validation
+def _check_pairs(jpeg, raw) -> tuple[np.ndarray, np.ndarray]:
+    """Validate training pairs: jpeg (N,3) codes in [0,255], raw (N,3) finite floats."""
+    try:
+        j = np.asarray(jpeg)
+        r = np.asarray(raw)
+    except Exception as exc:  # pragma: no cover - exotic inputs
+        raise InputError(f"training pairs are not arrays: {exc}") from None
+    if j.ndim != 2 or j.shape[1] != 3:
+        raise InputError(f"jpeg colours must have shape (N, 3), got {j.shape}")
+    if r.ndim != 2 or r.shape[1] != 3:
+        raise InputError(f"raw colours must have shape (N, 3), got {r.shape}")
+    if j.shape[0] != r.shape[0]:
+        raise InputError(f"jpeg and raw have different numbers of colours ({j.shape[0]} vs {r.shape[0]})")
+    if j.dtype.kind not in "uif" or r.dtype.kind not in "uif":
+        raise InputError("jpeg and raw colours must be numeric arrays")
+    jf = j.astype(np.float64)
+    rf = r.astype(np.float64)
+    if not np.all(np.isfinite(jf)):
+        raise InputError("jpeg colours contain NaN or inf")
+    if not np.all(np.isfinite(rf)):
+        raise InputError("raw colours contain NaN or inf")
+    if jf.size and (jf.min() < 0 or jf.max() > 255):
+        raise InputError(f"jpeg colours must be 8-bit codes in [0, 255], got range "
+                         f"[{jf.min():g}, {jf.max():g}]")
+    if j.dtype.kind == "f" and jf.size > 30 and jf.max() <= 1.0 and jf.max() > 0:
+        raise InputError("jpeg colours look like floats in [0, 1]; pass 8-bit codes 0..255 (value * 255)")
+    if jf.shape[0] < 20:
+        raise InputError(f"need at least 20 training pairs, got {jf.shape[0]}")
+    if not np.any(rf > 0):
+        raise InputError("raw colours are all <= 0")
+    return jf, rf
+
+
+def as_colour_array(x) -> tuple[np.ndarray, bool]:
+    """Validate predict input; return (flat (P,3) array, is_codes) -- uint8 codes or float64 in [0,1]."""
+    a = np.asarray(x)
+    if a.ndim == 0 or a.shape[-1] != 3:
+        if a.ndim >= 1 and a.shape[-1] == 4:
+            raise InputError("image has 4 channels (alpha?); pass RGB only, e.g. image[..., :3]")
+        raise InputError(f"colours must have a last axis of length 3 (RGB), got shape {a.shape}")
+    if a.dtype == np.bool_ or a.dtype.kind not in "uif":
+        raise InputError(f"colours must be uint8 codes or floats in [0, 1], got dtype {a.dtype}")
+    flat = a.reshape(-1, 3)
+    if a.dtype == np.uint8:
+        return flat, True
+    if a.dtype.kind in "ui":
+        if a.dtype.itemsize == 2:
+            raise InputError(f"{a.dtype} (16-bit) input is not supported: the model is for 8-bit rendered "
+                             "colours; pass uint8 codes or floats code/255 in [0, 1]")
+        if flat.size and (flat.min() < 0 or flat.max() > 255):
+            raise InputError("integer colours must be 8-bit codes in [0, 255]")
+        return flat.astype(np.uint8), True
+    f = flat.astype(np.float64)
+    if not np.all(np.isfinite(f)):
+        raise InputError("colours contain NaN or inf")
+    if f.size and (f.min() < -1e-6 or f.max() > 1 + 1e-6):
+        raise InputError(f"float colours must be in [0, 1] (code / 255), got range [{f.min():g}, {f.max():g}]")
+    f = np.clip(f, 0.0, 1.0)
+    codes = np.rint(f * 255.0)
+    if np.all(np.abs(f * 255.0 - codes) < 1e-3):
+        return codes.astype(np.uint8), True
+    return f, False
+
+
+def _distinct_codes(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct rows of uint8 (P,3) codes: (sorted packed 24-bit codes (M,), inverse index (P,))."""
+    packed = codes[:, 0].astype(np.int32)
+    packed <<= 8
+    packed |= codes[:, 1]
+    packed <<= 8
+    packed |= codes[:, 2]
+    if packed.shape[0] > _BINCOUNT_THRESHOLD:
+        present = np.bincount(packed, minlength=1 << 24)
+        uniq = np.flatnonzero(present).astype(np.int32)
+        lut = np.zeros(1 << 24, dtype=np.int32)
+        lut[uniq] = np.arange(uniq.shape[0], dtype=np.int32)
+        return uniq, np.take(lut, packed)
+    uniq, inv = np.unique(packed, return_inverse=True)
+    return uniq.astype(np.int32), inv.reshape(-1).astype(np.int32)
+
+
+def _unpack(packed: np.ndarray) -> np.ndarray:
+    """Packed 24-bit codes -> (M,3) int32 codes."""
+    return np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1).astype(np.int32)
+
+
+# ============================================================================ log-space output
+def srgb_decode64(v: np.ndarray) -> np.ndarray:
+    """Inverse sRGB OETF in float64 (IEC 61966-2-1); :func:`derender.core.colorimetry.srgb_decode` is float32."""
+    v = np.clip(v, 0.0, 1.0)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def estimate_raw_white(jf: np.ndarray, rf: np.ndarray) -> float:
+    """Typical raw value of bright, unclipped colours (sets the scale of eps)."""
+    mx = jf.max(axis=1)
+    sel = (mx >= 200) & (mx <= 250)
+    rmax = rf.max(axis=1)
+    if np.count_nonzero(sel) >= 5:
+        w = float(np.median(rmax[sel]))
+    else:
+        unclipped = mx < 255
+        w = float(np.percentile(rmax[unclipped], 99)) if np.count_nonzero(unclipped) >= 5 else float(rmax.max())
+    if not np.isfinite(w) or w <= 0:
+        w = float(np.max(np.abs(rf)))
+    return max(w, 1e-30)
+
+
+def log_training_targets(model, jf: np.ndarray, rf: np.ndarray):
+    """Shared by the log-space models: seeded subsample to ``model.n_train`` pairs, set
+    ``model.raw_white`` and ``model.eps``; returns (rng, jf, rf, inputs code/255, log targets)."""
+    rng = np.random.default_rng(model.seed)
+    if jf.shape[0] > model.n_train:
+        sel = np.sort(rng.choice(jf.shape[0], model.n_train, replace=False))
+        jf, rf = jf[sel], rf[sel]
+    model.raw_white = estimate_raw_white(jf, rf)
+    model.eps = model.eps_rel * model.raw_white
+    return rng, jf, rf, jf / 255.0, np.log(np.maximum(rf, 0.0) + model.eps)
+
+
+def lognormal_moments(mu: np.ndarray, s2: np.ndarray, eps: float,
+                      median: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Raw-space (centre, spread) of raw = exp(t) - eps with t ~ N(mu, s2), float64.
+
+    ``median=False``: mean ``exp(mu + s2/2) - eps`` and variance ``(exp(s2) - 1) exp(2 mu + s2)``.
+    ``median=True``: median ``exp(mu) - eps`` and the mean squared deviation about it,
+    ``exp(2 mu) ((exp(s2) - 1) exp(s2) + (exp(s2/2) - 1)^2)``.
+    """
+    s2 = np.clip(s2, 0.0, MAX_LOG_VAR)
+    big = np.finfo(np.float32).max / 4
+    with np.errstate(over="ignore"):
+        if not median:
+            e = np.exp(np.minimum(np.maximum(mu, -_MAX_LOG_MEAN) + 0.5 * s2, 40.0))
+            return np.minimum(e - eps, big), np.minimum(np.expm1(s2) * (e * e), big)
+        e = np.exp(np.minimum(np.maximum(mu, -_MAX_LOG_MEAN), 40.0))
+        h = np.exp(0.5 * s2)
+        return np.minimum(e - eps, big), np.minimum((np.expm1(s2) * h * h + (h - 1.0) ** 2) * (e * e), big)
+
+
+def lognormal_moments_inplace(mu: np.ndarray, logvar: np.ndarray, eps: float,
+                              median: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Same as :func:`lognormal_moments` from (mu, log s2), float32, reusing the input buffers."""
+    big = np.float32(np.finfo(np.float32).max / 4)
+    np.minimum(logvar, np.float32(np.log(MAX_LOG_VAR)), out=logvar)
+    s2 = np.exp(logvar, out=logvar)
+    var = np.multiply(s2, np.float32(0.5))
+    with np.errstate(over="ignore"):
+        if median:
+            h = np.exp(var, out=var)                 # exp(s2/2)
+            g = np.expm1(s2, out=s2)
+            g *= h
+            g *= h
+            h -= np.float32(1.0)
+            h *= h
+            h += g                                   # (exp(s2)-1) exp(s2) + (exp(s2/2)-1)^2
+        else:
+            mu += var
+            np.expm1(s2, out=var)
+        np.minimum(mu, np.float32(40.0), out=mu)
+        e = np.exp(mu, out=mu)
+        var *= e
+        var *= e
+    np.minimum(var, big, out=var)
+    e -= np.float32(eps)
+    np.minimum(e, big, out=e)
+    return e, var
+
+
+def table_nodes(n: int = 40, offset: float = 3e-3) -> np.ndarray:
+    """Per-axis integer code nodes of the prediction table (float64, sorted, 0 and 255 included).
+
+    Nodes are uniform in ``log(srgb_decode(code/255) + offset)`` (so the log-raw mean is
+    close to linear between nodes), plus every code in 0..3 and 250..255 where clipping
+    makes the de-rendering curve bend sharply.
+    """
+    if n < 8:
+        raise InputError("table size must be at least 8 nodes per axis")
+    codes = np.arange(256.0)
+    w = np.log(srgb_decode64(codes / 255.0) + offset)
+    targets = np.linspace(w[0], w[-1], n - 10)
+    nodes = np.interp(targets, w, codes)
+    nodes = np.unique(np.concatenate([np.rint(nodes), [0, 1, 2, 3, 250, 251, 252, 253, 254, 255]]))
+    return nodes.astype(np.float64)
+
+
+class LatentTable:
+    """Trilinear interpolation of latent values tabulated on a rectilinear grid of codes.
+
+    For 8-bit codes the table is first interpolated (once, lazily) along the G and B axes
+    to every code, giving a float32 (n, 256, 256, C) array; a colour then needs a single
+    linear interpolation along R -- the same trilinear interpolant, evaluated in O(1)
+    gathers per colour.
+    """
+
+    def __init__(self, nodes: np.ndarray, values: np.ndarray):
+        self.nodes = np.asarray(nodes, dtype=np.float64)
+        self.values = np.ascontiguousarray(values, dtype=np.float64)  # (n, n, n, C)
+        n = self.nodes.shape[0]
+        self.flat = self.values.reshape(n * n * n, -1)
+        self._lut_lo, self._lut_w = self._locate(np.arange(256.0))
+        self._gb: list[np.ndarray] | None = None
+
+    def _locate(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = self.nodes.shape[0]
+        i = np.clip(np.searchsorted(self.nodes, codes, side="right") - 1, 0, n - 2)
+        x0, x1 = self.nodes[i], self.nodes[i + 1]
+        w = np.clip((codes - x0) / (x1 - x0), 0.0, 1.0)
+        return i.astype(np.intp), w
+
+    def _gb_tables(self) -> list[np.ndarray]:
+        if self._gb is None:
+            # float32 throughout, one 3-value block at a time: the (n, 256, 256, 3) tables are
+            # ~30 MB each, and float64 temporaries of the full width cost seconds on first use
+            lo = self._lut_lo
+            w = self._lut_w.astype(np.float32)
+            vb = self.values[:, :, lo]                                  # along B: (n, n, 256, C)
+            vb += (self.values[:, :, lo + 1] - vb) * self._lut_w[:, None]
+            vb = vb.astype(np.float32)
+            wg = w[None, :, None, None]
+            tabs = []
+            for k in range(0, vb.shape[-1], 3):
+                part = np.ascontiguousarray(vb[..., k:k + 3])
+                out = part[:, lo]                                      # along G: (n, 256, 256, 3)
+                hi = part[:, lo + 1]
+                hi -= out
+                hi *= wg
+                out += hi
+                tabs.append(out.reshape(-1, 3))
+            self._gb = tabs
+        return self._gb
+
+    def at_codes(self, codes: np.ndarray) -> list[np.ndarray]:
+        """Interpolate at integer (M,3) codes: list of contiguous float32 (M,3) blocks (3 values each)."""
+        tabs = self._gb_tables()
+        c = codes if codes.dtype.kind in "iu" else codes.astype(np.intp)
+        i = self._lut_lo[c[:, 0]]
+        w = self._lut_w[c[:, 0]].astype(np.float32)[:, None]
+        j = i * 65536 + c[:, 1].astype(np.intp) * 256 + c[:, 2]
+        j1 = j + 65536
+        out = []
+        for tab in tabs:
+            v0 = np.take(tab, j, axis=0)
+            v1 = np.take(tab, j1, axis=0)
+            v1 -= v0
+            v1 *= w
+            v1 += v0
+            out.append(v1)
+        return out
+
+    def at_float(self, codes: np.ndarray) -> np.ndarray:
+        """Interpolate at real-valued (M,3) codes in [0, 255]; float64 (M, C)."""
+        n = self.nodes.shape[0]
+        lo, w = self._locate(codes)
+        base = lo[:, 0] * (n * n) + lo[:, 1] * n + lo[:, 2]
+        out = np.zeros((codes.shape[0], self.flat.shape[1]))
+        for dr in (0, 1):
+            wr = w[:, 0] if dr else 1.0 - w[:, 0]
+            for dg in (0, 1):
+                wg = wr * (w[:, 1] if dg else 1.0 - w[:, 1])
+                for db in (0, 1):
+                    wb = wg * (w[:, 2] if db else 1.0 - w[:, 2])
+                    out += wb[:, None] * self.flat[base + (dr * n * n + dg * n + db)]
+        return out
+
+
+# ============================================================================ base class
+class DerenderModel:
+    """Common interface: ``fit(jpeg, raw)``, ``predict(colours) -> (mean, var)``, ``save``, ``load``.
+
+    ``jpeg``: (N,3) 8-bit codes; ``raw``: (N,3) linear camera RGB (white balance fixed,
+    relative units). ``predict`` takes uint8 codes (..., 3) or floats code/255 in [0, 1]
+    and returns float32 ``mean`` and ``variance`` of the raw colour, shape (..., 3).
+    """
+
+    method: ClassVar[str] = ""
+    _param_names: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, seed: int = 0, metadata: dict | None = None):
+        self.seed = int(seed)
+        self.metadata: dict[str, Any] = dict(metadata or {})
+        self.fitted = False
+
+    # ------------------------------------------------------------------ to implement
+    def _fit(self, jf: np.ndarray, rf: np.ndarray) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _predict_codes(self, codes: np.ndarray, integer: bool, exact: bool,
+                       median: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(M,3) codes (integer if ``integer``, else real in [0,255]) -> raw-space (centre, spread).
+
+        Float32 results must be finite (they are used as is); float64 results are sanitised.
+        """
+        raise NotImplementedError  # pragma: no cover
+
+    def _get_params(self) -> dict[str, np.ndarray]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _set_params(self, p: dict[str, np.ndarray]) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ public API
+    def fit(self, jpeg, raw) -> "DerenderModel":
+        """Learn the model from pairs ``jpeg`` (N,3) codes and ``raw`` (N,3) linear camera RGB."""
+        jf, rf = _check_pairs(jpeg, raw)
+        t0 = time.perf_counter()
+        self._fit(jf, rf)
+        self.fitted = True
+        self.metadata.setdefault("training", {})
+        self.metadata["training"].update({"n_pairs": int(jf.shape[0]), "seed": self.seed,
+                                          "fit_seconds": round(time.perf_counter() - t0, 3)})
+        return self
+
+    def predict(self, colours, exact: bool = False, point: str = "mean") -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance (float32, shape ``colours.shape``) of the raw colour given rendered colours.
+
+        Accepts uint8 codes (any leading shape, e.g. an (H, W, 3) image) or floats in
+        [0, 1] meaning code/255. Each distinct colour is predicted once. ``exact=True``
+        skips the interpolation table (slow). ``point="median"`` returns the predictive
+        median and the mean squared deviation about it instead of mean and variance (a
+        better point estimate under relative error when the distribution is wide, e.g.
+        for clipped colours); ``point="map"`` returns the mode of the predictive
+        distribution (the MAP estimate paper 2 Sec. 4.1 names; for the GP's log-normal
+        ``exp(mu - s2) - eps``) and the mean squared deviation about it. Deterministic
+        models ignore ``point``.
+        """
+        if point not in ("mean", "median", "map"):
+            raise InputError(f"point must be 'mean', 'median' or 'map', got {point!r}")
+        median = point == "median"
+        if not self.fitted:
+            raise InputError(f"{type(self).__name__} is not fitted; call fit() or load a model file")
+        if point == "map" and hasattr(self, "predict_log"):
+            return self._predict_map(colours, exact)
+        shape = np.shape(colours)
+        flat, is_codes = as_colour_array(colours)
+        if flat.shape[0] == 0:
+            z = np.zeros(shape, dtype=np.float32)
+            return z, z.copy()
+        if is_codes:
+            uniq, inv = _distinct_codes(flat)
+            m, v = self._predict_codes(_unpack(uniq), True, exact, median)
+            if m.dtype != np.float32 or v.dtype != np.float32:   # the float32 table path is finite by design
+                m, v = finite32(m, v)
+            mean, var = np.take(m, inv, axis=0), np.take(v, inv, axis=0)
+        else:
+            mean = np.empty(flat.shape, dtype=np.float32)
+            var = np.empty(flat.shape, dtype=np.float32)
+            step = 1 << 18
+            for s in range(0, flat.shape[0], step):
+                m, v = self._predict_codes(flat[s:s + step] * 255.0, False, exact, median)
+                mean[s:s + step], var[s:s + step] = finite32(m, v)
+        return mean.reshape(shape), var.reshape(shape)
+
+    __call__ = predict
+
+    def _predict_map(self, colours, exact: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Mode ``exp(mu - s2) - eps`` of the log-normal predictive and E[(x - mode)^2]."""
+        mu, s2 = self.predict_log(colours, exact=exact)
+        s2 = np.clip(np.asarray(s2, dtype=np.float64), 0.0, MAX_LOG_VAR)
+        mu = np.clip(np.asarray(mu, dtype=np.float64), -_MAX_LOG_MEAN, _MAX_LOG_MEAN)
+        with np.errstate(over="ignore"):
+            mode = np.exp(mu - s2)
+            mean = np.exp(mu + 0.5 * s2)
+            var = np.expm1(s2) * np.exp(2 * mu + s2) + (mean - mode) ** 2
+        return finite32(mode - self.eps, var)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the model to a versioned ``.npz`` file (no pickle); returns the path."""
+        from derender.io.files import atomic_output
+
+        if not self.fitted:
+            raise InputError("cannot save an unfitted model")
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(MODEL_FORMAT),
+            "format_version": np.array(MODEL_FORMAT_VERSION, dtype=np.int64),
+            "method": np.array(self.method),
+            "seed": np.array(self.seed, dtype=np.int64),
+            "metadata_json": np.array(json.dumps(self.metadata, default=_json_default, sort_keys=True)),
+        }
+        for k, v in self._get_params().items():
+            arrays["p_" + k] = np.asarray(v)
+        path = Path(path)
+        with atomic_output(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "DerenderModel":
+        """Read a model file written by :meth:`save` (raises ModelFileError if unusable)."""
+        model = load_model(path)
+        if cls is not DerenderModel and not isinstance(model, cls):
+            raise ModelFileError(f"{path}: holds a '{model.method}' model, not '{cls.method}'")
+        return model
+
+    def __repr__(self) -> str:
+        state = "fitted" if self.fitted else "unfitted"
+        return f"{type(self).__name__}({state}, seed={self.seed})"
+
+
+def finite32(m: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float32 copies with NaN/inf replaced (mean: 0 / +-max; variance: max)."""
+    big = np.finfo(np.float32).max
+    m = np.nan_to_num(m.astype(np.float32, copy=False), nan=0.0, posinf=big, neginf=-big)
+    v = np.nan_to_num(v.astype(np.float32, copy=False), nan=big, posinf=big, neginf=0.0)
+    return m, np.maximum(v, 0.0)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def load_model(path: str | os.PathLike) -> DerenderModel:
+    """Load any de-rendering model file; corrupt, foreign or mismatched files raise ModelFileError."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f"model file not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
+        raise ModelFileError(f"{path}: not a readable .npz model file ({type(exc).__name__}: {exc})") from None
+    if "format" not in data or str(data["format"]) != MODEL_FORMAT:
+        raise ModelFileError(f"{path}: not a derender model file (no format='{MODEL_FORMAT}' entry)")
+    try:
+        version = int(data["format_version"])
+    except (KeyError, TypeError, ValueError):
+        raise ModelFileError(f"{path}: model file has no valid format_version") from None
+    if version != MODEL_FORMAT_VERSION:
+        raise ModelFileError(f"{path}: model file format version {version} is not supported "
+                             f"(this derender reads version {MODEL_FORMAT_VERSION})")
+    method = str(data.get("method", ""))
+    if method not in MODEL_TYPES:
+        raise ModelFileError(f"{path}: unknown model method '{method}' (known: {', '.join(MODEL_TYPES)})")
+    cls = MODEL_TYPES[method]
+    try:
+        metadata = json.loads(str(data.get("metadata_json", "{}")))
+        model = cls(seed=int(data.get("seed", 0)), metadata=metadata)
+        params = {k[2:]: v for k, v in data.items() if k.startswith("p_")}
+        missing = [k for k in cls._param_names if k not in params]
+        if missing:
+            raise ModelFileError(f"model file lacks parameters {missing}")
+        model._set_params(params)
+    except ModelFileError as exc:
+        raise ModelFileError(f"{path}: {exc}") from None
+    except Exception as exc:
+        raise ModelFileError(f"{path}: inconsistent model parameters ({type(exc).__name__}: {exc})") from None
+    model.fitted = True
+    return model
+
+
+# ============================================================================ registry
+class ModelTypes(Mapping[str, "type[DerenderModel]"]):
+    """Read-only ``method -> model class`` map whose classes are imported on first use.
+
+    Each method lives in its own module (:mod:`~derender.derendering.local_gp`,
+    :mod:`~derender.derendering.polynomial`, :mod:`~derender.derendering.rbf`), which
+    imports this one; listing the names (``in``, iteration, ``len``) imports nothing, and
+    loading a model file imports only the module of its method.
+    """
+
+    def __init__(self, classes: dict[str, str]):
+        self._classes = dict(classes)   # method -> "module:Class"
+
+    def __getitem__(self, method: str) -> type[DerenderModel]:
+        module, name = self._classes[method].split(":")
+        return getattr(importlib.import_module(module), name)
+
+    def __contains__(self, method: object) -> bool:   # Mapping's default would import the class
+        return method in self._classes
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._classes)
+
+    def __len__(self) -> int:
+        return len(self._classes)
+
+    def __repr__(self) -> str:
+        return f"ModelTypes({self._classes!r})"
+
+
+MODEL_TYPES = ModelTypes({
+    "gp": "derender.derendering.local_gp:LocalGPModel",
+    "poly": "derender.derendering.polynomial:PolynomialModel",
+    "rbf": "derender.derendering.rbf:RBFModel",
+})
+
+
+def model_metadata(pairs) -> dict:
+    """Metadata a de-rendering model keeps from its calibration pairs (camera, WB, colour matrix)."""
+    return {"camera": {"name": pairs.camera, "make": pairs.make, "model": pairs.model},
+            "camera_to_srgb": np.asarray(pairs.camera_to_srgb).tolist(), "wb": np.asarray(pairs.wb).tolist()}
+
+
+def fit_model(method: str, jpeg, raw, seed: int = 0, **kw) -> DerenderModel:
+    """Fit a de-rendering model by name (``"gp"``, ``"poly"``, ``"rbf"``); extra keywords go to the class."""
+    if method not in MODEL_TYPES:
+        raise InputError(f"unknown de-rendering method '{method}' (choose from {', '.join(MODEL_TYPES)})")
+    try:
+        model = MODEL_TYPES[method](seed=seed, **kw)
+    except TypeError as exc:
+        raise InputError(f"bad option for method '{method}': {exc}") from None
+    return model.fit(jpeg, raw)
+
+

@@ -1,0 +1,96 @@
+"""Error measures of de-rendering predictions against true raw colours (paper 2, Table 1).
+
+* :func:`relative_rmse` -- ``sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2)``, the measure of
+  paper 2 Table 1; :func:`rmse` and :func:`median_relative_error` alongside.
+* :func:`code_floor_errors` -- the lower bound on the relative RMSE of *any* function of
+  the 8-bit code (the ``floor`` row of ``derender experiment derender-table``).
+* :func:`interval_coverage` -- calibration of the predictive variance: the fraction of
+  truths inside the central Gaussian interval ``mean +- z sqrt(var)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from derender.core.errors import InputError
+
+__all__ = [
+    "relative_rmse",
+    "rmse",
+    "median_relative_error",
+    "code_floor_errors",
+    "interval_coverage",
+]
+
+
+def _pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(pred, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    if p.shape != t.shape:
+        raise InputError(f"prediction and truth shapes differ: {np.shape(pred)} vs {np.shape(truth)}")
+    return p, t
+
+
+def relative_rmse(pred, truth) -> float:
+    """sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2) over colours with ||x_i|| > 0 (paper 2, Table 1)."""
+    p, t = _pair_arrays(pred, truth)
+    n2 = (t * t).sum(1)
+    ok = n2 > 0
+    return float(np.sqrt(np.mean(((p[ok] - t[ok]) ** 2).sum(1) / n2[ok])))
+
+
+def rmse(pred, truth) -> float:
+    """sqrt(mean_i ||x_hat_i - x_i||^2): RMS Euclidean error per colour vector."""
+    p, t = _pair_arrays(pred, truth)
+    return float(np.sqrt(np.mean(((p - t) ** 2).sum(1))))
+
+
+def median_relative_error(pred, truth) -> float:
+    """median_i ||x_hat_i - x_i|| / ||x_i|| over colours with ||x_i|| > 0."""
+    p, t = _pair_arrays(pred, truth)
+    n = np.sqrt((t * t).sum(1))
+    ok = n > 0
+    return float(np.median(np.sqrt(((p[ok] - t[ok]) ** 2).sum(1)) / n[ok]))
+
+
+def code_floor_errors(codes, truth) -> np.ndarray:
+    """Per-colour squared relative errors of the best possible function of the 8-bit code.
+
+    Colours sharing a code get the one point ``v = sum_i x_i/|x_i|^2 / sum_i 1/|x_i|^2``
+    minimising ``sum_i ||v - x_i||^2 / ||x_i||^2`` over them, fitted to ``truth`` itself; so
+    ``sqrt(mean(errors))`` is a lower bound on the :func:`relative_rmse` that *any* model
+    predicting from the code alone (GP, polynomial, RBF, a look-up table) can reach on these
+    colours. It is far from zero where rendering is one-to-many: clipped (255) channels and
+    near-black codes. Colours with ``||x|| = 0`` are left out (as in :func:`relative_rmse`).
+    """
+    c = np.asarray(codes)
+    t = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    c = c.reshape(-1, 3)
+    if c.shape != t.shape:
+        raise InputError(f"codes and truth shapes differ: {np.shape(codes)} vs {np.shape(truth)}")
+    n2 = (t * t).sum(1)
+    ok = n2 > 0
+    c, t, n2 = c[ok], t[ok], n2[ok]
+    if t.shape[0] == 0:
+        return np.zeros(0)
+    _, inv = np.unique(np.rint(c).astype(np.int64), axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    w = 1.0 / n2
+    k = int(inv.max()) + 1
+    wsum = np.bincount(inv, w, k)
+    v = np.stack([np.bincount(inv, t[:, ch] * w, k) for ch in range(3)], axis=1) / wsum[:, None]
+    return ((v[inv] - t) ** 2).sum(1) * w
+
+
+def interval_coverage(mean, var, truth, level: float = 0.95) -> np.ndarray:
+    """Per-channel fraction of truths inside the central Gaussian interval mean +- z sqrt(var)."""
+    if not 0 < level < 1:
+        raise InputError("level must be in (0, 1)")
+    m, t = _pair_arrays(mean, truth)
+    v = np.asarray(var, dtype=np.float64).reshape(-1, 3)
+    if v.shape != m.shape:
+        raise InputError("variance shape differs from mean shape")
+    from scipy.special import ndtri
+
+    z = float(ndtri(0.5 + level / 2))
+    return np.mean(np.abs(t - m) <= z * np.sqrt(np.maximum(v, 0.0)), axis=0)

@@ -1,0 +1,130 @@
+"""The offline local GP (``derender.derendering.local_gp``, paper 2 Sec. 2.2 and 4)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from synthetic_pairs import GP_TEST_SETTINGS
+
+from derender.derendering.base import fit_model, load_model
+from derender.derendering.local_gp import LocalGPModel, _clip_bits, _gp_nll, _sq_dists
+from derender.evaluation.derendering_metrics import interval_coverage
+
+pytest_plugins = ["synthetic_pairs"]   # fixtures data, gp, poly, rbf
+
+
+def test_gp_interval_coverage(data, gp):
+    _, _, jte, rte = data
+    mean, var = gp.predict(jte)
+    cov = interval_coverage(mean, var, rte, level=0.95)
+    print("95% coverage per channel:", cov)
+    assert np.all(cov >= 0.90) and np.all(cov <= 0.98)
+    # the log-space Gaussian is what the GP calibrates; check it too
+    mu, s2 = gp.predict_log(jte)
+    z = np.abs(np.log(np.maximum(rte, 0) + gp.eps) - mu) / np.sqrt(s2)
+    assert np.all((z < 1.96).mean(axis=0) >= 0.88)
+
+
+def test_gp_table_matches_exact_gp(data, gp):
+    _, _, jte, _ = data
+    cols = jte[:3000]
+    mu_t, s2_t = gp.predict_log(cols)
+    mu_e, s2_e = gp.predict_log(cols, exact=True)
+    dz = np.abs(mu_t - mu_e) / np.sqrt(s2_e)
+    assert np.median(dz) < 0.1 and np.percentile(dz, 90) < 1.0
+    assert np.median(np.abs(np.log(s2_t / s2_e))) < 0.1
+    nodes = gp.table_nodes_.astype(np.uint8)             # at grid nodes the table is the exact GP
+    grid = np.stack(np.meshgrid(nodes[::5], nodes[::5], nodes[::5], indexing="ij"), -1).reshape(-1, 3)
+    a, b = gp.predict_log(grid)
+    c, d = gp.predict_log(grid, exact=True)
+    np.testing.assert_allclose(a, c, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.log(b), np.log(d), atol=1e-4)
+
+
+def test_gp_marginal_likelihood_matches_sklearn():
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    rng = np.random.default_rng(0)
+    X = rng.random((60, 3))
+    y = np.sin(3 * X[:, 0]) + X[:, 1] ** 2 + 0.05 * rng.standard_normal(60)
+    theta = np.log([0.3, 0.5, 0.8, 1.2, 0.07])
+    nll, grad = _gp_nll(theta, _sq_dists(X), y)
+    kernel = ConstantKernel(1.2 ** 2) * RBF([0.3, 0.5, 0.8]) + WhiteKernel(0.07 ** 2 + 1e-8 * 1.2 ** 2)
+    gpr = GaussianProcessRegressor(kernel, optimizer=None, alpha=0.0, normalize_y=False).fit(X, y)
+    assert nll == pytest.approx(-gpr.log_marginal_likelihood_value_, rel=1e-7)
+    h = 1e-6                                              # analytic gradient vs central differences
+    num = [(_gp_nll(theta + h * e, _sq_dists(X), y)[0] - _gp_nll(theta - h * e, _sq_dists(X), y)[0]) / (2 * h)
+           for e in np.eye(5)]
+    np.testing.assert_allclose(grad, num, rtol=1e-4, atol=1e-6)
+    r = rng.uniform(0.5, 3.0, 60)                         # heteroscedastic noise gradient too
+    g2 = _gp_nll(theta, _sq_dists(X), y, r)[1]
+    num2 = (_gp_nll(theta + h * np.eye(5)[4], _sq_dists(X), y, r)[0]
+            - _gp_nll(theta - h * np.eye(5)[4], _sq_dists(X), y, r)[0]) / (2 * h)
+    assert g2[4] == pytest.approx(num2, rel=1e-4)
+
+
+def test_determinism_same_seed(data):
+    j, r = data[0][:900], data[1][:900]
+    kw = dict(n_train=500, n_clusters=5, max_cluster_points=200, opt_points=100, table_size=12)
+    a = fit_model("gp", j, r, seed=3, **kw)
+    b = fit_model("gp", j, r, seed=3, **kw)
+    cols = data[2][:500]
+    for x, y in zip(a.predict(cols), b.predict(cols)):
+        assert x.tobytes() == y.tobytes()
+    assert a.predict(cols, exact=True)[0].tobytes() == b.predict(cols, exact=True)[0].tobytes()
+    # predictions are equivariant to the (arbitrary) raw units
+    c = fit_model("gp", j, r * 1000.0, seed=3, **kw)
+    np.testing.assert_allclose(c.predict(cols)[0], 1000.0 * a.predict(cols)[0], rtol=1e-4, atol=1e-7)
+
+
+def test_gp_clip_pattern_clusters_and_bounded_noise(data, gp):
+    # with clip_patterns, clipped colours are clustered per clip pattern and a clipped test
+    # colour uses a cluster of its own pattern when there is one
+    jt = data[2]
+    pat = LocalGPModel(seed=0, clip_patterns=True, **GP_TEST_SETTINGS).fit(data[0], data[1])
+    bits = _clip_bits(jt.astype(float), pat.clip_code)
+    lab = pat._assign(jt / 255.0)
+    g = pat.cluster_group
+    assert np.all(g[lab[bits == 0]] == 0) and np.all(g[lab[bits > 0]] >= 1)
+    own = np.isin(1 + bits, g) & (bits > 0)
+    assert own.any() and np.all(g[lab[own]] == 1 + bits[own])
+    # by default: one group for every clipped colour
+    lab = gp._assign(jt / 255.0)
+    assert np.all(gp.cluster_group[lab[bits == 0]] == 0) and np.all(gp.cluster_group[lab[bits > 0]] == 1)
+    # the input-dependent noise never exceeds its largest value on the training colours, anywhere
+    # in the code cube (an unbounded noise GP extrapolated to log-variances of 30+)
+    codes = np.random.default_rng(3).integers(0, 256, (4000, 3))
+    _, s2 = gp.predict_log(codes.astype(np.uint8), exact=True)
+    lab = gp._assign(codes / 255.0)
+    sf2 = np.exp(2 * gp.theta[lab, :, 3])
+    noise_max = np.exp(2 * gp.theta[lab, :, 4] + gp.theta_noise[lab, :, 7])
+    assert np.all(s2 <= (sf2 + noise_max) * gp.t_std[lab] ** 2 * (1 + 1e-9))
+
+
+def test_gp_predictive_variance_never_exceeds_the_training_variance(tmp_path, data, gp):
+    # a GP extrapolating with a huge signal variance (simulated 5D II: blue log-variances of
+    # 40-48 for a few purples, a predictive mean 2.6e9x the median) is capped at var(t) of
+    # the training colours, in the exact path, the table path and tables of older files
+    cap = np.var(gp.T, axis=0)
+    codes = np.random.default_rng(4).integers(0, 256, (3000, 3)).astype(np.uint8)
+    wide = copy.deepcopy(gp)
+    wide.theta = gp.theta.copy()
+    wide.theta[..., 3] += 5.0                     # signal variance x e^10
+    wide._factors = {}
+    _, s2 = wide.predict_log(codes, exact=True)
+    assert np.all(s2 <= cap * (1 + 1e-12))
+    assert np.any(np.isclose(s2, cap))            # the cap binds for this model
+    old = copy.deepcopy(gp)
+    vals = old.table_values_.copy()
+    vals[..., 3:] = 50.0                          # an uncapped table as older files hold
+    old.table_values_ = vals
+    path = old.save(tmp_path / "old.npz")
+    back = load_model(path)
+    _, s2_tab = back.predict_log(codes)
+    assert np.all(s2_tab <= cap * (1 + 1e-6))
+    mean, _ = back.predict(codes)
+    med, _ = back.predict(codes, point="median")
+    assert np.all(np.isfinite(mean)) and np.all(mean <= (med + back.eps) * np.exp(cap / 2) * 1.001)
