@@ -148,7 +148,7 @@ def peak_rss_kb(stderr: str) -> int | None:
     return int(found[-1]) if found else None
 
 
-def _run_measured(cmd: list[str], cwd: str | os.PathLike | None = None) -> dict:
+def _run_measured(cmd: list[str], cwd: str | os.PathLike | None = None, env: dict | None = None) -> dict:
     """Run ``cmd``; wall time, exit code, stdout/stderr tails, CPU time (``wait4``) and the peak RSS.
 
     A Python child (``python -c CODE ...`` or ``python -m MODULE ...``) runs under
@@ -158,7 +158,7 @@ def _run_measured(cmd: list[str], cwd: str | os.PathLike | None = None) -> dict:
     run_cmd = [cmd[0], "-c", _PEAK_WRAPPER, *cmd[1:]] if wrapped else cmd
     with tempfile.TemporaryFile() as fo, tempfile.TemporaryFile() as fe:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(run_cmd, stdout=fo, stderr=fe, cwd=cwd)
+        proc = subprocess.Popen(run_cmd, stdout=fo, stderr=fe, cwd=cwd, env=env)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
         proc.returncode = os.waitstatus_to_exitcode(status)
