@@ -39,6 +39,38 @@ def validate_times(times: Any, n_images: int) -> np.ndarray:
     return t
 
 
+def check_brightness_order(times: Any, brightness: Any, names: list[str] | None = None, hint: str = "") -> None:
+    """Refuse a bracket whose images get darker as the exposure time grows.
+
+    ``times`` (s) and ``brightness`` (the mean 8-bit code of each image) in the same
+    order. The images whose brightness is informative (mean code in (2, 253): not all
+    black, not all clipped) must not be ordered against their times: with the times
+    sorted, more neighbouring pairs that get darker by over 2 codes than pairs that get
+    brighter means the times are in the wrong order or inverted (a list of ``1/t``).
+    Camera gain changes between exposures cannot cause it in a bracket whose gain changes
+    are smaller than its steps. Raises :class:`InputError` naming the first offending
+    pair, followed by ``hint``.
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    b = np.asarray(brightness, dtype=np.float64).reshape(-1)
+    order = np.argsort(t, kind="stable")
+    keep = [int(i) for i in order if 2.0 < b[i] < 253.0]
+    if len(keep) < 2:
+        return
+    d = np.diff(b[keep])
+    darker, brighter = int(np.sum(d < -2.0)), int(np.sum(d > 2.0))
+    if darker == 0 or darker <= brighter:
+        return
+    k = int(np.flatnonzero(d < -2.0)[0])
+    i, j = keep[k], keep[k + 1]
+
+    def label(m: int) -> str:
+        return names[m] if names else f"image {m}"
+
+    raise InputError(f"exposure times contradict the images: {label(i)} ({t[i]:.6g} s) is brighter than {label(j)} "
+                     f"({t[j]:.6g} s, mean code {b[i]:.0f} vs {b[j]:.0f})" + (f"; {hint}" if hint else ""))
+
+
 @dataclass
 class Stack:
     """A bracketed exposure stack of rendered images, sorted by exposure time.

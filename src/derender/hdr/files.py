@@ -18,8 +18,10 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+import numpy as np
+
 from derender.core.errors import InputError
-from derender.core.types import HDRResult
+from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import NotStreamable
 from derender.engine.run import FileFrames, run, write_outputs
 from derender.hdr.registry import get_method, merge_seeded, method_options
@@ -55,6 +57,13 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 raise InputError(f"output must end in .exr, got {Path(out).name}")
             check_not_input(out, all_inputs)
     opts = method_options(method, options)
+    if times is not None:
+        hint = "check the order of the times (one per image, in the order the images are given)"
+    elif times_file is not None:
+        hint = ("did you mean --times-inverse? (the file may list 1/t)" if not times_file_inverse else
+                "the file may list times, not 1/t: drop --times-inverse?")
+    else:
+        hint = "the EXIF exposure times disagree with the images; give the times with --times"
     res = None
     factory = getattr(fn, "engine_method", None)
     if factory is not None and opts.get("engine", "auto") != "reference":
@@ -63,7 +72,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
             if engine_method is not None:
                 res = run(engine_method, FileFrames(paths, t), threads=threads, keep_frames=keep_frames,
                           keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
-                          compression=compression, inputs=all_inputs)
+                          compression=compression, inputs=all_inputs, order_hint=hint)
         except NotStreamable:
             res = None
     if res is None:
@@ -71,6 +80,9 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
 
         seed = options.pop("seed", 0)
         stack = read_stack(paths, times=t)
+        names = [paths[i].name for i in np.argsort(t, kind="stable")]
+        check_brightness_order(stack.times, [255.0 * float(im[::8, ::8].mean()) for im in stack.images],
+                               names, hint)
         res = merge_seeded(stack, method, seed, **options)
         res.info.setdefault("engine", "stack")
         res.info["engine_path"] = "stack"
