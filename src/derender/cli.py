@@ -275,7 +275,7 @@ def evaluate(
     remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """PSNR on R, G, B and luminance L after the protocol of DESIGN.md (scale fitted per plane)."""
+    """PSNR on R, G, B and luminance L after the protocol of docs/paper1.md (scale fitted per plane)."""
     from derender.evaluation.metrics import psnr_rgbl
     from derender.io.rgbe import read_radiance
 
