@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import inspect
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -57,9 +58,11 @@ smartquotes = False  # option names (--times) and quotes stay as typed
 myst_enable_extensions = ["colon_fence", "dollarmath"]
 myst_heading_anchors = 3
 
-# API reference: one page per defining module (the packages only re-export their names
+# API reference: one page per defining module (regenerated on every build, so that a
+# module removed from the package leaves no stale page behind) (the packages only re-export their names
 # lazily, see derender.core.lazy), members from each module's __all__.
 autosummary_generate = True
+shutil.rmtree(DOCS / "_autosummary", ignore_errors=True)
 autosummary_imported_members = False
 autosummary_context = {"exports": package_exports(ROOT / "src" / "derender")}
 autodoc_default_options = {"show-inheritance": True}
