@@ -269,7 +269,7 @@ def evaluate(
     fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale'."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """PSNR on R, G, B and luminance L (scale fitted per plane), per-pixel relative error
+    """PSNR on R, G, B and luminance L (scale fitted per plane; docs/paper1.md), per-pixel relative error
     (median, p90, after a 3x3 fit weighted 1/||g||^2) and log-luminance PSNR."""
     from derender.evaluation.metrics import hdr_scores
     from derender.io.rgbe import read_radiance

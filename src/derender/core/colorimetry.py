@@ -37,7 +37,7 @@ LINEAR_SRGB_TO_XYZ = np.array(
 XYZ_TO_LINEAR_SRGB = np.linalg.inv(LINEAR_SRGB_TO_XYZ)
 
 
-#: Rec. 709 luminance weights (DESIGN.md evaluation protocol).
+#: Rec. 709 luminance weights (the HDR PSNR protocol, ``docs/paper1.md``).
 LUMINANCE_WEIGHTS_REC709 = np.array([0.2126, 0.7152, 0.0722])
 
 

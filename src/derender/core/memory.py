@@ -28,13 +28,16 @@ __all__ = [
 ]
 
 
+#: Channel order of every image array.
 CHANNELS = "RGB"
 
 
+#: Code values of an 8-bit channel (the size of every per-code table).
 N_CODES = 256
 
 
 def import_cv2():
+    """OpenCV, imported on first use (``import derender`` does not load it)."""
     import cv2
 
     return cv2
@@ -66,6 +69,7 @@ def opencv_single_thread():
 
 
 def thread_count(threads: int | None) -> int:
+    """``threads`` (at least 1), or the CPUs this process may run on when None."""
     if threads is None:
         try:
             return max(1, len(os.sched_getaffinity(0)))

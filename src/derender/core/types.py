@@ -77,11 +77,16 @@ class Stack:
 
     Attributes
     ----------
-    images : (N, H, W, 3) float32, code values divided by the maximum code (255 or 65535).
-    times : (N,) float64 exposure times in seconds, strictly increasing.
-    bit_depth : 8 or 16 for files; 0 when built from float arrays.
-    paths : source file per image ("" for in-memory images).
-    metadata : per-image dict (camera make/model, EXIF fields found, ...).
+    images : numpy.ndarray
+        (N, H, W, 3) float32, code values divided by the maximum code (255 or 65535).
+    times : numpy.ndarray
+        (N,) float64 exposure times in seconds, strictly increasing.
+    bit_depth : int
+        8 or 16 for files; 0 when built from float arrays.
+    paths : tuple of str
+        Source file per image ("" for in-memory images).
+    metadata : tuple of dict
+        Per-image dict (camera make/model, EXIF fields found, ...).
     """
 
     images: np.ndarray
@@ -138,14 +143,25 @@ class RawFrame:
 
     Attributes
     ----------
-    mosaic : (H, W) uint16 sensor values (visible area).
-    cfa_pattern : 4-letter Bayer pattern of the top-left 2x2 block, e.g. ``"RGGB"``.
-    black_level : per-CFA-position black level, (2, 2) float in mosaic layout.
-    white_level : saturation value (sensor counts).
-    as_shot_wb : (3,) white-balance multipliers for R, G, B (G = 1) as shot.
-    xyz_to_camera : (3, 3) matrix mapping CIE XYZ to camera RGB (DNG ColorMatrix
-        semantics, before any normalisation) or None when the file has none.
-    exposure_time : seconds, or None when unknown.
+    mosaic : numpy.ndarray
+        (H, W) uint16 sensor values (visible area).
+    cfa_pattern : str
+        4-letter Bayer pattern of the top-left 2x2 block, e.g. ``"RGGB"``.
+    black_level : numpy.ndarray
+        Per-CFA-position black level, (2, 2) float in mosaic layout.
+    white_level : float
+        Saturation value (sensor counts).
+    as_shot_wb : numpy.ndarray
+        (3,) white-balance multipliers for R, G, B (G = 1) as shot.
+    xyz_to_camera : numpy.ndarray or None
+        (3, 3) matrix mapping CIE XYZ to camera RGB (DNG ColorMatrix semantics, before any
+        normalisation) or None when the file has none.
+    exposure_time : float or None
+        Seconds, or None when unknown.
+    path, make, model : str
+        Source file, camera make and model ("" when unknown).
+    extra : dict
+        Other metadata of the file.
     """
 
     mosaic: np.ndarray
@@ -184,11 +200,18 @@ class RawFrame:
 class HDRResult:
     """Output of a merge.
 
-    radiance : (H, W, 3) float32 linear radiance (relative units), finite everywhere.
-    mask : (H, W) uint8, 0 = well exposed somewhere, 1 = taken from the shortest
-        exposure (over-exposed everywhere), 2 = from the longest (under-exposed).
-    variance : (H, W, 3) float32 or None (probabilistic methods).
-    info : free-form details (curves, gammas, matrices, reference index, timings).
+    Attributes
+    ----------
+    radiance : numpy.ndarray
+        (H, W, 3) float32 linear radiance (relative units), finite everywhere.
+    mask : numpy.ndarray
+        (H, W) uint8, 0 = well exposed somewhere, 1 = taken from the shortest exposure
+        (over-exposed everywhere), 2 = from the longest (under-exposed); the class
+        constants ``MASK_OK``, ``MASK_BRIGHT``, ``MASK_DARK`` name them.
+    variance : numpy.ndarray or None
+        (H, W, 3) float32 per-pixel variance of ``radiance`` (probabilistic methods), else None.
+    info : dict
+        Free-form details (curves, gammas, matrices, reference index, timings).
     """
 
     radiance: np.ndarray

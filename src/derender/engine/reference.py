@@ -81,7 +81,7 @@ def merge_linear(
     log_input : ``linear`` gives ``ln`` of the linearised values (e.g. ``g(z)``
         directly), saving an exp/log round trip.
 
-    Saturation policy (``DESIGN.md``): where the total weight of a channel is 0, the
+    Saturation policy (``docs/architecture.md``): where the total weight of a channel is 0, the
     value comes from the shortest exposure if that exposure's value of the channel is
     ``>= bright_threshold`` (over-exposed everywhere), else from the longest
     (under-exposed everywhere); ``mask`` is 1 (bright) or 2 (dark) where any channel

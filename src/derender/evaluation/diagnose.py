@@ -56,13 +56,26 @@ _LN2 = float(np.log(2.0))
 class DiagnoseResult:
     """Constant-response diagnosis of a stack (all spreads in stops = log2 units).
 
-    log_radiance : (P, 3) merged ``ln E`` of the sampled pixels (x axis).
-    log_estimates : (N, P, 3) ``g(J_i) - ln dt_i`` per exposure (y axis).
-    weights : (N, P, 3) weights used (0 where not well exposed).
-    rms_stops : overall weighted RMS distance from the identity line.
-    median_stops : weighted median of the absolute distance (robust spread).
-    rms_stops_per_exposure : (N,); rms_stops_per_channel : (3,).
-    offset_stops : (N, 3) weighted mean of ``y - x`` per exposure and channel.
+    Attributes
+    ----------
+    log_radiance : numpy.ndarray
+        (P, 3) merged ``ln E`` of the sampled pixels (x axis).
+    log_estimates : numpy.ndarray
+        (N, P, 3) ``g(J_i) - ln dt_i`` per exposure (y axis).
+    weights : numpy.ndarray
+        (N, P, 3) weights used (0 where not well exposed).
+    times : numpy.ndarray
+        (N,) exposure times in seconds.
+    rms_stops : float
+        Overall weighted RMS distance from the identity line.
+    median_stops : float
+        Weighted median of the absolute distance (robust spread).
+    rms_stops_per_exposure, rms_stops_per_channel : numpy.ndarray
+        The RMS distance per exposure (N,) and per channel (3,).
+    offset_stops : numpy.ndarray
+        (N, 3) weighted mean of ``y - x`` per exposure and channel.
+    curves : ResponseCurves
+        The response curves the estimates were linearised with.
     """
 
     log_radiance: np.ndarray

@@ -50,10 +50,11 @@ __all__ = [
 ]
 
 
-#: Paper 2, Fig. 4 (DESIGN.md "Threshold sweep").
+#: JPEG intervals of the threshold sweep (paper 2, Fig. 4; ``docs/paper2.md``).
 JPEG_INTERVALS = ((0, 255), (1, 254), (2, 245), (4, 235), (6, 225), (8, 215), (10, 205))
 
 
+#: De-rendering models compared by the experiments (names of ``derender calibrate --method``).
 METHODS = ("gp", "poly", "rbf")
 
 

@@ -1,4 +1,4 @@
-"""HDR evaluation protocol of ``DESIGN.md`` ("HDR PSNR"), as in paper 1 (Sec. 4, Table 1).
+"""HDR evaluation protocol ("HDR PSNR", ``docs/paper1.md``), as in paper 1 (Sec. 4, Table 1).
 
 A radiance map is known only up to scale. For each plane (R, G, B, and the Rec. 709
 luminance ``L = 0.2126 R + 0.7152 G + 0.0722 B``, computed from the *unscaled* result
@@ -118,7 +118,7 @@ def psnr(result_plane: np.ndarray, truth_plane: np.ndarray, remap: str = "lstsq"
 
 def psnr_rgbl(result_linear_srgb: Any, truth_linear_srgb: Any, remap: str = "lstsq",
               mask: np.ndarray | None = None) -> dict[str, float]:
-    """PSNR on R, G, B and luminance L (dB), per ``DESIGN.md`` "HDR PSNR" (see module docstring).
+    """PSNR on R, G, B and luminance L (dB), per the "HDR PSNR" protocol (see module docstring).
 
     ``result_linear_srgb`` / ``truth_linear_srgb``: (H, W, 3) linear images (or an
     :class:`HDRResult`). ``mask``: optional boolean (H, W), True where a pixel is

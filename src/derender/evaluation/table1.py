@@ -64,6 +64,7 @@ DEFAULT_DATASET_CAMERAS = (
 _KIND_CYCLE = ("outdoor",) * 10 + ("indoor",) * 6 + ("night",) * 2
 
 
+#: Planes scored by the HDR PSNR protocol: the three channels and Rec. 709 luminance.
 PLANES = ("R", "G", "B", "L")
 
 

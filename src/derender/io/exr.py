@@ -83,6 +83,8 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- EXR
+#: EXR compressions by name: (OpenEXR compression id, scan lines per block). ``"none"``
+#: writes fastest; ``"zip"`` (deflate, 16-line blocks) is ~30 % smaller, ~3x slower to write.
 EXR_COMPRESSION = {"none": (0, 1), "zip": (3, 16)}
 
 

@@ -28,9 +28,11 @@ __all__ = [
 ]
 
 
+#: Suffixes of rendered images read with OpenCV (8- or 16-bit).
 RASTER_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 
 
+#: Suffixes taken as RAW files (read with rawpy / LibRaw).
 RAW_SUFFIXES = {".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw"}
 
 

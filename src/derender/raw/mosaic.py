@@ -32,10 +32,11 @@ __all__ = [
 ]
 
 
-#: Paper 1, Sec. 4.2: binary weight keeps normalised values in [0.8e-3, 0.92].
+#: Paper 1, Sec. 4.2: binary weight keeps normalised values in [0.8e-3, 0.92] (lower bound).
 LOW = 0.8e-3
 
 
+#: Upper bound of the normalised values the binary weight keeps (paper 1, Sec. 4.2).
 HIGH = 0.92
 
 
@@ -235,6 +236,7 @@ def spread_mask(mosaic_mask: np.ndarray) -> np.ndarray:
 
 
 def finite_float32(img: np.ndarray, clip_negative: bool) -> np.ndarray:
+    """``img`` as contiguous float32 with NaN and inf set to 0 (and negatives to 0 if ``clip_negative``)."""
     img = np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0)
     if clip_negative:
         np.maximum(img, 0.0, out=img)

@@ -84,6 +84,7 @@ DEFAULT_LAMBDA = 30.0
 DEFAULT_SAMPLES = 256
 
 
+#: Channel order of the curves (columns of ``ResponseCurves.log_inverse``).
 CHANNELS = "RGB"
 
 
@@ -91,9 +92,14 @@ CHANNELS = "RGB"
 class ResponseCurves:
     """Inverse camera response per channel.
 
-    log_inverse : (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0``.
-    method : ``"debevec"``, ``"robertson"`` or ``"external"``.
-    params : how it was obtained (lambda, samples, sampling, seed, iterations ...).
+    Attributes
+    ----------
+    log_inverse : numpy.ndarray
+        (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0``.
+    method : str
+        ``"debevec"``, ``"robertson"`` or ``"external"``.
+    params : dict
+        How it was obtained (lambda, samples, sampling, seed, iterations ...).
     """
 
     log_inverse: np.ndarray
@@ -141,6 +147,7 @@ class ResponseCurves:
 
 # --------------------------------------------------------------------------- inputs
 def to_codes(arr: np.ndarray, n_levels: int) -> np.ndarray:
+    """int32 code levels in ``[0, n_levels - 1]``: integer arrays checked, float arrays in [0, 1] binned."""
     if arr.dtype.kind in "ui":
         if arr.size and (arr.min() < 0 or arr.max() > n_levels - 1):
             raise InputError(f"integer codes must lie in [0, {n_levels - 1}]")
@@ -249,6 +256,8 @@ def sample_pixels(stack_or_codes: Any, n_samples: int = DEFAULT_SAMPLES, method:
 
 # --------------------------------------------------------------------------- Debevec
 def level_weights(weights: Any, n_levels: int) -> np.ndarray:
+    """A weight per code level: a weight name or callable evaluated on ``linspace(0, 1, n_levels)``
+    (hat when None), or a table of ``n_levels`` values."""
     if weights is None:
         weights = weight_hat
     if callable(weights) or isinstance(weights, str):
@@ -288,6 +297,7 @@ def make_monotonic(g: np.ndarray) -> np.ndarray:
 
 
 def as_stack(stack: Any) -> Stack:
+    """``stack`` itself if it is a :class:`~derender.core.types.Stack`, else an :class:`InputError`."""
     if not isinstance(stack, Stack):
         raise InputError(f"expected a Stack, got {type(stack).__name__}")
     return stack
