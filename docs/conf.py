@@ -50,7 +50,7 @@ source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
 exclude_patterns = ["_build", "_generated", "_templates", "Thumbs.db", ".DS_Store"]
 templates_path = ["_templates"]
-html_static_path = ["_static"]
+html_static_path: list[str] = []   # no static files of our own (figures are generated into _generated)
 html_theme = "furo"
 html_title = f"derender {release}"
 

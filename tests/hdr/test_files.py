@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from derender.core.errors import InputError
 from derender.core.types import check_brightness_order
-from helpers import run_cli
 
 
 def test_brightness_order_accepts_brackets_and_clipped_ends():

@@ -52,9 +52,11 @@ __all__ = [
 ]
 
 
+#: ``format`` field of a pairs ``.npz`` file (:func:`save_pairs`, :func:`load_pairs`).
 PAIRS_FORMAT = "derender-pairs"
 
 
+#: ``format_version`` field of a pairs ``.npz`` file.
 PAIRS_VERSION = 1
 
 

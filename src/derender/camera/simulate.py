@@ -100,9 +100,11 @@ __all__ = [
 ]
 
 
+#: Scene kinds of :func:`make_scene` (``derender simulate --scene``).
 SCENE_KINDS = ("outdoor", "indoor", "night")
 
 
+#: Bayer pattern of the simulated sensor (top-left 2x2 block).
 CFA_PATTERN = "RGGB"
 
 

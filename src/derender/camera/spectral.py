@@ -233,6 +233,9 @@ def cmfs_xyz() -> np.ndarray:
 
 
 def camera_search_dirs(extra: Sequence[str | os.PathLike] = ()) -> tuple[Path, ...]:
+    """Existing folders of rawtoaces camera JSON files: ``extra``, ``$DERENDER_SHARED_DATA``,
+    then ``../shared/data/rawtoaces-spectral/data/camera`` beside the working directory or
+    any parent of the package (each folder once)."""
     here = Path(__file__).resolve()
     cands = [Path(p) for p in extra]
     env = os.environ.get("DERENDER_SHARED_DATA")

@@ -94,9 +94,12 @@ def model_camera_to_srgb(model) -> np.ndarray | None:
     return m * wb[None, :]
 
 
+#: The ``format`` field of a model file.
 MODEL_FORMAT = "derender-model"
-MODEL_FORMAT_VERSION = 2       # 2: GP inputs may be warped (p_input_warp), clip-pattern cluster groups
-MAX_LOG_VAR = 60.0             # cap on the latent log-space variance (keeps moments finite in float32)
+#: Model file version (2: GP inputs may be warped (p_input_warp), clip-pattern cluster groups).
+MODEL_FORMAT_VERSION = 2
+#: Cap on the latent log-space variance (keeps moments finite in float32).
+MAX_LOG_VAR = 60.0
 _MAX_LOG_MEAN = 80.0           # cap on |latent log mean|
 _BINCOUNT_THRESHOLD = 1 << 20  # above this many pixels, find distinct codes by a 2^24 bincount
 
@@ -586,6 +589,7 @@ class ModelTypes(Mapping[str, "type[DerenderModel]"]):
         return f"ModelTypes({self._classes!r})"
 
 
+#: De-rendering model classes by method name, imported on first use.
 MODEL_TYPES = ModelTypes({
     "gp": "derender.derendering.local_gp:LocalGPModel",
     "poly": "derender.derendering.polynomial:PolynomialModel",

@@ -199,7 +199,7 @@ def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margi
     pixels per word, once per band for each image; a horizontal shift of the image moves
     its packed words (:func:`_shift_words`) instead of packing its pixels again (measured on
     the 24 MP bracket, one thread: the kernel 0.41-0.49 -> 0.18 s,
-    the whole MTB 0.8-1.1 -> 0.67 s); ``margin`` >= max |cand_y|.
+    the whole MTB 0.8-1.1 -> 0.67 s); ``margin >= max |cand_y|``.
     """
     h, w = grey_a.shape
     nw = (w + 63) // 64

@@ -45,6 +45,7 @@ KERNEL_LOCK = threading.Lock()
 
 
 def set_numba_threads(threads: int | None) -> None:
+    """Threads of numba's parallel kernels: ``threads`` (all CPUs when None), at most numba's maximum."""
     import numba
 
     numba.set_num_threads(max(1, min(thread_count(threads), int(numba.config.NUMBA_NUM_THREADS))))

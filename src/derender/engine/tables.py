@@ -44,6 +44,7 @@ __all__ = [
 ]
 
 
+#: Largest finite float32: radiance values are clipped to it so that outputs stay finite.
 F32_MAX = float(np.finfo(np.float32).max)
 
 

@@ -12,6 +12,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments", "merge_stabilized_probabilistic"],
     "registry": ["MERGE_METHODS", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded"],
-    "stabilize": ["merge_stabilized_table", "stabilized_tables", "merge_stabilized_frames", "REF_LOW", "REF_HIGH", "REF_PIXELS", "FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "exposure_fractions", "select_reference", "RIDGE", "Curve", "NARROW", "XATOL", "GammaEstimate", "estimate_gammas", "gamma_trend", "SCREEN_TREND", "power_law_plausible", "CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "unclipped_debevec", "fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices", "Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "reasonable_references"],
     "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
 })

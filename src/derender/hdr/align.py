@@ -51,6 +51,7 @@ __all__ = [
 ]
 
 
+#: Registration methods of :func:`align_images`.
 ALIGN_METHODS = ("none", "mtb", "homography")
 
 
@@ -58,11 +59,17 @@ ALIGN_METHODS = ("none", "mtb", "homography")
 class Alignment:
     """Result of :func:`align_images`.
 
-    images : (N, H, W, 3) float32 aligned images (borders filled by replication).
-    valid : (N, H, W) bool, True where the aligned pixel comes from inside image j.
-    transforms : (N, 3, 3) float64, reference pixel coords -> image j pixel coords.
-    shifts : (N, 2) int (dy, dx) for translation methods (image j content sits at
-        reference position + (dy, dx)), else None.
+    Attributes
+    ----------
+    images : numpy.ndarray
+        (N, H, W, 3) float32 aligned images (borders filled by replication).
+    valid : numpy.ndarray
+        (N, H, W) bool, True where the aligned pixel comes from inside image j.
+    transforms : numpy.ndarray
+        (N, 3, 3) float64, reference pixel coords -> image j pixel coords.
+    shifts : numpy.ndarray or None
+        (N, 2) int (dy, dx) for translation methods (image j content sits at reference
+        position + (dy, dx)), else None.
     """
 
     images: np.ndarray

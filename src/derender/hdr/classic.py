@@ -163,15 +163,15 @@ def merge_debevec(
     truth on simulator brackets 192x128, 7 exposures, seed 4; log-luminance correlation
     with Debevec's memorial.hdr at half resolution):
 
-    =====================  ==========  =========  ========
-    merge                  sim fixed   sim auto   Memorial
-    =====================  ==========  =========  ========
-    eq. 6 literal (hat)    38.0 dB     34.4 dB    0.985
-    hat, shared            39.6 dB     36.8 dB    0.986
-    gaussian, shared       41.7 dB     38.7 dB    0.995
-    linear domain, hat     41.6 dB     40.5 dB    0.810
-    OpenCV Calibrate+Merge 40.5 dB     36.5 dB    0.987
-    =====================  ==========  =========  ========
+    ======================  ==========  =========  ========
+    merge                   sim fixed   sim auto   Memorial
+    ======================  ==========  =========  ========
+    eq. 6 literal (hat)     38.0 dB     34.4 dB    0.985
+    hat, shared             39.6 dB     36.8 dB    0.986
+    gaussian, shared        41.7 dB     38.7 dB    0.995
+    linear domain, hat      41.6 dB     40.5 dB    0.810
+    OpenCV Calibrate+Merge  40.5 dB     36.5 dB    0.987
+    ======================  ==========  =========  ========
 
     A camera mixes channels (3x3 matrix), so a clipped or noisy sensor channel spoils the
     other two: shared weights avoid trusting them; the Gaussian weight trusts codes near

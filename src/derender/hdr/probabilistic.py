@@ -25,7 +25,7 @@ which has ``predict_log``; others fall back to ``space="linear"``):
   patches whose JPEG and RAW values are averaged over many pixels, so its variance
   describes the scatter of patch averages; a single scene pixel's code also carries the
   pixel's own noise after the ISP (simulated nikon-d5100, flat fields: per-pixel code sd
-  0.4-2.3 codes, largest in the shadows), which the GP never saw (median |z| of single
+  0.4-2.3 codes, largest in the shadows), which the GP never saw (median ``|z|`` of single
   pixels 1.82, 0.67 expected). It is propagated through the de-rendering curve: each
   observation's log variance gets ``(code_noise * d log(raw median_c) / d code_c)^2``,
   the slope by central differences of the model's own log-median over +-2 codes
@@ -153,6 +153,7 @@ _MAX_LOG = 80.0   # cap on |log raw| of the log-space product (keeps exp finite)
 _BOUND_SIGMAS = 1.0   # censoring bound: the GP's mu - k sigma quantile (module docstring)
 
 
+#: Default per-pixel code noise (8-bit code sd) of the log-space product (module docstring).
 CODE_NOISE = 2.0      # default per-pixel code noise (8-bit code sd) of the log-space product
 
 
@@ -234,6 +235,7 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
 
 
 def as_model(model: Any):
+    """A :class:`~derender.derendering.base.DerenderModel`: ``model`` itself, or loaded from its path."""
     from derender.derendering.base import DerenderModel, load_model
 
     if isinstance(model, (str, os.PathLike)):

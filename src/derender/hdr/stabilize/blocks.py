@@ -30,8 +30,7 @@ __all__ = ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"]
 #: *before* the colour matrix: a pixel with one saturated raw channel can render below
 #: 255 in every channel, and such pixels break the 3x3 relation (eq. 9).
 FIT_LOW = 0.12
-
-
+#: Upper limit of the fit range (see FIT_LOW).
 FIT_HIGH = 0.85
 
 

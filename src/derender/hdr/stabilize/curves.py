@@ -114,4 +114,5 @@ class Curve:
 
 
 def as_curve(g: "float | Curve") -> Curve:
+    """``g`` itself if it is a :class:`Curve`, else the power law of display gamma ``g``."""
     return g if isinstance(g, Curve) else Curve(1.0, gamma=float(g))

@@ -193,12 +193,19 @@ def relative_exponents(blocks: Blocks, bases: list, low: float, high: float, flo
 class GammaEstimate:
     """Per-image display gammas (encoding exponent ``1 / gamma``) and how they were found.
 
-    gammas : (N,) display gammas. exponents : (N,) ``1 / gammas``.
-    method : ``"times"`` (relative gammas blind, absolute level from the exposure times) or
+    Attributes
+    ----------
+    gammas : numpy.ndarray
+        (N,) display gammas (:attr:`exponents` gives ``1 / gammas``).
+    method : str
+        ``"times"`` (relative gammas blind, absolute level from the exposure times) or
         ``"blind"`` (no times: absolute level from the 3x3 fit alone).
-    pairs : list of dicts ``{j, k, blocks, inliers, log_ratio, se}`` used.
-    scale : the common factor kappa applied to the relative gammas.
-    unconnected : images without enough overlap with any other (gamma = median of others).
+    pairs : list
+        dicts ``{j, k, blocks, inliers, log_ratio, se}`` used.
+    scale : float
+        the common factor kappa applied to the relative gammas.
+    unconnected : list
+        images without enough overlap with any other (gamma = median of others).
     """
 
     gammas: np.ndarray

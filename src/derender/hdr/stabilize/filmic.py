@@ -44,7 +44,7 @@ def gamma_trend(gammas: Sequence[float], times: Sequence[float]) -> float:
 #: Screening of ``response="auto"`` (:func:`screen_gamma_trend`): a bracket whose quick
 #: relative-exponent trend exceeds this goes straight to the curve model. Twice
 #: :func:`power_law_plausible`'s ``max_trend``. Measured quick (full) trends: power-law
-#: brackets (auto and fixed pipelines, simple style, 18 simulated) |0.13| at most (|0.12|);
+#: brackets (auto and fixed pipelines, simple style, 18 simulated) at most 0.13 in magnitude (0.12);
 #: filmic camera style (18) 1.77 to 2.39 (1.35 to 1.76); Memorial 0.93-1.08 (0.76-0.89),
 #: Frobisher 0.83 (0.75): the same decisions.
 SCREEN_TREND = 0.6
@@ -89,7 +89,7 @@ def power_law_plausible(gammas: Sequence[float], times: Sequence[float], max_tre
 #: out when any channel of it or of a pixel within CURVE_CLIP_RADIUS reaches CURVE_CLIP.
 CURVE_CLIP = REF_HIGH
 
-
+#: Radius (px) of the neighbourhood that excludes a sample next to a clipped pixel (see CURVE_CLIP).
 CURVE_CLIP_RADIUS = 1
 
 

@@ -277,15 +277,28 @@ class StabilizedMethod:
 class Stabilization:
     """Everything :func:`stabilize` found for a bracket.
 
-    mode : ``"reference"`` (paper 1: ``matrices[j] = H_j`` maps image j's linear values
-        onto the reference's, exposure ratio included) or ``"joint"`` (``matrices[j] = K_j``
+    Attributes
+    ----------
+    mode : str
+        ``"reference"`` (paper 1: ``matrices[j] = H_j`` maps image j's linear values onto
+        the reference's, exposure ratio included) or ``"joint"`` (``matrices[j] = K_j``
         maps ``L_j / t_j`` into the common average rendering).
-    reference : reference image index (also the registration target).
-    gammas : :class:`GammaEstimate` (display gammas; for the curve model the effective
-        gamma of each image's curve).
-    curves : per-image :class:`Curve` linearisations actually used.
-    alignment : :class:`derender.hdr.align.Alignment`.
-    how : per image, how its matrix was obtained.
+    reference : int
+        reference image index (also the registration target).
+    gammas : GammaEstimate
+        display gammas; for the curve model the effective gamma of each image's curve.
+    matrices : numpy.ndarray
+        (N, 3, 3) H_j or K_j.
+    alignment : Alignment
+        :class:`derender.hdr.align.Alignment` (or :class:`LazyAlignment`).
+    times : numpy.ndarray
+        (N,) exposure times (s).
+    curves : list
+        per-image :class:`~derender.hdr.stabilize.curves.Curve` linearisations actually used.
+    how : list
+        per image, how its matrix was obtained.
+    info : dict
+        timings and decisions (response model, gamma trend).
     """
 
     mode: str

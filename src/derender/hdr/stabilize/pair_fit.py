@@ -1,6 +1,6 @@
 """The 3x3 map between two linearised images and its code-domain misfit (paper 1, eq. 9).
 
-Two images of one scene, linearised (:mod:`.curves`), are related by a 3x3 matrix:
+Two images of one scene, linearised (:mod:`derender.hdr.stabilize.curves`), are related by a 3x3 matrix:
 ``L_k = H L_j`` with ``H = A_k A_j^-1`` (eq. 9; exposure ratio and gain absorbed in H).
 :func:`fit_pair` fits H by row-wise weighted least squares in the linear domain, with
 weights (:func:`pair_weights`) that make the linear residual approximate the residual in
@@ -58,6 +58,7 @@ def _wls_matrix(src: np.ndarray, dst: np.ndarray, wt: np.ndarray, ridge: float |
 
 
 def predict_codes(h: np.ndarray, lin_src: np.ndarray, curve_dst: "float | Curve") -> np.ndarray:
+    """Codes of the destination image predicted from linear source values through ``h`` (eq. 9)."""
     return as_curve(curve_dst).code(np.maximum(lin_src @ h.T, 1e-12))
 
 

@@ -29,8 +29,7 @@ __all__ = ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fracti
 #: under-exposed when any channel is <= REF_LOW (normalised codes; 0.02/0.98 = 5/250 of
 #: 255, the zero points of the default trapezoid weight).
 REF_LOW = 0.02
-
-
+#: Over-exposure threshold of the reference selection (see REF_LOW).
 REF_HIGH = 0.98
 
 
