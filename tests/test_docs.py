@@ -69,3 +69,31 @@ def test_cited_docs_pages_exist():
     assert cited, "the package cites no documentation page"
     missing = sorted(p for p in cited if not (ROOT / p).is_file())
     assert not missing, f"cited but absent: {missing}"
+
+
+def test_dotted_names_in_the_docs_resolve():
+    """Every ``derender.x.y`` the docs pages and the README name is a module or an attribute of one
+    (MyST leaves unresolved cross-references silent, so a moved function would go unnoticed)."""
+    import importlib
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    texts = [p.read_text() for p in sorted((root / "docs").glob("*.md"))] + [(root / "README.md").read_text()]
+    names = sorted({m for t in texts for m in re.findall(r"\bderender(?:\.[A-Za-z_][A-Za-z0-9_]*)+", t)})
+    bad = []
+    for name in names:
+        parts = name.split(".")
+        for cut in range(len(parts), 0, -1):
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+            except ImportError:
+                continue
+            try:
+                for attr in parts[cut:]:
+                    obj = getattr(obj, attr)
+            except AttributeError:
+                bad.append(name)
+            break
+        else:
+            bad.append(name)
+    assert names and not bad, f"docs name what does not exist: {bad}"

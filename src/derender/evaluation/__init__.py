@@ -8,7 +8,8 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "diagnose": ["DiagnoseResult", "diagnose_constant_response", "plot_diagnose"],
     "experiments": ["JPEG_INTERVALS", "METHODS", "default_experiment_cameras", "derender_table", "format_table", "threshold_sweep", "plot_threshold_sweep", "photometric_stereo_experiment"],
-    "metrics": ["PSNR_CAP", "fit_scale", "remap_minmax", "psnr", "psnr_rgbl"],
+    "metrics": ["PSNR_CAP", "fit_scale", "remap_minmax", "psnr", "psnr_rgbl", "fit_colour_matrix", "relative_errors", "log_psnr", "hdr_scores"],
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
     "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage"],
+    "demo": ["run_demo"],
 })

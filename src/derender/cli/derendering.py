@@ -1,0 +1,164 @@
+"""``derender`` commands of the de-rendering side: chart pairs, calibrate, derender, stereo."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from derender.cli.app import (
+    app,
+    check_choice,
+    load_camera_cli,
+    progress,
+)
+from derender.core.errors import InputError
+
+
+# --------------------------------------------------------------------------- de-rendering data
+@app.command("chart-pairs")
+def chart_pairs_cmd(
+    outdir: Path = typer.Argument(..., help="Folder for <camera>.npz pair files."),
+    camera: List[str] = typer.Option(["nikon-d5100"], "--camera", help="Camera name(s) (repeat the option)."),
+    camera_file: Optional[Path] = typer.Option(None, "--camera-file", help="rawtoaces camera JSON."),
+    illuminants: int = typer.Option(16, "--illuminants", help="Number of gel-filtered tungsten illuminants."),
+    exposures: int = typer.Option(22, "--exposures", help="Exposures from all-black to all-white."),
+    render: str = typer.Option("camera", "--render", help="simple | camera."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+) -> None:
+    """Simulate paper 2's calibration session (ColorChecker SG, 16 illuminants) into RAW/JPEG pairs."""
+    from derender.camera.chart import chart_pairs, save_pairs
+
+    check_choice("--render", render, ("simple", "camera"))
+    cams = [load_camera_cli("", camera_file)] if camera_file else [load_camera_cli(c, None) for c in camera]
+    outdir.mkdir(parents=True, exist_ok=True)
+    for cam in cams:
+        with progress() as prog:
+            task = prog.add_task(f"{cam.name}: illuminants", total=illuminants)
+            pairs = chart_pairs(cam, n_illuminants=illuminants, n_exposures=exposures, style=render, seed=seed,
+                                progress=lambda i, n: prog.update(task, completed=i))
+        path = save_pairs(pairs, outdir / f"{cam.name}.npz")
+        typer.echo(f"{cam.name}: {pairs.jpeg.shape[0]} pairs ({100 * pairs.out_of_gamut.mean():.0f} % out of the "
+                   f"sRGB gamut) -> {path}")
+
+
+# --------------------------------------------------------------------------- de-rendering
+@app.command()
+def calibrate(
+    output: Path = typer.Option(..., "--output", "-o", help="Model file to write (.npz)."),
+    pairs: Optional[Path] = typer.Option(None, "--pairs", help="Pairs file from 'derender chart-pairs' (.npz)."),
+    raw: List[Path] = typer.Option([], "--raw", help="RAW/DNG file(s) registered with --jpeg (repeat)."),
+    jpeg: List[Path] = typer.Option([], "--jpeg", help="JPEG file(s) registered with --raw (repeat)."),
+    method: str = typer.Option("gp", "--method", help="gp | poly | rbf."),
+    n_train: int = typer.Option(5000, "--n-train", help="Training pairs (random subset)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (subset, k-means)."),
+) -> None:
+    """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
+    from derender.derendering.base import fit_model
+    from derender.derendering.calibration import pairs_from_images
+
+    if output.suffix.lower() != ".npz":
+        raise InputError(f"--output must end in .npz, got {output.name}")
+    if pairs is None and not raw:
+        raise InputError("give --pairs PAIRS.npz or --raw ... --jpeg ... image pairs")
+    if pairs is not None and raw:
+        raise InputError("give either --pairs or --raw/--jpeg, not both")
+    if pairs is not None:
+        from derender.camera.chart import load_pairs
+        from derender.derendering.base import model_metadata
+
+        pr = load_pairs(pairs)
+        jp, rw, meta = pr.jpeg, pr.raw, model_metadata(pr)
+        inputs = [pairs]
+    else:
+        jp, rw, meta = pairs_from_images(raw, jpeg)
+        inputs = list(raw) + list(jpeg)
+    if n_train < 10:
+        raise InputError("--n-train must be at least 10")
+    rng = __import__("numpy").random.default_rng(seed)
+    if jp.shape[0] > n_train:
+        sel = rng.choice(jp.shape[0], size=n_train, replace=False)
+        jp, rw = jp[sel], rw[sel]
+    kw = {} if method != "gp" else {"n_train": n_train}
+    t0 = time.perf_counter()
+    model = fit_model(method, jp, rw, seed=seed, **kw)
+    model.metadata.update(meta)
+    from derender.io.files import check_not_input
+
+    check_not_input(output, inputs)
+    model.save(output)
+    typer.echo(f"{method} model from {jp.shape[0]} pairs in {time.perf_counter() - t0:.1f} s -> {output}")
+
+
+@app.command("derender")
+def derender_cmd(
+    image: Path = typer.Argument(..., help="8-bit rendered image (JPEG/PNG/TIFF)."),
+    model: Path = typer.Option(..., "--model", "-m", help="Model file, or a folder of models (picked by EXIF camera)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Mean linear camera RGB (.exr)."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr)."),
+    srgb: bool = typer.Option(False, "--srgb", help="Output linear sRGB instead of camera RGB (needs model camera metadata)."),
+    compression: str = typer.Option("none", "--compression",
+                                    help="EXR compression: none (fastest) or zip (~30 % smaller files, ~3x slower at 24 MP)."),
+) -> None:
+    """De-render an image: per-pixel Gaussian over the linear RAW colour (mean and variance)."""
+    from derender.derendering.apply import derender_to_exr
+
+    for out in (output, variance):
+        if out is not None and out.suffix.lower() != ".exr":
+            raise InputError(f"outputs must end in .exr, got {out.name}")
+    from derender.io.exr import EXR_COMPRESSION
+
+    if compression not in EXR_COMPRESSION:
+        raise InputError(f"--compression must be one of {', '.join(EXR_COMPRESSION)}, got {compression!r}")
+    t0 = time.perf_counter()
+    info = derender_to_exr(image, model, output, variance=variance, srgb=srgb, compression=compression)
+    typer.echo(f"de-rendered {image.name} ({info['width']}x{info['height']}, {info['distinct_colours']} distinct "
+               f"colours) with {info['model']} in {time.perf_counter() - t0:.2f} s -> {output}")
+
+
+@app.command()
+def stereo(
+    images: List[Path] = typer.Argument(..., help="Images of the object, one per light (same order as --lights)."),
+    lights: Path = typer.Option(..., "--lights", help="Text file: 'lx ly lz [intensity]' per image."),
+    model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (default: gamma 2.2 inversion)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Normals (.exr, RGB = xyz)."),
+    depth: Optional[Path] = typer.Option(None, "--depth", help="Depth from the normals (Frankot-Chellappa), .exr."),
+    mask_threshold: int = typer.Option(0, "--mask-threshold", help="Pixels whose max code over all images is <= this are background."),
+) -> None:
+    """Lambertian photometric stereo; with a model, inverse-variance weighted least squares (paper 2 eq. 7)."""
+    import numpy as np
+
+    from derender.applications.photometric_stereo import frankot_chellappa, read_lights, solve_normals
+    from derender.io.exr import write_exr
+    from derender.io.images import read_image
+
+    L = read_lights(lights)
+    if len(images) != L.shape[0]:
+        raise InputError(f"{len(images)} images but {L.shape[0]} lights in {lights}")
+    imgs = []
+    for p in images:
+        img, depth_bits = read_image(p)
+        if depth_bits != 8:
+            raise InputError(f"{p}: photometric stereo with a de-rendering model needs 8-bit images")
+        if imgs and img.shape != imgs[0].shape:
+            raise InputError(f"images differ in size: {images[0].name} vs {p.name}")
+        imgs.append(img)
+    codes = np.rint(np.stack(imgs) * 255).astype(np.uint8)
+    mask = codes.max(axis=(0, 3)) > mask_threshold
+    if model is not None:
+        from derender.derendering.library import resolve_model
+
+        m, used = resolve_model(model, images[0])
+        mean, var = m.predict(codes, point="map")
+        normals, albedo = solve_normals(mean, L, variances=var, mask=mask)
+    else:
+        used = "gamma 2.2 inversion"
+        normals, albedo = solve_normals((codes / 255.0) ** 2.2, L, mask=mask)
+    write_exr(output, normals.astype(np.float32), inputs=list(images) + [lights])
+    if depth is not None:
+        write_exr(depth, frankot_chellappa(normals, mask).astype(np.float32), inputs=list(images) + [lights])
+    typer.echo(f"normals of {int(mask.sum())} pixels from {len(images)} images ({used}) -> {output}")
+
+

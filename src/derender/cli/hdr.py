@@ -1,0 +1,342 @@
+"""``derender`` commands of the HDR side: simulate, merge, methods, evaluate, diagnose, ground truth, datasets, demo."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from derender.cli.app import (
+    INVERSE_HELP,
+    TIMES_FILE_HELP,
+    TIMES_HELP,
+    app,
+    check_choice,
+    console,
+    is_float,
+    load_camera_cli,
+    parse_size,
+    progress,
+    read_stack_from_cli,
+)
+from derender.core.errors import InputError
+
+
+# --------------------------------------------------------------------------- simulate
+@app.command()
+def simulate(
+    outdir: Path = typer.Argument(..., help="Output folder (raw/, jpeg/, truth.exr, scene.json)."),
+    exposures: int = typer.Option(9, "--exposures", "-n", help="Number of exposures in the bracket."),
+    size: str = typer.Option("384x256", "--size", help="Image size WxH."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (scene, pipeline, noise)."),
+    camera: str = typer.Option("nikon-d5100", "--camera", help="Built-in camera or rawtoaces camera name."),
+    camera_file: Optional[Path] = typer.Option(None, "--camera-file", help="rawtoaces camera JSON."),
+    pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto (camera changes WB, gain, gamma)."),
+    render: str = typer.Option("camera", "--render", help="simple (matrix + gamma) | camera (picture style)."),
+    scene: str = typer.Option("outdoor", "--scene", help="outdoor | indoor | night."),
+    tone_curve: bool = typer.Option(False, "--tone-curve", help="Extra S-shaped tone curve (simple style)."),
+    bits: int = typer.Option(14, "--bits", help="ADC bit depth: 12 or 14."),
+    stops: Optional[float] = typer.Option(None, "--stops", help="Stops between exposures (default: cover the scene)."),
+) -> None:
+    """Simulate a bracket with a spectral camera model: real DNG and JPEG files plus exact truth."""
+    from derender.camera.simulate import simulate_bracket, write_bracket
+
+    w, h = parse_size(size)
+    check_choice("--pipeline", pipeline, ("fixed", "auto"))
+    check_choice("--render", render, ("simple", "camera"))
+    check_choice("--scene", scene, ("outdoor", "indoor", "night"))
+    if exposures < 1 or exposures > 64:
+        raise InputError("--exposures must be between 1 and 64")
+    if outdir.exists() and not outdir.is_dir():
+        raise InputError(f"{outdir} exists and is not a folder")
+    cam = load_camera_cli(camera, camera_file).with_bits(bits)
+    with progress() as prog:
+        task = prog.add_task("simulating exposures", total=exposures)
+        bracket = simulate_bracket(camera=cam, kind=scene, size=(w, h), exposures=exposures, pipeline=pipeline,
+                                   style=render, seed=seed, tone_curve=tone_curve, stops=stops,
+                                   progress=lambda i, n: prog.update(task, completed=i))
+    outdir.mkdir(parents=True, exist_ok=True)
+    write_bracket(bracket, outdir)
+    typer.echo(f"wrote {exposures} DNG + JPEG exposures, truth.exr and scene.json to {outdir}")
+
+
+@app.command("merge")
+def merge_cmd(
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output radiance map (.exr)."),
+    method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
+    model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
+    times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
+    times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
+    times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
+    preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview (Reinhard 2002)."),
+    mask: Optional[Path] = typer.Option(None, "--mask", help="PNG mask: 0 ok, 128 over-exposed everywhere, 255 under-exposed."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Figure of the recovered response curves (if any)."),
+    half: bool = typer.Option(False, "--half", help="Write half-float EXR."),
+    seed: int = typer.Option(0, "--seed", help="Seed for sampling / RANSAC."),
+) -> None:
+    """Merge a bracket into a linear HDR radiance map (OpenEXR)."""
+    import numpy as np
+
+    from derender.hdr.files import merge_files
+    from derender.io.exif import parse_times
+    from derender.io.preview import write_png, write_preview
+
+    if output.suffix.lower() != ".exr":
+        raise InputError(f"--output must end in .exr, got {output.name}")
+    if times is not None and times_file is not None:
+        raise InputError("give either --times or --times-file, not both")
+    if variance is not None and variance.suffix.lower() != ".exr":
+        raise InputError(f"--variance must end in .exr, got {variance.name}")
+    t0 = time.perf_counter()
+    inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
+    from derender.io.files import check_output
+
+    check_output(output, inputs)
+    if variance is not None:
+        if variance.resolve() == output.resolve():
+            raise InputError(f"--variance and --output are the same file: {output}")
+        check_output(variance, inputs)
+        from derender.hdr.registry import MERGE_METHODS, load_plugins
+
+        load_plugins()
+        if method in MERGE_METHODS and not getattr(MERGE_METHODS[method], "gives_variance", False):
+            raise InputError(f"method {method!r} gives no variance (drop --variance)")
+    extra = {}
+    if model is not None:
+        from derender.derendering.library import resolve_model
+
+        model_obj, used = resolve_model(model, images[0])
+        typer.echo(f"de-rendering model: {used}", err=True)
+        extra["model"] = model_obj
+    # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
+    result = merge_files(images, parse_times(times) if times is not None else None, method,
+                         times_file=times_file, times_file_inverse=times_inverse, output=output,
+                         variance_output=variance, half=half, inputs=inputs, seed=seed, **extra)
+    if preview is not None:
+        write_preview(preview, result.radiance, inputs=inputs)
+    if mask is not None:
+        m = np.zeros(result.mask.shape, np.uint8)
+        m[result.mask == 1] = 128
+        m[result.mask == 2] = 255
+        write_png(mask, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
+    if plot is not None:
+        curves = result.info.get("curves")
+        if curves is None:
+            raise InputError(f"method {method!r} has no response curves to plot")
+        from derender.response.curves import plot_response
+
+        plot_response(curves, plot, inputs=inputs)
+    n_bright = int((result.mask == 1).sum())
+    n_dark = int((result.mask == 2).sum())
+    typer.echo(f"{method}: {len(images)} images {result.radiance.shape[1]}x{result.radiance.shape[0]} -> {output} "
+               f"({time.perf_counter() - t0:.2f} s; {n_bright} px over-exposed everywhere, {n_dark} px under-exposed)")
+
+
+@app.command("methods")
+def methods_cmd() -> None:
+    """List the merge methods."""
+    from derender.hdr.registry import MERGE_METHODS, load_plugins
+
+    load_plugins()
+    for name, fn in sorted(MERGE_METHODS.items()):
+        doc = (fn.__doc__ or "").strip().splitlines()[0] if fn.__doc__ else ""
+        typer.echo(f"{name:20s} {doc}")
+
+
+@app.command()
+def evaluate(
+    result: Path = typer.Argument(..., help="Radiance map to score (.exr or .hdr)."),
+    truth: Path = typer.Argument(..., help="Ground truth radiance map (.exr or .hdr)."),
+    remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
+    fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale'."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """PSNR on R, G, B and luminance L (scale fitted per plane; docs/paper1.md), per-pixel relative error
+    (median, p90, after a 3x3 fit weighted 1/||g||^2) and log-luminance PSNR."""
+    from derender.evaluation.metrics import hdr_scores
+    from derender.io.rgbe import read_radiance
+
+    check_choice("--remap", remap, ("lstsq", "minmax"))
+    check_choice("--fit", fit, ("matrix", "scale"))
+    scores = hdr_scores(read_radiance(result), read_radiance(truth), remap=remap, fit=fit)
+    if as_json:
+        typer.echo(json.dumps({k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}))
+    else:
+        typer.echo("  ".join(f"{k} {scores[k]:.2f} dB" for k in "RGBL"))
+        typer.echo(f"relative error ({fit} fit): median {scores['rel_median']:.4f}, p90 {scores['rel_p90']:.4f};  "
+                   f"log-luminance PSNR {scores['log_psnr_L']:.2f} dB")
+
+
+@app.command()
+def diagnose(
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Figure (.png/.pdf/.svg)."),
+    times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
+    times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
+    times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
+    seed: int = typer.Option(0, "--seed", help="Sampling seed."),
+) -> None:
+    """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response)."""
+    from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
+
+    stack = read_stack_from_cli(images, times, times_file, times_inverse)
+    result = diagnose_constant_response(stack, seed=seed)
+    inputs = list(images) + ([times_file] if times_file else [])
+    plot_diagnose(result, output, inputs=inputs)
+    per = ", ".join(f"{v:.3f}" for v in result.rms_stops_per_exposure)
+    typer.echo(f"spread (RMS deviation from slope-1 line): {result.rms_stops:.3f} stops overall; "
+               f"median {result.median_stops:.3f}; per exposure [{per}] -> {output}")
+
+
+@app.command()
+def groundtruth(
+    raws: List[Path] = typer.Argument(..., help="RAW/DNG frames of the bracket (or a single frame)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output linear sRGB radiance (.exr)."),
+    wb: Optional[str] = typer.Option(None, "--wb", help="White-balance multipliers R,G,B (default: as shot)."),
+    wb_patch: Optional[str] = typer.Option(None, "--wb-patch", help="Neutral region x,y,w,h for white balance."),
+    times: Optional[str] = typer.Option(None, "--times", help="Exposure times (default: from the files)."),
+    preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview."),
+) -> None:
+    """Ground truth from RAW (paper 1 Sec. 4.2, Alg. 2): binary-weight merge, WB, Malvar demosaic, sRGB."""
+    from derender.io.exif import parse_times
+    from derender.io.exr import write_exr
+    from derender.io.preview import write_preview
+    from derender.io.raw import read_raw_stack
+    from derender.raw.groundtruth import raw_ground_truth
+
+    if output.suffix.lower() != ".exr":
+        raise InputError(f"--output must end in .exr, got {output.name}")
+    frames = read_raw_stack(raws, times=parse_times(times) if times else None)
+    wb_value = "as_shot"
+    patch = None
+    if wb is not None:
+        vals = [float(v) for v in wb.split(",")] if all(is_float(v) for v in wb.split(",")) else []
+        if len(vals) != 3 or min(vals) <= 0:
+            raise InputError(f"--wb needs three positive numbers R,G,B, got {wb!r}")
+        wb_value = vals
+    if wb_patch is not None:
+        parts = wb_patch.split(",")
+        if len(parts) != 4 or not all(p.strip().isdigit() for p in parts):
+            raise InputError(f"--wb-patch needs x,y,w,h in pixels, got {wb_patch!r}")
+        patch = tuple(int(p) for p in parts)
+    result = raw_ground_truth(frames, wb=wb_value, wb_patch=patch)
+    write_exr(output, result.radiance, inputs=raws)
+    if preview is not None:
+        write_preview(preview, result.radiance, inputs=raws)
+    typer.echo(f"ground truth from {len(frames)} RAW frame(s) -> {output}")
+
+
+# --------------------------------------------------------------------------- benchmark
+@app.command("simulate-dataset")
+def simulate_dataset_cmd(
+    outdir: Path = typer.Argument(..., help="Dataset folder to create."),
+    scenes: int = typer.Option(18, "--scenes", help="Number of scenes (paper 1: 18)."),
+    exposures: int = typer.Option(9, "--exposures", "-n", help="Exposures per scene (paper 1: 9)."),
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated camera names (default: several real cameras)."),
+    size: str = typer.Option("384x256", "--size", help="Image size WxH."),
+    pipelines: str = typer.Option("auto,fixed", "--pipelines", help="Pipelines to cycle through."),
+    renders: str = typer.Option("camera", "--renders", help="Rendering styles to cycle through (simple, camera)."),
+    seed: int = typer.Option(0, "--seed", help="Dataset seed."),
+) -> None:
+    """Simulate a dataset of brackets (raw/ + jpeg/ + truth per scene) for 'derender benchmark'."""
+    from derender.evaluation.table1 import simulate_dataset
+
+    pl = [p.strip() for p in pipelines.split(",") if p.strip()]
+    st = [p.strip() for p in renders.split(",") if p.strip()]
+    for p in pl:
+        check_choice("--pipelines", p, ("fixed", "auto"))
+    for p in st:
+        check_choice("--renders", p, ("simple", "camera"))
+    cams = [c.strip() for c in cameras.split(",")] if cameras else None
+    with progress() as prog:
+        task = prog.add_task("simulating scenes", total=scenes)
+        rows = simulate_dataset(outdir, scenes=scenes, exposures=exposures, cameras=cams, size=parse_size(size),
+                                pipelines=pl, styles=st, seed=seed,
+                                progress=lambda i, n: prog.update(task, completed=i))
+    typer.echo(f"wrote {len(rows)} scenes to {outdir}")
+
+
+@app.command()
+def benchmark(
+    dataset: Path = typer.Argument(..., help="Dataset folder (scenes with raw/ and jpeg/)."),
+    output: Path = typer.Option(Path("benchmark-results"), "--output", "-o", help="Folder for table.md, scenes.csv, results.json."),
+    methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated merge methods (default: all)."),
+    scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
+    workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
+    seed: int = typer.Option(0, "--seed", help="Seed passed to every method."),
+) -> None:
+    """Paper 1's Table 1: every method on every scene, PSNR R/G/B/L against the RAW ground truth."""
+    from derender.evaluation.table1 import run_benchmark, write_benchmark_outputs
+
+    ms = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
+    with progress() as prog:
+        task = prog.add_task("scenes", total=None)
+        result = run_benchmark(dataset, methods=ms, scheduler=scheduler, workers=workers, seed=seed,
+                               progress=lambda i, n: prog.update(task, completed=i, total=n))
+    files = write_benchmark_outputs(result, output)
+    typer.echo(result.markdown())
+    typer.echo(f"per-scene results: {files['csv']} and {files['json']}")
+
+
+# --------------------------------------------------------------------------- demo
+@app.command()
+def demo(
+    outdir: Path = typer.Option(Path("derender-demo"), "--outdir", "-o", help="Where to write the demo outputs."),
+    size: str = typer.Option("480x320", "--size", help="Image size WxH."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto."),
+    render: str = typer.Option("camera", "--render", help="simple | camera."),
+) -> None:
+    """Simulate an auto-pipeline bracket, merge it with every method, score each against the truth."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from derender.evaluation.demo import run_demo
+
+    with progress() as prog:
+        tasks: dict = {}
+
+        def report(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = prog.add_task(stage, total=total)
+            prog.update(tasks[stage], completed=done, total=total)
+
+        rows = run_demo(outdir, parse_size(size), seed=seed, pipeline=pipeline, render=render, progress=report)
+    table = Table(title=f"derender demo: {pipeline} pipeline, {render} rendering, PSNR (dB) vs truth.exr")
+    for col in ("method", "R", "G", "B", "L", "seconds"):
+        table.add_column(col, justify="left" if col == "method" else "right")
+    for r in rows:
+        table.add_row(r["method"], *(f"{r[c]:.2f}" for c in ("R", "G", "B", "L")), f"{r['seconds']:.2f}")
+    Console().print(table)
+    console().print(f"outputs in {outdir}/ (EXR radiance maps, PNG previews, scene.json, scores.json)")
+
+
+@app.command("merge-batch")
+def merge_batch_cmd(
+    stacks: List[Path] = typer.Argument(..., help="Stack folders (images, or jpeg/ subfolder; optional times.txt)."),
+    outdir: Path = typer.Option(..., "--output", "-o", help="Folder for <stack>.exr outputs."),
+    method: str = typer.Option("debevec", "--method", help="Merge method."),
+    scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
+    workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
+    seed: int = typer.Option(0, "--seed", help="Seed."),
+    half: bool = typer.Option(False, "--half", help="Half-float EXR."),
+) -> None:
+    """Merge many brackets in parallel (Dask); one EXR per stack folder; identical to a serial run."""
+    from derender.hdr.batch import merge_batch
+
+    with progress() as prog:
+        task = prog.add_task("stacks", total=len(stacks))
+        rows = merge_batch(stacks, outdir, method=method, scheduler=scheduler, workers=workers, seed=seed, half=half,
+                           progress=lambda i, n: prog.update(task, completed=i))
+    failed = [r for r in rows if not r["ok"]]
+    for r in rows:
+        typer.echo(f"{r['stack']}: " + (f"{r['output']} ({r['seconds']:.2f} s)" if r["ok"] else f"error: {r['error']}"))
+    if failed:
+        raise InputError(f"{len(failed)} of {len(rows)} stacks failed (see above)")
+
+
