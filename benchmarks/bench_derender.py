@@ -46,8 +46,8 @@ print(f"in-memory {time.perf_counter() - t0:.2f} s")
 def prepare(workdir: Path, size: tuple[int, int], seed: int = 0) -> tuple[Path, Path]:
     import cv2
 
+    from derender.camera import simulate_bracket
     from derender.camera.chart import chart_pairs
-    from derender.camera.simulate import simulate_bracket
     from derender.derendering.base import fit_model
 
     workdir.mkdir(parents=True, exist_ok=True)

@@ -42,7 +42,7 @@ def generate_bench_bracket(workdir: str | os.PathLike, size: tuple[int, int] = (
     """
     import cv2
 
-    from derender.camera.simulate import simulate_bracket, write_jpeg
+    from derender.camera import simulate_bracket, write_jpeg
 
     w, h = int(size[0]), int(size[1])
     if w < 16 or h < 16 or frames < 2:

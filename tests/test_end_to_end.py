@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
-from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket
+from derender.camera import bracket_paths, simulate_bracket, write_bracket
 from derender.evaluation.metrics import psnr_rgbl
 from derender.hdr.registry import merge
 from derender.io.exr import read_exr

@@ -41,7 +41,7 @@ def model():
 
 
 def _sim_case(name: str, tmp: Path):
-    from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
 
     if name == "sim-camera":
         b = simulate_bracket(size=(96, 64), exposures=5, pipeline="auto", style="camera", seed=1)

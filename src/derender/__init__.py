@@ -29,7 +29,7 @@ __getattr__, __dir__, _names = attach(__name__, {
     "io.exr": ["read_exr", "write_exr"],
     "io.rgbe": ["read_hdr", "read_radiance"],
     "io.preview": ["write_png", "write_preview"],
-    "camera.simulate": ["simulate_bracket"],
+    "camera.bracket": ["simulate_bracket"],
     "raw.groundtruth": ["raw_ground_truth", "raw_to_camera_rgb"],
     "response.debevec1997": ["calibrate_debevec"],
     "response.robertson2003": ["calibrate_robertson"],

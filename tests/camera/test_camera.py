@@ -7,7 +7,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from derender.camera.simulate import (
+from derender.camera import (
     RenderSettings,
     bracket_paths,
     bracket_times,
@@ -112,7 +112,7 @@ def test_colour_matrix_is_accurate_for_reflectances(camera):
     """The fitted ColorMatrix reproduces CIE XYZ of the ColorChecker under D65 (colour-science)."""
     import colour
 
-    from derender.camera.simulate import fit_xyz_to_camera
+    from derender.camera import fit_xyz_to_camera
     from derender.camera.spectral import cmfs_xyz, illuminant_spd, reflectance_library
 
     names, lib, groups = reflectance_library()
@@ -142,11 +142,11 @@ def test_gamut_compression_preserves_hue_and_removes_negatives():
 
 def test_simple_render_is_paper_model(camera):
     """--render simple is exactly (alpha S M WB x)^(1/gamma), clipped and quantised."""
-    from derender.camera.simulate import fit_xyz_to_camera, saturation_matrix
+    from derender.camera import fit_xyz_to_camera, saturation_matrix
     from derender.core.colorimetry import camera_to_linear_srgb_matrix
 
     m = camera_to_linear_srgb_matrix(fit_xyz_to_camera(camera))
-    from derender.camera.simulate import mosaic_signal
+    from derender.camera import mosaic_signal
 
     rng = np.random.default_rng(2)
     s = RenderSettings(wb=[1.3, 1.0, 1.6], gain=1.1, gamma=2.4, saturation=0.9, style="simple")

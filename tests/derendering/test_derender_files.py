@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
+from derender.camera import bracket_paths, simulate_bracket, write_bracket, write_jpeg
 from derender.camera.chart import chart_pairs, save_pairs
-from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket, write_jpeg
 from derender.core.types import Stack
 from derender.derendering.base import load_model
 from derender.io.exr import read_exr

@@ -38,7 +38,7 @@ def test_half_equals_box_average(shape):
 
 
 def test_stabilized_merge_bytes_do_not_depend_on_threads(tmp_path):
-    from derender.camera.simulate import simulate_bracket
+    from derender.camera import simulate_bracket
 
     b = simulate_bracket(kind="outdoor", size=(96, 64), exposures=5, seed=2)
     paths = []

@@ -137,7 +137,7 @@ def test_matrix_and_brightest_modes_equal_merge_linear():
 def test_stabilized_table_equals_stabilized_merge():
     """Per-image curves + 3x3 matrices + min-else-brightest weights (+ noise weighting), fallbacks included."""
     import derender.hdr.stabilize as stabilize
-    from derender.camera.simulate import simulate_bracket
+    from derender.camera import simulate_bracket
 
     b = simulate_bracket(size=(96, 64), exposures=5, seed=4, stops=1.0)
     st = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
@@ -157,7 +157,7 @@ def test_stabilized_table_equals_stabilized_merge():
 # --------------------------------------------------------------------------- files
 @pytest.fixture(scope="module")
 def jpeg_bracket(tmp_path_factory):
-    from derender.camera.simulate import simulate_bracket, write_jpeg
+    from derender.camera import simulate_bracket, write_jpeg
 
     d = tmp_path_factory.mktemp("bracket")
     b = simulate_bracket(size=(128, 80), exposures=6, seed=2)
@@ -221,7 +221,7 @@ def test_streaming_memory_does_not_grow_with_frames(tmp_path):
     """tracemalloc peak (NumPy buffers) for 8 frames stays within 1.3x of 4 frames."""
     import tracemalloc
 
-    from derender.camera.simulate import write_jpeg
+    from derender.camera import write_jpeg
 
     rng = np.random.default_rng(0)
     base = cv2.resize(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8), (320, 240), interpolation=cv2.INTER_CUBIC)
@@ -308,7 +308,7 @@ def test_engine_rejects_bad_inputs():
 def test_streamed_stabilized_equals_reference_engine(tmp_path, method):
     """merge_files_fast streams stabilized brackets (8-bit frames, shifts, sampled fits) to the
     in-memory method's numbers, the reference engine (merge_linear) included."""
-    from derender.camera.simulate import simulate_bracket, write_jpeg
+    from derender.camera import simulate_bracket, write_jpeg
     from derender.hdr.stabilize import stabilize, stabilized_merge
     from derender.io.images import read_stack
 
@@ -331,7 +331,7 @@ def test_streamed_stabilized_equals_reference_engine(tmp_path, method):
 
 def test_streamed_stabilized_refuses_unusable_stacks(tmp_path):
     """All-white frames: the streaming path raises the same StackError as the in-memory method."""
-    from derender.camera.simulate import write_jpeg
+    from derender.camera import write_jpeg
     from derender.core.errors import StackError
     from derender.hdr.registry import merge
     from derender.io.images import read_stack
@@ -349,7 +349,7 @@ def test_stabilized_merge_restores_opencv_threads(tmp_path):
     """Bands merge in parallel with OpenCV's own threads off; the user's setting comes back."""
     import cv2
 
-    from derender.camera.simulate import simulate_bracket, write_jpeg
+    from derender.camera import simulate_bracket, write_jpeg
 
     b = simulate_bracket(size=(160, 112), exposures=4, seed=1)
     paths = [write_jpeg(tmp_path / f"{j}.jpg", b.jpeg_codes[j], float(t), "S", "C") for j, t in enumerate(b.times)]

@@ -58,7 +58,7 @@ def test_benchmark_cli_and_errors(dataset, tmp_path, capsys):
 def test_fusion_gain_rows_match_direct_scores():
     """The experiment's per-scene gains are psnr_rgbl(stabilized) - psnr_rgbl(debevec) against the
     simulator's exact radiance, and the mean row averages them."""
-    from derender.camera.simulate import simulate_bracket
+    from derender.camera import simulate_bracket
     from derender.core.types import Stack
     from derender.evaluation.metrics import psnr_rgbl
     from derender.evaluation.table1 import fusion_gain

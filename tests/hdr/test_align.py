@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derender.camera.simulate import simulate_bracket
+from derender.camera import simulate_bracket
 from derender.core.errors import InputError
 from derender.hdr.align import align_images, shift_image
 from derender.hdr.ward2003 import median_threshold_bitmaps, mtb_shift, to_grey8

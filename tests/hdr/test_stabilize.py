@@ -17,7 +17,7 @@ import derender.hdr.stabilize.blocks as SB
 import derender.hdr.stabilize.exponents as SX
 import derender.hdr.stabilize.pair_fit as SP
 import derender.hdr.stabilize.solvers as SV
-from derender.camera.simulate import simulate_bracket
+from derender.camera import simulate_bracket
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 from derender.evaluation.metrics import psnr_rgbl
@@ -156,7 +156,7 @@ def test_unclipped_debevec_keeps_the_filmic_shoulder():
     """Samples next to a clipped pixel left out: the curve's shoulder (codes 200-250) follows
     the true filmic-plus-gamma inverse of a noise-free, fixed-rendering camera-style bracket
     (plain Debevec: > 1 in ln where raw-clipped pixels render below white)."""
-    from derender.camera.simulate import encode_gamma_with_toe, filmic_curve
+    from derender.camera import encode_gamma_with_toe, filmic_curve
     from derender.response.debevec1997 import calibrate_debevec
 
     b = simulate_bracket(kind="indoor", size=SIZE, pipeline="fixed", style="camera", seed=0, noise=False)

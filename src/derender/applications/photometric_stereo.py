@@ -213,7 +213,7 @@ def render_photometric_images(scene: PhotometricScene, camera, lights: np.ndarra
     (some sensor clipping, as in real captures). Returns (codes (N,H,W,3) uint8,
     raw camera RGB (N,H,W,3) noise-free unclipped, camera_to_srgb, wb).
     """
-    from derender.camera.simulate import (
+    from derender.camera import (
         RenderSettings,
         expose_mosaic,
         fit_xyz_to_camera,

@@ -1,6 +1,53 @@
-"""The camera simulator: spectral data, sensor and noise, in-camera rendering pipelines, DNG/JPEG writing, calibration charts.
+"""Physically based camera simulator with exact truth.
 
-Modules: :mod:`derender.camera.chart`, :mod:`derender.camera.dng`, :mod:`derender.camera.simulate`, :mod:`derender.camera.spectral`.
+The simulator renders a *spectral* scene through a camera's measured spectral
+sensitivities into a noisy Bayer mosaic (shot + read noise, black/white level, 12/14-bit
+ADC), writes it as a real DNG, and renders the in-camera JPEG from that mosaic (demosaic,
+white balance, camera-to-sRGB matrix, gain, tone rendering, gamut handling, 8-bit), with
+EXIF ``ExposureTime``; the JPEG engine also applies a mild chroma noise reduction, as cameras
+do before chroma subsampling. The scene radiance is known exactly, so every later stage is judged
+against truth.
+
+Data flow::
+
+    make_scene(kind, size, seed)         -> SpectralScene (reflectance + illumination maps)
+    scene_camera_rgb(scene, camera)      -> camera RGB per second, noise-free (H, W, 3)
+    simulate_bracket(...)                -> SimulatedBracket (mosaics, JPEG codes, times, truth)
+    write_bracket(bracket, outdir)       -> raw/NN.dng, jpeg/NN.jpg, truth.exr, scene.json
+
+Truth (``truth.exr``) is the white-balanced, noise-free, unclipped camera RGB per second
+mapped to linear sRGB by the same normalised colour matrix a RAW converter derives from the
+DNG's ColorMatrix1 (:func:`derender.colorimetry.camera_to_linear_srgb_matrix`)
+with the DNG's AsShotNeutral white balance: the quantity paper 1 (Sec. 4.2) builds from RAW.
+
+Pipelines
+---------
+``fixed``: every exposure rendered identically (white balance of the scene illuminant,
+gain 1, display gamma 2.2, no saturation change).
+
+``auto`` (what auto modes do; magnitudes drawn from a seeded generator, stored in
+``scene.json``): per exposure j the white-balance multipliers drift across the bracket by
+up to +-10 % (R) and -+8 % (B) plus 4 % random jitter (log-normal); gain alpha_j =
+exp(U(0, 0.3)), i.e. 1 to 1.35 (never below 1, so a saturated sensor still renders as
+255, as in real cameras); display gamma gamma_j ~ U(1.8, 2.6) (encoding
+exponent 1/gamma_j); a saturation matrix s_j ~ U(0.85, 1.15). The DNGs always carry the
+scene's true white balance (AsShotNeutral), so the RAW ground truth is the same for both.
+
+Rendering styles
+----------------
+``simple``: ``y = clip(alpha_j S_j M WB_j x, 0, 1) ** (1 / gamma_j)`` - exactly the model
+of paper 1 (its eq. 4), optionally followed by a fixed S-shaped tone curve (``tone_curve``).
+
+``camera`` (default, like a real picture style): saturation boost 1.2, soft hue-preserving
+gamut compression (chroma scaled towards luminance so no channel goes negative, with a soft
+knee), a per-channel filmic S-curve with highlight shoulder (Hable's curve, exposure bias 6,
+white at linear 1 = sensor saturation), then the display gamma with a linear toe (as
+sRGB: finite slope at black). The ``simple`` style keeps the pure power law of paper 1. No 3x3-plus-curve model contains it.
+
+Modules: :mod:`derender.camera.spectral` (spectral data, cameras), :mod:`derender.camera.scene` (scenes),
+:mod:`derender.camera.sensor` (mosaic, noise), :mod:`derender.camera.rendering` (in-camera pipeline),
+:mod:`derender.camera.bracket` (brackets and files), :mod:`derender.camera.dng` (DNG writer),
+:mod:`derender.camera.chart` (calibration charts).
 """
 
 from derender.core.lazy import attach
@@ -8,6 +55,9 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "chart": ["PAIRS_FORMAT", "PAIRS_VERSION", "colorchecker_sg_reflectances", "gel_illuminants", "chart_exposures", "ChartPairs", "chart_pairs", "save_pairs", "load_pairs"],
     "dng": ["to_rational", "write_dng"],
-    "simulate": ["SCENE_KINDS", "CFA_PATTERN", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz", "fit_xyz_to_camera", "white_balance_for", "mosaic_signal", "expose_mosaic", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "isp_render", "pipeline_settings", "SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "bracket_paths", "simulate_to_folder", "camera_names_for_search"],
     "spectral": ["WAVELENGTHS", "CameraSpectral", "builtin_camera_names", "load_camera_file", "load_camera", "reflectance_library", "illuminant_spd", "cmfs_xyz", "camera_search_dirs"],
+    "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "bracket_paths", "simulate_to_folder", "camera_names_for_search"],
+    "rendering": ["fit_xyz_to_camera", "white_balance_for", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "isp_render", "pipeline_settings"],
+    "scene": ["SCENE_KINDS", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz"],
+    "sensor": ["CFA_PATTERN", "mosaic_signal", "expose_mosaic"],
 })

@@ -134,7 +134,7 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int
                 style: str = "camera", patch_px: int = 16, seed: int = 0, core: int = 4,
                 progress: Callable[[int, int], None] | None = None) -> ChartPairs:
     """Simulate the paper-2 calibration session for one camera (see module doc)."""
-    from derender.camera.simulate import (
+    from derender.camera import (
         CFA_PATTERN,
         RenderSettings,
         expose_mosaic,

@@ -42,7 +42,7 @@ def simulate(
     stops: Optional[float] = typer.Option(None, "--stops", help="Stops between exposures (default: cover the scene)."),
 ) -> None:
     """Simulate a bracket with a spectral camera model: real DNG and JPEG files plus exact truth."""
-    from derender.camera.simulate import simulate_bracket, write_bracket
+    from derender.camera import simulate_bracket, write_bracket
 
     w, h = parse_size(size)
     check_choice("--pipeline", pipeline, ("fixed", "auto"))

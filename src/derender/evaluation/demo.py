@@ -1,7 +1,7 @@
 """The demo job of ``derender demo``: simulate an auto-pipeline bracket, merge it with every method,
 score each against the exact scene radiance.
 
-The simulator (:func:`derender.camera.simulate.simulate_bracket`) writes real DNG and JPEG
+The simulator (:func:`derender.camera.bracket.simulate_bracket`) writes real DNG and JPEG
 files and the exact truth (``truth.exr``); the RAW ground truth of paper 1 (Alg. 2,
 :func:`derender.raw.groundtruth.raw_ground_truth`) and every merge method that needs no
 extra input are scored with the PSNR protocol (:func:`derender.evaluation.metrics.psnr_rgbl`).
@@ -26,7 +26,7 @@ def run_demo(outdir: str | Path, size: tuple[int, int] = (480, 320), seed: int =
     ``merge-METHOD.exr`` with a PNG preview, and ``scores.json``. ``progress(stage, done,
     total)`` is called as the simulation and the merges advance.
     """
-    from derender.camera.simulate import bracket_paths, simulate_bracket, write_bracket
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
     from derender.evaluation.metrics import psnr_rgbl
     from derender.evaluation.table1 import default_methods
     from derender.hdr.registry import merge_seeded

@@ -112,7 +112,7 @@ def simulate_dataset(outdir: str | os.PathLike, scenes: int = 18, exposures: int
     pipelines and styles are cycled so every combination appears; scene ``i`` uses seed
     ``seed * 1000 + i``.
     """
-    from derender.camera.simulate import simulate_bracket, write_bracket
+    from derender.camera import simulate_bracket, write_bracket
 
     if scenes < 1:
         raise InputError("--scenes must be at least 1")
@@ -291,7 +291,7 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[st
     scenes of each rendering style (rows with ``scene="mean"``, plus ``wins``: the share of
     scenes won on >= 3 of the 4 planes). Issue 5's acceptance figures come from the default
     (auto pipeline, 3 scene kinds x seeds 0-2, 192x128, 9 exposures)."""
-    from derender.camera.simulate import simulate_bracket
+    from derender.camera import simulate_bracket
     from derender.core.types import Stack
     from derender.evaluation.metrics import psnr_rgbl
 

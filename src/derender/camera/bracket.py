@@ -1,0 +1,270 @@
+"""Brackets from the simulator: exposure times, noisy mosaics, in-camera renderings, files with truth.
+
+:func:`simulate_bracket` chooses the exposure times (:func:`bracket_times`), exposes the
+scene's camera RGB onto Bayer mosaics with noise (:mod:`derender.camera.sensor`), renders
+each frame in camera (:mod:`derender.camera.rendering`, per-exposure pipeline settings) and
+keeps the exact truth; :func:`write_bracket` writes ``raw/NN.dng``, ``jpeg/NN.jpg`` (EXIF
+``ExposureTime``), ``truth.exr`` and ``scene.json``. See :mod:`derender.camera` for the
+pipelines and rendering styles.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from derender.camera.rendering import (
+    RenderSettings,
+    fit_xyz_to_camera,
+    isp_render,
+    pipeline_settings,
+    white_balance_for,
+)
+from derender.camera.scene import SpectralScene, make_scene, scene_camera_rgb
+from derender.camera.sensor import CFA_PATTERN, expose_mosaic, mosaic_signal
+from derender.camera.spectral import (
+    WAVELENGTHS,
+    CameraSpectral,
+    load_camera,
+)
+from derender.core.colorimetry import camera_to_linear_srgb_matrix
+from derender.core.errors import InputError
+
+__all__ = [
+    "SimulatedBracket",
+    "bracket_times",
+    "simulate_bracket",
+    "write_jpeg",
+    "write_bracket",
+    "load_scene_json",
+    "bracket_paths",
+    "simulate_to_folder",
+    "camera_names_for_search",
+]
+
+
+# --------------------------------------------------------------------------- bracket
+@dataclass
+class SimulatedBracket:
+    """Everything a simulated bracket holds, in memory (see :func:`write_bracket` for files)."""
+
+    camera: CameraSpectral
+    scene: SpectralScene
+    times: np.ndarray                  # (N,) seconds, exactly representable as EXIF rationals
+    mosaics: np.ndarray                # (N, H, W) uint16
+    jpeg_codes: np.ndarray             # (N, H, W, 3) uint8 (before JPEG compression)
+    settings: list[RenderSettings]
+    truth_linear_srgb: np.ndarray      # (H, W, 3) float32, per second
+    camera_rgb_per_s: np.ndarray       # (H, W, 3) float64, normalised sensor units per second
+    xyz_to_camera: np.ndarray          # DNG ColorMatrix1
+    wb_true: np.ndarray                # AsShotNeutral multipliers
+    camera_to_srgb: np.ndarray         # normalised, for white-balanced camera RGB
+    params: dict
+
+
+def _exif_time(t: float) -> float:
+    f = Fraction(float(t)).limit_denominator(1_000_000)
+    return f.numerator / f.denominator
+
+
+def bracket_times(camera_rgb_per_unit: np.ndarray, n: int, t_min: float = 1 / 2000,
+                  stops: float | None = None, peak_percentile: float = 99.9,
+                  peak_level: float = 0.6) -> tuple[np.ndarray, float]:
+    """Exposure times (geometric) and the scene scale so the ``peak_percentile`` of the
+    per-pixel maximum camera channel reaches ``peak_level`` of white (RAW) at ``t_min`` and
+    the darkest 2 % reach 25 % at the longest exposure (or ``stops`` between exposures).
+
+    With the default 99.9 a highlight smaller than 0.1 % of the frame may clip in every
+    exposure; ``peak_percentile=100`` makes the shortest exposure hold the whole scene
+    below ``peak_level`` (a bracket that covers the scene). On the built-in scenes the two
+    differ by < 0.3 % (their brightest region, the lamp, is larger than 0.1 % and uniform).
+    """
+    if not (0.0 < peak_percentile <= 100.0) or not (0.0 < peak_level <= 1.0):
+        raise InputError(f"bracket_times needs 0 < peak_percentile <= 100 and 0 < peak_level <= 1, "
+                         f"got {peak_percentile}, {peak_level}")
+    peak = float(np.percentile(camera_rgb_per_unit.max(axis=-1), peak_percentile))
+    dark = float(np.percentile(camera_rgb_per_unit.mean(axis=-1), 2.0))
+    scale = float(peak_level) / (t_min * max(peak, 1e-30))
+    if n == 1:
+        return np.array([_exif_time(t_min)]), scale
+    if stops is None:
+        t_max = 0.25 / (max(dark, 1e-30) * scale)
+        ratio = max((t_max / t_min) ** (1.0 / (n - 1)), 2.0 ** 0.5)
+    else:
+        ratio = 2.0 ** float(stops)
+    times = np.array([_exif_time(t_min * ratio**j) for j in range(n)])
+    return times, scale
+
+
+def simulate_bracket(
+    camera: CameraSpectral | str = "nikon-d5100",
+    kind: str = "outdoor",
+    size: tuple[int, int] = (384, 256),
+    exposures: int = 9,
+    pipeline: str = "auto",
+    style: str = "camera",
+    seed: int = 0,
+    tone_curve: bool = False,
+    stops: float | None = None,
+    noise: bool = True,
+    scene: SpectralScene | None = None,
+    wb_preset: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    peak_percentile: float = 99.9,
+) -> SimulatedBracket:
+    """Simulate a bracket: spectral scene -> noisy RAW mosaics -> in-camera 8-bit renderings.
+
+    ``wb_preset`` (a CIE illuminant name, e.g. ``"D65"`` for a daylight preset) makes the
+    JPEG engine white-balance for that illuminant instead of the scene's, as a camera set
+    to a fixed white-balance mode does (the mode :func:`derender.chart.chart_pairs` uses).
+    ``peak_percentile`` is passed to :func:`bracket_times` (100: the shortest exposure keeps
+    the whole scene below 60 % of white in RAW).
+    """
+    if exposures < 1:
+        raise InputError("--exposures must be at least 1")
+    if isinstance(camera, str):
+        camera = load_camera(camera)
+    ss = np.random.SeedSequence(int(seed))
+    rng_pipe, rng_noise = (np.random.default_rng(s) for s in ss.spawn(2))
+    if scene is None:
+        scene = make_scene(kind, size, seed)
+    cam_unit = scene_camera_rgb(scene, camera)
+    times, scale = bracket_times(cam_unit, exposures, stops=stops, peak_percentile=peak_percentile)
+    cam_per_s = cam_unit * scale
+    xyz_to_camera = fit_xyz_to_camera(camera)
+    camera_to_srgb = camera_to_linear_srgb_matrix(xyz_to_camera)
+    wb_true = white_balance_for(camera, scene.key_illuminant)
+    truth = (cam_per_s * wb_true) @ camera_to_srgb.T
+    wb_render = wb_true if wb_preset is None else white_balance_for(camera, wb_preset)
+    settings = pipeline_settings(pipeline, exposures, wb_render, style, rng_pipe, tone_curve)
+    signal = mosaic_signal(cam_per_s)
+    h, w = scene.shape
+    mosaics = np.empty((exposures, h, w), dtype=np.uint16)
+    codes = np.empty((exposures, h, w, 3), dtype=np.uint8)
+    noise_rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(rng_noise.integers(2**63)).spawn(exposures)]
+    for j, t in enumerate(times):
+        mosaics[j] = expose_mosaic(signal, camera, float(t), noise_rngs[j] if noise else None)
+        codes[j] = isp_render(mosaics[j], camera, camera_to_srgb, settings[j])
+        if progress is not None:
+            progress(j + 1, exposures)
+    params = {
+        "generator": "derender.camera.simulate_bracket",
+        "seed": int(seed),
+        "camera": {"name": camera.name, "make": camera.make, "model": camera.model, "source": camera.source,
+                   "bits": camera.bits, "black_level": camera.black_level, "white_level": camera.white_level,
+                   "full_well_electrons": camera.full_well, "read_noise_dn": camera.read_noise,
+                   "cfa_pattern": CFA_PATTERN},
+        "scene": {"kind": scene.kind, "size": [w, h], "illuminants": list(scene.illuminant_names),
+                  "key_illuminant": scene.key_illuminant, "regions": scene.regions,
+                  "illumination_range": [float(np.percentile(scene.illumination.sum(-1), 1)),
+                                         float(scene.illumination.sum(-1).max())]},
+        "pipeline": pipeline,
+        "style": style,
+        "tone_curve": bool(tone_curve),
+        "noise": bool(noise),
+        "times": [float(t) for t in times],
+        "scene_scale": float(scale),
+        "peak_percentile": float(peak_percentile),
+        "xyz_to_camera": xyz_to_camera.tolist(),
+        "camera_to_linear_srgb": camera_to_srgb.tolist(),
+        "wb_as_shot": [float(v) for v in wb_true],
+        "wb_preset": wb_preset,
+        "exposures": [asdict(s) | {"exponent": s.exponent} for s in settings],
+        "truth": "linear sRGB (Rec. 709, D65) per second: camera_to_linear_srgb @ (wb_as_shot * camera_rgb), "
+                 "noise-free, unclipped",
+    }
+    return SimulatedBracket(camera=camera, scene=scene, times=times, mosaics=mosaics, jpeg_codes=codes,
+                            settings=settings, truth_linear_srgb=truth.astype(np.float32),
+                            camera_rgb_per_s=cam_per_s, xyz_to_camera=xyz_to_camera, wb_true=wb_true,
+                            camera_to_srgb=camera_to_srgb, params=params)
+
+
+# --------------------------------------------------------------------------- files
+def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float, make: str, model: str,
+               quality: int = 95) -> Path:
+    """Write 8-bit RGB codes as a JPEG (4:2:2, like most cameras) with EXIF Make/Model/ExposureTime."""
+    from PIL import Image, TiffImagePlugin
+
+    from derender.io.files import atomic_output
+
+    img = Image.fromarray(np.ascontiguousarray(codes), mode="RGB")
+    exif = Image.Exif()
+    exif[0x010F] = make
+    exif[0x0110] = model
+    exif[0x0131] = "derender simulator"
+    f = Fraction(float(exposure_time)).limit_denominator(1_000_000)
+    exif.get_ifd(0x8769)[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        img.save(tmp, format="JPEG", quality=quality, subsampling=1, exif=exif.tobytes(), optimize=False)
+    return path
+
+
+def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_quality: int = 95) -> dict:
+    """Write ``raw/NN.dng``, ``jpeg/NN.jpg``, ``truth.exr`` and ``scene.json`` under ``outdir``."""
+    from derender.camera.dng import write_dng
+    from derender.io.exr import write_exr
+
+    outdir = Path(outdir)
+    (outdir / "raw").mkdir(parents=True, exist_ok=True)
+    (outdir / "jpeg").mkdir(parents=True, exist_ok=True)
+    cam = bracket.camera
+    neutral = 1.0 / np.asarray(bracket.wb_true)
+    files = {"raw": [], "jpeg": []}
+    for j, t in enumerate(bracket.times):
+        dng = write_dng(outdir / "raw" / f"{j:02d}.dng", bracket.mosaics[j], CFA_PATTERN, cam.black_level,
+                        cam.white_level, bracket.xyz_to_camera, neutral, float(t), cam.make, cam.model, cam.bits)
+        jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j], float(t), cam.make, cam.model,
+                         quality=jpeg_quality)
+        files["raw"].append(str(dng.relative_to(outdir)))
+        files["jpeg"].append(str(jpg.relative_to(outdir)))
+    write_exr(outdir / "truth.exr", bracket.truth_linear_srgb)
+    params = dict(bracket.params) | {"files": files, "jpeg_quality": jpeg_quality}
+    from derender.io.files import atomic_output
+
+    with atomic_output(outdir / "scene.json") as tmp:
+        Path(tmp).write_text(json.dumps(params, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    return params
+
+
+def load_scene_json(outdir: str | os.PathLike) -> dict:
+    """Read ``scene.json`` of a simulated bracket."""
+    p = Path(outdir) / "scene.json"
+    if not p.is_file():
+        raise InputError(f"no scene.json in {outdir}")
+    return json.loads(p.read_text(encoding="utf-8"))
+
+
+def bracket_paths(outdir: str | os.PathLike, kind: str = "jpeg") -> list[Path]:
+    """Sorted file paths of a simulated bracket folder (``kind`` = "jpeg" or "raw")."""
+    d = Path(outdir) / kind
+    pattern = "*.jpg" if kind == "jpeg" else "*.dng"
+    files = sorted(d.glob(pattern))
+    if not files:
+        raise InputError(f"no {kind} files in {d}")
+    return files
+
+
+def simulate_to_folder(outdir: str | os.PathLike, **kwargs) -> dict:
+    """:func:`simulate_bracket` then :func:`write_bracket`."""
+    return write_bracket(simulate_bracket(**kwargs), outdir)
+
+
+def camera_names_for_search(extra_dirs: Sequence[str | os.PathLike] = ()) -> list[str]:
+    """Built-in camera names plus rawtoaces JSON names found in ``extra_dirs``."""
+    from derender.camera.spectral import builtin_camera_names
+
+    names = builtin_camera_names()
+    for d in extra_dirs:
+        for f in sorted(Path(d).glob("*.json")):
+            names.append(f.stem)
+    return names
+
+
+_ = WAVELENGTHS  # re-exported for users of the simulator

@@ -1,0 +1,5 @@
+"""``python -m derender.cli``: the ``derender`` command."""
+
+from derender.cli import main
+
+main()
