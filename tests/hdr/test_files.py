@@ -51,3 +51,21 @@ def test_cli_refuses_times_in_the_wrong_order(tmp_path, capsys):
                               "--seed", int(rng.integers(10))], capsys)
         assert code == 2 and "check the order of the times" in o + e, (method, o, e)
         assert not (tmp_path / "x.exr").exists()
+
+
+def test_options_that_need_each_other(tmp_path, capsys):
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
+
+    write_bracket(simulate_bracket(size=(48, 32), exposures=3, pipeline="fixed", seed=1), tmp_path / "b")
+    jpgs = bracket_paths(tmp_path / "b", "jpeg")
+    code, o, e = run_cli(["merge", *jpgs, "--times-inverse", "-o", tmp_path / "x.exr"], capsys)
+    assert code == 2 and "--times-inverse applies to a --times-file" in o + e
+    for method in ("stabilized-probabilistic", "probabilistic"):
+        code, o, e = run_cli(["merge", *jpgs, "-o", tmp_path / "x.exr", "--method", method], capsys)
+        assert code == 2 and "needs option(s) model (-m MODEL.npz)" in o + e, (method, o, e)
+    assert not (tmp_path / "x.exr").exists()
+    from derender.core.types import Stack
+    from derender.hdr.registry import merge
+
+    with pytest.raises(InputError, match="needs option"):
+        merge(Stack(images=np.zeros((2, 4, 4, 3), np.float32), times=[0.1, 0.2]), "probabilistic")

@@ -98,6 +98,8 @@ def read_stack_from_cli(images: List[Path], times: Optional[str], times_file: Op
 
     if times is not None and times_file is not None:
         raise InputError("give either --times or --times-file, not both")
+    if times_inverse and times_file is None:
+        raise InputError("--times-inverse applies to a --times-file; give one")
     t = parse_times(times) if times is not None else None
     return read_stack(images, times=t, times_file=times_file, times_file_inverse=times_inverse)
 

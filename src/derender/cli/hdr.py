@@ -90,6 +90,8 @@ def merge_cmd(
         raise InputError(f"--output must end in .exr, got {output.name}")
     if times is not None and times_file is not None:
         raise InputError("give either --times or --times-file, not both")
+    if times_inverse and times_file is None:
+        raise InputError("--times-inverse applies to a --times-file; give one")
     if variance is not None and variance.suffix.lower() != ".exr":
         raise InputError(f"--variance must end in .exr, got {variance.name}")
     t0 = time.perf_counter()

@@ -92,9 +92,17 @@ def method_options(method: str, options: dict) -> dict:
     if bad:
         raise InputError(f"merge method {method!r} does not accept option(s) {', '.join(bad)}; "
                          f"accepted: {', '.join(names)}")
+    missing = [k for k in names if params[k].default is inspect.Parameter.empty and k not in options]
+    if missing:
+        raise InputError(_missing_message(method, missing))
     out = {k: params[k].default for k in names}
     out.update(options)
     return out
+
+
+def _missing_message(method: str, missing: list[str]) -> str:
+    hint = " (-m MODEL.npz)" if missing == ["model"] else ""
+    return f"merge method {method!r} needs option(s) {', '.join(missing)}{hint}"
 
 
 def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
@@ -108,8 +116,12 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     try:
         inspect.signature(fn).bind(stack, **options)
     except TypeError:
-        params = [p for p in inspect.signature(fn).parameters][1:]
+        sig = inspect.signature(fn).parameters
+        params = [p for p in sig][1:]
         bad = [k for k in options if k not in params]
+        missing = [k for k in params if sig[k].default is inspect.Parameter.empty and k not in options]
+        if not bad and missing:
+            raise InputError(_missing_message(method, missing)) from None
         raise InputError(
             f"merge method {method!r} does not accept option(s) {', '.join(bad) or '?'}; "
             f"accepted: {', '.join(params)}"
