@@ -131,6 +131,21 @@ def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
     return lin
 
 
+def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], Any], weight: Any,
+                     block_rows: int | None, **merge_kw: Any) -> HDRResult:
+    """A classic merge on the float reference engine (stacks without 8-bit codes)."""
+    check_usable(stack)
+    t0 = time.perf_counter()
+    if curves is None:
+        curves = calibrate()
+    t1 = time.perf_counter()
+    res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
+                       block_rows=block_rows, **merge_kw)
+    res.info.update({"method": name, "curves": curves, "engine": "reference",
+                     "timings": {"calibrate_s": t1 - t0, "merge_s": time.perf_counter() - t1}})
+    return res
+
+
 def _debevec_engine(opts: dict) -> DebevecMethod:
     return DebevecMethod(**opts)
 
@@ -187,17 +202,9 @@ def merge_debevec(
         return res
     from derender.response.debevec1997 import calibrate_debevec
 
-    check_usable(stack)
-    t0 = time.perf_counter()
-    if curves is None:
-        curves = calibrate_debevec(stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed)
-    t1 = time.perf_counter()
-    res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
-                       channel_weights=channel_weights, domain=domain, block_rows=block_rows)
-    t2 = time.perf_counter()
-    res.info.update({"method": "debevec", "curves": curves, "engine": "reference",
-                     "timings": {"calibrate_s": t1 - t0, "merge_s": t2 - t1}})
-    return res
+    return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
+        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed), weight, block_rows,
+        channel_weights=channel_weights, domain=domain)
 
 
 @register_method("robertson", engine=_robertson_engine)
@@ -221,14 +228,6 @@ def merge_robertson(
         return res
     from derender.response.robertson2003 import calibrate_robertson
 
-    check_usable(stack)
-    t0 = time.perf_counter()
-    if curves is None:
-        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed)
-    t1 = time.perf_counter()
-    res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
-                       image_weights=stack.times ** 2, domain="linear", block_rows=block_rows)
-    t2 = time.perf_counter()
-    res.info.update({"method": "robertson", "curves": curves, "engine": "reference",
-                     "timings": {"calibrate_s": t1 - t0, "merge_s": t2 - t1}})
-    return res
+    return _reference_merge(stack, "robertson", curves, lambda: calibrate_robertson(
+        stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed), weight, block_rows,
+        image_weights=stack.times ** 2, domain="linear")
