@@ -5,7 +5,11 @@ the commit before the move (``abd0aee``): two simulated auto-pipeline brackets (
 simple rendering styles) merged by every method, through files (the product path of
 ``derender merge``) and through the in-memory API, and the Memorial and Frobisher brackets of
 ``../shared/data``. Each array must be bit-identical, or within 1e-6 relative (to the largest
-value of the pixel), which is the float32 rounding of a reordered sum.
+value of the pixel), which is the float32 rounding of a reordered sum. The model-based
+outputs (the GP's predictions and the probabilistic merges) are allowed 1e-4: the model is
+refitted here, and its optimiser's result moves by 1e-6 to 3e-5 with the BLAS/SciPy build
+(measured on a fresh machine with NumPy 2.4.6 / SciPy 1.17.1: 1.0e-6 on the predicted means,
+2.4e-5 on the predicted variances, 4.4e-6 on a probabilistic merge).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from conftest import require_shared
 
 DATA = Path(__file__).resolve().parent / "data" / "reference_outputs.npz"
 RTOL = 1e-6
+RTOL_MODEL = 1e-4
 METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
 MODEL_METHODS = ("probabilistic", "stabilized-probabilistic")
 STEP = {"sim-camera": 1, "sim-simple": 1, "memorial": 8, "frobisher": 8}
@@ -60,21 +65,21 @@ def _real_case(name: str):
     return sorted(d.glob("IMG_*.jpg")), {}
 
 
-def _compare(got: np.ndarray, want: np.ndarray, key: str) -> None:
+def _compare(got: np.ndarray, want: np.ndarray, key: str, rtol: float = RTOL) -> None:
     assert got.shape == want.shape, key
     if np.array_equal(got, want):
         return
     scale = np.maximum(np.abs(want).max(axis=-1, keepdims=True), 1e-30)
     rel = float(np.max(np.abs(got.astype(np.float64) - want) / scale))
-    assert rel <= RTOL, f"{key}: max relative difference {rel:.3g} > {RTOL}"
+    assert rel <= rtol, f"{key}: max relative difference {rel:.3g} > {rtol}"
 
 
 def test_model_predictions_unchanged(reference, model):
     probe = np.stack(np.meshgrid(np.arange(0, 256, 15), np.arange(0, 256, 15), np.arange(0, 256, 15),
                                  indexing="ij"), -1).reshape(-1, 3).astype(np.uint8)
     mean, var = model.predict(probe / 255.0)
-    _compare(mean, reference["model/predict_mean"], "predict mean")
-    _compare(var, reference["model/predict_var"], "predict variance")
+    _compare(mean, reference["model/predict_mean"], "predict mean", RTOL_MODEL)
+    _compare(var, reference["model/predict_var"], "predict variance", RTOL_MODEL)
 
 
 @pytest.mark.parametrize("case", ["sim-camera", "sim-simple", "memorial", "frobisher"])
@@ -102,6 +107,7 @@ def test_merged_radiance_unchanged(case, reference, model, tmp_path):
                 want = reference[key]
                 if want.dtype.kind == "U":       # recorded once: the in-memory result equalled the files' one
                     want = reference[f"{case}/{method}/files/{what}"]
-                _compare(np.ascontiguousarray(arr[::s, ::s]), want, key)
+                _compare(np.ascontiguousarray(arr[::s, ::s]), want, key,
+                         RTOL_MODEL if method in MODEL_METHODS else RTOL)
                 checked += 1
     assert checked >= 2 * len(methods)
