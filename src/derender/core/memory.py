@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from derender.core.errors import InputError
+
 __all__ = [
     "CHANNELS",
     "N_CODES",
@@ -25,6 +27,8 @@ __all__ = [
     "thread_count",
     "POPULATE_BYTES",
     "populated_zeros",
+    "available_memory",
+    "check_memory",
 ]
 
 
@@ -34,6 +38,43 @@ CHANNELS = "RGB"
 
 #: Code values of an 8-bit channel (the size of every per-code table).
 N_CODES = 256
+
+
+def available_memory() -> int | None:
+    """Bytes the system can still give this process (``MemAvailable`` of ``/proc/meminfo``,
+    lowered by a cgroup limit when one applies), or None where neither can be read."""
+    avail = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except OSError:
+        return None
+    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            with open(limit_file) as f:
+                text = f.read().strip()
+            if text == "max" or int(text) >= 1 << 60:
+                continue
+            with open(usage_file) as f:
+                room = int(text) - int(f.read().strip())
+            avail = room if avail is None else min(avail, room)
+        except (OSError, ValueError):
+            continue
+    return avail
+
+
+def check_memory(nbytes: int, what: str) -> None:
+    """Raise :class:`~derender.core.errors.InputError` when ``nbytes`` (the memory ``what``
+    needs) exceeds the memory available, saying how much is needed and available."""
+    avail = available_memory()
+    if avail is not None and nbytes > avail:
+        raise InputError(f"{what} needs {nbytes / 2**30:.1f} GiB of memory, only {avail / 2**30:.1f} GiB "
+                         "are available; use fewer or smaller images")
 
 
 def import_cv2():

@@ -8,8 +8,8 @@
   metadata: ``mean' = A mean``, ``var' = (A o A) var`` (channels taken as independent).
 * :func:`index_colours` finds the distinct colours of an 8-bit image: a prediction is a
   function of the colour alone, so it is made once per distinct colour and gathered.
-* :func:`check_8bit_rgb` reads an image as uint8 codes and refuses what the models do not
-  describe (alpha, 16-bit).
+* :func:`check_8bit_rgb` reads an image as uint8 codes (the one strict decoder) and refuses
+  what the models do not describe (16-bit).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import numpy as np
 from derender.core.errors import InputError
 from derender.derendering.base import finite32, model_camera_to_srgb
 from derender.derendering.library import resolve_model
+from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
 __all__ = [
     "check_8bit_rgb",
@@ -36,34 +37,16 @@ __all__ = [
 ]
 
 
-def check_8bit_rgb(path: str | os.PathLike) -> np.ndarray:
-    """Read an 8-bit RGB image as uint8 codes (H, W, 3); refuse alpha channels and 16-bit files."""
-    import cv2
+def check_8bit_rgb(path: str | os.PathLike, max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS) -> np.ndarray:
+    """Read an 8-bit RGB image as uint8 codes (H, W, 3), upright, with the one decoder of
+    every reader (:func:`derender.io.images.decode_image`: header first, strict about
+    truncation); refuse 16-bit files (the models map 8-bit rendered colours)."""
+    from derender.io.images import decode_image
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"no such file: {path}")
-    if path.suffix.lower() in (".jpg", ".jpeg"):
-        # JPEG is always 8-bit without alpha: the fast libjpeg-turbo decoder of fastmerge
-        from derender.io.images import read_codes
-
-        codes = read_codes(path)
-        if codes is not None:
-            return codes
-    img = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
-    if img is None:
-        raise InputError(f"not a readable image (corrupt or unsupported format): {path}")
-    if img.dtype != np.uint8:
-        raise InputError(f"{path} is {img.dtype.itemsize * 8}-bit; de-rendering models map 8-bit rendered colours")
-    if img.ndim == 3 and img.shape[2] == 4:
-        raise InputError(f"{path} has an alpha channel; de-rendering needs plain RGB (flatten it first)")
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    elif img.shape[2] != 3:
-        raise InputError(f"{path} has {img.shape[2]} channels; expected RGB")
-    else:
-        img = img[:, :, ::-1]
-    return np.ascontiguousarray(img)
+    codes = decode_image(path, max_megapixels=max_megapixels)
+    if codes.dtype != np.uint8:
+        raise InputError(f"{path} is 16-bit; de-rendering models map 8-bit rendered colours")
+    return codes
 
 
 def derender_image(image_path: str | os.PathLike, model_path: str | os.PathLike, srgb: bool = False
@@ -176,7 +159,8 @@ def _to_linear_srgb(model, mean: np.ndarray, var: np.ndarray) -> tuple[np.ndarra
 
 def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike, output: str | os.PathLike,
                     variance: str | os.PathLike | None = None, srgb: bool = False,
-                    compression: str = "zip", threads: int | None = None) -> dict:
+                    compression: str = "zip", threads: int | None = None,
+                    max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS) -> dict:
     """De-render an image straight into ``output`` (mean) and ``variance`` EXR files.
 
     The same numbers as :func:`derender_image` (each distinct colour predicted once,
@@ -195,7 +179,7 @@ def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike
     for out in outs:
         check_output(out, [image_path])
     t0 = time.perf_counter()
-    codes = check_8bit_rgb(image_path)
+    codes = check_8bit_rgb(image_path, max_megapixels)
     model, used = resolve_model(model_path, image_path)
     t1 = time.perf_counter()
     index = index_colours(codes)

@@ -17,6 +17,7 @@ import numpy as np
 
 from derender.core.errors import InputError, StackError
 from derender.core.memory import populated_zeros, thread_count
+from derender.io.headers import probe_images
 from derender.io.images import read_codes
 
 __all__ = [
@@ -75,18 +76,21 @@ class FramePool:
 
 def read_frames(paths: list[Path], threads: int | None,
                 derive: Callable[[np.ndarray, np.ndarray], Any] | None = None,
-                derive_alloc: Callable[[int, int, int], np.ndarray] | None = None
-                ) -> tuple[np.ndarray, np.ndarray | None]:
+                derive_alloc: Callable[[int, int, int], np.ndarray] | None = None,
+                infos: list | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Decode 8-bit frames (in threads) into one (N, H, W, 3) uint8 array (pages populated
     up front, :func:`populated_zeros`) and, with ``derive(frame, out)``, one uint8 plane
     (N, H, W) per frame computed in the decoding threads (e.g. Ward's grey images for MTB
     registration, :func:`derender.hdr.ward2003.grey8_codes`). The first frame gives the size;
     the others are decoded straight into their slot. ``derive_alloc(H, W, nbytes)``, if
     given, returns the uint8 memory (at least ``nbytes``) the planes go to, so that a later
-    stage can reuse it."""
+    stage can reuse it. ``infos`` are the files' probed headers
+    (:func:`derender.io.headers.probe_images`), read here when not given."""
 
     nthreads = thread_count(threads)
-    first = read_codes(paths[0])
+    if infos is None:
+        infos = probe_images(paths)
+    first = read_codes(paths[0], info=infos[0])
     if first is None:
         raise NotStreamable("16-bit input")
     if len(paths) < 2:
@@ -101,7 +105,7 @@ def read_frames(paths: list[Path], threads: int | None,
         planes = mem.reshape(-1)[:n_plane].reshape(frames.shape[:3])
 
     def load(j: int):
-        codes = read_codes(paths[j], out=frames[j]) if j else frames[0]
+        codes = read_codes(paths[j], out=frames[j], info=infos[j]) if j else frames[0]
         if codes is None:
             return False
         if codes.shape != frames.shape[1:]:

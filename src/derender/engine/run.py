@@ -35,18 +35,24 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from derender.core.errors import InputError, StackError
-from derender.core.memory import N_CODES, populated_zeros, thread_count
+from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
 from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import write_exr_fast
+from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
 __all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "ENGINES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
 ENGINES = ("auto", "table", "reference")
+
+#: The least memory a streamed merge needs per pixel: the float32 RGB result and its
+#: weight sums (24 bytes) and the frame being decoded (3 bytes), rounded up; checked
+#: against the available memory before any frame is decoded.
+STREAMED_BYTES_PER_PIXEL = 32
 
 
 class FileFrames:
@@ -55,11 +61,16 @@ class FileFrames:
     Decoding a 16-bit file raises :class:`~derender.engine.frames.NotStreamable` (the caller
     falls back to the float reference engine)."""
 
-    def __init__(self, paths: Sequence[str | os.PathLike], times: Sequence[float]):
+    def __init__(self, paths: Sequence[str | os.PathLike], times: Sequence[float],
+                 max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS):
         t = np.asarray(times, dtype=np.float64).reshape(-1)
         order = np.argsort(t, kind="stable")
         self.paths = [Path(paths[i]) for i in order]
         self.times = t[order]
+        # every header before any pixel: truncation, forged sizes, the megapixel and memory budgets
+        self.infos = probe_images(self.paths, max_megapixels)
+        w, h = self.infos[0].width, self.infos[0].height
+        check_memory(w * h * STREAMED_BYTES_PER_PIXEL, f"merging {w}x{h} images")
 
     @property
     def n(self) -> int:
@@ -69,13 +80,13 @@ class FileFrames:
         return self.paths[j].name
 
     def read(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
-        codes = read_codes(self.paths[j], out=out)
+        codes = read_codes(self.paths[j], out=out, info=self.infos[j])
         if codes is None:
             raise NotStreamable("16-bit input")
         return codes
 
     def read_all(self, threads: int | None, derive=None, derive_alloc=None) -> tuple[np.ndarray, np.ndarray | None]:
-        return read_frames(self.paths, threads, derive=derive, derive_alloc=derive_alloc)
+        return read_frames(self.paths, threads, derive=derive, derive_alloc=derive_alloc, infos=self.infos)
 
 
 class ArrayFrames:

@@ -26,6 +26,7 @@ from derender.engine.frames import NotStreamable
 from derender.engine.run import FileFrames, run, write_outputs
 from derender.hdr.registry import get_method, merge_seeded, method_options
 from derender.io.exif import file_times
+from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
 __all__ = ["merge_files"]
 
@@ -35,13 +36,17 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 times_file_inverse: bool = False, output: str | os.PathLike | None = None,
                 variance_output: str | os.PathLike | None = None, half: bool = False,
                 inputs: Iterable[str | os.PathLike] = (), threads: int | None = None, keep_frames: int | None = None,
-                keep_bytes: int = 256 << 20, compression: str = "zip", **options: Any) -> HDRResult:
+                keep_bytes: int = 256 << 20, compression: str = "zip",
+                max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS, **options: Any) -> HDRResult:
     """Merge image files into a radiance map; optionally write ``output`` (and ``variance_output``), .exr.
 
     Times as :func:`derender.io.images.read_stack` (``times`` in the order of ``paths``,
     else ``times_file``, else EXIF). ``options`` are the method's (as
     :func:`derender.hdr.registry.merge` takes them); ``threads``, ``keep_frames`` and
-    ``keep_bytes`` go to the engine. The result equals ``merge(read_stack(paths), method,
+    ``keep_bytes`` go to the engine. Every file's header is read before any pixel
+    (:func:`derender.io.headers.probe_images`: truncated files, sizes above
+    ``max_megapixels`` megapixels and stacks that need more memory than is available are
+    refused first). The result equals ``merge(read_stack(paths), method,
     ...)``. The radiance may be an (H, W, 3) view of planar float32 memory.
     """
     t_start = time.perf_counter()
@@ -70,7 +75,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         try:
             engine_method = factory(opts)
             if engine_method is not None:
-                res = run(engine_method, FileFrames(paths, t), threads=threads, keep_frames=keep_frames,
+                res = run(engine_method, FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
                           keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
                           compression=compression, inputs=all_inputs, order_hint=hint)
         except NotStreamable:
@@ -79,7 +84,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         from derender.io.images import read_stack
 
         seed = options.pop("seed", 0)
-        stack = read_stack(paths, times=t)
+        stack = read_stack(paths, times=t, max_megapixels=max_megapixels)
         names = [paths[i].name for i in np.argsort(t, kind="stable")]
         check_brightness_order(stack.times, [255.0 * float(im[::8, ::8].mean()) for im in stack.images],
                                names, hint)

@@ -18,7 +18,7 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import validate_times
-from derender.io.files import RAW_SUFFIXES
+from derender.io.files import RAW_SUFFIXES, check_input_file, resolve_path
 
 __all__ = [
     "read_exif",
@@ -43,7 +43,9 @@ def _ratio_to_float(value) -> float | None:
 def read_exif(path: str | os.PathLike) -> dict:
     """EXIF fields we use: ``ExposureTime`` (s), ``Make``, ``Model``, ``ISO``, ``FNumber``.
 
-    Missing fields are absent from the dict; unreadable EXIF gives an empty dict.
+    Missing fields are absent from the dict; unreadable EXIF gives an empty dict. An
+    ``ExposureTime`` that is present but not a positive number is reported as
+    ``ExposureTimeInvalid`` (its text), not as a time.
     """
     info: dict = {}
     try:
@@ -72,6 +74,9 @@ def read_exif(path: str | os.PathLike) -> dict:
                     v = _ratio_to_float(val.values[0] if getattr(val, "values", None) else val)
                     if v is not None and np.isfinite(v) and v > 0:
                         info[name] = v
+                    elif name == "ExposureTime":
+                        info["ExposureTimeInvalid"] = (f"{v:g}" if v is not None
+                                                       else str(getattr(val, "printable", val)).strip("(), "))
     except Exception:  # noqa: BLE001 - any EXIF parser failure means "no EXIF"
         pass
     if "ExposureTime" not in info:
@@ -131,8 +136,9 @@ def read_times_file(path: str | os.PathLike, inverse: bool = False) -> dict[str,
     lists such as ``memorial.hdr_image_list.txt``.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise InputError(f"no such times file: {path}")
+    check_input_file(path)
     try:
         text = path.read_text(encoding="utf-8", errors="strict")
     except UnicodeDecodeError:
@@ -167,15 +173,15 @@ def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None
     paths = [Path(p) for p in paths]
     if len(paths) < 2:
         raise InputError("an exposure stack needs at least two images")
+    for p in paths:
+        check_input_file(p)
     seen: set[Path] = set()
     for p in paths:
-        r = p.resolve()
+        r = resolve_path(p)
         if r in seen:
             raise InputError(f"the same file is given twice: {p}")
         seen.add(r)
     for p in paths:
-        if not p.is_file():
-            raise InputError(f"no such file: {p}")
         if p.suffix.lower() in RAW_SUFFIXES:
             raise InputError(f"{p} is a RAW file; use 'derender groundtruth' for RAW brackets")
     if times is not None:
@@ -191,7 +197,11 @@ def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None
     else:
         t, missing = [], []
         for p in paths:
-            v = read_exposure_time(p)
+            exif = read_exif(p)
+            v = exif.get("ExposureTime")
+            if v is None and "ExposureTimeInvalid" in exif:
+                raise InputError(f"{p.name}: EXIF ExposureTime is {exif['ExposureTimeInvalid']}, not a valid "
+                                 "exposure time; give --times or --times-file")
             if v is None:
                 missing.append(p.name)
             t.append(v if v is not None else 0.0)

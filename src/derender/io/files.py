@@ -9,7 +9,9 @@ given (:func:`check_not_input`, symlinks resolved). Readers raise
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Iterable
@@ -23,9 +25,17 @@ __all__ = [
     "RAW_SUFFIXES",
     "atomic_output",
     "check_output",
+    "resolve_path",
+    "OutputTransaction",
+    "TEMP_PREFIX",
     "check_not_input",
+    "check_input_file",
     "read_bytes",
 ]
+
+
+#: Prefix of every temporary output (a short fixed name: a long output name still fits).
+TEMP_PREFIX = ".derender-"
 
 
 #: Suffixes of rendered images read with OpenCV (8- or 16-bit).
@@ -47,7 +57,7 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
     path = Path(path)
     check_output(path, inputs)
     parent = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
+    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -55,6 +65,12 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
     try:
         yield Path(tmp)
         os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if exc.filename is None or str(exc.filename) == str(tmp):
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None   # name the output
+        raise
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -63,32 +79,158 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
 
 def check_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = ()) -> None:
     """Raise :class:`InputError` unless ``path`` can be written as a new or replaced file:
-    its folder exists, it is not a folder, and it is none of ``inputs`` (checked before any
-    work, so a user mistake costs nothing)."""
+    its folder exists and is writable, its name fits the file system, it is not a folder
+    nor a symlink loop, and it is none of ``inputs`` (also through symlinks). Checked before
+    any work, so a user mistake costs nothing."""
     path = Path(path)
     check_not_input(path, inputs)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"output folder does not exist: {parent}")
+    try:
+        name_max = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    if len(os.fsencode(path.name)) > name_max:
+        raise InputError(f"output file name too long ({len(os.fsencode(path.name))} bytes; the file system "
+                         f"allows {name_max}): {path.name[:40]}...")
     if path.is_dir():
         raise InputError(f"output {path} is a folder; give a file name")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"permission denied: cannot write in the folder of {path}")
+    if path.exists() and not os.access(path, os.W_OK) and not os.access(parent, os.W_OK):
+        raise InputError(f"permission denied: cannot replace {path}")
+
+
+def resolve_path(path: str | os.PathLike) -> Path:
+    """``Path.resolve`` with a symlink loop reported as :class:`InputError`."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError) as exc:
+        raise InputError(f"symbolic link loop: {path}") from None
 
 
 def check_not_input(path: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:
     """Raise :class:`InputError` if ``path`` names the same file as one of ``inputs``."""
-    out = Path(path).resolve()
+    out = resolve_path(path)
     for p in inputs:
-        if Path(p).resolve() == out:
+        if resolve_path(p) == out:
             raise InputError(f"refusing to overwrite input file {p}")
 
 
+class OutputTransaction:
+    """All outputs of one command, written as one transaction.
+
+    :meth:`add` validates an output before any work (:func:`check_output`, its suffix, no
+    two outputs the same file) and returns the temporary path the writer writes to (in the
+    destination folder, so that the final rename is atomic). Leaving the ``with`` block
+    normally renames every temporary into place; leaving it by an exception (a user error,
+    ``OSError`` such as a full disk, or an interruption) removes them all, and an error that
+    names a temporary is re-raised naming the user's path instead.
+    """
+
+    def __init__(self, inputs: Iterable[str | os.PathLike] = ()):
+        self.inputs = [Path(p) for p in inputs]
+        self.outputs: dict[Path, Path] = {}   # final path -> temporary path
+
+    def add(self, path: str | os.PathLike | None, option: str = "output",
+            suffixes: Iterable[str] | None = None) -> Path | None:
+        if path is None:
+            return None
+        path = Path(path)
+        allowed = tuple(s.lower() for s in suffixes) if suffixes else ()
+        if allowed and path.suffix.lower() not in allowed:
+            raise InputError(f"{option} must end in {' or '.join(allowed)}, got {path.name}")
+        check_output(path, self.inputs)
+        key = resolve_path(path)
+        for other in self.outputs:
+            if resolve_path(other) == key:
+                raise InputError(f"two outputs are the same file: {path}")
+        parent = path.parent if str(path.parent) else Path(".")
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=parent)
+        except OSError as exc:
+            self.rollback()
+            raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+        os.close(fd)
+        self.outputs[path] = Path(tmp)
+        return Path(tmp)
+
+    def rollback(self) -> None:
+        for tmp in self.outputs.values():
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+    def commit(self) -> None:
+        umask = os.umask(0)
+        os.umask(umask)
+        for final, tmp in self.outputs.items():
+            os.chmod(tmp, 0o666 & ~umask)
+            os.replace(tmp, final)
+        self.outputs = {}
+
+    def user_message(self, text: str) -> str:
+        for final, tmp in self.outputs.items():
+            text = text.replace(str(tmp), str(final)).replace(tmp.name, final.name)
+        return text
+
+    def __enter__(self) -> "OutputTransaction":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            try:
+                self.commit()
+            except OSError as err:
+                self.rollback()
+                raise InputError(self.user_message(f"cannot write outputs: {err.strerror or err}: "
+                                                   f"{err.filename}")) from None
+            return False
+        message = None
+        if isinstance(exc, OSError):
+            message = self.user_message(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else
+                                        f"{exc.strerror or exc}")
+        elif isinstance(exc, InputError):
+            message = self.user_message(str(exc))
+        self.rollback()
+        if message is not None and (isinstance(exc, OSError) or message != str(exc)):
+            raise InputError(message) from None
+        return False
+
+
 # --------------------------------------------------------------------------- rasters
+def check_input_file(path: str | os.PathLike) -> Path:
+    """Raise :class:`InputError` with the accurate reason unless ``path`` is a readable file
+    (missing, a folder, a symlink loop or dangling link, not readable)."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        if os.path.islink(path):
+            raise InputError(f"broken symbolic link (its target does not exist): {path}") from None
+        raise InputError(f"no such file: {path}") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputError(f"symbolic link loop: {path}") from None
+        if exc.errno == errno.ENAMETOOLONG:
+            raise InputError(f"file name too long: {path}") from None
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path} is a folder, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{path} is not a regular file")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"permission denied reading {path}")
+    return path
+
+
 def read_bytes(path: str | os.PathLike) -> np.ndarray:
     """The bytes of an existing, non-empty file as uint8 (clear errors otherwise)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"no such file: {path}")
-    data = np.fromfile(path, dtype=np.uint8)
+    path = check_input_file(path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
     if data.size == 0:
         raise InputError(f"empty file: {path}")
     return data

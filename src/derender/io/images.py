@@ -1,8 +1,10 @@
 """Rendered 8-bit/16-bit images (JPEG, PNG, TIFF) and exposure stacks.
 
 * :func:`read_image` -- one image as float32 ``value / (2^bits - 1)`` plus its bit depth.
-* :func:`read_codes` -- the 8-bit codes of an image (uint8), the decoder of the streaming
-  merge engine (libjpeg-turbo through ``imagecodecs`` for JPEGs, OpenCV otherwise).
+* :func:`read_codes` -- the 8-bit codes of an image (uint8), for the streaming merge engine.
+* :func:`decode_image` -- the one decoder both use (header probed first, strict about
+  truncation, EXIF orientation applied; libjpeg-turbo through ``imagecodecs`` for 8-bit
+  JPEGs, OpenCV otherwise).
 * :func:`read_stack` -- a bracket sorted by exposure time (times from the caller, a times
   file or EXIF, see :mod:`derender.io.exif`).
 """
@@ -16,50 +18,30 @@ from typing import Sequence
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.core.memory import import_cv2
+from derender.core.memory import check_memory, import_cv2
 from derender.core.types import Stack
 from derender.io.exif import file_times, read_exif
 from derender.io.files import read_bytes
+from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, ImageInfo, orient, probe_image, probe_images
 
 __all__ = [
     "read_image",
     "read_stack",
     "read_codes",
+    "decode_image",
 ]
 
 
-def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
-    """Read an 8- or 16-bit JPEG/PNG/TIFF as float32 (H, W, 3) RGB in [0, 1].
+def read_image(path: str | os.PathLike, max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS,
+               info: ImageInfo | None = None) -> tuple[np.ndarray, int]:
+    """Read an 8- or 16-bit JPEG/PNG/TIFF as float32 (H, W, 3) RGB in [0, 1], upright.
 
-    Returns ``(image, bit_depth)``. Grey images are replicated to three channels; an
-    alpha channel is dropped only when fully opaque, otherwise refused.
+    Returns ``(image, bit_depth)``. Decoded by :func:`decode_image` (the one decoder every
+    reader uses): grey images are replicated to three channels, an alpha channel is dropped
+    only when fully opaque, EXIF orientation is applied.
     """
-    import cv2
-
-    path = Path(path)
-    data = read_bytes(path)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
-    if img is None:
-        raise InputError(f"not a readable image (corrupt or unsupported format): {path}")
-    if img.dtype == np.uint8:
-        depth, scale = 8, 255.0
-    elif img.dtype == np.uint16:
-        depth, scale = 16, 65535.0
-    else:
-        raise InputError(f"unsupported sample type {img.dtype} in {path}: use 8- or 16-bit images")
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    elif img.shape[2] == 4:
-        alpha = img[:, :, 3]
-        if np.any(alpha != (255 if depth == 8 else 65535)):
-            raise InputError(f"{path} has a transparent alpha channel; flatten it first")
-        img = img[:, :, 2::-1]
-    elif img.shape[2] == 3:
-        img = img[:, :, ::-1]
-    else:
-        raise InputError(f"{path} has {img.shape[2]} channels; expected grey, RGB or RGBA")
-    if img.shape[0] < 1 or img.shape[1] < 1:
-        raise InputError(f"empty image: {path}")
+    img = decode_image(path, max_megapixels=max_megapixels, info=info)
+    depth, scale = (8, 255.0) if img.dtype == np.uint8 else (16, 65535.0)
     out = np.empty(img.shape, dtype=np.float32)
     np.multiply(img, np.float32(1.0 / scale), out=out, casting="unsafe")
     return out, depth
@@ -70,25 +52,25 @@ def read_stack(
     times: Sequence[float] | None = None,
     times_file: str | os.PathLike | None = None,
     times_file_inverse: bool = False,
+    max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS,
 ) -> Stack:
     """Read a bracketed stack of rendered images, sorted by exposure time.
 
     Times come from ``times`` (one per path, in the given order), else ``times_file``
-    (matched by file name), else each file's EXIF ``ExposureTime``.
+    (matched by file name), else each file's EXIF ``ExposureTime``. Every header is read
+    first (:func:`derender.io.headers.probe_images`): sizes, the ``max_megapixels`` limit
+    and the memory the float stack needs are checked before any pixel is decoded.
     """
     paths = [Path(p) for p in paths]
     t = file_times(paths, times, times_file, times_file_inverse)
+    infos = probe_images(paths, max_megapixels)
+    check_memory(len(paths) * infos[0].width * infos[0].height * 3 * 4, "the stack as float32")
 
     images: list[np.ndarray] = []
     depths: list[int] = []
     metadata: list[dict] = []
-    for p in paths:
-        img, depth = read_image(p)
-        if images and img.shape != images[0].shape:
-            raise InputError(
-                f"images differ in size: {paths[0].name} is {images[0].shape[1]}x{images[0].shape[0]}, "
-                f"{p.name} is {img.shape[1]}x{img.shape[0]}"
-            )
+    for p, info in zip(paths, infos):
+        img, depth = read_image(p, max_megapixels, info)
         images.append(img)
         depths.append(depth)
         meta = read_exif(p)
@@ -105,55 +87,97 @@ def read_stack(
     )
 
 
-# --------------------------------------------------------------------------- files
-_JPEG_SUFFIXES = {".jpg", ".jpeg", ".jpe", ".jfif"}
-
-
-def read_codes(path: str | os.PathLike, out: np.ndarray | None = None) -> np.ndarray | None:
+# --------------------------------------------------------------------------- the decoder
+def read_codes(path: str | os.PathLike, out: np.ndarray | None = None,
+               max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS,
+               info: ImageInfo | None = None) -> np.ndarray | None:
     """8-bit RGB codes (H, W, 3) uint8 of a JPEG/PNG/TIFF file, or None if the file is 16-bit.
 
-    Same conventions as :func:`derender.io.read_image` (EXIF orientation ignored, grey
-    replicated, opaque alpha dropped); JPEGs are decoded with libjpeg-turbo through
-    ``imagecodecs`` when available (the same decoder OpenCV bundles; ~1.6x faster here),
-    into ``out`` when it has the right shape (reusing memory avoids page faults).
+    :func:`decode_image` (the decoder of :func:`read_image` too), into ``out`` when it has the
+    right shape (reusing memory avoids page faults).
     """
-    from derender.io.files import read_bytes
+    img = decode_image(path, out=out, max_megapixels=max_megapixels, info=info)
+    return None if img.dtype == np.uint16 else img
 
+
+def decode_image(path: str | os.PathLike, out: np.ndarray | None = None,
+                 max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS,
+                 info: ImageInfo | None = None) -> np.ndarray:
+    """The one decoder of every reader: (H, W, 3) uint8 or uint16 RGB, upright.
+
+    The header is probed first (:func:`derender.io.headers.probe_image`, unless ``info`` is
+    given): a truncated file, a forged size or one above ``max_megapixels`` is refused before
+    decoding. 8-bit JPEGs are decoded with libjpeg-turbo through ``imagecodecs`` (the decoder
+    OpenCV bundles; ~1.6x faster here), into ``out`` when it has the stored shape; the rest
+    with OpenCV. Grey is replicated, an opaque alpha dropped (a transparent one refused),
+    EXIF orientation applied (a copy, only for rotated files). Every decoder failure is an
+    :class:`InputError` naming the file.
+    """
     path = Path(path)
+    if info is None:
+        info = probe_image(path, max_megapixels)
+    check_memory(info.width * info.height * 3 * (2 if info.bit_depth > 8 else 1), f"decoding {path.name}")
     data = read_bytes(path)
     img = None
-    if path.suffix.lower() in _JPEG_SUFFIXES or (data.size > 2 and data[0] == 0xFF and data[1] == 0xD8):
-        try:
-            import imagecodecs
+    if info.format == "jpeg" and info.bit_depth == 8:
+        img = _decode_jpeg8(data, out if info.orientation == 1 else None)
+    if img is None:
+        img = _decode_opencv(data, path)
+    if img.shape[:2] != info.stored_shape:
+        raise InputError(f"corrupt image (its header says {info.stored_shape[1]}x{info.stored_shape[0]}, "
+                         f"the data {img.shape[1]}x{img.shape[0]}): {path}")
+    if info.orientation != 1:
+        img = orient(img, info.orientation)
+        img = _copy_into(img, out)
+    return img
 
+
+def _copy_into(img: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+    if out is not None and out.shape == img.shape and out.dtype == img.dtype:
+        np.copyto(out, img)
+        return out
+    return np.ascontiguousarray(img)
+
+
+def _decode_jpeg8(data: np.ndarray, out: np.ndarray | None) -> np.ndarray | None:
+    """libjpeg-turbo through imagecodecs (None when it is missing or the layout is unusual)."""
+    try:
+        import imagecodecs
+    except ImportError:  # pragma: no cover - a declared dependency
+        return None
+    img = None
+    if out is not None:
+        try:
+            img = imagecodecs.jpeg8_decode(data, out=out)
+        except Exception:  # noqa: BLE001 - wrong shape for this file: decode afresh
             img = None
-            if out is not None:
-                try:
-                    img = imagecodecs.jpeg8_decode(data, out=out)
-                except Exception:  # noqa: BLE001 - wrong shape for this file: decode afresh
-                    img = None
-            if img is None:
-                img = imagecodecs.jpeg8_decode(data)
-            if img.dtype != np.uint8 or not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
-                img = None
-        except Exception:  # noqa: BLE001 - any failure: let OpenCV decide (and report)
-            img = None
-        if img is not None:
-            if img.ndim == 2:
-                img = np.repeat(img[:, :, None], 3, axis=2)
-            return np.ascontiguousarray(img)
+    if img is None:
+        try:
+            img = imagecodecs.jpeg8_decode(data)
+        except Exception:  # noqa: BLE001 - let OpenCV decide (and report)
+            return None
+    if img.dtype != np.uint8 or not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
+        return None
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(img)
+
+
+def _decode_opencv(data: np.ndarray, path: Path) -> np.ndarray:
     cv2 = import_cv2()
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    try:
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    except cv2.error as exc:
+        raise InputError(f"not a readable image ({str(exc).strip().splitlines()[-1][:120]}): {path}") from None
     if img is None:
         raise InputError(f"not a readable image (corrupt or unsupported format): {path}")
-    if img.dtype == np.uint16:
-        return None
-    if img.dtype != np.uint8:
+    if img.dtype not in (np.uint8, np.uint16):
         raise InputError(f"unsupported sample type {img.dtype} in {path}: use 8- or 16-bit images")
+    full = 255 if img.dtype == np.uint8 else 65535
     if img.ndim == 2:
         return np.ascontiguousarray(np.repeat(img[:, :, None], 3, axis=2))
     if img.shape[2] == 4:
-        if np.any(img[:, :, 3] != 255):
+        if np.any(img[:, :, 3] != full):
             raise InputError(f"{path} has a transparent alpha channel; flatten it first")
         return cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
     if img.shape[2] == 3:

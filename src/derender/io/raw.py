@@ -131,7 +131,17 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
 
 
 def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None) -> list[RawFrame]:
-    """Read RAW frames sorted by exposure time (times from the files unless given)."""
+    """Read RAW frames sorted by exposure time (times from the files unless given); the same
+    file given twice (also through a symlink) is refused, as for rendered brackets."""
+    from derender.io.files import check_input_file, resolve_path
+
+    seen: set = set()
+    for p in paths:
+        check_input_file(p)
+        r = resolve_path(p)
+        if r in seen:
+            raise InputError(f"the same file is given twice: {p}")
+        seen.add(r)
     frames = [read_raw(p) for p in paths]
     if not frames:
         raise InputError("no RAW files given")
