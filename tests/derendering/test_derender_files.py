@@ -69,6 +69,24 @@ def test_derender_image_and_model_library(model_file, tmp_path, capsys):
     assert code == 2 and "no model" in err
 
 
+def test_model_of_another_camera_warns_or_is_refused(model_file, tmp_path, capsys):
+    """Model files record their camera; an image whose EXIF names another camera gets a one-line
+    warning, and --strict-camera makes it an error that writes nothing."""
+    b = simulate_bracket(size=(48, 32), exposures=1, pipeline="fixed", wb_preset="D65", seed=3)
+    other = write_jpeg(tmp_path / "other.jpg", b.jpeg_codes[0], 0.01, "Canon", "Canon EOS 5D")
+    code, out, err = run_cli(["derender", other, "-m", model_file, "-o", tmp_path / "w.exr"], capsys)
+    assert code == 0, err
+    warnings = [ln for ln in err.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "NIKON D5100" in warnings[0] and "Canon EOS 5D" in warnings[0]
+    code, out, err = run_cli(["derender", other, "-m", model_file, "-o", tmp_path / "s.exr", "--variance",
+                              tmp_path / "sv.exr", "--strict-camera"], capsys)
+    assert code == 2 and err.startswith("error:") and "--strict-camera" in err
+    assert not (tmp_path / "s.exr").exists() and not (tmp_path / "sv.exr").exists()
+    same = write_jpeg(tmp_path / "same.jpg", b.jpeg_codes[0], 0.01, "NIKON CORPORATION", "NIKON D5100")
+    code, out, err = run_cli(["derender", same, "-m", model_file, "-o", tmp_path / "n.exr", "--strict-camera"], capsys)
+    assert code == 0 and "warning" not in err, err
+
+
 def test_derender_errors(model_file, tmp_path, capsys):
     import cv2
     import tifffile

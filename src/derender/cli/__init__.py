@@ -9,36 +9,59 @@ derender, stereo) and :mod:`derender.cli.experiments` (``derender experiment ...
 
 from __future__ import annotations
 
+import signal
 import sys
 
 import typer
 
 from derender.cli import derendering, experiments, hdr  # noqa: F401  (they register their commands)
 from derender.cli.app import app, click_exception_types, fast_exit_gc
-from derender.core.errors import DerenderError
+from derender.core.errors import DerenderError, Interrupted
 
 __all__ = ["app", "main"]
 
 
+def _interrupt(signum, _frame) -> None:
+    raise Interrupted(signal.Signals(signum).name)
+
+
 def main() -> None:
-    """Console-script entry point: user errors print one line and exit with code 2."""
+    """Console-script entry point: user errors print one line and exit with code 2;
+    SIGINT/SIGTERM remove every temporary output and exit with 130 (``interrupted``)."""
     click_errors, aborts, exits = click_exception_types()
     fast_exit_gc()
+    previous = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, _interrupt)
+    except ValueError:   # not the main thread: the caller keeps its own handlers
+        pass
+    try:
+        _run(click_errors, aborts, exits)
+    finally:
+        for sig, handler in previous.items():   # in-process callers (tests) get their handlers back
+            signal.signal(sig, handler)
+
+
+def _run(click_errors, aborts, exits) -> None:
     try:
         rv = app(standalone_mode=False)
     except DerenderError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(exc.exit_code)
-    except aborts:
-        typer.echo("aborted", err=True)
+    except (Interrupted, KeyboardInterrupt, *aborts):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)   # a second Ctrl-C does not interrupt the exit
+        typer.echo("interrupted", err=True)
         sys.exit(130)
     except exits as exc:
         sys.exit(getattr(exc, "exit_code", 0))
     except click_errors as exc:
         typer.echo(f"error: {exc.format_message()}", err=True)
         sys.exit(2)
-    except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
-        typer.echo(f"error: {exc.strerror or exc}: {exc.filename}", err=True)
+    except OSError as exc:   # disk full, permissions, name too long, ... (messages name the user's paths)
+        where = f": {exc.filename}" if exc.filename else ""
+        typer.echo(f"error: {exc.strerror or exc}{where}", err=True)
         sys.exit(2)
     sys.exit(rv if isinstance(rv, int) else 0)
 

@@ -2,4 +2,5 @@
 
 from derender.cli import main
 
-main()
+if __name__ == "__main__":   # importing the module (e.g. Sphinx's autosummary) runs nothing
+    main()

@@ -91,15 +91,20 @@ def load_camera_cli(camera: str, camera_file: Optional[Path]):
     return load_camera(camera, search_dirs=shared_camera_dirs())
 
 
+def check_times_options(times: Optional[str], times_file: Optional[Path], times_inverse: bool) -> None:
+    """The time options that only make sense together, checked together."""
+    if times is not None and times_file is not None:
+        raise InputError("give either --times or --times-file, not both")
+    if times_inverse and times_file is None:
+        raise InputError("--times-inverse applies to a --times-file; give one")
+
+
 def read_stack_from_cli(images: List[Path], times: Optional[str], times_file: Optional[Path],
                          times_inverse: bool):
     from derender.io.exif import parse_times
     from derender.io.images import read_stack
 
-    if times is not None and times_file is not None:
-        raise InputError("give either --times or --times-file, not both")
-    if times_inverse and times_file is None:
-        raise InputError("--times-inverse applies to a --times-file; give one")
+    check_times_options(times, times_file, times_inverse)
     t = parse_times(times) if times is not None else None
     return read_stack(images, times=t, times_file=times_file, times_file_inverse=times_inverse)
 
@@ -117,3 +122,19 @@ def is_float(text: str) -> bool:
     return True
 
 
+
+
+def check_model_camera(model_path: Path, image: Path, strict: bool) -> None:
+    """Warn (one ``warning:`` line) or, ``strict``, refuse when a single model file was
+    calibrated for another camera than the image's EXIF names."""
+    if not Path(model_path).is_file():
+        return   # a folder of models: resolve_model already picks the matching camera
+    from derender.derendering.library import camera_mismatch, resolve_model
+
+    model, _ = resolve_model(model_path, image)
+    note = camera_mismatch(model, image)
+    if note is None:
+        return
+    if strict:
+        raise InputError(note + " (--strict-camera)")
+    typer.echo(f"warning: {note}; its colours may not fit (--strict-camera makes this an error)", err=True)

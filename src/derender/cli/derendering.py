@@ -9,12 +9,14 @@ from typing import List, Optional
 import typer
 
 from derender.cli.app import (
+    check_model_camera,
     app,
     check_choice,
     load_camera_cli,
     progress,
 )
 from derender.core.errors import InputError
+from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
 
 # --------------------------------------------------------------------------- de-rendering data
@@ -58,7 +60,9 @@ def calibrate(
     """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
     from derender.derendering.base import fit_model
     from derender.derendering.calibration import pairs_from_images
+    from derender.io.files import OutputTransaction, check_output
 
+    check_output(output, list(raw) + list(jpeg) + ([pairs] if pairs else []))
     if output.suffix.lower() != ".npz":
         raise InputError(f"--output must end in .npz, got {output.name}")
     if pairs is None and not raw:
@@ -83,12 +87,11 @@ def calibrate(
         jp, rw = jp[sel], rw[sel]
     kw = {} if method != "gp" else {"n_train": n_train}
     t0 = time.perf_counter()
-    model = fit_model(method, jp, rw, seed=seed, **kw)
-    model.metadata.update(meta)
-    from derender.io.files import check_not_input
-
-    check_not_input(output, inputs)
-    model.save(output)
+    with OutputTransaction(inputs) as tx:
+        out_tmp = tx.add(output, "--output", (".npz",))
+        model = fit_model(method, jp, rw, seed=seed, **kw)
+        model.metadata.update(meta)
+        model.save(out_tmp)
     typer.echo(f"{method} model from {jp.shape[0]} pairs in {time.perf_counter() - t0:.1f} s -> {output}")
 
 
@@ -101,19 +104,26 @@ def derender_cmd(
     srgb: bool = typer.Option(False, "--srgb", help="Output linear sRGB instead of camera RGB (needs model camera metadata)."),
     compression: str = typer.Option("none", "--compression",
                                     help="EXR compression: none (fastest) or zip (~30 % smaller files, ~3x slower at 24 MP)."),
+    strict_camera: bool = typer.Option(False, "--strict-camera",
+                                       help="Refuse a model calibrated for another camera than the image's EXIF names "
+                                            "(default: a warning)."),
+    max_megapixels: float = typer.Option(DEFAULT_MAX_MEGAPIXELS, "--max-megapixels",
+                                         help="Refuse images larger than this (decoded size, read from the header)."),
 ) -> None:
     """De-render an image: per-pixel Gaussian over the linear RAW colour (mean and variance)."""
     from derender.derendering.apply import derender_to_exr
-
-    for out in (output, variance):
-        if out is not None and out.suffix.lower() != ".exr":
-            raise InputError(f"outputs must end in .exr, got {out.name}")
     from derender.io.exr import EXR_COMPRESSION
+    from derender.io.files import OutputTransaction
 
     if compression not in EXR_COMPRESSION:
         raise InputError(f"--compression must be one of {', '.join(EXR_COMPRESSION)}, got {compression!r}")
     t0 = time.perf_counter()
-    info = derender_to_exr(image, model, output, variance=variance, srgb=srgb, compression=compression)
+    with OutputTransaction([image, model]) as tx:
+        out_tmp = tx.add(output, "--output", (".exr",))
+        var_tmp = tx.add(variance, "--variance", (".exr",))
+        check_model_camera(model, image, strict_camera)
+        info = derender_to_exr(image, model, out_tmp, variance=var_tmp, srgb=srgb, compression=compression,
+                               max_megapixels=max_megapixels)
     typer.echo(f"de-rendered {image.name} ({info['width']}x{info['height']}, {info['distinct_colours']} distinct "
                f"colours) with {info['model']} in {time.perf_counter() - t0:.2f} s -> {output}")
 
@@ -128,12 +138,27 @@ def stereo(
     mask_threshold: int = typer.Option(0, "--mask-threshold", help="Pixels whose max code over all images is <= this are background."),
 ) -> None:
     """Lambertian photometric stereo; with a model, inverse-variance weighted least squares (paper 2 eq. 7)."""
+    from derender.io.files import OutputTransaction
+
+    inputs = list(images) + [lights] + ([model] if model else [])
+    with OutputTransaction(inputs) as tx:
+        normals_tmp = tx.add(output, "--output", (".exr",))
+        depth_tmp = tx.add(depth, "--depth", (".exr",))
+        used, n = _stereo(images, lights, model, normals_tmp, depth_tmp, mask_threshold)
+    typer.echo(f"normals of {n} pixels from {len(images)} images ({used}) -> {output}")
+
+
+def _stereo(images: List[Path], lights: Path, model: Optional[Path], output: Path, depth: Optional[Path],
+            mask_threshold: int) -> tuple[str, int]:
+    """The stereo command's work, writing to the transaction's temporaries."""
     import numpy as np
 
     from derender.applications.photometric_stereo import frankot_chellappa, read_lights, solve_normals
     from derender.io.exr import write_exr
+    from derender.io.headers import probe_images
     from derender.io.images import read_image
 
+    probe_images(images)
     L = read_lights(lights)
     if len(images) != L.shape[0]:
         raise InputError(f"{len(images)} images but {L.shape[0]} lights in {lights}")
@@ -142,8 +167,6 @@ def stereo(
         img, depth_bits = read_image(p)
         if depth_bits != 8:
             raise InputError(f"{p}: photometric stereo with a de-rendering model needs 8-bit images")
-        if imgs and img.shape != imgs[0].shape:
-            raise InputError(f"images differ in size: {images[0].name} vs {p.name}")
         imgs.append(img)
     codes = np.rint(np.stack(imgs) * 255).astype(np.uint8)
     mask = codes.max(axis=(0, 3)) > mask_threshold
@@ -151,6 +174,7 @@ def stereo(
         from derender.derendering.library import resolve_model
 
         m, used = resolve_model(model, images[0])
+        check_model_camera(model, images[0], False)
         mean, var = m.predict(codes, point="map")
         normals, albedo = solve_normals(mean, L, variances=var, mask=mask)
     else:
@@ -159,6 +183,6 @@ def stereo(
     write_exr(output, normals.astype(np.float32), inputs=list(images) + [lights])
     if depth is not None:
         write_exr(depth, frankot_chellappa(normals, mask).astype(np.float32), inputs=list(images) + [lights])
-    typer.echo(f"normals of {int(mask.sum())} pixels from {len(images)} images ({used}) -> {output}")
+    return used, int(mask.sum())
 
 

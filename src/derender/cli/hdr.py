@@ -11,10 +11,12 @@ import typer
 
 from derender.cli.app import (
     INVERSE_HELP,
+    check_times_options,
     TIMES_FILE_HELP,
     TIMES_HELP,
     app,
     check_choice,
+    check_model_camera,
     console,
     is_float,
     load_camera_cli,
@@ -23,6 +25,7 @@ from derender.cli.app import (
     read_stack_from_cli,
 )
 from derender.core.errors import InputError
+from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
 
 # --------------------------------------------------------------------------- simulate
@@ -78,61 +81,62 @@ def merge_cmd(
     plot: Optional[Path] = typer.Option(None, "--plot", help="Figure of the recovered response curves (if any)."),
     half: bool = typer.Option(False, "--half", help="Write half-float EXR."),
     seed: int = typer.Option(0, "--seed", help="Seed for sampling / RANSAC."),
+    max_megapixels: float = typer.Option(DEFAULT_MAX_MEGAPIXELS, "--max-megapixels",
+                                         help="Refuse images larger than this (decoded size, read from the header)."),
+    strict_camera: bool = typer.Option(False, "--strict-camera",
+                                       help="Refuse a -m model calibrated for another camera than the images' EXIF "
+                                            "names (default: a warning)."),
 ) -> None:
-    """Merge a bracket into a linear HDR radiance map (OpenEXR)."""
+    """Merge a bracket into a linear HDR radiance map (OpenEXR).
+
+    Every output is checked before any work and written as one transaction: on an error or
+    an interruption none of them is left behind."""
     import numpy as np
 
     from derender.hdr.files import merge_files
+    from derender.hdr.registry import get_method
     from derender.io.exif import parse_times
-    from derender.io.preview import write_png, write_preview
+    from derender.io.files import OutputTransaction
+    from derender.io.preview import IMAGE8_SUFFIXES, write_png, write_preview
 
-    if output.suffix.lower() != ".exr":
-        raise InputError(f"--output must end in .exr, got {output.name}")
-    if times is not None and times_file is not None:
-        raise InputError("give either --times or --times-file, not both")
-    if times_inverse and times_file is None:
-        raise InputError("--times-inverse applies to a --times-file; give one")
-    if variance is not None and variance.suffix.lower() != ".exr":
-        raise InputError(f"--variance must end in .exr, got {variance.name}")
+    check_times_options(times, times_file, times_inverse)
+    fn = get_method(method)
+    if variance is not None and not getattr(fn, "gives_variance", False):
+        raise InputError(f"method {method!r} gives no variance (drop --variance)")
+    if plot is not None and not getattr(fn, "gives_curves", False):
+        raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     t0 = time.perf_counter()
     inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
-    from derender.io.files import check_output
+    with OutputTransaction(inputs) as tx:
+        out_tmp = tx.add(output, "--output", (".exr",))
+        var_tmp = tx.add(variance, "--variance", (".exr",))
+        preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
+        mask_tmp = tx.add(mask, "--mask", (".png", ".tif", ".tiff"))
+        plot_tmp = tx.add(plot, "--plot", (".png", ".pdf", ".svg"))
+        extra = {}
+        if model is not None:
+            from derender.derendering.library import resolve_model
 
-    check_output(output, inputs)
-    if variance is not None:
-        if variance.resolve() == output.resolve():
-            raise InputError(f"--variance and --output are the same file: {output}")
-        check_output(variance, inputs)
-        from derender.hdr.registry import MERGE_METHODS, load_plugins
+            check_model_camera(model, images[0], strict_camera)
+            model_obj, used = resolve_model(model, images[0])
+            typer.echo(f"de-rendering model: {used}", err=True)
+            extra["model"] = model_obj
+        # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
+        result = merge_files(images, parse_times(times) if times is not None else None, method,
+                             times_file=times_file, times_file_inverse=times_inverse, output=out_tmp,
+                             variance_output=var_tmp, half=half, inputs=inputs, seed=seed,
+                             max_megapixels=max_megapixels, **extra)
+        if preview_tmp is not None:
+            write_preview(preview_tmp, result.radiance, inputs=inputs)
+        if mask_tmp is not None:
+            m = np.zeros(result.mask.shape, np.uint8)
+            m[result.mask == 1] = 128
+            m[result.mask == 2] = 255
+            write_png(mask_tmp, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
+        if plot_tmp is not None:
+            from derender.response.curves import plot_response
 
-        load_plugins()
-        if method in MERGE_METHODS and not getattr(MERGE_METHODS[method], "gives_variance", False):
-            raise InputError(f"method {method!r} gives no variance (drop --variance)")
-    extra = {}
-    if model is not None:
-        from derender.derendering.library import resolve_model
-
-        model_obj, used = resolve_model(model, images[0])
-        typer.echo(f"de-rendering model: {used}", err=True)
-        extra["model"] = model_obj
-    # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
-    result = merge_files(images, parse_times(times) if times is not None else None, method,
-                         times_file=times_file, times_file_inverse=times_inverse, output=output,
-                         variance_output=variance, half=half, inputs=inputs, seed=seed, **extra)
-    if preview is not None:
-        write_preview(preview, result.radiance, inputs=inputs)
-    if mask is not None:
-        m = np.zeros(result.mask.shape, np.uint8)
-        m[result.mask == 1] = 128
-        m[result.mask == 2] = 255
-        write_png(mask, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
-    if plot is not None:
-        curves = result.info.get("curves")
-        if curves is None:
-            raise InputError(f"method {method!r} has no response curves to plot")
-        from derender.response.curves import plot_response
-
-        plot_response(curves, plot, inputs=inputs)
+            plot_response(result.info["curves"], plot_tmp, inputs=inputs)
     n_bright = int((result.mask == 1).sum())
     n_dark = int((result.mask == 2).sum())
     typer.echo(f"{method}: {len(images)} images {result.radiance.shape[1]}x{result.radiance.shape[0]} -> {output} "
@@ -205,15 +209,18 @@ def groundtruth(
     preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview."),
 ) -> None:
     """Ground truth from RAW (paper 1 Sec. 4.2, Alg. 2): binary-weight merge, WB, Malvar demosaic, sRGB."""
-    from derender.io.exif import parse_times
-    from derender.io.exr import write_exr
-    from derender.io.preview import write_preview
-    from derender.io.raw import read_raw_stack
-    from derender.raw.groundtruth import raw_ground_truth
+    from derender.io.files import OutputTransaction
+    from derender.io.preview import IMAGE8_SUFFIXES
 
-    if output.suffix.lower() != ".exr":
-        raise InputError(f"--output must end in .exr, got {output.name}")
-    frames = read_raw_stack(raws, times=parse_times(times) if times else None)
+    wb_value, patch = _white_balance_options(wb, wb_patch)
+    with OutputTransaction(raws) as tx:
+        out_tmp = tx.add(output, "--output", (".exr",))
+        preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
+        n = _groundtruth(raws, out_tmp, wb_value, patch, times, preview_tmp)
+    typer.echo(f"ground truth from {n} RAW frame(s) -> {output}")
+
+
+def _white_balance_options(wb: Optional[str], wb_patch: Optional[str]):
     wb_value = "as_shot"
     patch = None
     if wb is not None:
@@ -226,11 +233,24 @@ def groundtruth(
         if len(parts) != 4 or not all(p.strip().isdigit() for p in parts):
             raise InputError(f"--wb-patch needs x,y,w,h in pixels, got {wb_patch!r}")
         patch = tuple(int(p) for p in parts)
+    return wb_value, patch
+
+
+def _groundtruth(raws: List[Path], output: Path, wb_value, patch, times: Optional[str],
+                 preview: Optional[Path]) -> int:
+    """The groundtruth command's work, writing to the transaction's temporaries."""
+    from derender.io.exif import parse_times
+    from derender.io.exr import write_exr
+    from derender.io.preview import write_preview
+    from derender.io.raw import read_raw_stack
+    from derender.raw.groundtruth import raw_ground_truth
+
+    frames = read_raw_stack(raws, times=parse_times(times) if times else None)
     result = raw_ground_truth(frames, wb=wb_value, wb_patch=patch)
     write_exr(output, result.radiance, inputs=raws)
     if preview is not None:
         write_preview(preview, result.radiance, inputs=raws)
-    typer.echo(f"ground truth from {len(frames)} RAW frame(s) -> {output}")
+    return len(frames)
 
 
 # --------------------------------------------------------------------------- benchmark

@@ -12,6 +12,7 @@ __all__ = [
     "InputError",
     "StackError",
     "ModelFileError",
+    "Interrupted",
 ]
 
 
@@ -31,3 +32,9 @@ class StackError(DerenderError):
 
 class ModelFileError(DerenderError):
     """A de-rendering model file is corrupt or of an incompatible version."""
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM arrived (raised by the CLI's signal handlers). A ``BaseException``,
+    like ``KeyboardInterrupt``, so that no ``except Exception`` swallows it and every
+    ``finally``/cleanup on the way out runs; the CLI then says ``interrupted``, exit 130."""

@@ -32,10 +32,26 @@ def _camera_matches(meta_cam: dict, exif: dict) -> bool:
     return em == mm or em in mm or mm in em
 
 
+def camera_mismatch(model, image_path: str | os.PathLike) -> str | None:
+    """A one-line note when ``model`` was calibrated for another camera than the one the
+    image's EXIF names (None when they match or either side does not say)."""
+    from derender.io.exif import read_exif
+
+    cam = model.metadata.get("camera", {}) if isinstance(getattr(model, "metadata", None), dict) else {}
+    exif = read_exif(image_path)
+    if not cam or not cam.get("model") or not exif.get("Model") or _camera_matches(cam, exif):
+        return None
+    return (f"the model was calibrated for {cam.get('make', '')} {cam.get('model', '')}".replace("  ", " ")
+            + f" but {Path(image_path).name} comes from {exif.get('Make', '')} {exif.get('Model', '')}".rstrip())
+
+
 def resolve_model(model_path: str | os.PathLike, image_path: str | os.PathLike | None = None):
     """Load ``model_path``; if it is a folder, pick the model matching the image's EXIF camera.
 
     Returns ``(model, description)``; raises :class:`InputError` when no model matches.
+    A single model file is returned whatever camera it was made for: see
+    :func:`camera_mismatch` for the check the CLI makes (a warning, or an error with
+    ``--strict-camera``).
     """
     from derender.io.exif import read_exif
 

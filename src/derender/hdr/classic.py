@@ -154,7 +154,7 @@ def _robertson_engine(opts: dict) -> RobertsonMethod:
     return RobertsonMethod(**opts)
 
 
-@register_method("debevec", engine=_debevec_engine)
+@register_method("debevec", engine=_debevec_engine, gives_curves=True)
 def merge_debevec(
     stack: Stack,
     curves=None,
@@ -207,7 +207,7 @@ def merge_debevec(
         channel_weights=channel_weights, domain=domain)
 
 
-@register_method("robertson", engine=_robertson_engine)
+@register_method("robertson", engine=_robertson_engine, gives_curves=True)
 def merge_robertson(
     stack: Stack,
     curves=None,

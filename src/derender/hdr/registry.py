@@ -45,17 +45,19 @@ BUILTIN_METHODS = {
 }
 
 
-def register_method(name: str, gives_variance: bool = False, engine: Callable[[dict], Any] | None = None
-                    ) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
+def register_method(name: str, gives_variance: bool = False, engine: Callable[[dict], Any] | None = None,
+                    gives_curves: bool = False) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
     """Decorator registering ``fn(stack, **options) -> HDRResult`` under ``name``.
 
-    ``gives_variance``: its results carry a per-pixel variance. ``engine(options)``, if
+    ``gives_variance``: its results carry a per-pixel variance; ``gives_curves``: response
+    curves (``result.info["curves"]``, what ``derender merge --plot`` draws). ``engine(options)``, if
     given, makes the method's :class:`~derender.engine.plans.EngineMethod` from its
     options (all of ``fn``'s keywords, defaults filled in): image files then run on the
     engine (:func:`derender.hdr.files.merge_files`) instead of being read into memory."""
 
     def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
         fn.gives_variance = bool(gives_variance)
+        fn.gives_curves = bool(gives_curves)
         fn.engine_method = engine
         MERGE_METHODS[name] = fn
         return fn

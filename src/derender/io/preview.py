@@ -20,6 +20,7 @@ from derender.core.errors import InputError
 from derender.io.files import atomic_output
 
 __all__ = [
+    "IMAGE8_SUFFIXES",
     "write_png",
     "write_preview",
     "reinhard_photographic",
@@ -28,8 +29,13 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- previews
+#: 8-bit image formats the previews and masks can be written in (by file suffix).
+IMAGE8_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
 def write_png(path: str | os.PathLike, image: np.ndarray, inputs: Iterable[str | os.PathLike] = ()) -> Path:
-    """Write an (H, W, 3) float image in [0, 1] (or uint8/uint16) to PNG atomically."""
+    """Write an (H, W, 3) float image in [0, 1] (or uint8/uint16) atomically, as PNG, or as
+    JPEG (quality 95) / TIFF when the suffix says so (any other suffix is refused)."""
     import cv2
 
     arr = np.asarray(image)
@@ -38,17 +44,21 @@ def write_png(path: str | os.PathLike, image: np.ndarray, inputs: Iterable[str |
     if arr.ndim == 3:
         arr = arr[:, :, ::-1]
     path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in IMAGE8_SUFFIXES:
+        raise InputError(f"cannot write {path.name}: use one of {', '.join(IMAGE8_SUFFIXES)}")
+    params = [cv2.IMWRITE_JPEG_QUALITY, 95] if suffix in (".jpg", ".jpeg") else []
     with atomic_output(path, inputs) as tmp:
-        ok, enc = cv2.imencode(".png", np.ascontiguousarray(arr))
+        ok, enc = cv2.imencode(suffix, np.ascontiguousarray(arr), params)
         if not ok:
-            raise InputError(f"could not encode PNG for {path}")
+            raise InputError(f"could not encode {suffix} for {path}")
         enc.tofile(tmp)
     return path
 
 
 def write_preview(path: str | os.PathLike, radiance: np.ndarray, inputs: Iterable[str | os.PathLike] = (),
                   key: float = 0.18) -> Path:
-    """Tone-map a linear-sRGB radiance map (Reinhard et al. 2002) and write it as 8-bit sRGB PNG."""
+    """Tone-map a linear-sRGB radiance map (Reinhard et al. 2002) and write it as 8-bit sRGB (PNG/JPEG/TIFF by suffix)."""
     return write_png(path, encode_srgb(reinhard_photographic(radiance, key=key)), inputs)
 
 

@@ -1,0 +1,203 @@
+"""The input contract of the CLI end to end (issue 15): every bad input or OS failure gives
+exit 2 and one ``error:`` line naming the user's path, an interruption exit 130 and
+``interrupted``; in every case no output is left behind and the inputs are unchanged.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import run_cli, write_png_codes
+
+from derender.io.files import TEMP_PREFIX
+
+
+def _bracket(tmp_path: Path, size=(48, 64), n=3) -> list[Path]:
+    """Smooth 8-bit renderings of one scene at doubling exposures (PNG, times 1, 2, 4 ...)."""
+    h, w = size
+    y, x = np.mgrid[0:h, 0:w]
+    radiance = 0.02 + np.stack([x / w, y / h, (x + y) / (w + h)], -1)
+    paths = []
+    for j in range(n):
+        codes = np.clip(255.0 * (radiance * 2.0**j) ** (1 / 2.2), 0, 255).astype(np.uint8)
+        paths.append(write_png_codes(tmp_path / f"in{j}.png", codes))
+    return paths
+
+
+def _digest(paths) -> dict:
+    return {str(p): hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in paths}
+
+
+def _listing(folder: Path) -> set[str]:
+    return {p.name for p in folder.iterdir()}
+
+
+def _assert_error(code, err, needle):
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), err
+    assert needle.lower() in lines[0].lower(), err
+
+
+TIMES = ["--times", "1,2,4"]
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["--preview", "{in0}"], "refusing to overwrite input"),
+    (["--preview", "nodir/p.png"], "output folder does not exist"),
+    (["--preview", "p.exr"], "--preview must end in"),
+    (["--mask", "{out}"], "--mask must end in"),
+    (["--preview", "o.png", "--mask", "o.png"], "same file"),
+    (["--plot", "c.png", "--method", "stabilized"], "no response curves"),
+    (["--variance", "v.exr"], "gives no variance"),
+    (["--times-inverse"], "--times-inverse applies to a --times-file"),
+])
+def test_outputs_checked_before_any_work(tmp_path, capsys, monkeypatch, extra, needle):
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    before, listing = _digest(ins), _listing(tmp_path)
+    args = ["merge", *ins, "-o", "o.exr", *TIMES,
+            *[a.format(in0=ins[0], out="o.exr") for a in extra]]
+    code, _, err = run_cli(args, capsys)
+    _assert_error(code, err, needle)
+    assert _listing(tmp_path) == listing and _digest(ins) == before
+
+
+def test_every_output_or_none(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    code, _, err = run_cli(["merge", *ins, "-o", "o.exr", *TIMES, "--preview", "p.jpg", "--mask", "m.png",
+                            "--plot", "c.png"], capsys)
+    assert code == 0, err
+    assert {"o.exr", "p.jpg", "m.png", "c.png"} <= _listing(tmp_path)
+    assert Path("p.jpg").read_bytes()[:2] == b"\xff\xd8"          # a JPEG preview is a JPEG
+    assert not [n for n in _listing(tmp_path) if n.startswith(TEMP_PREFIX)]
+
+
+def test_disk_full_while_writing_names_the_output(tmp_path, capsys, monkeypatch):
+    """A writer failing with ENOSPC (a fake writer: the last output's encoder) -> exit 2, one line
+    naming the user's file, and none of the outputs (the EXR was already written) left."""
+    import derender.io.preview as preview
+
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    listing = _listing(tmp_path)
+
+    def full(path, *a, **k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(preview, "write_preview", full)
+    code, _, err = run_cli(["merge", *ins, "-o", "o.exr", *TIMES, "--preview", "p.png"], capsys)
+    _assert_error(code, err, "no space left on device")
+    assert "p.png" in err and TEMP_PREFIX not in err
+    assert _listing(tmp_path) == listing
+
+
+def test_disk_full_on_a_real_small_filesystem(tmp_path):
+    """The same on a 64 kB tmpfs (needs mount rights: root on Linux; skipped elsewhere)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        ins = _bracket(tmp_path, size=(200, 300))
+        r = subprocess.run([sys.executable, "-m", "derender.cli", "merge", *map(str, ins), "-o", str(mnt / "o.exr"),
+                            *TIMES], capture_output=True, text=True, timeout=120)
+        _assert_error(r.returncode, r.stderr, "no space left")
+        assert "o.exr" in r.stderr and TEMP_PREFIX not in r.stderr
+        assert list(mnt.iterdir()) == []
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interruption_leaves_nothing(tmp_path, sig):
+    """SIGINT/SIGTERM during a merge: exit 130, 'interrupted', no output, no temporary."""
+    ins = _bracket(tmp_path, size=(1500, 2000), n=5)
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "derender.cli", "merge", *map(str, ins), "-o", str(out / "o.exr"),
+                             "--preview", str(out / "p.png"), "--times", "1,2,4,8,16", "--method", "stabilized"],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not any(out.iterdir()) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)   # the outputs' temporaries exist from the checks until the final rename
+    assert proc.poll() is None, "the merge finished before it could be interrupted"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "interrupted" and "Traceback" not in err
+    assert list(out.iterdir()) == []
+
+
+def test_os_errors_are_user_errors(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    code, _, err = run_cli(["merge", *ins, "-o", "a" * 300 + ".exr", *TIMES], capsys)
+    _assert_error(code, err, "file name too long")
+    Path("loop.exr").symlink_to("loop.exr")
+    code, _, err = run_cli(["merge", *ins, "-o", "loop.exr", *TIMES], capsys)
+    _assert_error(code, err, "symbolic link loop")
+    code, _, err = run_cli(["merge", tmp_path, *ins[1:], "-o", "o.exr", "--times", "1,2,4"], capsys)
+    _assert_error(code, err, "is a folder")
+    code, _, err = run_cli(["merge", *ins, "-o", "o.exr", "--times-file", tmp_path], capsys)
+    _assert_error(code, err, "is a folder")
+    link = tmp_path / "in0-link.png"
+    link.symlink_to(ins[0])
+    code, _, err = run_cli(["merge", *ins, "-o", link, *TIMES], capsys)
+    _assert_error(code, err, "must end in .exr")
+    link2 = tmp_path / "in0-link.exr"
+    link2.symlink_to(ins[0])
+    code, _, err = run_cli(["merge", *ins, "-o", link2, *TIMES], capsys)
+    _assert_error(code, err, "refusing to overwrite input")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes anywhere: permissions cannot be tested as root")
+def test_permission_denied_names_the_folder(tmp_path, capsys):
+    ins = _bracket(tmp_path)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    code, _, err = run_cli(["merge", *ins, "-o", ro / "o.exr", *TIMES], capsys)
+    _assert_error(code, err, "permission denied")
+    assert TEMP_PREFIX not in err
+
+
+def test_exif_time_zero_is_named(tmp_path, capsys):
+    from PIL import Image
+
+    ex = Image.Exif()
+    ex.get_ifd(0x8769)[0x829A] = 0.0
+    Image.fromarray(np.full((16, 16, 3), 90, np.uint8)).save(tmp_path / "z.jpg", exif=ex)
+    Image.fromarray(np.full((16, 16, 3), 180, np.uint8)).save(tmp_path / "y.jpg")
+    code, _, err = run_cli(["merge", tmp_path / "z.jpg", tmp_path / "y.jpg", "-o", tmp_path / "o.exr"], capsys)
+    _assert_error(code, err, "EXIF ExposureTime is 0")
+
+
+def test_truncated_and_forged_inputs(tmp_path, capsys):
+    import struct
+
+    ins = _bracket(tmp_path)
+    data = ins[1].read_bytes()
+    ins[1].write_bytes(data[: len(data) // 2])
+    for method in ("debevec", "robertson", "stabilized", "stabilized-joint"):
+        code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o.exr", *TIMES, "--method", method], capsys)
+        _assert_error(code, err, "truncated")
+    assert not (tmp_path / "o.exr").exists()
+    ins[1].write_bytes(data)
+    b = bytearray(data)
+    b[16:24] = struct.pack(">II", 100000, 100000)
+    ins[1].write_bytes(bytes(b))
+    code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o.exr", *TIMES], capsys)
+    _assert_error(code, err, "MP limit")
