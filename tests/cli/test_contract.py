@@ -201,3 +201,28 @@ def test_truncated_and_forged_inputs(tmp_path, capsys):
     ins[1].write_bytes(bytes(b))
     code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o.exr", *TIMES], capsys)
     _assert_error(code, err, "MP limit")
+
+
+def test_interrupts_deferred_holds_a_signal_until_the_block_ends():
+    """A signal inside ``interrupts_deferred`` lets the block finish, then raises Interrupted;
+    outside it, the handler raises at once (the race behind orphaned temporaries)."""
+    from derender.core.errors import Interrupted, interrupt_handler, interrupts_deferred
+
+    previous = signal.signal(signal.SIGUSR1, interrupt_handler)
+    try:
+        steps = []
+        with pytest.raises(Interrupted, match="SIGUSR1"):
+            with interrupts_deferred():
+                os.kill(os.getpid(), signal.SIGUSR1)
+                for _ in range(1000):   # the handler runs between bytecodes: give it many chances
+                    steps.append(1)
+                steps.append("done")
+        assert steps[-1] == "done"
+        with pytest.raises(Interrupted):
+            os.kill(os.getpid(), signal.SIGUSR1)
+            for _ in range(1000):
+                time.sleep(0)
+        with interrupts_deferred():   # nothing pending: the block ends normally
+            pass
+    finally:
+        signal.signal(signal.SIGUSR1, previous)

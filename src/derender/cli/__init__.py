@@ -16,13 +16,9 @@ import typer
 
 from derender.cli import derendering, experiments, hdr  # noqa: F401  (they register their commands)
 from derender.cli.app import app, click_exception_types, fast_exit_gc
-from derender.core.errors import DerenderError, Interrupted
+from derender.core.errors import DerenderError, Interrupted, interrupt_handler
 
 __all__ = ["app", "main"]
-
-
-def _interrupt(signum, _frame) -> None:
-    raise Interrupted(signal.Signals(signum).name)
 
 
 def main() -> None:
@@ -33,7 +29,7 @@ def main() -> None:
     previous = {}
     try:
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, _interrupt)
+            previous[sig] = signal.signal(sig, interrupt_handler)
     except ValueError:   # not the main thread: the caller keeps its own handlers
         pass
     try:

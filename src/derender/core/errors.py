@@ -7,12 +7,18 @@ The CLI turns it into ``error: <message>`` on stderr and exit code 2, never a tr
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
+
 __all__ = [
     "DerenderError",
     "InputError",
     "StackError",
     "ModelFileError",
     "Interrupted",
+    "interrupt_handler",
+    "interrupts_deferred",
 ]
 
 
@@ -38,3 +44,37 @@ class Interrupted(BaseException):
     """SIGINT or SIGTERM arrived (raised by the CLI's signal handlers). A ``BaseException``,
     like ``KeyboardInterrupt``, so that no ``except Exception`` swallows it and every
     ``finally``/cleanup on the way out runs; the CLI then says ``interrupted``, exit 130."""
+
+
+_deferral = threading.local()
+_pending: list[int] = []
+
+
+def interrupt_handler(signum, _frame=None) -> None:
+    """Signal handler for SIGINT/SIGTERM: raise :class:`Interrupted`, unless the main thread
+    is inside :func:`interrupts_deferred`, in which case the signal is held until that block
+    ends (the CLI installs it; Python runs signal handlers in the main thread only)."""
+    if getattr(_deferral, "depth", 0):
+        _pending.append(signum)
+        return
+    raise Interrupted(signal.Signals(signum).name)
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """Hold back :class:`Interrupted` for a short bookkeeping step, such as creating a
+    temporary output and recording it, or renaming a command's outputs into place, so that
+    an interruption can fall neither between creating a file and owning it (an orphan) nor
+    between two renames (a partial set of outputs). A signal that arrived meanwhile raises
+    :class:`Interrupted` when the block ends. Blocking the signal with ``pthread_sigmask``
+    would not do: the kernel then delivers it to another thread (NumPy's, the decoder's),
+    and Python still runs the handler at once in the main thread."""
+    _deferral.depth = getattr(_deferral, "depth", 0) + 1
+    try:
+        yield
+    finally:
+        _deferral.depth -= 1
+        if _deferral.depth == 0 and _pending and threading.current_thread() is threading.main_thread():
+            signum = _pending[-1]
+            _pending.clear()
+            raise Interrupted(signal.Signals(signum).name)

@@ -18,7 +18,7 @@ from typing import Iterable
 
 import numpy as np
 
-from derender.core.errors import InputError
+from derender.core.errors import InputError, interrupts_deferred
 
 __all__ = [
     "RASTER_SUFFIXES",
@@ -57,23 +57,27 @@ def atomic_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] =
     path = Path(path)
     check_output(path, inputs)
     parent = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=parent)
-    os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    tmp = None
     try:
+        with interrupts_deferred():   # an interruption cannot fall between creating and owning the file
+            fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=parent)
+            os.close(fd)
+            os.chmod(tmp, 0o666 & ~umask)
         yield Path(tmp)
         os.replace(tmp, path)
     except OSError as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
         if exc.filename is None or str(exc.filename) == str(tmp):
             raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None   # name the output
         raise
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
         raise
 
 
@@ -147,27 +151,34 @@ class OutputTransaction:
             if resolve_path(other) == key:
                 raise InputError(f"two outputs are the same file: {path}")
         parent = path.parent if str(path.parent) else Path(".")
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=parent)
-        except OSError as exc:
-            self.rollback()
-            raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
-        os.close(fd)
-        self.outputs[path] = Path(tmp)
+        with interrupts_deferred():   # an interruption here must not orphan the new temporary
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=path.suffix, dir=parent)
+            except OSError as exc:
+                self.rollback()
+                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+            os.close(fd)
+            self.outputs[path] = Path(tmp)
         return Path(tmp)
 
     def rollback(self) -> None:
-        for tmp in self.outputs.values():
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
+        with interrupts_deferred():
+            for tmp in self.outputs.values():
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+            self.outputs = {}
 
     def commit(self) -> None:
+        """Rename every temporary into place, with SIGINT/SIGTERM held back until all are
+        (the permissions are set first, so the renames are the only step that can fail)."""
         umask = os.umask(0)
         os.umask(umask)
-        for final, tmp in self.outputs.items():
-            os.chmod(tmp, 0o666 & ~umask)
-            os.replace(tmp, final)
-        self.outputs = {}
+        with interrupts_deferred():   # all renames happen, or (on an OSError) the rest are rolled back
+            for tmp in self.outputs.values():
+                os.chmod(tmp, 0o666 & ~umask)
+            for final, tmp in list(self.outputs.items()):
+                os.replace(tmp, final)
+                del self.outputs[final]
 
     def user_message(self, text: str) -> str:
         for final, tmp in self.outputs.items():
@@ -182,9 +193,9 @@ class OutputTransaction:
             try:
                 self.commit()
             except OSError as err:
+                message = self.user_message(f"cannot write outputs: {err.strerror or err}: {err.filename}")
                 self.rollback()
-                raise InputError(self.user_message(f"cannot write outputs: {err.strerror or err}: "
-                                                   f"{err.filename}")) from None
+                raise InputError(message) from None
             return False
         message = None
         if isinstance(exc, OSError):
