@@ -40,14 +40,17 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
 
     ``frames`` (N, H, W, 3) uint8; image ``j`` is read at ``(y + shifts[j, 0], x + shifts[j, 1])``
     and takes part only inside the frame and where ``valid[j, y, x]`` (``valid`` of shape
-    (N, 1, 1) means everywhere). Image ``j`` contributes ``E_j = mats32[j] @ lin[j][z]`` with
+    (N, 1, 1) means everywhere). Image ``j`` contributes ``E_j = max(mats32[j] @ lin[j][z], 0)``
+    (its estimate projected onto the non-negative orthant, the nearest radiance that can
+    exist: a 3x3 matrix with negative off-diagonals, fitted on near-neutral colours, sends a
+    saturated colour's weak channel below 0) with
     weight ``w_j = w(z) * inv_k[j] / max(sum_c inv_var[j, z_c, c], 1e-30)`` (the last factor
     only if ``use_inv_var``), where ``w(z)`` is the smallest channel weight
     ``min_c weights[z_c, c]`` if some image sees all channels of the pixel with positive
     weight, else the weight of the brightest channel ``weights[max_c z_c, 0]``. Both sums are
     kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
     comes from the shortest exposure (``mask`` 1) if its largest code is ``bright``, else
-    from the longest (``mask`` 2), with ``mats64``; elsewhere ``mask`` is 0. ``out`` is
+    from the longest (``mask`` 2), with ``mats64`` (projected as above); elsewhere ``mask`` is 0. ``out`` is
     (3, H, W) float32. Rows run in parallel; within a row, tiles of :data:`MERGE_TILE`
     pixels take the frames one after another (each pixel's sums still run over the frames in
     order, so the sums are those of a per-pixel loop).
@@ -103,9 +106,10 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                     l0 = lin[j, z0, 0]
                     l1 = lin[j, z1, 1]
                     l2 = lin[j, z2, 2]
-                    v0 = l0 * a00 + l1 * a01 + l2 * a02
-                    v1 = l0 * a10 + l1 * a11 + l2 * a12
-                    v2 = l0 * a20 + l1 * a21 + l2 * a22
+                    # the frame's estimate, projected onto the non-negative orthant (radiance >= 0)
+                    v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
+                    v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
+                    v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
                     acc[0, t] += wmin
                     acc[1, t] += v0 * wmin
                     acc[2, t] += v1 * wmin
@@ -138,7 +142,8 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                 e1 = np.float64(lin[jj, frames[jj, ys, xs, 1], 1])
                 e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
                 for c in range(3):
-                    out[c, y, x] = np.float32(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1] + e2 * mats64[jj, c, 2])
+                    out[c, y, x] = np.float32(max(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1]
+                                                  + e2 * mats64[jj, c, 2], 0.0))
 
 
 @njit(inline="always")

@@ -1,8 +1,9 @@
 """The matrix kernel of the engine: per-frame tables, a 3x3 matrix per frame, integer shifts.
 
 :func:`merge_matrix_frames` runs :func:`derender.engine.kernels.stabilized_merge_rows`
-(numba, rows in ``prange``): image ``j`` contributes ``M_j L_j(z)`` (per-channel table
-``L_j`` on the 256 codes, 3x3 ``M_j``) read through its registration shift, with one weight
+(numba, rows in ``prange``): image ``j`` contributes ``max(M_j L_j(z), 0)`` (per-channel table
+``L_j`` on the 256 codes, 3x3 ``M_j``; the estimate projected onto the non-negative orthant,
+so that no radiance is negative) read through its registration shift, with one weight
 for all channels (the smallest channel weight where some exposure has all channels
 usable, else the weight of the brightest channel) optionally times an inverse-variance
 table. Launches are serialised by :data:`KERNEL_LOCK` (numba's fallback thread pool

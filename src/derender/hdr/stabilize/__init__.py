@@ -51,7 +51,7 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "blocks": ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"],
     "colour_matrices": ["fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices"],
-    "curves": ["Curve", "as_curve"],
+    "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
     "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "unclipped_debevec", "curve_model"],
     "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],

@@ -265,15 +265,19 @@ def joint_color_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray, 
         cj, ck = as_curve(gammas[j]), as_curve(gammas[k])
         mj = cj.lin(jj) / t[j]
         mk = ck.lin(jk) / t[k]
-        # relative noise of each linear value, (dL/dJ) sigma / L with equal code noise sigma
-        rel = cj.log_slope(jj) ** 2 + ck.log_slope(jk) ** 2
+        # relative noise of each linear value, (dL/dJ) sigma / L with equal code noise sigma;
+        # floored (Curve.noise_log_slope): a flat segment of a fitted response table would
+        # otherwise claim a noise-free value and give its few blocks 1e6-1e10 times the weight
+        # of all others (the iPhone 6 bracket: per-channel gains drifted 2.4x, a green sky)
+        rel = cj.noise_log_slope(jj) ** 2 + ck.noise_log_slope(jk) ** 2
         scale2 = np.maximum(mj * mk, 1e-300)       # ~ E^2 in either image's rendering
+        # each block's row of the design matrix is [.. mj .. -mk ..]: only the 6x6 block of
+        # the pair's unknowns is non-zero (a dense (blocks, 3N) design cost 4 s on Memorial)
+        u = np.concatenate([mj, -mk], axis=1)
+        idx = np.r_[3 * sub[j]:3 * sub[j] + 3, 3 * sub[k]:3 * sub[k] + 3]
         for c in range(3):
             w = 1.0 / (scale2[:, c] * rel[:, c])
-            a = np.zeros((mj.shape[0], m))
-            a[:, 3 * sub[j]:3 * sub[j] + 3] = mj
-            a[:, 3 * sub[k]:3 * sub[k] + 3] = -mk
-            normal[c] += (a * w[:, None]).T @ a
+            normal[c][np.ix_(idx, idx)] += (u * w[:, None]).T @ u
     nm = len(members)
     cons = np.zeros((3, m))
     for i in range(nm):

@@ -16,7 +16,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Curve", "as_curve"]
+__all__ = ["Curve", "as_curve", "MIN_LOG_SLOPE"]
+
+
+#: Floor of :meth:`Curve.noise_log_slope`, the ``d ln L / dJ`` a noise model may use. No
+#: camera response is flatter in log terms than a linear one at white (``L = J``:
+#: ``d ln L / dJ = 1 / J >= 1``; a power law of display gamma >= 1 has ``gamma / J >= 1``).
+#: A fitted response table can be: isotonic regression turns the conflicting samples of a
+#: local tone map into flat segments (the iPhone 6 bracket's Debevec curve is flat over codes
+#: 191-232 in R, 186-254 in G, 178-205 in B), where ``log_slope`` drops to ~1e-5 and a
+#: relative-noise weight ``1 / log_slope^2`` to 1e10 times the others.
+MIN_LOG_SLOPE = 1.0
 
 
 class Curve:
@@ -111,6 +121,13 @@ class Curve:
         n = self.table.shape[0] - 1
         tail = n * self.rho if self.rho == 1.0 else (n * self.rho) * u ** (self.rho - 1.0)
         return self._dt[i0, np.arange(3)] * tail
+
+    def noise_log_slope(self, j: np.ndarray) -> np.ndarray:
+        """:meth:`log_slope` floored at :data:`MIN_LOG_SLOPE`: the relative noise of a linear value
+        per unit code noise, for weights. Equal to :meth:`log_slope` for power laws of display
+        gamma >= 1; on a flat table segment (an artefact of the response fit, not a camera
+        that resolves radiance infinitely finely) it keeps a weight ``1 / slope^2`` bounded."""
+        return np.maximum(self.log_slope(j), MIN_LOG_SLOPE)
 
 
 def as_curve(g: "float | Curve") -> Curve:

@@ -312,12 +312,14 @@ class Stabilization:
     info: dict = field(default_factory=dict)
 
     def linear_exposure(self, j: int) -> np.ndarray:
-        """Stabilised image j (eq. 10) scaled to exposure ``radiance * t_j`` for the merge engine, float32."""
+        """Stabilised image j (eq. 10) scaled to exposure ``radiance * t_j`` for the merge engine,
+        float32, projected onto the non-negative orthant as the engine's kernel does
+        (:func:`~derender.engine.kernels.stabilized_merge_rows`)."""
         lin = self.curves[j].lin(self.alignment.images[j])
         m = self.matrices[j]
         if self.mode == "reference":
             m = m * (self.times[j] / self.times[self.reference])
-        return np.ascontiguousarray(lin @ m.T, dtype=np.float32)
+        return np.ascontiguousarray(np.maximum(lin @ m.T, 0.0), dtype=np.float32)
 
 
 def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mode: str = "reference",
