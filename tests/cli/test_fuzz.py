@@ -9,6 +9,7 @@ failure and never changes an input. Seeds are fixed (``derandomize``) so CI is r
 from __future__ import annotations
 
 import hashlib
+import os
 import struct
 from pathlib import Path
 
@@ -23,12 +24,15 @@ from derender.io.exr import read_exr
 from derender.io.headers import probe_image
 from derender.io.images import decode_image
 
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True, print_blob=False,
+#: ``DERENDER_FUZZ_EXAMPLES=N`` runs N examples per test with fresh random seeds (a long hunt);
+#: CI runs the fixed, derandomised default.
+_LONG = int(os.environ.get("DERENDER_FUZZ_EXAMPLES", "0"))
+FUZZ = settings(max_examples=_LONG or 60, deadline=None, derandomize=not _LONG, print_blob=bool(_LONG),
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-FUZZ_CLI = settings(FUZZ, max_examples=30)
+FUZZ_CLI = settings(FUZZ, max_examples=_LONG or 30)
 
 #: Methods fuzzed through the CLI (every engine path: tables, Robertson's linear tables, matrices).
-METHODS = ["debevec", "robertson"]
+METHODS = ["debevec", "robertson", "stabilized"]
 
 
 def _scene(h=40, w=56):
