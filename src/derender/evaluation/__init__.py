@@ -1,6 +1,7 @@
 """Scoring: the PSNR protocol, paper 1 Table 1 on datasets (Dask), paper 2 experiments, response diagnostics.
 
-Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`, :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.table1`.
+Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`, :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
+inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`.
 """
 
 from derender.core.lazy import attach
@@ -12,4 +13,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
     "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage"],
     "demo": ["run_demo"],
+    "oracle": ["oracle_merge", "oracle_merge_bracket"],
 })
