@@ -42,7 +42,8 @@ and reported on held-out others: ``paper`` (paper 1's eq. 4: the ``simple`` styl
 for byte), ``dslr-lut`` (a DSLR engine after Kim et al., PAMI 2012: white balance inside the
 3x3, hue-dependent saturation, a random smooth 3D gamut LUT, per-channel tone curves, white
 balance switching between presets), ``phone-local`` (a local tone map: a smooth gain map from
-the frame's blurred luminance, highlight roll-off, per-frame gain and gamma) and ``drift``
+the frame's blurred luminance sets the shadow gain of a curve that keeps white; per-frame gain
+and gamma) and ``drift``
 (white balance and gain drifting continuously: a harder ``auto``). Each frame's parameters are a
 :class:`derender.camera.stages.FrameSettings` (``SimulatedBracket.frames``, ``scene.json``'s
 ``"frames"``; :func:`derender.camera.bracket.load_frame_settings` reads them back, and
@@ -77,9 +78,9 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "spectral": ["WAVELENGTHS", "CameraSpectral", "builtin_camera_names", "load_camera_file", "load_camera", "reflectance_library", "illuminant_spd", "cmfs_xyz", "camera_search_dirs"],
     "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "load_frame_settings", "bracket_paths", "simulate_to_folder", "camera_names_for_search"],
     "rendering": ["fit_xyz_to_camera", "white_balance_for", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "camera_rgb_from_mosaic", "render_style", "isp_render", "pipeline_settings"],
-    "stages": ["STYLES", "FrameSettings", "frame_matrix", "hue_angle", "hue_saturation_factor", "hue_saturation", "gamut_lut", "apply_lut", "channel_curve", "local_gain_grid", "highlight_rolloff", "inverse_highlight_rolloff", "upsample_gain", "prepare_frame", "render_frame", "settings_to_dict", "settings_from_dict"],
+    "stages": ["STYLES", "FrameSettings", "frame_matrix", "hue_angle", "hue_saturation_factor", "hue_saturation", "gamut_lut", "apply_lut", "channel_curve", "local_gain_grid", "local_curve", "inverse_local_curve", "upsample_gain", "prepare_frame", "render_frame", "settings_to_dict", "settings_from_dict"],
     "families": ["FAMILIES", "WB_PRESETS", "check_family", "family_settings", "random_gamut"],
-    "oracle": ["invert_frame_codes", "invert_curve"],
+    "oracle": ["invert_frame_codes", "invert_frame_values", "invert_curve"],
     "scene": ["SCENE_KINDS", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz"],
     "sensor": ["CFA_PATTERN", "mosaic_signal", "expose_mosaic"],
 })

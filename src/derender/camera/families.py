@@ -18,9 +18,10 @@ generator (one "camera" per seed: its gamut map, curves, ... and the frame-to-fr
   (:data:`WB_PRESETS`, at least two in a bracket of two or more exposures); exposure
   gain jitter exp(U(0, 0.1)).
 * ``phone-local``: a phone's local tone map: a gain map (6 x 8 grid, bilinear) from the
-  frame's blurred log luminance (strength ~ U(0.25, 0.5) per frame, so the map changes with
-  the exposure; gains in [1/4, 4]), a highlight roll-off (Reinhard, white 8) that keeps
-  lifted highlights from clipping, per-frame gain exp(U(0, 0.3)) and display gamma U(1.9, 2.6).
+  frame's blurred log luminance relative to its mean (strength ~ U(0.25, 0.5) per frame, so the
+  map changes with the exposure; geometric mean 1, gains in [1/4, 4]) that sets the shadow
+  gain of a tone curve keeping white at white, per-frame gain exp(U(0, 0.3)) and display
+  gamma U(1.9, 2.6).
 * ``drift``: the filmic style with a white balance drifting continuously across the
   bracket (log R +-25 %, log B -+20 %, plus a random walk of 5 % steps), gain as a random
   walk exp(clip(walk, 0, 0.6)), gamma U(1.8, 2.6), saturation U(0.8, 1.2): a harder ``auto``.
@@ -51,7 +52,7 @@ FAMILIES: dict[str, str] = {
     "camera": "filmic picture style (saturation boost, gamut compression, Hable curve, toe) with the auto pipeline",
     "dslr-lut": "DSLR engine (Kim et al. 2012): WB in a 3x3, hue-dependent saturation, random 3D gamut LUT, "
                 "per-channel curves, WB switching between presets",
-    "phone-local": "phone: spatially varying gain map from blurred luminance (local tone map), per-frame gain/gamma",
+    "phone-local": "phone: local tone map (shadow gain map from blurred luminance, white kept), per-frame gain/gamma",
     "drift": "filmic style with white balance drifting continuously and gain random-walking across the bracket",
 }
 
@@ -118,11 +119,9 @@ def _dslr(n: int, wb: np.ndarray, rng: np.random.Generator, base: dict) -> list[
 def _phone(n: int, wb: np.ndarray, rng: np.random.Generator, base: dict) -> list[FrameSettings]:
     from derender.camera.stages import FrameSettings
 
-    target = float(rng.uniform(0.12, 0.25))
     out = []
     for _ in range(n):
-        local = {"strength": float(rng.uniform(0.25, 0.5)), "target": target, "sigma": 0.08, "grid": [6, 8],
-                 "white": 8.0}
+        local = {"strength": float(rng.uniform(0.25, 0.5)), "sigma": 0.08, "grid": [6, 8]}
         out.append(FrameSettings(style="local", wb=[float(v) for v in wb], gain=float(np.exp(rng.uniform(0.0, 0.3))),
                                  gamma=float(rng.uniform(1.9, 2.6)), local=local, **base))
     return out

@@ -34,6 +34,7 @@ from derender.core.errors import InputError
 __all__ = [
     "invert_curve",
     "invert_frame_codes",
+    "invert_frame_values",
 ]
 
 
@@ -101,8 +102,20 @@ def invert_frame_codes(codes: np.ndarray, settings: FrameSettings, clip_margin: 
     codes = np.asarray(codes)
     if codes.ndim != 3 or codes.shape[-1] != 3:
         raise InputError(f"codes must have shape (H, W, 3), got {codes.shape}")
-    y = codes.astype(np.float64) / 255.0
     valid = np.all(codes < 255, axis=-1)
+    linear, ok = invert_frame_values(codes.astype(np.float64) / 255.0, settings, clip_margin)
+    return linear, valid & ok
+
+
+def invert_frame_values(y: np.ndarray, settings: FrameSettings, clip_margin: float = 0.03,
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`invert_frame_codes` of display values ``y`` = code / 255 (H, W, 3), which may lie
+    between codes (e.g. half a code above 0, for the bound a code of 0 implies).
+
+    Returns ``(linear, ok)``, ``ok`` False where a white-balanced or sensor channel is within
+    ``clip_margin`` of its clip (clipped codes are not looked at here).
+    """
+    y = np.asarray(y, dtype=np.float64)
     style = settings.style
     if style == "simple":
         if settings.tone_curve:
@@ -124,17 +137,16 @@ def invert_frame_codes(codes: np.ndarray, settings: FrameSettings, clip_margin: 
     elif style == "local":
         if settings.gain_map is None:
             raise InputError("a 'local' frame's settings carry no gain map")
-        from derender.camera.stages import inverse_highlight_rolloff, upsample_gain
+        from derender.camera.stages import inverse_local_curve, upsample_gain
 
-        gain = upsample_gain(settings.gain_map, codes.shape[:2])
-        x = inverse_highlight_rolloff(_inverse_gamma_with_toe(y, settings.gamma), float(settings.local["white"]))
-        lin = x / gain[..., None]
+        gain = upsample_gain(settings.gain_map, y.shape[:2])
+        lin = inverse_local_curve(_inverse_gamma_with_toe(y, settings.gamma), gain[..., None])
     else:
         raise InputError(f"unknown render style {style!r}")
     rgb_wb = lin @ np.linalg.inv(frame_matrix(settings)).T
     wb = np.asarray(settings.wb, dtype=np.float64)
     cam = rgb_wb / wb
-    valid &= np.all((rgb_wb < 1.0 - clip_margin) & (cam < 1.0 - clip_margin), axis=-1)
+    valid = np.all((rgb_wb < 1.0 - clip_margin) & (cam < 1.0 - clip_margin), axis=-1)
     c2s = np.asarray(settings.camera_to_srgb, dtype=np.float64)
     linear = (cam * np.asarray(settings.wb_as_shot, dtype=np.float64)) @ c2s.T
     linear = np.nan_to_num(linear, nan=0.0, posinf=0.0, neginf=0.0)

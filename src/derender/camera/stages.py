@@ -13,8 +13,8 @@ Every pipeline family (:mod:`derender.camera.families`) renders a frame as
      non-linear 3D gamut map applied as a 3D LUT with trilinear interpolation
      (:func:`gamut_lut`, :func:`apply_lut`), per-channel tone curves (:func:`channel_curve`),
    * ``local``: a spatially varying gain map (low-resolution grid, bilinear upsampling,
-     :func:`local_gain_grid`, :func:`upsample_gain`), a highlight roll-off
-     (:func:`highlight_rolloff`), then the display gamma with a linear toe,
+     :func:`local_gain_grid`, :func:`upsample_gain`) sets the shadow gain of a tone curve that
+     keeps white at white (:func:`local_curve`), then the display gamma with a linear toe,
 
 4. 8-bit rounding.
 
@@ -53,8 +53,8 @@ __all__ = [
     "apply_lut",
     "channel_curve",
     "local_gain_grid",
-    "highlight_rolloff",
-    "inverse_highlight_rolloff",
+    "local_curve",
+    "inverse_local_curve",
     "upsample_gain",
     "prepare_frame",
     "render_frame",
@@ -76,8 +76,7 @@ class FrameSettings:
     (K, 3), ``amplitudes`` (K, 3), ``width``, ``neutral``, ``nodes``; see
     :func:`gamut_lut`). ``hue_sat``: ``[s0, a1, p1, a2, p2]`` of :func:`hue_saturation_factor`.
     ``curves``: per channel ``[gamma, blend, strength]`` of :func:`channel_curve`. ``local``:
-    ``{"strength", "target", "sigma", "grid", "white"}`` of :func:`local_gain_grid` and
-    :func:`highlight_rolloff`; ``gain_map``: the
+    ``{"strength", "sigma", "grid"}`` of :func:`local_gain_grid`; ``gain_map``: the
     gain grid itself (rows x columns), filled by :func:`prepare_frame`.
     """
 
@@ -197,9 +196,10 @@ def channel_curve(x: np.ndarray, params: Any) -> np.ndarray:
 def local_gain_grid(lin: np.ndarray, local: dict[str, Any]) -> np.ndarray:
     """A phone's local tone map: gain grid (rows x columns) from the frame's blurred luminance.
 
-    ``log gain = -strength (log B - log target)``, ``B`` the luminance blurred with a Gaussian of
-    ``sigma`` (fraction of the image diagonal) and averaged over ``grid = [rows, cols]`` cells;
-    shadows are lifted and highlights held back; gains limited to [1/4, 4].
+    ``log gain = -strength (log B - mean(log B))``, ``B`` the luminance blurred with a Gaussian of
+    ``sigma`` (fraction of the image diagonal) and averaged over ``grid = [rows, cols]`` cells:
+    shadows are lifted and highlights held back relative to the frame's mean (the gains' geometric
+    mean is 1, so the frame's overall exposure is left to the global gain); gains limited to [1/4, 4].
     """
     import cv2
 
@@ -211,23 +211,24 @@ def local_gain_grid(lin: np.ndarray, local: dict[str, Any]) -> np.ndarray:
     blurred = cv2.GaussianBlur(loglum, (k, k), sigma, borderType=cv2.BORDER_REFLECT)
     rows, cols = (int(v) for v in local["grid"])
     cells = cv2.resize(blurred, (cols, rows), interpolation=cv2.INTER_AREA)
-    log_gain = -float(local["strength"]) * (cells - np.log(float(local["target"])))
+    log_gain = -float(local["strength"]) * (cells - cells.mean())
     return np.exp(np.clip(log_gain, -np.log(4.0), np.log(4.0)))
 
 
-def highlight_rolloff(x: np.ndarray, white: float) -> np.ndarray:
-    """Reinhard's extended operator ``x (1 + x / W^2) / (1 + x)`` (0 -> 0, ``W`` -> 1, increasing):
-    the ``local`` style's global curve, which keeps highlights the gain map lifts from clipping.
-    Values are clipped to [0, W] first."""
-    x = np.clip(x, 0.0, white)
-    return x * (1.0 + x / (white * white)) / (1.0 + x)
+def local_curve(x: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """The ``local`` style's tone curve with shadow gain ``g`` per pixel: ``g x / (1 + (g - 1) x)``.
+
+    Slope ``g`` at black, 0 -> 0 and 1 -> 1 whatever ``g`` (a saturated pixel stays white, as in
+    a real camera), increasing; ``g > 1`` lifts, ``g < 1`` holds back. ``x`` is clipped to [0, 1].
+    """
+    x = np.clip(x, 0.0, 1.0)
+    return gain * x / (1.0 + (gain - 1.0) * x)
 
 
-def inverse_highlight_rolloff(r: np.ndarray, white: float) -> np.ndarray:
-    """Inverse of :func:`highlight_rolloff` on [0, 1] (the positive root of its quadratic)."""
+def inverse_local_curve(r: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`local_curve`: ``x = r / (g - (g - 1) r)``."""
     r = np.clip(r, 0.0, 1.0)
-    w2 = white * white
-    return 0.5 * w2 * (np.sqrt((1.0 - r) ** 2 + 4.0 * r / w2) - (1.0 - r))
+    return r / (gain - (gain - 1.0) * r)
 
 
 def upsample_gain(grid: Any, shape: tuple[int, int]) -> np.ndarray:
@@ -282,8 +283,7 @@ def render_frame(camera_rgb: np.ndarray, settings: FrameSettings) -> np.ndarray:
         if settings.gain_map is None:
             raise InputError("a 'local' frame needs its gain map: call prepare_frame first")
         gain = upsample_gain(settings.gain_map, lin.shape[:2])
-        y = encode_gamma_with_toe(highlight_rolloff(lin * gain[..., None], float(settings.local["white"])),
-                                  settings.gamma)
+        y = encode_gamma_with_toe(local_curve(lin, gain[..., None]), settings.gamma)
     else:
         raise InputError(f"unknown render style {settings.style!r}: use one of {', '.join(STYLES)}")
     return np.clip(np.rint(y * 255.0), 0, 255).astype(np.uint8)

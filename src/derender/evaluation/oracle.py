@@ -8,7 +8,9 @@ no clipped sensor or white-balanced channel), divides by the exposure time and a
 with the float reference engine (:func:`derender.engine.reference.merge_linear`), whose
 saturation policy gives pixels no frame exposes the shortest (bright) or longest (dark)
 exposure's value and marks them in the mask; as in the table engine's ``"brightest"`` mode,
-the choice looks at the pixel's largest code in the shortest exposure. The radiance is finite and never negative. Its
+the choice looks at the pixel's largest code in the shortest exposure. One use of the
+pipeline's knowledge goes beyond the weights: a code of 0 bounds its channel from above,
+and the merged value is capped there (``bound_black``). The radiance is finite and never negative. Its
 error against the truth is what is left: demosaicing and noise, 8-bit quantisation, clipping.
 """
 
@@ -28,15 +30,19 @@ __all__ = [
 
 
 def oracle_merge(codes: np.ndarray, times: Sequence[float], frame_settings: Sequence[Any],
-                 weight: str = "trapezoid", clip_margin: float = 0.03) -> HDRResult:
+                 weight: str = "trapezoid", clip_margin: float = 0.03, bound_black: bool = True) -> HDRResult:
     """Merge an (N, H, W, 3) uint8 bracket by inverting each frame's true pipeline.
 
     ``frame_settings``: one :class:`~derender.camera.stages.FrameSettings` per frame (as
     :func:`derender.camera.bracket.load_frame_settings` reads them), in the order of ``codes``.
-    ``weight``: a name of :data:`derender.engine.weights.WEIGHTS`. Returns an
+    ``weight``: a name of :data:`derender.engine.weights.WEIGHTS`. ``bound_black``: a channel
+    whose code is 0 in a valid pixel of frame ``j`` bounds the radiance from above (half a
+    code, inverted, over ``t_j``); the merged value is capped at the smallest such bound, so
+    read noise in a short exposure (the only frame with weight, at a code a little above the
+    weight's floor) cannot outvote the longer exposures that saw black. Returns an
     :class:`~derender.core.types.HDRResult` in the truth's space (linear sRGB per second).
     """
-    from derender.camera.oracle import invert_frame_codes
+    from derender.camera.oracle import invert_frame_codes, invert_frame_values
     from derender.engine.reference import merge_linear
     from derender.engine.weights import get_weight
 
@@ -61,11 +67,25 @@ def oracle_merge(codes: np.ndarray, times: Sequence[float], frame_settings: Sequ
 
     res = merge_linear(linear, times, brightest, weight_fn=weight_fn, block_rows=h,
                        info={"method": "oracle", "weight": weight, "valid_fraction": [float(v.mean()) for v in valid]})
+    if bound_black:
+        # a code of 0 in a valid pixel says its channel rendered below half a code: an upper bound
+        # on the radiance that a noisy code in a shorter exposure must not exceed
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        upper = np.full(codes.shape[1:], np.inf)
+        for j in range(n):
+            black = (codes[j] == 0) & valid[j][..., None]
+            if black.any():
+                y = np.where(codes[j] == 0, 0.5, codes[j].astype(np.float64)) / 255.0
+                lin_up, _ = invert_frame_values(y, frame_settings[j], clip_margin)
+                upper = np.where(black, np.minimum(upper, np.maximum(lin_up, 0.0) / t[j]), upper)
+        capped = res.radiance > upper
+        res.info["n_capped_black"] = int(capped.sum())
+        res.radiance = np.where(capped, upper, res.radiance).astype(np.float32)
     res.radiance = np.maximum(res.radiance, np.float32(0.0))
     return res
 
 
-def oracle_merge_bracket(bracket: Any, weight: str = "trapezoid") -> HDRResult:
+def oracle_merge_bracket(bracket: Any, weight: str = "trapezoid", bound_black: bool = True) -> HDRResult:
     """:func:`oracle_merge` of a :class:`~derender.camera.bracket.SimulatedBracket` (its codes,
     times and recorded frame settings)."""
     frames = list(getattr(bracket, "frames", None) or [])
@@ -74,4 +94,4 @@ def oracle_merge_bracket(bracket: Any, weight: str = "trapezoid") -> HDRResult:
 
         frames = [FrameSettings.from_render_settings(s, bracket.wb_true, bracket.camera_to_srgb)
                   for s in bracket.settings]
-    return oracle_merge(bracket.jpeg_codes, bracket.times, frames, weight=weight)
+    return oracle_merge(bracket.jpeg_codes, bracket.times, frames, weight=weight, bound_black=bound_black)
