@@ -8,9 +8,7 @@ no clipped sensor or white-balanced channel), divides by the exposure time and a
 with the float reference engine (:func:`derender.engine.reference.merge_linear`), whose
 saturation policy gives pixels no frame exposes the shortest (bright) or longest (dark)
 exposure's value and marks them in the mask; as in the table engine's ``"brightest"`` mode,
-the choice looks at the pixel's largest code in the shortest exposure. One use of the
-pipeline's knowledge goes beyond the weights: a code of 0 bounds its channel from above,
-and the merged value is capped there (``bound_black``). The radiance is finite and never negative. Its
+the choice looks at the pixel's largest code in the shortest exposure. The radiance is finite and never negative. Its
 error against the truth is what is left: demosaicing and noise, 8-bit quantisation, clipping.
 """
 
@@ -30,19 +28,20 @@ __all__ = [
 
 
 def oracle_merge(codes: np.ndarray, times: Sequence[float], frame_settings: Sequence[Any],
-                 weight: str = "trapezoid", clip_margin: float = 0.03, bound_black: bool = True) -> HDRResult:
+                 weight: str = "trapezoid", clip_margin: float = 0.03,
+                 quantisation_weights: bool = False) -> HDRResult:
     """Merge an (N, H, W, 3) uint8 bracket by inverting each frame's true pipeline.
 
     ``frame_settings``: one :class:`~derender.camera.stages.FrameSettings` per frame (as
     :func:`derender.camera.bracket.load_frame_settings` reads them), in the order of ``codes``.
-    ``weight``: a name of :data:`derender.engine.weights.WEIGHTS`. ``bound_black``: a channel
-    whose code is 0 in a valid pixel of frame ``j`` bounds the radiance from above (half a
-    code, inverted, over ``t_j``); the merged value is capped at the smallest such bound, so
-    read noise in a short exposure (the only frame with weight, at a code a little above the
-    weight's floor) cannot outvote the longer exposures that saw black. Returns an
+    ``weight``: a name of :data:`derender.engine.weights.WEIGHTS`. ``quantisation_weights``:
+    also divide each weight by the relative variance that one code's quantisation leaves
+    after the frame's true inverse (its slope is known to the oracle), so that a frame
+    whose code sits on a steep part of its inverse curve counts less: the better bound
+    (``oracle-q`` in :mod:`derender.evaluation.families`). Returns an
     :class:`~derender.core.types.HDRResult` in the truth's space (linear sRGB per second).
     """
-    from derender.camera.oracle import invert_frame_codes, invert_frame_values
+    from derender.camera.oracle import invert_frame_codes
     from derender.engine.reference import merge_linear
     from derender.engine.weights import get_weight
 
@@ -59,6 +58,10 @@ def oracle_merge(codes: np.ndarray, times: Sequence[float], frame_settings: Sequ
         linear[j], valid[j] = invert_frame_codes(codes[j], frame_settings[j], clip_margin=clip_margin)
     images = codes.astype(np.float32) * np.float32(1 / 255)
     weights = [wfun(images[j]) * valid[j][..., None] for j in range(n)]
+    if quantisation_weights:
+        for j in range(n):
+            weights[j] = weights[j] / _relative_quantisation_variance(codes[j], linear[j], frame_settings[j],
+                                                                      clip_margin)
     # the saturation policy sees each pixel's brightest channel (the table engine's "brightest" mode)
     brightest = np.repeat(images.max(axis=-1, keepdims=True), 3, axis=-1)
 
@@ -66,26 +69,26 @@ def oracle_merge(codes: np.ndarray, times: Sequence[float], frame_settings: Sequ
         return weights[j]
 
     res = merge_linear(linear, times, brightest, weight_fn=weight_fn, block_rows=h,
-                       info={"method": "oracle", "weight": weight, "valid_fraction": [float(v.mean()) for v in valid]})
-    if bound_black:
-        # a code of 0 in a valid pixel says its channel rendered below half a code: an upper bound
-        # on the radiance that a noisy code in a shorter exposure must not exceed
-        t = np.asarray(times, dtype=np.float64).reshape(-1)
-        upper = np.full(codes.shape[1:], np.inf)
-        for j in range(n):
-            black = (codes[j] == 0) & valid[j][..., None]
-            if black.any():
-                y = np.where(codes[j] == 0, 0.5, codes[j].astype(np.float64)) / 255.0
-                lin_up, _ = invert_frame_values(y, frame_settings[j], clip_margin)
-                upper = np.where(black, np.minimum(upper, np.maximum(lin_up, 0.0) / t[j]), upper)
-        capped = res.radiance > upper
-        res.info["n_capped_black"] = int(capped.sum())
-        res.radiance = np.where(capped, upper, res.radiance).astype(np.float32)
+                       info={"method": "oracle", "weight": weight, "quantisation_weights": bool(quantisation_weights),
+                             "valid_fraction": [float(v.mean()) for v in valid]})
     res.radiance = np.maximum(res.radiance, np.float32(0.0))
     return res
 
 
-def oracle_merge_bracket(bracket: Any, weight: str = "trapezoid", bound_black: bool = True) -> HDRResult:
+def _relative_quantisation_variance(codes: np.ndarray, linear: np.ndarray, settings: Any,
+                                    clip_margin: float) -> np.ndarray:
+    """Per channel ``((x(z + 1/2) - x(z - 1/2)) / x)^2 / 12``: the relative variance of a uniform
+    quantisation error of one code, through the frame's true inverse (floored at 1e-12)."""
+    from derender.camera.oracle import invert_frame_values
+
+    z = codes.astype(np.float64)
+    up, _ = invert_frame_values(np.minimum(z + 0.5, 255.0) / 255.0, settings, clip_margin)
+    dn, _ = invert_frame_values(np.maximum(z - 0.5, 0.0) / 255.0, settings, clip_margin)
+    rel = np.minimum(np.abs(up - dn) / np.maximum(np.abs(linear), 1e-30), 1e6)
+    return np.maximum(rel * rel / 12.0, 1e-12).astype(np.float32)
+
+
+def oracle_merge_bracket(bracket: Any, weight: str = "trapezoid", quantisation_weights: bool = False) -> HDRResult:
     """:func:`oracle_merge` of a :class:`~derender.camera.bracket.SimulatedBracket` (its codes,
     times and recorded frame settings)."""
     frames = list(getattr(bracket, "frames", None) or [])
@@ -94,4 +97,5 @@ def oracle_merge_bracket(bracket: Any, weight: str = "trapezoid", bound_black: b
 
         frames = [FrameSettings.from_render_settings(s, bracket.wb_true, bracket.camera_to_srgb)
                   for s in bracket.settings]
-    return oracle_merge(bracket.jpeg_codes, bracket.times, frames, weight=weight, bound_black=bound_black)
+    return oracle_merge(bracket.jpeg_codes, bracket.times, frames, weight=weight,
+                        quantisation_weights=quantisation_weights)
