@@ -33,6 +33,24 @@ exp(U(0, 0.3)), i.e. 1 to 1.35 (never below 1, so a saturated sensor still rende
 exponent 1/gamma_j); a saturation matrix s_j ~ U(0.85, 1.15). The DNGs always carry the
 scene's true white balance (AsShotNeutral), so the RAW ground truth is the same for both.
 
+Pipeline families
+-----------------
+``simulate_bracket(..., family=F)`` (``derender simulate OUTDIR --render F``) renders through
+one of :data:`derender.camera.families.FAMILIES`, so that methods can be tuned on some families
+and reported on held-out others: ``paper`` (paper 1's eq. 4: the ``simple`` style with the
+``auto`` pipeline, byte for byte), ``camera`` (the default: ``camera`` style, ``auto``, byte
+for byte), ``dslr-lut`` (a DSLR engine after Kim et al., PAMI 2012: white balance inside the
+3x3, hue-dependent saturation, a random smooth 3D gamut LUT, per-channel tone curves, white
+balance switching between presets), ``phone-local`` (a local tone map: a smooth gain map from
+the frame's blurred luminance sets the shadow gain of a curve that keeps white; per-frame gain
+and gamma) and ``drift``
+(white balance and gain drifting continuously: a harder ``auto``). Each frame's parameters are a
+:class:`derender.camera.stages.FrameSettings` (``SimulatedBracket.frames``, ``scene.json``'s
+``"frames"``; :func:`derender.camera.bracket.load_frame_settings` reads them back, and
+:func:`derender.camera.stages.render_frame` re-renders the codes from the mosaics exactly);
+:func:`derender.camera.oracle.invert_frame_codes` inverts them (the oracle of
+:mod:`derender.evaluation.oracle`).
+
 Rendering styles
 ----------------
 ``simple``: ``y = clip(alpha_j S_j M WB_j x, 0, 1) ** (1 / gamma_j)`` - exactly the model
@@ -46,6 +64,8 @@ sRGB: finite slope at black). The ``simple`` style keeps the pure power law of p
 
 Modules: :mod:`derender.camera.spectral` (spectral data, cameras), :mod:`derender.camera.scene` (scenes),
 :mod:`derender.camera.sensor` (mosaic, noise), :mod:`derender.camera.rendering` (in-camera pipeline),
+:mod:`derender.camera.stages` (per-frame settings and stages), :mod:`derender.camera.families` (pipeline
+families), :mod:`derender.camera.oracle` (their exact inverse),
 :mod:`derender.camera.bracket` (brackets and files), :mod:`derender.camera.dng` (DNG writer),
 :mod:`derender.camera.chart` (calibration charts).
 """
@@ -56,8 +76,11 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "chart": ["PAIRS_FORMAT", "PAIRS_VERSION", "colorchecker_sg_reflectances", "gel_illuminants", "chart_exposures", "ChartPairs", "chart_pairs", "save_pairs", "load_pairs"],
     "dng": ["to_rational", "write_dng"],
     "spectral": ["WAVELENGTHS", "CameraSpectral", "builtin_camera_names", "load_camera_file", "load_camera", "reflectance_library", "illuminant_spd", "cmfs_xyz", "camera_search_dirs"],
-    "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "bracket_paths", "simulate_to_folder", "camera_names_for_search"],
-    "rendering": ["fit_xyz_to_camera", "white_balance_for", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "isp_render", "pipeline_settings"],
+    "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "load_frame_settings", "bracket_paths", "simulate_to_folder", "camera_names_for_search"],
+    "rendering": ["fit_xyz_to_camera", "white_balance_for", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "camera_rgb_from_mosaic", "render_style", "isp_render", "pipeline_settings"],
+    "stages": ["STYLES", "FrameSettings", "frame_matrix", "hue_angle", "hue_saturation_factor", "hue_saturation", "gamut_lut", "apply_lut", "channel_curve", "local_gain_grid", "local_curve", "inverse_local_curve", "upsample_gain", "prepare_frame", "render_frame", "settings_to_dict", "settings_from_dict"],
+    "families": ["FAMILIES", "WB_PRESETS", "check_family", "family_settings", "random_gamut"],
+    "oracle": ["invert_frame_codes", "invert_frame_values", "invert_curve"],
     "scene": ["SCENE_KINDS", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz"],
     "sensor": ["CFA_PATTERN", "mosaic_signal", "expose_mosaic"],
 })

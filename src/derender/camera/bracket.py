@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from fractions import Fraction
 from pathlib import Path
 from typing import Callable, Sequence
@@ -21,6 +21,7 @@ import numpy as np
 
 from derender.camera.rendering import (
     RenderSettings,
+    camera_rgb_from_mosaic,
     fit_xyz_to_camera,
     isp_render,
     pipeline_settings,
@@ -28,6 +29,7 @@ from derender.camera.rendering import (
 )
 from derender.camera.scene import SpectralScene, make_scene, scene_camera_rgb
 from derender.camera.sensor import CFA_PATTERN, expose_mosaic, mosaic_signal
+from derender.camera.stages import FrameSettings, prepare_frame, render_frame, settings_from_dict, settings_to_dict
 from derender.camera.spectral import (
     WAVELENGTHS,
     CameraSpectral,
@@ -43,6 +45,7 @@ __all__ = [
     "write_jpeg",
     "write_bracket",
     "load_scene_json",
+    "load_frame_settings",
     "bracket_paths",
     "simulate_to_folder",
     "camera_names_for_search",
@@ -66,6 +69,8 @@ class SimulatedBracket:
     wb_true: np.ndarray                # AsShotNeutral multipliers
     camera_to_srgb: np.ndarray         # normalised, for white-balanced camera RGB
     params: dict
+    frames: list[FrameSettings] = field(default_factory=list)   # every parameter of every frame
+    family: str | None = None          # pipeline family (derender.camera.families) or None
 
 
 def _exif_time(t: float) -> float:
@@ -117,6 +122,7 @@ def simulate_bracket(
     wb_preset: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     peak_percentile: float = 99.9,
+    family: str | None = None,
 ) -> SimulatedBracket:
     """Simulate a bracket: spectral scene -> noisy RAW mosaics -> in-camera 8-bit renderings.
 
@@ -125,7 +131,16 @@ def simulate_bracket(
     to a fixed white-balance mode does (the mode :func:`derender.chart.chart_pairs` uses).
     ``peak_percentile`` is passed to :func:`bracket_times` (100: the shortest exposure keeps
     the whole scene below 60 % of white in RAW).
+
+    ``family`` (one of :data:`derender.camera.families.FAMILIES`) overrides ``pipeline``,
+    ``style`` and ``tone_curve``: ``"paper"`` and ``"camera"`` give byte for byte the codes of
+    ``style="simple"`` / ``style="camera"`` with ``pipeline="auto"``. Every frame's parameters
+    are in ``frames`` (and ``scene.json``'s ``"frames"``).
     """
+    if family is not None:
+        from derender.camera.families import check_family
+
+        check_family(family)
     if exposures < 1:
         raise InputError("--exposures must be at least 1")
     if isinstance(camera, str):
@@ -142,15 +157,31 @@ def simulate_bracket(
     wb_true = white_balance_for(camera, scene.key_illuminant)
     truth = (cam_per_s * wb_true) @ camera_to_srgb.T
     wb_render = wb_true if wb_preset is None else white_balance_for(camera, wb_preset)
-    settings = pipeline_settings(pipeline, exposures, wb_render, style, rng_pipe, tone_curve)
+    if family is None:
+        settings = pipeline_settings(pipeline, exposures, wb_render, style, rng_pipe, tone_curve)
+        frames = [FrameSettings.from_render_settings(s, wb_true, camera_to_srgb) for s in settings]
+    else:
+        from derender.camera.families import family_settings
+
+        frames = family_settings(family, exposures, rng_pipe, wb_render, wb_true, camera_to_srgb)
+        pipeline = "auto" if family in ("paper", "camera") else family
+        style = frames[0].style
+        tone_curve = False
     signal = mosaic_signal(cam_per_s)
     h, w = scene.shape
     mosaics = np.empty((exposures, h, w), dtype=np.uint16)
     codes = np.empty((exposures, h, w, 3), dtype=np.uint8)
     noise_rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(rng_noise.integers(2**63)).spawn(exposures)]
+    if family is not None:
+        settings = [f.render_settings() if f.style in ("simple", "camera") else f for f in frames]
     for j, t in enumerate(times):
         mosaics[j] = expose_mosaic(signal, camera, float(t), noise_rngs[j] if noise else None)
-        codes[j] = isp_render(mosaics[j], camera, camera_to_srgb, settings[j])
+        if family is None:
+            codes[j] = isp_render(mosaics[j], camera, camera_to_srgb, settings[j])
+        else:
+            rgb = camera_rgb_from_mosaic(mosaics[j], camera)
+            frames[j] = prepare_frame(frames[j], rgb)
+            codes[j] = render_frame(rgb, frames[j])
         if progress is not None:
             progress(j + 1, exposures)
     params = {
@@ -175,14 +206,17 @@ def simulate_bracket(
         "camera_to_linear_srgb": camera_to_srgb.tolist(),
         "wb_as_shot": [float(v) for v in wb_true],
         "wb_preset": wb_preset,
-        "exposures": [asdict(s) | {"exponent": s.exponent} for s in settings],
+        "family": family,
+        "exposures": ([asdict(s) | {"exponent": s.exponent} for s in settings] if family is None
+                      else [settings_to_dict(f) for f in frames]),
+        "frames": [settings_to_dict(f) for f in frames],
         "truth": "linear sRGB (Rec. 709, D65) per second: camera_to_linear_srgb @ (wb_as_shot * camera_rgb), "
                  "noise-free, unclipped",
     }
     return SimulatedBracket(camera=camera, scene=scene, times=times, mosaics=mosaics, jpeg_codes=codes,
                             settings=settings, truth_linear_srgb=truth.astype(np.float32),
                             camera_rgb_per_s=cam_per_s, xyz_to_camera=xyz_to_camera, wb_true=wb_true,
-                            camera_to_srgb=camera_to_srgb, params=params)
+                            camera_to_srgb=camera_to_srgb, params=params, frames=frames, family=family)
 
 
 # --------------------------------------------------------------------------- files
@@ -239,6 +273,20 @@ def load_scene_json(outdir: str | os.PathLike) -> dict:
     if not p.is_file():
         raise InputError(f"no scene.json in {outdir}")
     return json.loads(p.read_text(encoding="utf-8"))
+
+
+def load_frame_settings(outdir: str | os.PathLike | dict) -> list[FrameSettings]:
+    """Every frame's :class:`~derender.camera.stages.FrameSettings` from ``scene.json`` (a folder or
+    its parsed dict): with :func:`derender.camera.stages.render_frame` they re-render the
+    bracket's codes from its mosaics exactly. Older files without ``"frames"`` are read from
+    their ``"exposures"``."""
+    params = outdir if isinstance(outdir, dict) else load_scene_json(outdir)
+    if "frames" in params:
+        return [settings_from_dict(d) for d in params["frames"]]
+    keys = ("wb", "gain", "gamma", "saturation", "style", "tone_curve")
+    return [FrameSettings.from_render_settings(RenderSettings(**{k: e[k] for k in keys if k in e}),
+                                               params["wb_as_shot"], params["camera_to_linear_srgb"])
+            for e in params["exposures"]]
 
 
 def bracket_paths(outdir: str | os.PathLike, kind: str = "jpeg") -> list[Path]:

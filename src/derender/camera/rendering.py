@@ -30,6 +30,8 @@ __all__ = [
     "gamut_compress",
     "demosaic_bilinear",
     "chroma_denoise",
+    "camera_rgb_from_mosaic",
+    "render_style",
     "isp_render",
     "pipeline_settings",
 ]
@@ -154,14 +156,15 @@ def chroma_denoise(rgb: np.ndarray, sigma: float = 1.0) -> np.ndarray:
     return np.clip(lum + chroma, 0.0, 1.0)
 
 
-def isp_render(mosaic: np.ndarray, camera: CameraSpectral, camera_to_srgb: np.ndarray,
-               settings: RenderSettings, pattern: str = CFA_PATTERN) -> np.ndarray:
-    """Render a RAW mosaic to 8-bit sRGB codes (H, W, 3) uint8 as the camera's JPEG engine does."""
+def camera_rgb_from_mosaic(mosaic: np.ndarray, camera: CameraSpectral, pattern: str = CFA_PATTERN) -> np.ndarray:
+    """The JPEG engine's first stages: normalise a RAW mosaic, demosaic, chroma-denoise -> camera RGB in [0, 1]."""
     x = (mosaic.astype(np.float64) - camera.black_level) / (camera.white_level - camera.black_level)
-    rgb = chroma_denoise(np.clip(demosaic_bilinear(x, pattern), 0.0, 1.0))
-    rgb = np.minimum(rgb * np.asarray(settings.wb), 1.0)          # white balance + highlight clip
-    m = settings.gain * saturation_matrix(settings.saturation) @ camera_to_srgb
-    lin = rgb @ m.T                                                # linear sRGB (may leave the gamut)
+    return chroma_denoise(np.clip(demosaic_bilinear(x, pattern), 0.0, 1.0))
+
+
+def render_style(lin: np.ndarray, settings: RenderSettings) -> np.ndarray:
+    """Tone rendering of the ``simple`` or ``camera`` style: linear sRGB (after gain and
+    saturation) -> display values in [0, 1] (before 8-bit rounding)."""
     if settings.style == "simple":
         y = np.clip(lin, 0.0, 1.0) ** settings.exponent
         if settings.tone_curve:
@@ -173,6 +176,17 @@ def isp_render(mosaic: np.ndarray, camera: CameraSpectral, camera_to_srgb: np.nd
         y = encode_gamma_with_toe(filmic_curve(lin), settings.gamma)
     else:
         raise InputError(f"unknown render style {settings.style!r}: use 'simple' or 'camera'")
+    return y
+
+
+def isp_render(mosaic: np.ndarray, camera: CameraSpectral, camera_to_srgb: np.ndarray,
+               settings: RenderSettings, pattern: str = CFA_PATTERN) -> np.ndarray:
+    """Render a RAW mosaic to 8-bit sRGB codes (H, W, 3) uint8 as the camera's JPEG engine does."""
+    rgb = camera_rgb_from_mosaic(mosaic, camera, pattern)
+    rgb = np.minimum(rgb * np.asarray(settings.wb), 1.0)          # white balance + highlight clip
+    m = settings.gain * saturation_matrix(settings.saturation) @ camera_to_srgb
+    lin = rgb @ m.T                                                # linear sRGB (may leave the gamut)
+    y = render_style(lin, settings)
     return np.clip(np.rint(y * 255.0), 0, 255).astype(np.uint8)
 
 

@@ -29,6 +29,17 @@ from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
 
 # --------------------------------------------------------------------------- simulate
+def _render_help() -> str:
+    from derender.camera.families import FAMILIES
+
+    fams = "; ".join(f"{k}: {v}" for k, v in FAMILIES.items())
+    return ("simple (matrix + gamma) | camera (picture style), with --pipeline; or a pipeline family "
+            f"(overrides --pipeline and --tone-curve): {fams}.")
+
+
+RENDER_HELP = _render_help()
+
+
 @app.command()
 def simulate(
     outdir: Path = typer.Argument(..., help="Output folder (raw/, jpeg/, truth.exr, scene.json)."),
@@ -38,7 +49,7 @@ def simulate(
     camera: str = typer.Option("nikon-d5100", "--camera", help="Built-in camera or rawtoaces camera name."),
     camera_file: Optional[Path] = typer.Option(None, "--camera-file", help="rawtoaces camera JSON."),
     pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto (camera changes WB, gain, gamma)."),
-    render: str = typer.Option("camera", "--render", help="simple (matrix + gamma) | camera (picture style)."),
+    render: str = typer.Option("camera", "--render", help=RENDER_HELP),
     scene: str = typer.Option("outdoor", "--scene", help="outdoor | indoor | night."),
     tone_curve: bool = typer.Option(False, "--tone-curve", help="Extra S-shaped tone curve (simple style)."),
     bits: int = typer.Option(14, "--bits", help="ADC bit depth: 12 or 14."),
@@ -49,7 +60,10 @@ def simulate(
 
     w, h = parse_size(size)
     check_choice("--pipeline", pipeline, ("fixed", "auto"))
-    check_choice("--render", render, ("simple", "camera"))
+    from derender.camera.families import FAMILIES
+
+    check_choice("--render", render, ("simple", "camera", *[f for f in FAMILIES if f != "camera"]))
+    family = None if render in ("simple", "camera") else render
     check_choice("--scene", scene, ("outdoor", "indoor", "night"))
     if exposures < 1 or exposures > 64:
         raise InputError("--exposures must be between 1 and 64")
@@ -59,7 +73,8 @@ def simulate(
     with progress() as prog:
         task = prog.add_task("simulating exposures", total=exposures)
         bracket = simulate_bracket(camera=cam, kind=scene, size=(w, h), exposures=exposures, pipeline=pipeline,
-                                   style=render, seed=seed, tone_curve=tone_curve, stops=stops,
+                                   style=render if family is None else "camera", seed=seed,
+                                   tone_curve=tone_curve, stops=stops, family=family,
                                    progress=lambda i, n: prog.update(task, completed=i))
     outdir.mkdir(parents=True, exist_ok=True)
     write_bracket(bracket, outdir)

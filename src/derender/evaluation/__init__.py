@@ -1,6 +1,8 @@
 """Scoring: the PSNR protocol, paper 1 Table 1 on datasets (Dask), paper 2 experiments, response diagnostics.
 
-Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`, :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.table1`.
+Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`,
+:mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
+inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`.
 """
 
 from derender.core.lazy import attach
@@ -12,4 +14,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
     "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage"],
     "demo": ["run_demo"],
+    "oracle": ["oracle_merge", "oracle_merge_bracket"],
+    "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })
