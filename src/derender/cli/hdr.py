@@ -174,7 +174,7 @@ def evaluate(
     result: Path = typer.Argument(..., help="Radiance map to score (.exr or .hdr)."),
     truth: Path = typer.Argument(..., help="Ground truth radiance map (.exr or .hdr)."),
     remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
-    fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale'."),
+    fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale' (both fitted by trimmed least squares), or 'none'."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """PSNR on R, G, B and luminance L (scale fitted per plane; docs/paper1.md), per-pixel relative error
@@ -183,7 +183,7 @@ def evaluate(
     from derender.io.rgbe import read_radiance
 
     check_choice("--remap", remap, ("lstsq", "minmax"))
-    check_choice("--fit", fit, ("matrix", "scale"))
+    check_choice("--fit", fit, ("matrix", "scale", "none"))
     scores = hdr_scores(read_radiance(result), read_radiance(truth), remap=remap, fit=fit)
     if as_json:
         typer.echo(json.dumps({k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}))

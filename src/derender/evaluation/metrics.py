@@ -20,9 +20,20 @@ pixel counts alike are reported beside it:
 * :func:`relative_errors` -- per-pixel relative error ``e_i = ||M r_i - g_i|| / ||g_i||``
   after the 3x3 matrix ``M`` (``fit="matrix"``, default: absorbs white balance and colour
   rendering differences that the per-channel PSNR also forgives) or the one scale ``k I``
-  (``fit="scale"``) minimising ``sum_i ||M r_i - g_i||^2 / ||g_i||^2`` (weighted least
-  squares with weights ``1 / ||g_i||^2``, so each pixel's *relative* error counts alike);
-  the median and the 90th percentile of ``e_i`` over pixels with ``||g_i|| > 0``.
+  (``fit="scale"``) fitted to the relative residuals by *least trimmed squares*: start
+  from the weighted least squares ``min sum_i ||M r_i - g_i||^2 / ||g_i||^2`` (weights
+  ``1 / ||g_i||^2``, so each pixel's *relative* error counts alike), reweight it towards the
+  least mean relative error ``min sum_i e_i`` (:data:`L1_STEPS` steps of iteratively
+  reweighted least squares, weights ``1 / (||g_i||^2 e_i)``) and from fits to random pixel
+  subsets (seeded), then refit on the half of the pixels with the smallest ``e_i`` until
+  that half no longer changes (concentration steps of FAST-LTS, at most
+  :data:`TRIM_STEPS`); report the median and the 90th percentile of ``e_i``
+  over all pixels with ``||g_i|| > 0``. Why trimmed: the plain weighted fit is a squared
+  loss, ruled by the pixels with the largest relative errors (dark, noisy pixels and colour
+  fringes at edges, which no merge recovers); on simulated brackets it moved the oracle
+  that inverts the true pipeline from a median of 0.10 (no fit at all) to 0.44. The trimmed
+  fit gives the oracle 0.08-0.12, its no-fit figure, and so measures what a method gets
+  wrong on the typical pixel. ``fit="none"`` compares ``r`` with ``g`` as they are.
 * :func:`log_psnr` -- PSNR of log10 luminance: ``l = log10(max(L, eps))`` with
   ``eps = 1e-6 max(L_g)``, the result shifted by the mean log offset (its best scale in the
   log domain), ``10 log10(range^2 / MSE)`` with ``range = max(l_g) - min(l_g)`` (the
@@ -50,11 +61,36 @@ __all__ = [
     "psnr",
     "psnr_rgbl",
     "fit_colour_matrix",
+    "TRIM_STEPS",
+    "L1_STEPS",
+    "TRIM_STARTS",
+    "TRIM_SUBSET",
+    "TRIM_SELECT_PIXELS",
+    "TRIM_FIT_PIXELS",
     "relative_errors",
     "log_psnr",
     "hdr_scores",
 ]
 
+
+#: Concentration steps of the trimmed fit in :func:`relative_errors` (it stops earlier when
+#: the kept half no longer changes).
+TRIM_STEPS = 20
+
+#: Reweighting steps towards the least mean relative error that start the trimmed fit.
+L1_STEPS = 10
+
+#: Random starts of the trimmed fit, each a fit to :data:`TRIM_SUBSET` random pixels.
+TRIM_STARTS = 30
+
+#: Pixels per random start of the trimmed fit (a 3x3 needs three).
+TRIM_SUBSET = 4
+
+#: Pixels (a seeded random subset) on which the trimmed fit's starts are compared.
+TRIM_SELECT_PIXELS = 20000
+
+#: Pixels (a seeded random subset) the trimmed fit uses on larger images.
+TRIM_FIT_PIXELS = 200000
 
 #: PSNR reported for a perfect match (MSE = 0), in dB.
 PSNR_CAP = 200.0
@@ -179,19 +215,87 @@ def fit_colour_matrix(result: np.ndarray, truth: np.ndarray, weights: np.ndarray
     return m if np.all(np.isfinite(m)) else np.eye(3)
 
 
+def _trimmed_fit(r: np.ndarray, g: np.ndarray, n2: np.ndarray, fit: str) -> np.ndarray:
+    """Least trimmed squares of the relative residuals (FAST-LTS, Rousseeuw & Van Driessen 2006).
+
+    Candidate starts: the weighted fit, its reweighting towards ``sum_i e_i``, and
+    :data:`TRIM_STARTS` exact fits to :data:`TRIM_SUBSET` random pixels (a 3x3 needs three; a
+    start is clean with probability ``(1 - outliers)^4``). Each takes two concentration steps
+    on at most :data:`TRIM_SELECT_PIXELS` random pixels; the best (lowest median) is then
+    iterated until its kept half is stable. Images of more than :data:`TRIM_FIT_PIXELS` pixels
+    are fitted on a random subset of that many (the errors are then taken over every pixel).
+    The generator has seed 0, so the metric is deterministic."""
+
+    def errors(mm: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.sum((r @ mm.T - g) ** 2, axis=1) / n2)
+
+    rng = np.random.default_rng(0)
+    if r.shape[0] > TRIM_FIT_PIXELS:
+        idx = np.sort(rng.choice(r.shape[0], TRIM_FIT_PIXELS, replace=False))
+        r, g, n2 = r[idx], g[idx], n2[idx]
+
+        def errors(mm: np.ndarray) -> np.ndarray:
+            return np.sqrt(np.sum((r @ mm.T - g) ** 2, axis=1) / n2)
+    w = 1.0 / n2
+    sel = (rng.choice(r.shape[0], TRIM_SELECT_PIXELS, replace=False) if r.shape[0] > TRIM_SELECT_PIXELS
+           else np.arange(r.shape[0]))
+
+    def csteps(m: np.ndarray, rows: np.ndarray | None, steps: int) -> tuple[np.ndarray, np.ndarray]:
+        rr, gg, ww = (r, g, w) if rows is None else (r[rows], g[rows], w[rows])
+
+        def err(mm: np.ndarray) -> np.ndarray:
+            return np.sqrt(np.sum((rr @ mm.T - gg) ** 2, axis=1) * ww)
+
+        e = err(m)
+        keep = None
+        for _ in range(steps):
+            new_keep = e <= np.median(e)
+            if keep is not None and np.array_equal(new_keep, keep):
+                break
+            keep = new_keep
+            m = fit_colour_matrix(rr[keep], gg[keep], ww[keep], fit)
+            e = err(m)
+        return m, e
+
+    starts = [fit_colour_matrix(r, g, w, fit)]
+    m = starts[0]
+    for _ in range(L1_STEPS):
+        m = fit_colour_matrix(r, g, w / np.maximum(errors(m), 1e-6), fit)
+    starts.append(m)
+    if r.shape[0] >= 4 * TRIM_SUBSET:
+        for _ in range(TRIM_STARTS):
+            idx = rng.choice(r.shape[0], TRIM_SUBSET, replace=False)
+            starts.append(fit_colour_matrix(r[idx], g[idx], w[idx], fit))
+    best = min((csteps(m0, sel, 2) for m0 in starts), key=lambda me: float(np.median(me[1])))
+    m, _ = csteps(best[0], None, TRIM_STEPS)
+    return m
+
+
 def relative_errors(result: Any, truth: Any, fit: str = "matrix", mask: np.ndarray | None = None
                     ) -> dict[str, Any]:
     """Median and 90th percentile of ``||M r_i - g_i|| / ||g_i||`` (see the module docstring).
 
-    Returns ``{"median", "p90", "fit", "matrix"}`` (the fitted ``M`` as nested lists)."""
+    ``fit``: ``"matrix"`` (3x3), ``"scale"`` (``k I``), both by the trimmed fit, or ``"none"``
+    (``M = I``). Returns ``{"median", "p90", "fit", "matrix"}`` (``M`` as nested lists)."""
+    if fit not in ("matrix", "scale", "none"):
+        raise InputError(f"fit must be 'matrix', 'scale' or 'none', got {fit!r}")
     r, g = _pixels(result, truth, mask)
+    r, g = r.astype(np.float64), g.astype(np.float64)
     n2 = np.sum(g * g, axis=1)
     ok = n2 > 0
     if not ok.any():
         raise InputError("the ground truth has no non-zero pixel; relative error is undefined")
     r, g, n2 = r[ok], g[ok], n2[ok]
-    m = fit_colour_matrix(r, g, 1.0 / n2, fit)
-    e = np.sqrt(np.sum((r @ m.T - g) ** 2, axis=1) / n2)
+
+    def errors(m: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.sum((r @ m.T - g) ** 2, axis=1) / n2)
+
+    if fit == "none":
+        m = np.eye(3)
+        e = errors(m)
+    else:
+        m = _trimmed_fit(r, g, n2, fit)
+        e = errors(m)
     return {"median": float(np.median(e)), "p90": float(np.percentile(e, 90)), "fit": fit,
             "matrix": m.tolist()}
 
