@@ -74,7 +74,8 @@ class DebevecMethod:
         curves = self.curves
         if curves is None:
             curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, self.lam,
-                                                    self.n_samples, self.sampling, self.seed)
+                                                    self.n_samples, self.sampling, self.seed,
+                                                    balance=self.sampling == "grid")
         self.fitted = curves
         return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
                          weights=weight_table(self.weight), channel_weights=self.channel_weights,
@@ -114,12 +115,47 @@ class RobertsonMethod:
             curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
                                             max_pixels=self.max_pixels, weight=self.weight)
         self.fitted = curves
-        return TablePlan(values=curve_value_tables(curves, access.times, "linear"), weights=weight_table(self.weight),
-                         image_weights=access.times ** 2, channel_weights="independent", domain="linear")
+        return TablePlan(values=curve_value_tables(curves, access.times, "linear"),
+                         weights=robertson_weight_table(curves, self.weight),
+                         channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear")
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "robertson", "curves": self.fitted,
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
+
+
+#: How the ML merge of Robertson shares weights between a pixel's channels (see :func:`merge_robertson`).
+ROBERTSON_CHANNEL_WEIGHTS = "independent"
+
+
+def robertson_weight_table(curves, weight: Any) -> np.ndarray:
+    """(256, 3) float32 weights of the ML merge on 8-bit codes: ``noise_weights`` of ``curves`` at the codes."""
+    from derender.engine.tables import code_values
+    from derender.response.curves import level_weights
+    from derender.response.robertson2003 import noise_weights
+
+    w = noise_weights(curves.log_inverse, level_weights(weight, curves.n_levels))
+    lv = np.linspace(0.0, 1.0, curves.n_levels)
+    z = code_values().astype(np.float64)
+    return np.ascontiguousarray(np.stack([np.interp(z, lv, w[:, c]) for c in range(3)], -1), dtype=np.float32)
+
+
+def _robertson_weight_fn(curves, weight: Any) -> Callable[[int, np.ndarray], np.ndarray]:
+    """``(j, block) -> weights`` of the ML merge for :func:`merge_linear` (any bit depth)."""
+    from derender.response.curves import level_weights
+    from derender.response.robertson2003 import noise_weights
+
+    w = noise_weights(curves.log_inverse, level_weights(weight, curves.n_levels))
+    lv = np.linspace(0.0, 1.0, curves.n_levels)
+
+    def fn(j: int, block: np.ndarray) -> np.ndarray:
+        b = np.clip(np.asarray(block, dtype=np.float64), 0.0, 1.0)
+        out = np.stack([np.interp(b[..., c], lv, w[:, c]) for c in range(3)], -1)
+        if ROBERTSON_CHANNEL_WEIGHTS == "mean":
+            out = np.repeat(out.mean(axis=-1, keepdims=True), 3, axis=-1)
+        return out.astype(np.float32)
+
+    return fn
 
 
 def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
@@ -203,7 +239,8 @@ def merge_debevec(
     from derender.response.debevec1997 import calibrate_debevec
 
     return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
-        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed), weight, block_rows,
+        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid"),
+        weight, block_rows,
         channel_weights=channel_weights, domain=domain)
 
 
@@ -228,6 +265,8 @@ def merge_robertson(
         return res
     from derender.response.robertson2003 import calibrate_robertson
 
-    return _reference_merge(stack, "robertson", curves, lambda: calibrate_robertson(
-        stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed), weight, block_rows,
-        image_weights=stack.times ** 2, domain="linear")
+    if curves is None:
+        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed)
+    return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
+                            weight_fn=_robertson_weight_fn(curves, weight), channel_weights="independent",
+                            domain="linear")
