@@ -7,6 +7,12 @@ estimate ``sum w t I / sum w t^2`` in the linear domain. Both stream: the calibr
 reads the codes of sampled pixels (pass 1), the merge adds one frame at a time (pass 2),
 through 256-entry tables (:class:`~derender.engine.plans.TablePlan`).
 
+Colour balance (issue 16): each channel's curve is known only up to its own offset; the
+merges keep ``g_G(128) = 0`` and offset R and B so that neutral colours stay neutral
+(:func:`derender.response.curves.balance_channels`: the median log difference between
+channels over the near-neutral, well-exposed sampled pixels of every frame, else along
+the grey axis), instead of the paper's ``g(128) = 0`` in every channel.
+
 Stacks whose values are not 8-bit codes (16-bit TIFFs) have no table form: they go to
 the float reference engine (:func:`derender.engine.reference.merge_linear`), which is
 also what the table engine is tested against.
@@ -124,7 +130,8 @@ class RobertsonMethod:
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
 
 
-#: How the ML merge of Robertson shares weights between a pixel's channels (see :func:`merge_robertson`).
+#: How the ML merge of Robertson shares weights between a pixel's channels (see :func:`merge_robertson`):
+#: ``"independent"`` measured 0.3 dB PSNR L above ``"mean"`` on 8 simulator brackets.
 ROBERTSON_CHANNEL_WEIGHTS = "independent"
 
 
@@ -255,7 +262,16 @@ def merge_robertson(
     block_rows: int | None = None,
     engine: str = "auto",
 ) -> HDRResult:
-    """Robertson, Borman & Stevenson (2003): iterative ``f^-1`` and the ML merge ``sum w t I / sum w t^2``.
+    """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
+
+    The curve: :func:`derender.response.robertson2003.calibrate_robertson` (leave-one-out,
+    log-domain update, monotone and smooth, colour-balanced). The merge is Robertson's
+    ``sum w t I / sum w t^2`` with ``w`` the inverse variance of ``I(z)`` under a constant
+    code noise, i.e. every frame's ``I(z_j) / t_j`` weighted by ``w(z_j) / g'(z_j)^2``
+    (:func:`~derender.response.robertson2003.noise_weights`, the same weights as the
+    calibration), each channel with its own weight. The literal ``t^2``-weighted merge let
+    the longest frame's near-clipped codes decide: 33.7 dB PSNR L in ``derender demo``
+    against 47.8 dB now (debevec 47.4).
 
     ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """

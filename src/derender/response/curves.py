@@ -336,12 +336,21 @@ def smooth_log_curve(y: np.ndarray, w: np.ndarray, lam: float) -> np.ndarray:
     Zero-weight levels (never observed, or clipped) are filled by the smoothness term:
     interpolated between observed levels, extended linearly beyond them (no flat steps).
     """
+    from scipy.linalg import solveh_banded
+
     y = np.asarray(y, dtype=np.float64).reshape(-1)
     w = np.asarray(w, dtype=np.float64).reshape(-1)
     n = y.size
-    d = np.diff(np.eye(n), n=2, axis=0)
-    a = np.diag(w) + lam * (d.T @ d)
-    return np.linalg.solve(a + 1e-12 * np.eye(n), w * np.where(w > 0, y, 0.0))
+    # lam D'D (D the second difference, (n-2, n)) + diag(w): symmetric pentadiagonal, upper form
+    ab = np.zeros((3, n))
+    k = np.arange(n - 2)
+    for a_, b_, v in ((0, 0, 1.0), (1, 1, 4.0), (2, 2, 1.0)):
+        np.add.at(ab[2], k + a_, lam * v)
+    np.add.at(ab[1], k + 1, -2.0 * lam)  # (k, k+1) and (k+1, k+2) entries
+    np.add.at(ab[1], k + 2, -2.0 * lam)
+    np.add.at(ab[0], k + 2, lam)  # (k, k+2)
+    ab[2] += w + 1e-12
+    return solveh_banded(ab, w * np.where(w > 0, y, 0.0))
 
 
 def log_slope(g: np.ndarray, floor: float) -> np.ndarray:
