@@ -8,7 +8,11 @@ and each is anchored by ``g(mid) = 0`` with ``mid = n_levels // 2`` (Debevec & M
 three channels are tied by the convention that the mid code ``(128, 128, 128)`` is
 neutral: the radiance map's white balance is that of the camera's rendered grey, and
 the relative scale of R, G, B is otherwise unknown (the paper white-balances
-afterwards; the PSNR protocol fits one scale per channel).
+afterwards; the PSNR protocol fits one scale per channel). The classic merges
+(:mod:`derender.hdr.classic`) instead keep ``g_G(mid) = 0`` and offset R and B so that
+neutral colours stay neutral across the bracket (:func:`balance_channels`: near-neutral,
+well-exposed sampled pixels of every frame come out grey); the calibration functions do so
+with ``balance=True``.
 
 16-bit stacks are reduced to ``n_levels`` by binning: code ``z in [0, 1]`` goes to
 level ``rint(z * (n_levels - 1))`` for calibration; the merge interpolates ``g``
@@ -100,7 +104,8 @@ class ResponseCurves:
     Attributes
     ----------
     log_inverse : numpy.ndarray
-        (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0``.
+        (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0`` (in G
+        only for colour-balanced curves, see :func:`balance_channels`).
     method : str
         ``"debevec"``, ``"robertson"`` or ``"external"``.
     params : dict
