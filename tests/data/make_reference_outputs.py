@@ -25,7 +25,10 @@ the file. Re-recorded so far (issue 15 item 6): ``stabilized-joint`` (its noise 
 flat response-table segments: sim-camera moved by 0.4 %), then ``stabilized``,
 ``stabilized-joint`` and ``stabilized-probabilistic`` (each frame's estimate projected onto the
 non-negative orthant: the pixels that had a negative channel, e.g. 316 of 6144 on sim-camera,
-and on Memorial up to 1.2 % relative where a frame's dark channel went below 0).
+and on Memorial up to 1.2 % relative where a frame's dark channel went below 0); issue 16 items 5-6:
+``debevec`` (curves offset so that neutral colours stay neutral: up to 57 % relative per channel
+on sim-camera) and ``robertson`` (leave-one-out log-domain update, smooth monotone curve, weights
+``w / g'^2``, the same colour balance: a different curve and merge altogether).
 """
 
 from __future__ import annotations

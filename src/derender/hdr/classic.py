@@ -7,6 +7,12 @@ estimate ``sum w t I / sum w t^2`` in the linear domain. Both stream: the calibr
 reads the codes of sampled pixels (pass 1), the merge adds one frame at a time (pass 2),
 through 256-entry tables (:class:`~derender.engine.plans.TablePlan`).
 
+Colour balance (issue 16): each channel's curve is known only up to its own offset; the
+merges keep ``g_G(128) = 0`` and offset R and B so that neutral colours stay neutral
+(:func:`derender.response.curves.balance_channels`: the median log difference between
+channels over the near-neutral, well-exposed sampled pixels of every frame, else along
+the grey axis), instead of the paper's ``g(128) = 0`` in every channel.
+
 Stacks whose values are not 8-bit codes (16-bit TIFFs) have no table form: they go to
 the float reference engine (:func:`derender.engine.reference.merge_linear`), which is
 also what the table engine is tested against.
@@ -74,7 +80,8 @@ class DebevecMethod:
         curves = self.curves
         if curves is None:
             curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, self.lam,
-                                                    self.n_samples, self.sampling, self.seed)
+                                                    self.n_samples, self.sampling, self.seed,
+                                                    balance=self.sampling == "grid")
         self.fitted = curves
         return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
                          weights=weight_table(self.weight), channel_weights=self.channel_weights,
@@ -114,12 +121,48 @@ class RobertsonMethod:
             curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
                                             max_pixels=self.max_pixels, weight=self.weight)
         self.fitted = curves
-        return TablePlan(values=curve_value_tables(curves, access.times, "linear"), weights=weight_table(self.weight),
-                         image_weights=access.times ** 2, channel_weights="independent", domain="linear")
+        return TablePlan(values=curve_value_tables(curves, access.times, "linear"),
+                         weights=robertson_weight_table(curves, self.weight),
+                         channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear")
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "robertson", "curves": self.fitted,
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
+
+
+#: How the ML merge of Robertson shares weights between a pixel's channels (see :func:`merge_robertson`):
+#: ``"independent"`` measured 0.3 dB PSNR L above ``"mean"`` on 8 simulator brackets.
+ROBERTSON_CHANNEL_WEIGHTS = "independent"
+
+
+def robertson_weight_table(curves, weight: Any) -> np.ndarray:
+    """(256, 3) float32 weights of the ML merge on 8-bit codes: ``noise_weights`` of ``curves`` at the codes."""
+    from derender.engine.tables import code_values
+    from derender.response.curves import level_weights
+    from derender.response.robertson2003 import noise_weights
+
+    w = noise_weights(curves.log_inverse, level_weights(weight, curves.n_levels))
+    lv = np.linspace(0.0, 1.0, curves.n_levels)
+    z = code_values().astype(np.float64)
+    return np.ascontiguousarray(np.stack([np.interp(z, lv, w[:, c]) for c in range(3)], -1), dtype=np.float32)
+
+
+def _robertson_weight_fn(curves, weight: Any) -> Callable[[int, np.ndarray], np.ndarray]:
+    """``(j, block) -> weights`` of the ML merge for :func:`merge_linear` (any bit depth)."""
+    from derender.response.curves import level_weights
+    from derender.response.robertson2003 import noise_weights
+
+    w = noise_weights(curves.log_inverse, level_weights(weight, curves.n_levels))
+    lv = np.linspace(0.0, 1.0, curves.n_levels)
+
+    def fn(j: int, block: np.ndarray) -> np.ndarray:
+        b = np.clip(np.asarray(block, dtype=np.float64), 0.0, 1.0)
+        out = np.stack([np.interp(b[..., c], lv, w[:, c]) for c in range(3)], -1)
+        if ROBERTSON_CHANNEL_WEIGHTS == "mean":
+            out = np.repeat(out.mean(axis=-1, keepdims=True), 3, axis=-1)
+        return out.astype(np.float32)
+
+    return fn
 
 
 def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
@@ -203,7 +246,8 @@ def merge_debevec(
     from derender.response.debevec1997 import calibrate_debevec
 
     return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
-        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed), weight, block_rows,
+        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid"),
+        weight, block_rows,
         channel_weights=channel_weights, domain=domain)
 
 
@@ -218,7 +262,16 @@ def merge_robertson(
     block_rows: int | None = None,
     engine: str = "auto",
 ) -> HDRResult:
-    """Robertson, Borman & Stevenson (2003): iterative ``f^-1`` and the ML merge ``sum w t I / sum w t^2``.
+    """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
+
+    The curve: :func:`derender.response.robertson2003.calibrate_robertson` (leave-one-out,
+    log-domain update, monotone and smooth, colour-balanced). The merge is Robertson's
+    ``sum w t I / sum w t^2`` with ``w`` the inverse variance of ``I(z)`` under a constant
+    code noise, i.e. every frame's ``I(z_j) / t_j`` weighted by ``w(z_j) / g'(z_j)^2``
+    (:func:`~derender.response.robertson2003.noise_weights`, the same weights as the
+    calibration), each channel with its own weight. The literal ``t^2``-weighted merge let
+    the longest frame's near-clipped codes decide: 33.7 dB PSNR L in ``derender demo``
+    against 47.8 dB now (debevec 47.4).
 
     ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
@@ -228,6 +281,8 @@ def merge_robertson(
         return res
     from derender.response.robertson2003 import calibrate_robertson
 
-    return _reference_merge(stack, "robertson", curves, lambda: calibrate_robertson(
-        stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed), weight, block_rows,
-        image_weights=stack.times ** 2, domain="linear")
+    if curves is None:
+        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed)
+    return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
+                            weight_fn=_robertson_weight_fn(curves, weight), channel_weights="independent",
+                            domain="linear")

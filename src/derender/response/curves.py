@@ -8,7 +8,11 @@ and each is anchored by ``g(mid) = 0`` with ``mid = n_levels // 2`` (Debevec & M
 three channels are tied by the convention that the mid code ``(128, 128, 128)`` is
 neutral: the radiance map's white balance is that of the camera's rendered grey, and
 the relative scale of R, G, B is otherwise unknown (the paper white-balances
-afterwards; the PSNR protocol fits one scale per channel).
+afterwards; the PSNR protocol fits one scale per channel). The classic merges
+(:mod:`derender.hdr.classic`) instead keep ``g_G(mid) = 0`` and offset R and B so that
+neutral colours stay neutral across the bracket (:func:`balance_channels`: near-neutral,
+well-exposed sampled pixels of every frame come out grey); the calibration functions do so
+with ``balance=True``.
 
 16-bit stacks are reduced to ``n_levels`` by binning: code ``z in [0, 1]`` goes to
 level ``rint(z * (n_levels - 1))`` for calibration; the merge interpolates ``g``
@@ -46,6 +50,11 @@ __all__ = [
     "level_weights",
     "isotonic_increasing",
     "make_monotonic",
+    "isotonic_weighted",
+    "smooth_log_curve",
+    "log_slope",
+    "neutral_offsets",
+    "balance_channels",
     "as_stack",
     "plot_response",
 ]
@@ -95,7 +104,8 @@ class ResponseCurves:
     Attributes
     ----------
     log_inverse : numpy.ndarray
-        (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0``.
+        (n_levels, 3) float64, ``g = ln f^-1`` (natural log), ``g[n_levels // 2] = 0`` (in G
+        only for colour-balanced curves, see :func:`balance_channels`).
     method : str
         ``"debevec"``, ``"robertson"`` or ``"external"``.
     params : dict
@@ -294,6 +304,109 @@ def make_monotonic(g: np.ndarray) -> np.ndarray:
         col = g[:, c] if np.all(np.diff(g[:, c]) >= 0) else isotonic_increasing(g[:, c])
         out[:, c] = col - col[mid]
     return out
+
+
+def isotonic_weighted(y: np.ndarray, w: np.ndarray, min_step: float = 0.0) -> np.ndarray:
+    """Weighted least-squares fit to ``y`` with steps ``fit[k+1] - fit[k] >= min_step`` (pool-adjacent-violators).
+
+    Weights ``w >= 0`` (a zero-weight point takes its block's value); ``min_step = 0`` is
+    the plain non-decreasing fit. Solved as the isotonic fit of ``y - min_step * k`` plus
+    ``min_step * k``.
+    """
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    w = np.maximum(np.asarray(w, dtype=np.float64).reshape(-1), 0.0) + 1e-12
+    ramp = float(min_step) * np.arange(y.size)
+    v = y - ramp
+    vals: list[float] = []
+    wts: list[float] = []
+    counts: list[int] = []
+    for yi, wi in zip(v, w):
+        vals.append(float(yi))
+        wts.append(float(wi))
+        counts.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            ws = wts[-2] + wts[-1]
+            vals[-2] = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / ws
+            wts[-2] = ws
+            counts[-2] += counts[-1]
+            vals.pop()
+            wts.pop()
+            counts.pop()
+    return np.repeat(np.asarray(vals), counts) + ramp
+
+
+def smooth_log_curve(y: np.ndarray, w: np.ndarray, lam: float) -> np.ndarray:
+    """Whittaker smoother: ``argmin_g sum_z w(z) (g(z) - y(z))^2 + lam sum_z g''(z)^2``, 1-D.
+
+    Zero-weight levels (never observed, or clipped) are filled by the smoothness term:
+    interpolated between observed levels, extended linearly beyond them (no flat steps).
+    """
+    from scipy.linalg import solveh_banded
+
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    w = np.asarray(w, dtype=np.float64).reshape(-1)
+    n = y.size
+    # lam D'D (D the second difference, (n-2, n)) + diag(w): symmetric pentadiagonal, upper form
+    ab = np.zeros((3, n))
+    k = np.arange(n - 2)
+    for a_, b_, v in ((0, 0, 1.0), (1, 1, 4.0), (2, 2, 1.0)):
+        np.add.at(ab[2], k + a_, lam * v)
+    np.add.at(ab[1], k + 1, -2.0 * lam)  # (k, k+1) and (k+1, k+2) entries
+    np.add.at(ab[1], k + 2, -2.0 * lam)
+    np.add.at(ab[0], k + 2, lam)  # (k, k+2)
+    ab[2] += w + 1e-12
+    return solveh_banded(ab, w * np.where(w > 0, y, 0.0))
+
+
+def log_slope(g: np.ndarray, floor: float) -> np.ndarray:
+    """``g'(z)`` per level (central differences, one-sided at the ends), at least ``floor``; same shape as ``g``."""
+    return np.maximum(np.gradient(np.asarray(g, dtype=np.float64), axis=0), floor)
+
+
+#: Codes within this many levels of each other count as a neutral (grey) colour.
+NEUTRAL_TOLERANCE = 8
+#: Fewest neutral observations for :func:`neutral_offsets` to use them (else the grey axis).
+NEUTRAL_MIN_COUNT = 16
+
+
+def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_weight: float = 0.25,
+                    tolerance: int = NEUTRAL_TOLERANCE, min_count: int = NEUTRAL_MIN_COUNT) -> tuple[np.ndarray, dict]:
+    """Per-channel log offsets ``o`` (``o[G] = 0``) that keep neutral colours neutral: ``g_c + o_c``.
+
+    ``codes`` (N, P, 3) int: the sampled pixels of every frame (all three channels at the
+    same pixel). A camera renders neutral surfaces with equal codes (that is what its white
+    balance does), so the recovered log exposures of such a pixel should be equal:
+    ``o_c = median(g_G(z_G) - g_c(z_c))`` over the *near-neutral, well-exposed*
+    observations (all codes within ``tolerance`` of each other, every channel's weight at
+    least ``min_weight``). With fewer than ``min_count`` of them, over the *grey axis*
+    instead: ``median(g_G(z) - g_c(z))`` over the well-exposed green codes ``z`` of every
+    observation (equal codes taken as neutral). Returns ``(o (3,), info)``.
+    """
+    g = np.asarray(g, dtype=np.float64)
+    n_levels = g.shape[0]
+    z = np.asarray(codes).reshape(-1, 3).astype(np.int64)
+    wl = level_weights(weights, n_levels)
+    ok = (wl[z] >= min_weight).all(axis=1)
+    neutral = ok & (np.abs(z - z[:, 1:2]).max(axis=1) <= tolerance)
+    off = np.zeros(3)
+    if int(neutral.sum()) >= min_count:
+        zn = z[neutral]
+        for c in (0, 2):
+            off[c] = float(np.median(g[zn[:, 1], 1] - g[zn[:, c], c]))
+        return off, {"balance": "neutral", "neutral_count": int(neutral.sum())}
+    zg = z[wl[z[:, 1]] >= min_weight, 1]
+    if zg.size == 0:
+        return off, {"balance": "none", "neutral_count": int(neutral.sum())}
+    for c in (0, 2):
+        off[c] = float(np.median(g[zg, 1] - g[zg, c]))
+    return off, {"balance": "grey-axis", "neutral_count": int(neutral.sum())}
+
+
+def balance_channels(g: np.ndarray, codes: np.ndarray, weights: Any = "hat") -> tuple[np.ndarray, dict]:
+    """``g + o`` with the :func:`neutral_offsets` ``o`` of ``codes``; info gains ``channel_offsets``."""
+    off, info = neutral_offsets(g, codes, weights)
+    info["channel_offsets"] = [float(v) for v in off]
+    return np.asarray(g, dtype=np.float64) + off[None, :], info
 
 
 def as_stack(stack: Any) -> Stack:

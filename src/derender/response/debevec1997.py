@@ -21,6 +21,7 @@ from derender.response.curves import (
     DEFAULT_SAMPLES,
     ResponseCurves,
     as_stack,
+    balance_channels,
     check_usable,
     histogram_samples,
     level_weights,
@@ -36,8 +37,13 @@ __all__ = [
 
 
 def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray],
-                            lam: float, n_samples: int, sampling: str, seed: int):
-    """:func:`derender.response.calibrate_debevec` (hat weights, monotonic) from pre-drawn samples."""
+                            lam: float, n_samples: int, sampling: str, seed: int, balance: bool = False):
+    """:func:`derender.response.calibrate_debevec` (hat weights, monotonic) from pre-drawn samples.
+
+    ``balance``: offset R and B so that neutral colours stay neutral
+    (:func:`~derender.response.curves.balance_channels` on ``samples``; needs grid samples:
+    every channel of a sample from the same pixel).
+    """
     from derender.response.curves import ResponseCurves, make_monotonic
 
     if lam < 0 or not np.isfinite(lam):
@@ -55,6 +61,9 @@ def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists
     g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
               "weights": "hat", "monotonic_fixed": fixed}
+    if balance:
+        g, info = balance_channels(g, samples)
+        params.update(info)
     return ResponseCurves(log_inverse=g, method="debevec", params=params)
 
 
@@ -119,7 +128,7 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
 
 def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
                       sampling: str = "grid", seed: int = 0, weights: Any = "hat", n_levels: int = 256,
-                      monotonic: bool = True) -> ResponseCurves:
+                      monotonic: bool = True, balance: bool = False) -> ResponseCurves:
     """Recover ``g = ln f^-1`` per channel with :func:`solve_debevec` (Debevec & Malik 1997).
 
     Samples by :func:`sample_pixels`; channels solved independently, each with
@@ -128,6 +137,12 @@ def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int 
     isotonic (pool-adjacent-violators) least-squares fit, so ``g`` is non-decreasing;
     ``params["monotonic_fixed"]`` says per channel whether that was needed. If a
     grid sample misses every usable code of a channel, histogram samples are added.
+
+    ``balance=False`` keeps the paper's ``g(mid) = 0`` in every channel (mid-grey codes
+    neutral). ``balance=True`` (what :func:`derender.hdr.classic.merge_debevec` uses) then
+    offsets R and B by :func:`~derender.response.curves.balance_channels` so that the
+    near-neutral, well-exposed sampled pixels of the bracket come out neutral
+    (``g_G(mid) = 0`` stays; ``params["channel_offsets"]`` says by how much).
     """
     stack = as_stack(stack)
     if lam < 0 or not np.isfinite(lam):
@@ -148,4 +163,7 @@ def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int 
         g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
               "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed}
+    if balance:
+        g, info = balance_channels(g, samples)
+        params.update(info)
     return ResponseCurves(log_inverse=g, method="debevec", params=params)

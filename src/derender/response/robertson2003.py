@@ -1,9 +1,42 @@
-"""Response recovery of Robertson, Borman & Stevenson (2003), "Estimation-theoretic approach to dynamic range enhancement using multiple exposures".
+"""Response recovery of Robertson, Borman & Stevenson (2003), "Estimation-theoretic approach to dynamic range enhancement using multiple exposures", made robust.
 
-Alternates the ML radiance ``E_i = sum_j w_ij t_j I(Z_ij) / sum_j w_ij t_j^2`` and the
-response ``I(m) = mean of E_i t_j over the pixels with code m`` until the change falls
-below ``tol``, with the Gaussian-like weight ``exp(-16 (z - 1/2)^2)``; normalised so
-that ``I(128) = 1`` per channel.
+Robertson et al. alternate the ML radiance ``E_i = sum_j w_ij t_j I(Z_ij) / sum_j w_ij
+t_j^2`` and the response ``I(m) = mean of t_j E_i over the observations with code m``.
+Taken literally (as OpenCV's ``CalibrateRobertson`` does) this is ill-posed on 8-bit
+camera JPEGs: nothing ties neighbouring codes together, so the curve comes out as a
+staircase (isotonic repairs of a noisy ``I(m)``: 100+ flat steps on simulator brackets,
+visible contour rings on a 3-frame bracket), and the ``t_j^2`` weights let the longest
+frame's near-clipped codes decide every pixel (-12 to -15 dB PSNR L against Debevec on
+simulator brackets). What is computed here (issue 16):
+
+1. **Leave-one-out radiance.** Observation ``(i, j)`` is compared with ``E_i`` estimated
+   from the *other* frames; with its own frame included, a code whose weight dominates
+   confirms whatever ``I(m)`` it had (a self-consistent flat step).
+2. **Update in the log domain.** ``g(m) = ln I(m)`` is the mean of ``ln(t_j E_i)`` over the
+   observations of code ``m`` (a geometric mean: ``E_i`` from a frame stops away has
+   multiplicative errors, whose arithmetic mean is biased upwards).
+3. **Monotone and smooth.** Each iteration projects ``g`` onto the curves rising by at
+   least :data:`MIN_STEP` per code (weighted pool-adjacent-violators), then applies a
+   Whittaker smoother (``lambda`` :data:`ROBERTSON_LAMBDA` on the second difference, data
+   weighted by the base weight times the number of observations), which also fills codes
+   that no pixel hits and extends the curve past the clipped ends; then the projection
+   again: ``g`` is strictly increasing, without flat steps.
+4. **Started from Debevec & Malik's least squares** on a subset of the pixels
+   (:func:`_start_curve`): from a linear or gamma start the iteration needs hundreds of
+   rounds on a 3-frame bracket; from this start 30 suffice.
+5. **Weights consistent with the curve.** A constant noise on the codes gives ``I(z)``
+   the variance ``sigma^2 (I(z) g'(z))^2``, so Robertson's ML estimate weights each frame's
+   ``I(z_j) / t_j`` by ``w(z_j) / g'(z_j)^2`` (:func:`noise_weights`; ``w`` the Gaussian-like
+   weight, zero at black and clipped codes). Calibration and the merge
+   (:func:`derender.hdr.classic.merge_robertson`) use the same weights.
+6. **Colour balance.** The per-channel curves are offset so that neutral colours stay
+   neutral (:func:`derender.response.curves.balance_channels`): ``g_G(128) = 0``, R and B
+   shifted so that near-neutral, well-exposed sampled pixels come out grey.
+
+Measured (simulator, 8 brackets outdoor/indoor x simple/camera x seeds 0-1, 192x128, 7
+exposures, PSNR L vs truth): literal Robertson 27.1 dB (OpenCV's 27.0), this one 42.4 dB,
+Debevec 42.4 dB (per bracket -2.4 to +2.5 dB from Debevec). Real brackets: no flat step
+between codes 30 and 225 (literal: 101-124 of 196 on Frobisher, up to 58 on the iPhone).
 """
 
 from __future__ import annotations
@@ -16,12 +49,16 @@ from derender.core.errors import StackError
 from derender.core.types import Stack
 from derender.response.curves import (
     CHANNELS,
+    DEFAULT_LAMBDA,
     ResponseCurves,
     as_stack,
     check_usable,
+    balance_channels,
     grid_positions,
+    isotonic_weighted,
     level_weights,
     make_monotonic,
+    smooth_log_curve,
     to_codes,
 )
 
@@ -29,21 +66,24 @@ __all__ = [
     "calibrate_robertson",
     "robertson_positions",
     "robertson_from_samples",
+    "noise_weights",
+    "ROBERTSON_LAMBDA",
 ]
 
 
 # --------------------------------------------------------------------------- Robertson
 def calibrate_robertson(stack: Stack, n_iter: int = 30, tol: float = 1e-6, max_pixels: int = 40_000,
-                        weight: Any = "gaussian", n_levels: int = 256, seed: int = 0) -> ResponseCurves:
-    """Iterative response recovery of Robertson, Borman & Stevenson (1999; JEI 2003, Sec. 3).
+                        weight: Any = "gaussian", n_levels: int = 256, seed: int = 0,
+                        lam: float | None = None, balance: bool = True) -> ResponseCurves:
+    """Iterative response recovery of Robertson, Borman & Stevenson (1999; JEI 2003, Sec. 3), made robust.
 
-    Alternates the maximum-likelihood radiance ``E_i = sum_j w_ij t_j I(z_ij) /
-    sum_j w_ij t_j^2`` with ``I(m) = mean of t_j E_i over all (i, j) with z_ij = m``,
-    normalising ``I(mid) = 1``; starts from the linear ``I(m) = m / mid``; stops after
-    ``n_iter`` iterations or when the mean squared change of ``I`` drops below ``tol``.
-    Uses at most ``max_pixels`` pixels (a regular grid). Levels never observed are
-    interpolated in ``I``; the result is made non-decreasing in ``ln I`` like
-    :func:`calibrate_debevec`.
+    Alternates the leave-one-out ML radiance with the log-domain update of ``g = ln I``,
+    each followed by the monotone projection and smoothing of the module docstring; starts
+    from a gamma-2.2 curve; stops after ``n_iter`` iterations or when ``g`` changes by less
+    than ``tol`` (max over usable codes). ``g_G(mid) = 0``; with ``balance`` (default) R
+    and B are offset so that neutral colours stay neutral, else ``g_c(mid) = 0`` per
+    channel. Uses at most ``max_pixels`` pixels (a regular grid). ``lam`` is the smoothing
+    weight. The result is strictly increasing.
     """
     stack = as_stack(stack)
     check_usable(stack, n_levels)
@@ -51,7 +91,8 @@ def calibrate_robertson(stack: Stack, n_iter: int = 30, tol: float = 1e-6, max_p
     ys, xs = robertson_positions(h, w_, max_pixels, seed)
     z = to_codes(stack.images[:, ys, xs, :], n_levels)  # (N, P, 3)
     return robertson_from_samples(z, stack.times, n_iter=n_iter, tol=tol, max_pixels=max_pixels, weight=weight,
-                                  n_levels=n_levels)
+                                  n_levels=n_levels, lam=ROBERTSON_LAMBDA if lam is None else lam,
+                                  balance=balance)
 
 
 def robertson_positions(h: int, w: int, max_pixels: int = 40_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -59,57 +100,126 @@ def robertson_positions(h: int, w: int, max_pixels: int = 40_000, seed: int = 0)
     return grid_positions(h, w, min(int(max_pixels), h * w), seed, border=0.0)
 
 
+#: Smoothness weight of the per-iteration Whittaker smoothing of ``g`` (data weights normalised to mean 1).
+ROBERTSON_LAMBDA = 30.0
+#: Smallest step of ``g`` between neighbouring codes (natural log): strictly increasing, no flat steps.
+MIN_STEP = 1e-3
+#: Code noise (levels) of the weights' noise model: ``g'`` is the secant over +- this many codes.
+NOISE_CODES = 6
+#: Floor of ``g'`` in the weights, relative to its median over the well-weighted codes (base weight > 1/2).
+RELATIVE_SLOPE_FLOOR = 0.5
+#: Absolute floor of the log slope ``g'`` (per code) in the noise model of the weights.
+MIN_LOG_SLOPE = 4e-3
+
+
+def noise_weights(g: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """(n_levels, 3) weights of the ML merge: ``base(z) / g'(z)^2``, normalised to a peak of 1 per channel.
+
+    Robertson's estimator ``E = sum_j w_j t_j I(z_j) / sum_j w_j t_j^2`` is maximum
+    likelihood when ``w_j`` is the inverse variance of ``I(z_j)``. With a constant noise
+    ``sigma`` on the codes (read noise, quantisation), ``var I(z) = sigma^2 I'(z)^2 =
+    sigma^2 (I(z) g'(z))^2``; since ``I(z_j) ~ t_j E`` this makes every frame's estimate
+    ``I(z_j) / t_j`` count with ``1 / (E^2 g'(z_j)^2)``, and the common ``E^2`` cancels.
+    ``base`` (the Gaussian-like weight, 0 at black and clipped codes) tapers the ends.
+
+    ``g'`` is the secant over +- :data:`NOISE_CODES` codes (the code noise of a JPEG spans
+    several levels, and a one-code slope of a wiggly real curve, e.g. the iPhone's, swings
+    the weights 100-fold between neighbouring codes: seams in smooth skies), floored at
+    :data:`RELATIVE_SLOPE_FLOOR` times its median over the well-weighted codes and at
+    :data:`MIN_LOG_SLOPE`.
+    """
+    n = g.shape[0]
+    hi = np.minimum(np.arange(n) + NOISE_CODES, n - 1)
+    lo = np.maximum(np.arange(n) - NOISE_CODES, 0)
+    s = (g[hi] - g[lo]) / (hi - lo)[:, None]
+    core = base > 0.5
+    if core.any():
+        s = np.maximum(s, RELATIVE_SLOPE_FLOOR * np.median(s[core], axis=0))
+    s = np.maximum(s, MIN_LOG_SLOPE)
+    w = base[:, None] / (s * s)
+    peak = w.max(axis=0)
+    return w / np.where(peak > 0, peak, 1.0)
+
+
+#: Pixels of the Debevec least-squares solve that starts the iteration.
+START_SAMPLES = 1000
+
+
+def _start_curve(z: np.ndarray, times: np.ndarray, n_levels: int) -> np.ndarray:
+    """Starting curve: Debevec & Malik's least squares on up to :data:`START_SAMPLES` of the pixels.
+
+    Robertson's iteration converges slowly from a linear or gamma start when frames are
+    stops apart (hundreds of iterations on a 3-frame bracket: each iteration propagates
+    the curve by one frame ratio); from this start 30 iterations suffice.
+    """
+    from derender.response.debevec1997 import solve_debevec
+
+    p = z.shape[1]
+    idx = np.linspace(0, p - 1, min(p, START_SAMPLES)).astype(np.int64)
+    log_t = np.log(times)
+    g = np.empty((n_levels, 3))
+    for c in range(3):
+        g[:, c], _ = solve_debevec(z[:, idx, c], log_t, lam=DEFAULT_LAMBDA, weights="hat", n_levels=n_levels)
+    return make_monotonic(g)
+
+
 def robertson_from_samples(z: np.ndarray, times: np.ndarray, n_iter: int = 30, tol: float = 1e-6,
-                           max_pixels: int = 40_000, weight: Any = "gaussian", n_levels: int = 256) -> ResponseCurves:
+                           max_pixels: int = 40_000, weight: Any = "gaussian", n_levels: int = 256,
+                           lam: float = ROBERTSON_LAMBDA, balance: bool = True) -> ResponseCurves:
     """:func:`calibrate_robertson` on sampled codes ``z`` (N, P, 3) int of a bracket with ``times`` (s)."""
     times = np.asarray(times, dtype=np.float64)
-    wl = level_weights(weight, n_levels)
+    z = np.asarray(z).astype(np.int64)
+    base = level_weights(weight, n_levels)
     t = times[:, None, None]
-    wz = wl[z]
-    wt = wz * t  # (N, P, 3)
-    den = (wz * t * t).sum(axis=0)  # (P, 3), constant over iterations
-    live = den > 0
-    inv_den = np.where(live, 1.0 / np.where(live, den, 1.0), 0.0)
+    log_t = np.log(times)[:, None, None]
     flat = (z * 3 + np.arange(3)).ravel()  # level-major index into the (n_levels, 3) table
-    live_obs = np.broadcast_to(live, z.shape).ravel().astype(np.float64)
-    card = np.bincount(flat, weights=live_obs, minlength=3 * n_levels).reshape(n_levels, 3)
-    seen = card > 0
+    card = np.bincount(flat, minlength=3 * n_levels).reshape(n_levels, 3).astype(np.float64)
     for c in range(3):
-        if not np.any(seen[:, c]):
+        if not np.any((card[:, c] > 0) & (base > 0)):
             raise StackError(f"channel {CHANNELS[c]} has no usable pixel; cannot recover its response")
     mid = n_levels // 2
-    inv = np.repeat((np.arange(n_levels, dtype=np.float64) / mid)[:, None], 3, axis=1)
-    levels = np.arange(n_levels)
+    g = _start_curve(z, times, n_levels)
     iters = 0
     for iters in range(1, int(n_iter) + 1):
-        e = (wt * inv.ravel()[flat].reshape(z.shape)).sum(axis=0) * inv_den  # (P, 3) ML radiance
-        te = (t * e[None]).ravel() * live_obs
-        tot = np.bincount(flat, weights=te, minlength=3 * n_levels).reshape(n_levels, 3)
-        new = np.empty_like(inv)
+        wtab = noise_weights(g, base)
+        wz = wtab.ravel()[flat].reshape(z.shape)  # (N, P, 3)
+        x = g.ravel()[flat].reshape(z.shape) - log_t  # ln of each frame's radiance estimate
+        wx = wz * np.exp(x)
+        # leave-one-out ML radiance: observation (i, j) is compared with E_i of the *other* frames
+        # (with its own frame in E_i, a code whose weight dominates would confirm any I(m))
+        den = wz.sum(axis=0)[None] - wz
+        num = wx.sum(axis=0)[None] - wx
+        live_obs = (den > 1e-6 * wtab.max()).ravel()
+        e = num / np.where(den > 0, den, 1.0)
+        te = (t * e).ravel()
+        live_obs &= te > 0  # Robertson's update I(m) = mean of t_j E_i over the observations of code m,
+        # taken in the log domain (geometric mean: a leave-one-out E_i from a frame stops away has
+        # multiplicative errors, and their arithmetic mean is biased upwards at dark codes)
+        te = np.log(np.maximum(te, 1e-300))
+        fl = flat[live_obs]
+        tot = np.bincount(fl, weights=te[live_obs], minlength=3 * n_levels).reshape(n_levels, 3)
+        cnt = np.bincount(fl, minlength=3 * n_levels).reshape(n_levels, 3).astype(np.float64)
+        new = np.empty_like(g)
         for c in range(3):
-            sc = seen[:, c]
-            new[:, c] = np.interp(levels, levels[sc], tot[sc, c] / card[sc, c])
-            if new[mid, c] <= 0:
-                raise StackError(f"channel {CHANNELS[c]}: degenerate response (mid-grey maps to zero)")
-            new[:, c] /= new[mid, c]
-        change = float(np.mean((new - inv) ** 2))
-        inv = new
+            ok = (cnt[:, c] > 0) & (base > 0)
+            if not ok.any():  # no frame overlaps another (a single exposure): keep the start
+                new[:, c] = g[:, c]
+                continue
+            y = np.zeros(n_levels)
+            y[ok] = tot[ok, c] / cnt[ok, c]
+            q = np.where(ok, base * cnt[:, c], 0.0)
+            q /= q[ok].mean()
+            mono = isotonic_weighted(y, q, MIN_STEP)  # monotone projection of the data, then smooth
+            col = smooth_log_curve(np.where(ok, mono, 0.0), q, lam)
+            col = isotonic_weighted(col, np.ones(n_levels), MIN_STEP)
+            new[:, c] = col - col[mid]
+        change = float(np.max(np.abs(new - g)[base > 0]))
+        g = new
         if change < tol:
             break
-    positive = inv[inv > 0]
-    floor = positive.min() * 0.5 if positive.size else 1e-6
-    g = np.log(np.maximum(inv, floor))
-    # Levels of zero weight (the clipped ends) carry no information in Robertson's update
-    # (I(255) is the mean of t E over clipped pixels, i.e. anything above saturation): extend
-    # g linearly from the two nearest weighted levels instead, like Debevec's smooth ends.
-    nz = np.flatnonzero(wl > 0)
-    if nz.size >= 2:
-        lo, hi = int(nz[0]), int(nz[-1])
-        if lo > 0:
-            g[:lo] = g[lo] + (np.arange(lo) - lo)[:, None] * (g[lo + 1] - g[lo])
-        if hi < n_levels - 1:
-            g[hi + 1:] = g[hi] + (np.arange(hi + 1, n_levels) - hi)[:, None] * (g[hi] - g[hi - 1])
-    g = make_monotonic(g)
-    return ResponseCurves(log_inverse=g, method="robertson",
-                          params={"iterations": iters, "max_pixels": int(max_pixels),
-                                  "weight": weight if isinstance(weight, str) else "custom"})
+    params = {"iterations": iters, "max_pixels": int(max_pixels), "lambda": float(lam),
+              "weight": weight if isinstance(weight, str) else "custom", "merge_weights": "base / g'^2"}
+    if balance:
+        g, info = balance_channels(g, z)
+        params.update(info)
+    return ResponseCurves(log_inverse=g, method="robertson", params=params)
