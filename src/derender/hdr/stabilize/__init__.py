@@ -60,6 +60,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "pair_fit": ["RIDGE", "predict_codes", "pair_weights", "fit_pair", "effective_codes", "pair_cost", "pair_residuals", "pair_costs_power"],
     "reference": ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fractions", "select_reference", "reasonable_references"],
     "saturation": ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO",
-                   "HIDDEN_FRACTION", "hidden_saturation", "hidden_fraction", "saturation_mask"],
+                   "HIDDEN_FRACTION", "hidden_saturation", "hidden_fraction", "saturation_fraction",
+                   "saturation_mask"],
     "solvers": ["minimize_bounded", "bounded_minimizer", "drive", "find_root"],
 })

@@ -34,7 +34,7 @@ from derender.hdr.stabilize.filmic import (
     unclipped_debevec,
 )
 from derender.hdr.stabilize.reference import select_reference
-from derender.hdr.stabilize.saturation import saturation_mask
+from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
@@ -166,13 +166,13 @@ class ShiftedValid:
 
 
 class _CodeFrames:
-    """Aligned frames of a :class:`ShiftedFrames` as float codes in [0, 1], one at a time."""
+    """Aligned uint8 frames of a :class:`ShiftedFrames`, one at a time."""
 
-    def __init__(self, view: ShiftedFrames, n: int):
-        self.view, self.n = view, n
+    def __init__(self, view: ShiftedFrames):
+        self.view = view
 
     def __getitem__(self, j: int) -> np.ndarray:
-        return code_values()[self.view.codes(j)]
+        return self.view.codes(j)
 
 
 @dataclass
@@ -247,8 +247,7 @@ class StabilizedMethod:
             transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         shifts = transforms_to_shifts(transforms)
         view = ShiftedFrames(frames, shifts)
-        hidden, _ = saturation_mask(_CodeFrames(view, n), t)
-        if hidden is not None:   # a per-pixel mask: the in-memory path applies it
+        if saturation_fraction(_CodeFrames(view), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
             raise NotStreamable("saturation below white (stabilize.saturation)")
         al = LazyAlignment(images=view, valid=view.valid_view, transforms=transforms, method=self.align,
                            reference=ref, shifts=shifts, info=ainfo)

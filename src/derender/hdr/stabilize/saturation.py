@@ -37,7 +37,7 @@ from derender.hdr.stabilize.blocks import FIT_HIGH
 from derender.hdr.stabilize.reference import REF_HIGH
 
 __all__ = ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO", "HIDDEN_FRACTION",
-           "hidden_saturation", "hidden_fraction", "saturation_mask"]
+           "hidden_saturation", "hidden_fraction", "saturation_fraction", "saturation_mask"]
 
 #: A channel "grows" from one frame to the next if its code rises by more than this many code steps.
 STAGNATION_CODES = 2.0
@@ -63,26 +63,42 @@ STAGNATION_RATIO = 1.5
 HIDDEN_FRACTION = 0.15
 
 
+def _scan(images: Any, times: Sequence[float], keep: bool) -> tuple[np.ndarray | None, float]:
+    """One pass over the bracket holding two frames at a time: the (N, H, W) mask (if ``keep``)
+    and its :func:`hidden_fraction`. ``images[j]``: a float frame in [0, 1] or uint8 codes."""
+    t = np.asarray(times, dtype=np.float64)
+    n = t.shape[0]
+    nxt = np.asarray(images[0])
+    h, w = nxt.shape[:2]
+    out = np.zeros((n, h, w), dtype=bool) if keep else None
+    cum = np.zeros((h, w), dtype=bool)            # flagged in some frame up to the current one
+    best = 0.0
+    for k in range(n):
+        a = nxt
+        if k + 1 < n:
+            nxt = np.asarray(images[k + 1])
+            if t[k + 1] >= STAGNATION_RATIO * t[k]:
+                if a.dtype == np.uint8:       # the same tests on codes
+                    lo, hi = STAGNATION_FLOOR * 255.0, STAGNATION_CEILING * 255.0
+                    ai = a.astype(np.int16)
+                    flat = (ai > lo) & (ai < hi) & (nxt.astype(np.int16) <= ai + int(STAGNATION_CODES))
+                else:
+                    step = np.float32(STAGNATION_CODES / 255.0)
+                    flat = (a > STAGNATION_FLOOR) & (a < STAGNATION_CEILING) & (nxt <= a + step)
+                cum |= flat.any(axis=-1)
+        if keep:
+            out[k] = cum
+        top = FIT_HIGH * 255.0 if a.dtype == np.uint8 else FIT_HIGH
+        best = max(best, float((cum & (a.max(axis=-1) < top)).mean()))
+    return out, best
+
+
 def hidden_saturation(images: Any, times: Sequence[float]) -> np.ndarray:
     """(N, H, W) bool: pixels of each frame that are saturated though their codes are below
     white (see the module docstring). ``images``: (N, H, W, 3) aligned frames in [0, 1]
-    (anything whose ``images[j]`` is one frame), sorted by exposure time."""
-    t = np.asarray(times, dtype=np.float64)
-    n = t.shape[0]
-    frames = [np.asarray(images[j], dtype=np.float32) for j in range(n)]
-    h, w = frames[0].shape[:2]
-    out = np.zeros((n, h, w), dtype=bool)
-    step = np.float32(STAGNATION_CODES / 255.0)
-    for k in range(1, n):
-        if t[k] < STAGNATION_RATIO * t[k - 1]:
-            continue
-        a, b = frames[k - 1], frames[k]
-        test = (a > STAGNATION_FLOOR) & (a < STAGNATION_CEILING)
-        flat = test & (b <= a + step)
-        out[k - 1] |= flat.any(axis=-1)
-    # once saturated, saturated in every longer exposure
-    np.logical_or.accumulate(out, axis=0, out=out)
-    return out
+    (anything whose ``images[j]`` is one frame, read two at a time; uint8 codes too),
+    sorted by exposure time."""
+    return _scan(images, times, True)[0]
 
 
 def hidden_fraction(mask: np.ndarray, images: Any, high: float = FIT_HIGH) -> float:
@@ -95,9 +111,13 @@ def hidden_fraction(mask: np.ndarray, images: Any, high: float = FIT_HIGH) -> fl
     return best
 
 
+def saturation_fraction(images: Any, times: Sequence[float]) -> float:
+    """:func:`hidden_fraction` of :func:`hidden_saturation` without keeping the mask (two frames in memory)."""
+    return _scan(images, times, False)[1]
+
+
 def saturation_mask(images: Any, times: Sequence[float]) -> tuple[np.ndarray | None, float]:
     """:func:`hidden_saturation` of aligned ``images`` and its :func:`hidden_fraction`; the mask
     is None when the fraction does not exceed :data:`HIDDEN_FRACTION` (the merge ignores it)."""
-    mask = hidden_saturation(images, times)
-    frac = hidden_fraction(mask, images)
+    mask, frac = _scan(images, times, True)
     return (mask if frac > HIDDEN_FRACTION else None), frac
