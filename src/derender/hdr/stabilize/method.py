@@ -33,7 +33,7 @@ from derender.hdr.stabilize.filmic import (
     screen_gamma_trend,
     unclipped_debevec,
 )
-from derender.hdr.stabilize.reference import select_reference
+from derender.hdr.stabilize.reference import REF_PIXELS, select_reference
 from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
@@ -166,13 +166,14 @@ class ShiftedValid:
 
 
 class _CodeFrames:
-    """Aligned uint8 frames of a :class:`ShiftedFrames`, one at a time."""
+    """Every ``rows``-th row of the aligned uint8 frames of a :class:`ShiftedFrames`, one at a time."""
 
-    def __init__(self, view: ShiftedFrames):
-        self.view = view
+    def __init__(self, view: ShiftedFrames, rows: int = 1):
+        self.view, self.rows = view, max(int(rows), 1)
 
     def __getitem__(self, j: int) -> np.ndarray:
-        return self.view.codes(j)
+        codes = self.view.codes(j)
+        return codes if self.rows == 1 else np.ascontiguousarray(codes[::self.rows])
 
 
 @dataclass
@@ -247,7 +248,8 @@ class StabilizedMethod:
             transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         shifts = transforms_to_shifts(transforms)
         view = ShiftedFrames(frames, shifts)
-        if saturation_fraction(_CodeFrames(view), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
+        rows = -(-h * w // REF_PIXELS)     # the gate counts ~REF_PIXELS pixels per frame (every k-th row)
+        if saturation_fraction(_CodeFrames(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
             raise NotStreamable("saturation below white (stabilize.saturation)")
         al = LazyAlignment(images=view, valid=view.valid_view, transforms=transforms, method=self.align,
                            reference=ref, shifts=shifts, info=ainfo)
