@@ -42,8 +42,10 @@ Beyond the paper (its Fig. 5: the result depends on the reference):
 :func:`joint_color_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
-all (method ``"stabilized-joint"``). :func:`derender.evaluation.table1.reference_spread`
-reports how PSNR varies with the reference.
+all (method ``"stabilized-joint"``). Pipelines that render a sensor-clipped pixel below
+white (local tone maps, highlight roll-offs) are caught by :mod:`.saturation`: codes that
+stop growing with exposure mark saturation no threshold sees, and the merges leave it out.
+:func:`derender.evaluation.table1.reference_spread` reports how PSNR varies with the reference.
 """
 
 from derender.core.lazy import attach
@@ -57,5 +59,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],
     "pair_fit": ["RIDGE", "predict_codes", "pair_weights", "fit_pair", "effective_codes", "pair_cost", "pair_residuals", "pair_costs_power"],
     "reference": ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fractions", "select_reference", "reasonable_references"],
+    "saturation": ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO",
+                   "HIDDEN_FRACTION", "hidden_saturation", "hidden_fraction", "saturation_fraction",
+                   "saturation_mask"],
     "solvers": ["minimize_bounded", "bounded_minimizer", "drive", "find_root"],
 })

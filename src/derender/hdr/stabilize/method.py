@@ -33,7 +33,8 @@ from derender.hdr.stabilize.filmic import (
     screen_gamma_trend,
     unclipped_debevec,
 )
-from derender.hdr.stabilize.reference import select_reference
+from derender.hdr.stabilize.reference import REF_PIXELS, select_reference
+from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
@@ -164,6 +165,17 @@ class ShiftedValid:
         return (ys + dy >= 0) & (ys + dy < h) & (xs + dx >= 0) & (xs + dx < w)
 
 
+class _CodeFrames:
+    """Every ``rows``-th row of the aligned uint8 frames of a :class:`ShiftedFrames`, one at a time."""
+
+    def __init__(self, view: ShiftedFrames, rows: int = 1):
+        self.view, self.rows = view, max(int(rows), 1)
+
+    def __getitem__(self, j: int) -> np.ndarray:
+        codes = self.view.codes(j)
+        return codes if self.rows == 1 else np.ascontiguousarray(codes[::self.rows])
+
+
 @dataclass
 class LazyAlignment:
     """What :func:`stabilize_aligned` reads of an :class:`~derender.hdr.align.Alignment`."""
@@ -236,6 +248,9 @@ class StabilizedMethod:
             transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         shifts = transforms_to_shifts(transforms)
         view = ShiftedFrames(frames, shifts)
+        rows = -(-h * w // REF_PIXELS)     # the gate counts ~REF_PIXELS pixels per frame (every k-th row)
+        if saturation_fraction(_CodeFrames(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
+            raise NotStreamable("saturation below white (stabilize.saturation)")
         al = LazyAlignment(images=view, valid=view.valid_view, transforms=transforms, method=self.align,
                            reference=ref, shifts=shifts, info=ainfo)
         t1 = time.perf_counter()
@@ -356,11 +371,15 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
         if not 0 <= ref < n:
             raise InputError(f"reference image {reference} is out of range 0..{n - 1}")
     al = align_images(images, method=align, reference=ref, seed=seed)
+    hidden, hidden_frac = saturation_mask(al.images, stack.times)
+    if hidden is not None:
+        al.valid = al.valid & ~hidden
     t1 = time.perf_counter()
     stab = stabilize_aligned(al, stack.times, mode=mode, response=response, gammas=gammas, use_times=use_times,
                              path=path, block=block, max_blocks=max_blocks, low=low, high=high, floor=floor,
                              ransac_iter=ransac_iter, seed=seed)
     stab.info["timings"] = {"align_s": t1 - t0, **stab.info["timings"]}
+    stab.info["hidden_saturation"] = {"fraction": hidden_frac, "masked": hidden is not None}
     return stab
 
 
@@ -506,6 +525,8 @@ def stabilization_info(stab: Stabilization) -> dict:
             "gamma_method": stab.gammas.method, "matrices": stab.matrices.tolist(), "mode": stab.mode,
             "how": stab.how, "align": al.method, "response": stab.info.get("response", "given"),
             "gamma_trend": stab.info.get("gamma_trend")}
+    if "hidden_saturation" in stab.info:
+        info["hidden_saturation"] = stab.info["hidden_saturation"]
     if al.shifts is not None:
         info["shifts"] = al.shifts.tolist()
     return info
