@@ -226,3 +226,24 @@ def test_interrupts_deferred_holds_a_signal_until_the_block_ends():
             pass
     finally:
         signal.signal(signal.SIGUSR1, previous)
+
+
+
+def _help(capsys, monkeypatch, *args) -> str:
+    import sys
+
+    from derender.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["derender", *args, "--help"])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    assert exc.value.code == 0
+    return capsys.readouterr().out
+
+
+def test_flags_are_shown_as_flags_in_help(capsys, monkeypatch):
+    """Boolean options take no value and ``--help`` shows none (typer 0.29 printed ``<bool>``)."""
+    for args in (("merge",), ("derender",), ()):
+        out = _help(capsys, monkeypatch, *args)
+        assert "<bool>" not in out and "--help" in out
+    assert "--times-inverse" in _help(capsys, monkeypatch, "merge")

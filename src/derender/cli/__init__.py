@@ -15,7 +15,7 @@ import sys
 import typer
 
 from derender.cli import derendering, experiments, hdr  # noqa: F401  (they register their commands)
-from derender.cli.app import app, click_exception_types, fast_exit_gc
+from derender.cli.app import app, click_exception_types, command, fast_exit_gc
 from derender.core.errors import DerenderError, Interrupted, interrupt_handler
 
 __all__ = ["app", "main"]
@@ -41,7 +41,7 @@ def main() -> None:
 
 def _run(click_errors, aborts, exits) -> None:
     try:
-        rv = app(standalone_mode=False)
+        rv = command()(prog_name="derender", standalone_mode=False)
     except DerenderError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(exc.exit_code)

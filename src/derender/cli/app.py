@@ -29,6 +29,36 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="Recover linear scene radiance, with uncertainty, from rendered camera images.")
 
 
+def command():
+    """The click command of :data:`app`, with flags shown as flags in ``--help``.
+
+    Typer 0.29 with click 8.5 prints every boolean flag with a ``<bool>`` metavar
+    (``--times-inverse <bool>``) although it takes no value (issue 15); an empty metavar on
+    each flag (including ``--help``) restores ``--times-inverse``."""
+    import typer.main
+
+    cmd = typer.main.get_command(app)
+    stack = [cmd]
+    while stack:
+        c = stack.pop()
+        for p in getattr(c, "params", ()):
+            if getattr(p, "is_flag", False):
+                p.metavar = ""
+        c.get_help_option = _flag_help(c.get_help_option)
+        stack.extend(getattr(c, "commands", {}).values())
+    return cmd
+
+
+def _flag_help(get_help_option):
+    def get(ctx):
+        opt = get_help_option(ctx)
+        if opt is not None:
+            opt.metavar = ""
+        return opt
+
+    return get
+
+
 _FAST_EXIT = False
 
 
