@@ -19,13 +19,15 @@ as recorded)::
 
     PYTHONPATH=src python tests/data/make_reference_outputs.py --update stabilized stabilized-joint
 
-recomputes only those methods' keys with the current package (the entry points
+(``model``: the reference GP's own predictions) recomputes only those methods' keys with the current package (the entry points
 ``tests/test_reference_outputs.py`` uses), prints each key's largest relative change, and rewrites
 the file. Re-recorded so far (issue 15 item 6): ``stabilized-joint`` (its noise weights floored on
 flat response-table segments: sim-camera moved by 0.4 %), then ``stabilized``,
 ``stabilized-joint`` and ``stabilized-probabilistic`` (each frame's estimate projected onto the
 non-negative orthant: the pixels that had a negative channel, e.g. 316 of 6144 on sim-camera,
-and on Memorial up to 1.2 % relative where a frame's dark channel went below 0).
+and on Memorial up to 1.2 % relative where a frame's dark channel went below 0); then ``model``,
+``probabilistic`` and ``stabilized-probabilistic`` (issue 17 item 4: faster GP calibration, ML search
+tolerance 1e-6 and a 250-point first search; changes printed by ``--update``).
 """
 
 from __future__ import annotations
@@ -136,7 +138,15 @@ def update(methods: list[str]) -> int:
     with np.load(HERE / "reference_outputs.npz") as z:
         rec = {k: z[k] for k in z.files}
     recorded = dict(rec)
-    model = reference_model(fit_model, model_metadata) if set(methods) & set(MODEL_METHODS) else None
+    model = reference_model(fit_model, model_metadata) if set(methods) & {*MODEL_METHODS, "model"} else None
+    if "model" in methods:              # the GP's own predictions (``model/predict_*``)
+        probe = np.stack(np.meshgrid(np.arange(0, 256, 15), np.arange(0, 256, 15), np.arange(0, 256, 15),
+                                     indexing="ij"), -1).reshape(-1, 3).astype(np.uint8)
+        for key, arr in zip(("model/predict_mean", "model/predict_var"), model.predict(probe / 255.0)):
+            old = recorded[key]
+            scale = np.maximum(np.abs(old).max(axis=-1, keepdims=True), 1e-30)
+            print(f"{key}: max relative change {float(np.max(np.abs(arr.astype(np.float64) - old) / scale)):.3g}")
+            rec[key] = arr
     with tempfile.TemporaryDirectory() as d:
         for name, paths, topts, case_methods in cases(Path(d)):
             s = STEP[name]
