@@ -196,9 +196,10 @@ def _clip_bits(codes: np.ndarray, clip_code: float) -> np.ndarray:
     return (4 * c[:, 0] + 2 * c[:, 1] + c[:, 2]).astype(np.int64)
 
 
-def _fit_channel(X: np.ndarray, z: np.ndarray, osel: np.ndarray, hetero: bool) -> tuple[np.ndarray, np.ndarray,
-                                                                                      np.ndarray]:
-    """Fit one channel GP of one cluster: returns theta (5,), theta_noise (8,), l (n,)."""
+def _fit_channel(X: np.ndarray, z: np.ndarray, osel: np.ndarray, hetero: bool) -> tuple[np.ndarray, ...]:
+    """Fit one channel GP of one cluster: returns theta (5,), theta_noise (8,), l (n,), and the noise
+    GP's weights beta (n,) and noise factors r = exp(g) (n,) at the training colours (what
+    :meth:`LocalGPModel._compute_factor` would recompute for the prediction table)."""
     n = X.shape[0]
     Xs = X[osel]
     D = _sq_dists(Xs)
@@ -222,16 +223,18 @@ def _fit_channel(X: np.ndarray, z: np.ndarray, osel: np.ndarray, hetero: bool) -
             th = _optimise(D, z[osel], Xs, r=r[osel], th0=th0)
             tn[:3] = th[:3]    # noise GP shares the refitted length-scales (one kernel matrix at prediction)
             tn[5] -= gmed      # store the noise-GP mean relative to the median, so r = exp(g)
-            gfit = tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ _noise_gp_weights(X, tn, l - gmed)
+            beta = _noise_gp_weights(X, tn, l - gmed)
+            gfit = tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta
             tn[6], tn[7] = float(gfit.min()), float(gfit.max())
-            return th, tn, l - gmed
-    return th, np.array([0.0, 0.0, 0.0, np.log(1e-6), 0.0, 0.0, 0.0, 0.0]), np.zeros(n)   # g == 0: homoscedastic
+            return th, tn, l - gmed, beta, np.exp(gfit)
+    # g == 0: homoscedastic (noise weights 0, factors 1)
+    return th, np.array([0.0, 0.0, 0.0, np.log(1e-6), 0.0, 0.0, 0.0, 0.0]), np.zeros(n), np.zeros(n), np.ones(n)
 
 
 def _fit_local_gp(X: np.ndarray, Z: np.ndarray, osel: np.ndarray, hetero: bool) -> tuple[np.ndarray, np.ndarray,
                                                                                       np.ndarray]:
     """Fit the three channel GPs of one cluster: returns theta (3,5), theta_noise (3,8), l (n,3)."""
-    fits = [_fit_channel(X, Z[:, ch], osel, hetero) for ch in range(3)]
+    fits = [_fit_channel(X, Z[:, ch], osel, hetero)[:3] for ch in range(3)]
     return (np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits]), np.stack([f[2] for f in fits], axis=1))
 
 
@@ -316,6 +319,7 @@ class LocalGPModel(DerenderModel):
         self.clip_patterns = bool(clip_patterns)
         self.n_jobs = n_jobs
         self._factors: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._noise_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._table: LatentTable | None = None
 
     def _inputs(self, Y: np.ndarray) -> np.ndarray:
@@ -396,6 +400,7 @@ class LocalGPModel(DerenderModel):
         by = dict(zip(jobs, res))
         fits = [(np.stack([by[c, ch][0] for ch in range(3)]), np.stack([by[c, ch][1] for ch in range(3)]),
                  np.stack([by[c, ch][2] for ch in range(3)], axis=1)) for c in range(len(tasks))]
+        self._noise_cache = {key: f[3:] for key, f in by.items()}   # (beta, r) for the table's factors
         self.centroids = np.stack(centroids).astype(np.float64)
         self.cluster_group = np.asarray(flags, dtype=np.int64)
         self.X = np.concatenate([t[0] for t in tasks])
@@ -424,9 +429,13 @@ class LocalGPModel(DerenderModel):
         X = self.X[self.offsets[c]:self.offsets[c + 1]]
         y = (self.T[self.offsets[c]:self.offsets[c + 1], ch] - self.t_mean[c, ch]) / self.t_std[c, ch]
         th, tn = self.theta[c, ch], self.theta_noise[c, ch]
-        l = self.log_noise[self.offsets[c]:self.offsets[c + 1], ch]
-        beta = _noise_gp_weights(X, tn, l)
-        r = np.exp(tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta)
+        cached = self._noise_cache.get((c, ch))
+        if cached is not None:      # right after fitting: the fit's own noise GP (same inputs, same values)
+            beta, r = cached
+        else:
+            l = self.log_noise[self.offsets[c]:self.offsets[c + 1], ch]
+            beta = _noise_gp_weights(X, tn, l)
+            r = np.exp(tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta)
         K = _se_kernel(X, X, th[:3], th[3])
         K.flat[:: X.shape[0] + 1] += np.exp(2 * th[4]) * r + 1e-8 * np.exp(2 * th[3])
         from scipy.linalg import lapack
@@ -514,6 +523,7 @@ class LocalGPModel(DerenderModel):
         g = np.stack(np.meshgrid(nodes, nodes, nodes, indexing="ij"), axis=-1).reshape(-1, 3) / 255.0
         mu, s2 = self._latent_exact(g)
         self._factors = {}      # free the O(n^2) factors; exact predictions rebuild them lazily
+        self._noise_cache = {}
         n = nodes.shape[0]
         vals = np.concatenate([mu, np.log(s2)], axis=1).reshape(n, n, n, 6)
         self.table_nodes_, self.table_values_ = nodes, vals
@@ -605,6 +615,7 @@ class LocalGPModel(DerenderModel):
             if not np.all(np.isfinite(a)):
                 raise ModelFileError("GP model arrays contain NaN or inf")
         self._factors = {}
+        self._noise_cache = {}
         if nodes.size:
             n = nodes.shape[0]
             if vals.shape != (n, n, n, 6):
