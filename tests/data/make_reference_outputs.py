@@ -27,7 +27,8 @@ flat response-table segments: sim-camera moved by 0.4 %), then ``stabilized``,
 non-negative orthant: the pixels that had a negative channel, e.g. 316 of 6144 on sim-camera,
 and on Memorial up to 1.2 % relative where a frame's dark channel went below 0); then ``model``,
 ``probabilistic`` and ``stabilized-probabilistic`` (issue 17 item 4: faster GP calibration, ML search
-tolerance 1e-6 and a 250-point first search; changes printed by ``--update``).
+tolerance 1e-6 and a 250-point first search, then the compiled ML objective: rounding-level
+changes, up to 1.5e-4 in a variance; changes printed by ``--update``).
 """
 
 from __future__ import annotations

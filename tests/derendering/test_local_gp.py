@@ -216,3 +216,22 @@ def test_gp_beats_rbf_on_unclipped_colours_of_held_out_illuminants():
     cov = interval_coverage(mean, var, r[te][sel])
     print("95% coverage:", cov)
     assert np.all(cov >= 0.80) and np.all(cov <= 0.99)
+
+
+def test_compiled_marginal_likelihood_equals_numpy_reference():
+    """The ML search's compiled objective (``gp_kernels.gp_nll``) equals the NumPy ``_gp_nll``."""
+    from derender.derendering.gp_kernels import gp_nll
+
+    rng = np.random.default_rng(4)
+    X = rng.random((120, 3))
+    y = np.sin(4 * X[:, 0]) + X[:, 1] * X[:, 2] + 0.05 * rng.standard_normal(120)
+    r = np.exp(rng.normal(0, 0.5, 120))
+    work = {}
+    for theta in (np.log([0.3, 0.5, 0.8, 1.2, 0.1]), np.log([0.05, 2.0, 0.2, 0.7, 0.3])):
+        for rr in (None, r):
+            a = _gp_nll(theta, _sq_dists(X), y, rr)
+            b = gp_nll(theta, X, y, rr, work)
+            assert b[0] == pytest.approx(a[0], rel=1e-10, abs=1e-9)
+            np.testing.assert_allclose(b[1], a[1], rtol=1e-8, atol=1e-9)
+    bad = gp_nll(np.log([1.0, 1.0, 1.0, 1.0, 1e-9]), np.repeat(X[:5], 2, axis=0), y[:10])   # singular
+    assert bad[0] >= 1e24 or np.isfinite(bad[0])

@@ -6,7 +6,8 @@ the rendered inputs ``y = code / 255``, one GP per cluster and output channel (e
 determination (one length-scale per input channel) plus white noise,
 ``k(a, b) = sf^2 exp(-0.5 sum_d (a_d - b_d)^2 / l_d^2) + sn^2 [a = b]``, hyper-parameters
 by maximum marginal likelihood (L-BFGS-B on the exact log marginal likelihood and its
-gradient, Rasmussen & Williams eq. 2.30, 5.8/5.9: :func:`_gp_nll`). A test colour uses the
+gradient, Rasmussen & Williams eq. 2.30, 5.8/5.9: :func:`_gp_nll`, compiled as
+:func:`derender.derendering.gp_kernels.gp_nll` for the search). A test colour uses the
 GP of its nearest cluster centre (eq. 2 with D_N(y) = that cluster). The target is the
 log raw colour ``t = log(max(raw, 0) + eps)`` of :mod:`derender.derendering.base`,
 standardised per cluster; with the cluster's training inputs X, targets z and noise
@@ -145,10 +146,15 @@ def _gp_nll(theta: np.ndarray, D: list[np.ndarray], y: np.ndarray,
     return nll, g
 
 
-def _optimise(D: list[np.ndarray], y: np.ndarray, X: np.ndarray, r: np.ndarray | None = None,
+def _optimise(X: np.ndarray, y: np.ndarray, r: np.ndarray | None = None,
               th0: np.ndarray | None = None) -> np.ndarray:
-    """Maximum-likelihood hyper-parameters (L-BFGS-B, analytic gradient) for a standardised target."""
-    d = len(D)
+    """Maximum-likelihood hyper-parameters (L-BFGS-B, analytic gradient) for a standardised target.
+
+    The objective is the compiled :func:`derender.derendering.gp_kernels.gp_nll` (the same value and
+    gradient as :func:`_gp_nll`, element-wise work fused, the GIL released)."""
+    from derender.derendering.gp_kernels import gp_nll
+
+    d = X.shape[1]
     if th0 is None:
         ell0 = np.clip(X.std(axis=0), 0.02, 1.0)
         th0 = np.concatenate([np.log(ell0), [0.0, np.log(0.1)]])
@@ -156,8 +162,8 @@ def _optimise(D: list[np.ndarray], y: np.ndarray, X: np.ndarray, r: np.ndarray |
     th0 = np.clip(th0, [b[0] for b in bounds], [b[1] for b in bounds])
     from scipy.optimize import minimize
 
-    res = minimize(_gp_nll, th0, args=(D, y, r), jac=True, method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": 200, "ftol": _ML_FTOL})
+    res = minimize(gp_nll, th0, args=(np.ascontiguousarray(X), np.ascontiguousarray(y), r, {}), jac=True,
+                   method="L-BFGS-B", bounds=bounds, options={"maxiter": 200, "ftol": _ML_FTOL})
     return np.asarray(res.x if np.isfinite(res.fun) and res.fun < 1e24 else th0, dtype=np.float64)
 
 
@@ -202,12 +208,11 @@ def _fit_channel(X: np.ndarray, z: np.ndarray, osel: np.ndarray, hetero: bool) -
     :meth:`LocalGPModel._compute_factor` would recompute for the prediction table)."""
     n = X.shape[0]
     Xs = X[osel]
-    D = _sq_dists(Xs)
     if hetero and osel.size > _FIRST_POINTS:
         fsel = osel[np.linspace(0, osel.size - 1, _FIRST_POINTS).round().astype(np.intp)]
-        th = _optimise(_sq_dists(X[fsel]), z[fsel], X[fsel])
+        th = _optimise(X[fsel], z[fsel])
     else:
-        th = _optimise(D, z[osel], Xs)
+        th = _optimise(Xs, z[osel])
     if hetero:
         K = _se_kernel(X, X, th[:3], th[3])
         K.flat[:: n + 1] += np.exp(2 * th[4]) + 1e-8 * np.exp(2 * th[3])
@@ -220,7 +225,7 @@ def _fit_channel(X: np.ndarray, z: np.ndarray, osel: np.ndarray, hetero: bool) -
             gmed = float(np.median(g))
             r = np.exp(g - gmed)
             th0 = np.concatenate([th[:4], [0.5 * gmed]])
-            th = _optimise(D, z[osel], Xs, r=r[osel], th0=th0)
+            th = _optimise(Xs, z[osel], r=r[osel], th0=th0)
             tn[:3] = th[:3]    # noise GP shares the refitted length-scales (one kernel matrix at prediction)
             tn[5] -= gmed      # store the noise-GP mean relative to the median, so r = exp(g)
             beta = _noise_gp_weights(X, tn, l - gmed)
