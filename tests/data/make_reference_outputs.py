@@ -19,7 +19,7 @@ as recorded)::
 
     PYTHONPATH=src python tests/data/make_reference_outputs.py --update stabilized stabilized-joint
 
-recomputes only those methods' keys with the current package (the entry points
+(``model``: the reference GP's own predictions) recomputes only those methods' keys with the current package (the entry points
 ``tests/test_reference_outputs.py`` uses), prints each key's largest relative change, and rewrites
 the file. Re-recorded so far (issue 15 item 6): ``stabilized-joint`` (its noise weights floored on
 flat response-table segments: sim-camera moved by 0.4 %), then ``stabilized``,
@@ -28,7 +28,10 @@ non-negative orthant: the pixels that had a negative channel, e.g. 316 of 6144 o
 and on Memorial up to 1.2 % relative where a frame's dark channel went below 0); issue 16 items 5-6:
 ``debevec`` (curves offset so that neutral colours stay neutral: up to 57 % relative per channel
 on sim-camera) and ``robertson`` (leave-one-out log-domain update, smooth monotone curve, weights
-``w / g'^2``, the same colour balance: a different curve and merge altogether).
+``w / g'^2``, the same colour balance: a different curve and merge altogether); then ``model``,
+``probabilistic`` and ``stabilized-probabilistic`` (issue 17 item 4: faster GP calibration, ML search
+tolerance 1e-6 and a 250-point first search, then the compiled ML objective: rounding-level
+changes, up to 1.5e-4 in a variance; changes printed by ``--update``).
 """
 
 from __future__ import annotations
@@ -139,7 +142,15 @@ def update(methods: list[str]) -> int:
     with np.load(HERE / "reference_outputs.npz") as z:
         rec = {k: z[k] for k in z.files}
     recorded = dict(rec)
-    model = reference_model(fit_model, model_metadata) if set(methods) & set(MODEL_METHODS) else None
+    model = reference_model(fit_model, model_metadata) if set(methods) & {*MODEL_METHODS, "model"} else None
+    if "model" in methods:              # the GP's own predictions (``model/predict_*``)
+        probe = np.stack(np.meshgrid(np.arange(0, 256, 15), np.arange(0, 256, 15), np.arange(0, 256, 15),
+                                     indexing="ij"), -1).reshape(-1, 3).astype(np.uint8)
+        for key, arr in zip(("model/predict_mean", "model/predict_var"), model.predict(probe / 255.0)):
+            old = recorded[key]
+            scale = np.maximum(np.abs(old).max(axis=-1, keepdims=True), 1e-30)
+            print(f"{key}: max relative change {float(np.max(np.abs(arr.astype(np.float64) - old) / scale)):.3g}")
+            rec[key] = arr
     with tempfile.TemporaryDirectory() as d:
         for name, paths, topts, case_methods in cases(Path(d)):
             s = STEP[name]

@@ -6,7 +6,8 @@ the rendered inputs ``y = code / 255``, one GP per cluster and output channel (e
 determination (one length-scale per input channel) plus white noise,
 ``k(a, b) = sf^2 exp(-0.5 sum_d (a_d - b_d)^2 / l_d^2) + sn^2 [a = b]``, hyper-parameters
 by maximum marginal likelihood (L-BFGS-B on the exact log marginal likelihood and its
-gradient, Rasmussen & Williams eq. 2.30, 5.8/5.9: :func:`_gp_nll`). A test colour uses the
+gradient, Rasmussen & Williams eq. 2.30, 5.8/5.9: :func:`_gp_nll`, compiled as
+:func:`derender.derendering.gp_kernels.gp_nll` for the search). A test colour uses the
 GP of its nearest cluster centre (eq. 2 with D_N(y) = that cluster). The target is the
 log raw colour ``t = log(max(raw, 0) + eps)`` of :mod:`derender.derendering.base`,
 standardised per cluster; with the cluster's training inputs X, targets z and noise
@@ -64,6 +65,13 @@ __all__ = [
 _ELL_MIN = 0.004                        # smallest SE length-scale (in GP input units)
 _LOG_CHI2_MEAN = -1.2703628454614782   # E[log chi^2_1] = digamma(1/2) + log 2
 _LOG_CHI2_VAR = np.pi ** 2 / 2          # Var[log chi^2_1] = trigamma(1/2)
+#: L-BFGS-B relative tolerance on the negative log marginal likelihood (scipy's default 2.2e-9
+#: took 18 % more evaluations for NLL changes below 0.004 nats on the S90 chart clusters).
+_ML_FTOL = 1e-6
+#: Points of the first (homoscedastic) ML search of a heteroscedastic fit: it only seeds the
+#: leave-one-out residuals and the warm-started refit on ``opt_points`` (measured on the S90 and
+#: D5100 charts: relative RMSE within 0.002 of the search on all 500 points, ~1 s less CPU).
+_FIRST_POINTS = 250
 
 
 # ============================================================================ GP helpers
@@ -96,8 +104,9 @@ def _chol_solve_inv(K: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarra
     Ki, info = lapack.dpotri(L, lower=1)
     if info != 0:
         return None
-    Ki = np.tril(Ki)
-    Ki += np.tril(Ki, -1).T
+    # dpotri fills the lower triangle (the upper one is zero: clean=1 above): symmetrise in place
+    Ki += Ki.T
+    Ki.flat[:: Ki.shape[0] + 1] *= 0.5
     return L, alpha, Ki
 
 
@@ -137,10 +146,15 @@ def _gp_nll(theta: np.ndarray, D: list[np.ndarray], y: np.ndarray,
     return nll, g
 
 
-def _optimise(D: list[np.ndarray], y: np.ndarray, X: np.ndarray, r: np.ndarray | None = None,
+def _optimise(X: np.ndarray, y: np.ndarray, r: np.ndarray | None = None,
               th0: np.ndarray | None = None) -> np.ndarray:
-    """Maximum-likelihood hyper-parameters (L-BFGS-B, analytic gradient) for a standardised target."""
-    d = len(D)
+    """Maximum-likelihood hyper-parameters (L-BFGS-B, analytic gradient) for a standardised target.
+
+    The objective is the compiled :func:`derender.derendering.gp_kernels.gp_nll` (the same value and
+    gradient as :func:`_gp_nll`, element-wise work fused, the GIL released)."""
+    from derender.derendering.gp_kernels import gp_nll
+
+    d = X.shape[1]
     if th0 is None:
         ell0 = np.clip(X.std(axis=0), 0.02, 1.0)
         th0 = np.concatenate([np.log(ell0), [0.0, np.log(0.1)]])
@@ -148,8 +162,8 @@ def _optimise(D: list[np.ndarray], y: np.ndarray, X: np.ndarray, r: np.ndarray |
     th0 = np.clip(th0, [b[0] for b in bounds], [b[1] for b in bounds])
     from scipy.optimize import minimize
 
-    res = minimize(_gp_nll, th0, args=(D, y, r), jac=True, method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": 200})
+    res = minimize(gp_nll, th0, args=(np.ascontiguousarray(X), np.ascontiguousarray(y), r, {}), jac=True,
+                   method="L-BFGS-B", bounds=bounds, options={"maxiter": 200, "ftol": _ML_FTOL})
     return np.asarray(res.x if np.isfinite(res.fun) and res.fun < 1e24 else th0, dtype=np.float64)
 
 
@@ -188,40 +202,62 @@ def _clip_bits(codes: np.ndarray, clip_code: float) -> np.ndarray:
     return (4 * c[:, 0] + 2 * c[:, 1] + c[:, 2]).astype(np.int64)
 
 
+def _fit_channel(X: np.ndarray, z: np.ndarray, osel: np.ndarray, hetero: bool) -> tuple[np.ndarray, ...]:
+    """Fit one channel GP of one cluster: returns theta (5,), theta_noise (8,), l (n,), and the noise
+    GP's weights beta (n,) and noise factors r = exp(g) (n,) at the training colours (what
+    :meth:`LocalGPModel._compute_factor` would recompute for the prediction table)."""
+    n = X.shape[0]
+    Xs = X[osel]
+    if hetero and osel.size > _FIRST_POINTS:
+        fsel = osel[np.linspace(0, osel.size - 1, _FIRST_POINTS).round().astype(np.intp)]
+        th = _optimise(X[fsel], z[fsel])
+    else:
+        th = _optimise(Xs, z[osel])
+    if hetero:
+        K = _se_kernel(X, X, th[:3], th[3])
+        K.flat[:: n + 1] += np.exp(2 * th[4]) + 1e-8 * np.exp(2 * th[3])
+        out = _chol_solve_inv(K, z)
+        if out is not None:
+            _, alpha, Ki = out
+            loo = alpha / np.diag(Ki)
+            tn, l = _noise_gp(th, loo * loo)
+            g = tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ _noise_gp_weights(X, tn, l)
+            gmed = float(np.median(g))
+            r = np.exp(g - gmed)
+            th0 = np.concatenate([th[:4], [0.5 * gmed]])
+            th = _optimise(Xs, z[osel], r=r[osel], th0=th0)
+            tn[:3] = th[:3]    # noise GP shares the refitted length-scales (one kernel matrix at prediction)
+            tn[5] -= gmed      # store the noise-GP mean relative to the median, so r = exp(g)
+            beta = _noise_gp_weights(X, tn, l - gmed)
+            gfit = tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta
+            tn[6], tn[7] = float(gfit.min()), float(gfit.max())
+            return th, tn, l - gmed, beta, np.exp(gfit)
+    # g == 0: homoscedastic (noise weights 0, factors 1)
+    return th, np.array([0.0, 0.0, 0.0, np.log(1e-6), 0.0, 0.0, 0.0, 0.0]), np.zeros(n), np.zeros(n), np.ones(n)
+
+
 def _fit_local_gp(X: np.ndarray, Z: np.ndarray, osel: np.ndarray, hetero: bool) -> tuple[np.ndarray, np.ndarray,
                                                                                       np.ndarray]:
     """Fit the three channel GPs of one cluster: returns theta (3,5), theta_noise (3,8), l (n,3)."""
-    n = X.shape[0]
-    Xs = X[osel]
-    D = _sq_dists(Xs)
-    thetas = np.zeros((3, 5))
-    thn = np.zeros((3, 8))
-    ls = np.zeros((n, 3))
-    for ch in range(3):
-        th = _optimise(D, Z[osel, ch], Xs)
-        if hetero:
-            K = _se_kernel(X, X, th[:3], th[3])
-            K.flat[:: n + 1] += np.exp(2 * th[4]) + 1e-8 * np.exp(2 * th[3])
-            out = _chol_solve_inv(K, Z[:, ch])
-            if out is not None:
-                _, alpha, Ki = out
-                loo = alpha / np.diag(Ki)
-                tn, l = _noise_gp(th, loo * loo)
-                g = tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ _noise_gp_weights(X, tn, l)
-                gmed = float(np.median(g))
-                r = np.exp(g - gmed)
-                th0 = np.concatenate([th[:4], [0.5 * gmed]])
-                th = _optimise(D, Z[osel, ch], Xs, r=r[osel], th0=th0)
-                tn[:3] = th[:3]    # noise GP shares the refitted length-scales (one kernel matrix at prediction)
-                tn[5] -= gmed      # store the noise-GP mean relative to the median, so r = exp(g)
-                gfit = tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ _noise_gp_weights(X, tn, l - gmed)
-                tn[6], tn[7] = float(gfit.min()), float(gfit.max())
-                thn[ch], ls[:, ch] = tn, l - gmed
-                thetas[ch] = th
-                continue
-        thetas[ch] = th
-        thn[ch] = [0.0, 0.0, 0.0, np.log(1e-6), 0.0, 0.0, 0.0, 0.0]   # g == 0: homoscedastic
-    return thetas, thn, ls
+    fits = [_fit_channel(X, Z[:, ch], osel, hetero)[:3] for ch in range(3)]
+    return (np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits]), np.stack([f[2] for f in fits], axis=1))
+
+
+def _map_threads(fn, items: list, n_jobs: int) -> list:
+    """``[fn(*it) for it in items]`` on ``n_jobs`` threads with one BLAS thread each, largest first.
+
+    The items are small dense problems (n <= 1000): one BLAS thread per task is far faster than
+    oversubscription (measured: a threaded BLAS on a loaded 2-core machine made the ML search ~50x
+    slower)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        if n_jobs <= 1 or len(items) <= 1:
+            return [fn(*it) for it in items]
+        with ThreadPoolExecutor(max_workers=n_jobs) as ex:
+            return list(ex.map(lambda it: fn(*it), items))
 
 
 # ============================================================================ the model
@@ -257,7 +293,7 @@ class LocalGPModel(DerenderModel):
     RMSE of near-black colours 0.40 -> 0.34, all colours 0.233 -> 0.230, but on the unit
     tests' synthetic camera the noise GP then gave log-variances above 30 near
     near-zero raw channels, so it is off by default), ``n_jobs`` (threads for fitting), ``seed``.
-    Defaults fit 5000 pairs in about 15-35 s on 2 shared cores.
+    Defaults fit 5000 pairs in about 5 s of CPU time (2-3 s wall on 2 idle cores).
     """
 
     method = "gp"
@@ -288,6 +324,7 @@ class LocalGPModel(DerenderModel):
         self.clip_patterns = bool(clip_patterns)
         self.n_jobs = n_jobs
         self._factors: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._noise_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._table: LatentTable | None = None
 
     def _inputs(self, Y: np.ndarray) -> np.ndarray:
@@ -300,8 +337,6 @@ class LocalGPModel(DerenderModel):
 
     # ------------------------------------------------------------------ fitting
     def _fit(self, jf: np.ndarray, rf: np.ndarray) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
         from sklearn.cluster import KMeans
         from threadpoolctl import threadpool_limits
 
@@ -363,10 +398,14 @@ class LocalGPModel(DerenderModel):
                 osel = np.arange(idx.shape[0])
             tasks.append((Y[idx], Tc, m, s, osel))
         n_jobs = self.n_jobs or min(2, os.cpu_count() or 1)
-        # small dense problems: one BLAS thread per task is far faster than oversubscription
-        with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=max(1, n_jobs)) as ex:
-            fits = list(ex.map(lambda t: _fit_local_gp(t[0], (t[1] - t[2]) / t[3], t[4], self.heteroscedastic),
-                               tasks))
+        # one task per (cluster, channel), largest clusters first: the two threads stay balanced
+        jobs = sorted(((c, ch) for c in range(len(tasks)) for ch in range(3)), key=lambda j: -tasks[j[0]][0].shape[0])
+        res = _map_threads(lambda c, ch: _fit_channel(tasks[c][0], (tasks[c][1][:, ch] - tasks[c][2][ch]) / tasks[c][3][ch],
+                                                      tasks[c][4], self.heteroscedastic), jobs, n_jobs)
+        by = dict(zip(jobs, res))
+        fits = [(np.stack([by[c, ch][0] for ch in range(3)]), np.stack([by[c, ch][1] for ch in range(3)]),
+                 np.stack([by[c, ch][2] for ch in range(3)], axis=1)) for c in range(len(tasks))]
+        self._noise_cache = {key: f[3:] for key, f in by.items()}   # (beta, r) for the table's factors
         self.centroids = np.stack(centroids).astype(np.float64)
         self.cluster_group = np.asarray(flags, dtype=np.int64)
         self.X = np.concatenate([t[0] for t in tasks])
@@ -387,51 +426,68 @@ class LocalGPModel(DerenderModel):
     # ------------------------------------------------------------------ exact GP prediction
     def _factor(self, c: int, ch: int) -> tuple[np.ndarray, ...]:
         key = (c, ch)
-        if key not in self._factors:
-            from threadpoolctl import threadpool_limits
-
-            with threadpool_limits(1, user_api="blas"):
-                self._factors[key] = self._compute_factor(c, ch)
+        if key not in self._factors:   # callers (_latent_exact) hold one BLAS thread per task
+            self._factors[key] = self._compute_factor(c, ch)
         return self._factors[key]
 
     def _compute_factor(self, c: int, ch: int) -> tuple[np.ndarray, ...]:
         X = self.X[self.offsets[c]:self.offsets[c + 1]]
         y = (self.T[self.offsets[c]:self.offsets[c + 1], ch] - self.t_mean[c, ch]) / self.t_std[c, ch]
         th, tn = self.theta[c, ch], self.theta_noise[c, ch]
-        l = self.log_noise[self.offsets[c]:self.offsets[c + 1], ch]
-        beta = _noise_gp_weights(X, tn, l)
-        r = np.exp(tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta)
+        cached = self._noise_cache.get((c, ch))
+        if cached is not None:      # right after fitting: the fit's own noise GP (same inputs, same values)
+            beta, r = cached
+        else:
+            l = self.log_noise[self.offsets[c]:self.offsets[c + 1], ch]
+            beta = _noise_gp_weights(X, tn, l)
+            r = np.exp(tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta)
         K = _se_kernel(X, X, th[:3], th[3])
         K.flat[:: X.shape[0] + 1] += np.exp(2 * th[4]) * r + 1e-8 * np.exp(2 * th[3])
-        out = _chol_solve_inv(K, y)
-        if out is None:  # pragma: no cover - guarded by the noise floor
+        from scipy.linalg import lapack
+
+        L, info = lapack.dpotrf(K, lower=1, clean=1, overwrite_a=1)
+        if info != 0:  # pragma: no cover - guarded by the noise floor
             raise ModelFileError("GP covariance is not positive definite (corrupt parameters?)")
-        return out[1], out[2], beta
+        alpha, _ = lapack.dpotrs(L, y, lower=1)
+        return alpha, L, beta
 
     def _latent_exact(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Exact local-GP prediction at inputs Y (M,3) in [0,1]: mean and variance of t (incl. noise)."""
+        """Exact local-GP prediction at inputs Y (M,3) in [0,1]: mean and variance of t (incl. noise).
+
+        The latent variance is ``sf^2 - ||L^-1 k(X, y)||^2`` (one triangular solve, half the
+        flops of ``k^T (K + S)^-1 k``); the (cluster, channel) blocks run on ``n_jobs`` threads."""
         lab = self._assign(Y)
         Y = self._inputs(Y)
         mu = np.empty((Y.shape[0], 3))
         s2 = np.empty((Y.shape[0], 3))
+        jobs = []
         for c in range(self.centroids.shape[0]):
             sel = np.flatnonzero(lab == c)
-            if sel.size == 0:
-                continue
+            if sel.size:
+                jobs += [(c, ch, sel) for ch in range(3)]
+        jobs.sort(key=lambda j: -j[2].size * float(self.offsets[j[0] + 1] - self.offsets[j[0]]) ** 2)
+
+        def block(c: int, ch: int, sel: np.ndarray) -> None:
+            from scipy.linalg.blas import dtrsm
+
             X = self.X[self.offsets[c]:self.offsets[c + 1]]
-            for ch in range(3):
-                alpha, Ki, beta = self._factor(c, ch)
-                th, tn = self.theta[c, ch], self.theta_noise[c, ch]
-                sf2, sn2 = np.exp(2 * th[3]), np.exp(2 * th[4])
-                for s in range(0, sel.size, 8192):
-                    rows = sel[s:s + 8192]
-                    Ks = _se_kernel(Y[rows], X, th[:3], th[3])
-                    m = Ks @ alpha
-                    lat = np.maximum(sf2 - np.einsum("ij,ij->i", Ks @ Ki, Ks), 0.0)
-                    g = tn[5] + (Ks @ beta) * np.exp(2 * (tn[3] - th[3]))   # noise GP: same length-scales
-                    noise = sn2 * np.exp(np.clip(g, tn[6], tn[7]))
-                    mu[rows, ch] = m * self.t_std[c, ch] + self.t_mean[c, ch]
-                    s2[rows, ch] = (lat + noise) * self.t_std[c, ch] ** 2
+            alpha, L, beta = self._factor(c, ch)
+            th, tn = self.theta[c, ch], self.theta_noise[c, ch]
+            sf2, sn2 = np.exp(2 * th[3]), np.exp(2 * th[4])
+            for s in range(0, sel.size, 8192):
+                rows = sel[s:s + 8192]
+                Ks = _se_kernel(Y[rows], X, th[:3], th[3])
+                m = Ks @ alpha
+                g = tn[5] + (Ks @ beta) * np.exp(2 * (tn[3] - th[3]))   # noise GP: same length-scales
+                # V = L^-1 Ks^T (triangular solve in place on the Fortran-ordered view Ks^T)
+                V = dtrsm(1.0, L, Ks.T, lower=1, overwrite_b=1)
+                lat = np.maximum(sf2 - np.einsum("ij,ij->j", V, V), 0.0)
+                noise = sn2 * np.exp(np.clip(g, tn[6], tn[7]))
+                mu[rows, ch] = m * self.t_std[c, ch] + self.t_mean[c, ch]
+                s2[rows, ch] = (lat + noise) * self.t_std[c, ch] ** 2
+
+        n_jobs = self.n_jobs or min(2, os.cpu_count() or 1)
+        _map_threads(block, jobs, n_jobs if Y.shape[0] >= 4096 else 1)
         return mu, np.minimum(s2, self._log_var_cap())
 
     def _log_var_cap(self) -> np.ndarray:
@@ -472,6 +528,7 @@ class LocalGPModel(DerenderModel):
         g = np.stack(np.meshgrid(nodes, nodes, nodes, indexing="ij"), axis=-1).reshape(-1, 3) / 255.0
         mu, s2 = self._latent_exact(g)
         self._factors = {}      # free the O(n^2) factors; exact predictions rebuild them lazily
+        self._noise_cache = {}
         n = nodes.shape[0]
         vals = np.concatenate([mu, np.log(s2)], axis=1).reshape(n, n, n, 6)
         self.table_nodes_, self.table_values_ = nodes, vals
@@ -563,6 +620,7 @@ class LocalGPModel(DerenderModel):
             if not np.all(np.isfinite(a)):
                 raise ModelFileError("GP model arrays contain NaN or inf")
         self._factors = {}
+        self._noise_cache = {}
         if nodes.size:
             n = nodes.shape[0]
             if vals.shape != (n, n, n, 6):
