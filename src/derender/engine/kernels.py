@@ -254,3 +254,108 @@ def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margi
                         nd += _popcount64((ta[r, k] ^ tb[r + off, k]) & both)
                 out[c, 0] += np.int64(nd)
                 out[c, 1] += np.int64(nb)
+
+
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def table_merge_rows(frames, order, values, weights, independent, log_domain, v_short, v_long, j_short, j_long,
+                     bright, y0, y1, out, mask):  # pragma: no cover - compiled
+    """Rows ``y0:y1`` of the table merge (:class:`derender.engine.tables.TableMerge`, modes
+    ``"mean"`` and ``"independent"``) of held frames in one pass per pixel, same arithmetic.
+
+    ``frames`` (N, H, W, 3) uint8; frames are added in the order ``order``; frame ``j``'s code
+    ``z`` of channel ``c`` contributes ``values[j, z, c]`` with weight ``weights[j, z, c]``
+    (float32, already scaled by the image weight, and by 1/3 in the ``"mean"`` mode, as
+    :meth:`TableMerge.add` scales them). ``"mean"`` (``independent`` False): one weight per
+    pixel, the float32 sum ``(w0 + w1) + w2``; ``"independent"``: one per channel. In the log
+    domain the sums are float64 (``den += w``, ``num += v * w``: a float32 product is exact in
+    float64), in the linear one float32 with OpenCV's fused multiply-add (``accumulateProduct``;
+    the float64 product rounded once), as the table engine keeps them. Where a channel's
+    weights sum to 0 its value comes from the shortest exposure (``j_short``, table
+    ``v_short``) if ``bright[code]`` (the ``"mean"`` mode: the channel's code, like the
+    engine's finish), else from the longest; ``mask`` 1 if some channel took the shortest,
+    else 2 if some took the longest, else 0. ``out`` (3, H, W) float32 receives the value
+    (log domain: ``min(value, 88)``, to be exponentiated by the caller with OpenCV on the
+    engine's blocks; linear: non-finite values replaced as ``np.nan_to_num``).
+    """
+    n = order.shape[0]
+    w = frames.shape[2]
+    tile = MERGE_TILE
+    f32max = np.float32(3.4028234663852886e38)
+    for y in prange(y0, y1):
+        num64 = np.zeros((3, tile), dtype=np.float64)
+        den64 = np.zeros((3, tile), dtype=np.float64)
+        num32 = np.zeros((3, tile), dtype=np.float32)
+        den32 = np.zeros((3, tile), dtype=np.float32)
+        for x0 in range(0, w, tile):
+            xe = min(x0 + tile, w)
+            num64[:, :] = 0.0
+            den64[:, :] = 0.0
+            num32[:, :] = 0.0
+            den32[:, :] = 0.0
+            for k in range(n):
+                j = order[k]
+                for x in range(x0, xe):
+                    t = x - x0
+                    z0 = frames[j, y, x, 0]
+                    z1 = frames[j, y, x, 1]
+                    z2 = frames[j, y, x, 2]
+                    w0 = weights[j, z0, 0]
+                    w1 = weights[j, z1, 1]
+                    w2 = weights[j, z2, 2]
+                    if not independent:
+                        s = w0 + w1
+                        s = s + w2
+                        w0 = s
+                        w1 = s
+                        w2 = s
+                    v0 = values[j, z0, 0]
+                    v1 = values[j, z1, 1]
+                    v2 = values[j, z2, 2]
+                    if log_domain:
+                        den64[0, t] += np.float64(w0)
+                        if independent:
+                            den64[1, t] += np.float64(w1)
+                            den64[2, t] += np.float64(w2)
+                        num64[0, t] += np.float64(v0) * np.float64(w0)
+                        num64[1, t] += np.float64(v1) * np.float64(w1)
+                        num64[2, t] += np.float64(v2) * np.float64(w2)
+                    else:
+                        den32[0, t] += w0
+                        if independent:
+                            den32[1, t] += w1
+                            den32[2, t] += w2
+                        num32[0, t] = np.float32(np.float64(num32[0, t]) + np.float64(v0) * np.float64(w0))
+                        num32[1, t] = np.float32(np.float64(num32[1, t]) + np.float64(v1) * np.float64(w1))
+                        num32[2, t] = np.float32(np.float64(num32[2, t]) + np.float64(v2) * np.float64(w2))
+            for x in range(x0, xe):
+                t = x - x0
+                nb = False
+                ndk = False
+                for c in range(3):
+                    dc = c if independent else 0
+                    if log_domain:
+                        ok = den64[dc, t] > 0.0
+                        r = num64[c, t] / den64[dc, t] if ok else 0.0
+                    else:
+                        ok = den32[dc, t] > np.float32(0.0)
+                        r = np.float64(num32[c, t] / den32[dc, t]) if ok else 0.0
+                    if not ok:
+                        zs = frames[j_short, y, x, c]
+                        if bright[zs]:
+                            r = np.float64(v_short[zs, c])
+                            nb = True
+                        else:
+                            r = np.float64(v_long[frames[j_long, y, x, c], c])
+                            ndk = True
+                    if log_domain:
+                        out[c, y, x] = np.float32(min(r, 88.0))
+                    else:
+                        o = np.float32(r)
+                        if np.isnan(o):
+                            o = np.float32(0.0)
+                        elif o > f32max:
+                            o = f32max
+                        elif o < -f32max:
+                            o = -f32max
+                        out[c, y, x] = o
+                mask[y, x] = 1 if nb else (2 if ndk else 0)

@@ -39,7 +39,7 @@ from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
-from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
+from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
@@ -53,6 +53,11 @@ ENGINES = ("auto", "table", "reference")
 #: weight sums (24 bytes) and the frame being decoded (3 bytes), rounded up; checked
 #: against the available memory before any frame is decoded.
 STREAMED_BYTES_PER_PIXEL = 32
+
+#: Default budget of a streamed method's held frames (8-bit codes of the whole bracket):
+#: within it every frame is decoded once and merged by a compiled kernel (13 frames of
+#: 24 MP); above it the frames stream in two passes (memory independent of their number).
+HOLD_BYTES = 1 << 30
 
 
 class FileFrames:
@@ -134,6 +139,164 @@ def _size_error(source, shape: tuple, j: int, got: tuple) -> InputError:
 def _brightness(codes: np.ndarray) -> float:
     """Mean code of a frame on a 1/64 subsample (about 1 ms per 24 MP frame)."""
     return float(codes[::8, ::8].mean())
+
+
+def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame value and weight tables (N, 256, 3) float32 of a plan, the weights scaled
+    as :meth:`TableMerge.add` scales them (image weight, then 1/3 in the ``"mean"`` mode)."""
+    values = np.ascontiguousarray(plan.values, dtype=np.float32)
+    iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
+    weights = np.empty((n, N_CODES, 3), dtype=np.float32)
+    for j in range(n):
+        wt = TableMerge._table(plan.weight_of(j), "weight").astype(np.float64) * float(iw[j])
+        if plan.channel_weights == "mean":
+            wt = wt / 3.0
+        weights[j] = wt.astype(np.float32)
+    for j in range(n):
+        TableMerge._table(values[j], "value")
+    return values, weights
+
+
+def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
+                        bright_threshold: float = 0.5) -> HDRResult:
+    """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
+    kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of
+    :class:`TableMerge` (frames added in ``order``; the log domain's exponential by OpenCV
+    on the engine's row blocks), no accumulator planes."""
+    from derender.core.memory import import_cv2, opencv_single_thread
+    from derender.engine.kernels import table_merge_rows
+    from derender.engine.matrix import KERNEL_LOCK, set_numba_threads
+    from derender.engine.tables import code_values
+
+    cv2 = import_cv2()
+    n, h, w = frames.shape[:3]
+    values, weights = _table_kernel_tables(plan, n)
+    log = plan.domain == "log"
+    out = populated_zeros((3, h, w), dtype=np.float32)
+    mask = populated_zeros((h, w), dtype=np.uint8)
+    bright = code_values() >= np.float32(bright_threshold)
+    with KERNEL_LOCK:
+        set_numba_threads(threads)
+        table_merge_rows(frames, np.asarray(order, dtype=np.int64), values, weights,
+                         plan.channel_weights == "independent", log, values[0], values[n - 1], 0, n - 1, bright,
+                         0, h, out, mask)
+    br = plan.block_rows if plan.block_rows is not None else max(1, (1 << 16) // max(w, 1))
+    blocks = [(r0, min(h, r0 + br)) for r0 in range(0, h, br)]
+
+    def finish(r0: int, r1: int) -> None:
+        for c in range(3):
+            r = out[c, r0:r1]
+            if log:
+                cv2.exp(r, dst=r)
+            if not cv2.checkRange(r)[0]:
+                np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
+
+    if log:
+        with opencv_single_thread():
+            nthreads = thread_count(threads)
+            if nthreads > 1 and len(blocks) > 1:
+                from concurrent.futures import ThreadPoolExecutor
+
+                with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-exp") as ex:
+                    list(ex.map(lambda b: finish(*b), blocks))
+            else:
+                for b in blocks:
+                    finish(*b)
+    n_bright = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
+    n_dark = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
+    info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "n_bright": n_bright, "n_dark": n_dark,
+            "engine": "table", "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
+    return HDRResult(radiance=out.transpose(1, 2, 0), mask=mask, variance=None, info=info)
+
+
+def _warm_up_table_kernel() -> None:
+    """Import numba and load :func:`table_merge_rows` from its cache in a background thread
+    (0.5-1 s, holding the GIL less than the decoders need it)."""
+    import threading
+
+    def go() -> None:
+        try:
+            from derender.engine.kernels import table_merge_rows
+            from derender.engine.matrix import KERNEL_LOCK
+
+            f32 = np.float32
+            with KERNEL_LOCK:
+                table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1, np.int64),
+                                 np.zeros((1, N_CODES, 3), f32), np.zeros((1, N_CODES, 3), f32), False, True,
+                                 np.zeros((N_CODES, 3), f32), np.zeros((N_CODES, 3), f32), 0, 0,
+                                 np.zeros(N_CODES, bool), 0, 1, np.zeros((3, 1, 1), f32), np.zeros((1, 1), np.uint8))
+        except Exception:  # noqa: BLE001
+            pass
+
+    threading.Thread(target=go, name="derender-warm-up", daemon=True).start()
+
+
+def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_hint: str | None) -> HDRResult:
+    """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
+    once into one (N, H, W, 3) array, the calibration samples (and histograms) read from it,
+    and the merge in one compiled pass per pixel (:func:`_table_kernel_merge`; modes the
+    kernel lacks run :class:`TableMerge` on the held frames). Same numbers as the two-pass
+    stream."""
+    n = source.n
+    if n < 2:
+        raise StackError("an exposure stack needs at least two images")
+    t = source.times
+    t0 = time.perf_counter()
+    _warm_up_table_kernel()
+    frames, _ = source.read_all(threads)
+    h, w = frames.shape[1:3]
+    if order_hint is not None:
+        check_brightness_order(t, [_brightness(f) for f in frames], [source.name(j) for j in range(n)], order_hint)
+    samples = None
+    pos = method.sample_positions(h, w)
+    if pos is not None:
+        ys, xs = pos
+        samples = np.empty((n, ys.size, 3), dtype=np.int32)
+        for j in range(n):
+            samples[j] = frames[j][ys, xs]
+    t1 = time.perf_counter()
+    access = FrameAccess(times=t, shape=(h, w), samples=samples, threads=threads,
+                         histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]))
+    plan = method.plan(access)
+    if not isinstance(plan, TablePlan):
+        raise TypeError(f"a streamed method must return a TablePlan, {method.name} returned {type(plan).__name__}")
+    t2 = time.perf_counter()
+    order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
+    if plan.channel_weights in ("mean", "independent"):
+        res = _table_kernel_merge(frames, plan, order, threads)
+    else:
+        iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
+        with TableMerge((h, w), channel_weights=plan.channel_weights, domain=plan.domain, threads=threads,
+                        block_rows=plan.block_rows) as eng:
+            for j in order:
+                eng.add(frames[j], plan.values[j], plan.weight_of(j), image_weight=float(iw[j]))
+            res = eng.finish((frames[0], plan.values[0]), (frames[n - 1], plan.values[n - 1]))
+    t3 = time.perf_counter()
+    res.info.update({
+        "merge_seconds": t3 - t2,
+        "timings": {"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2, "finish_s": 0.0},
+        "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0},
+    })
+    method.finish(res, access)
+    return res
+
+
+def _hold(source, keep_frames: int | None, hold_bytes: int) -> bool:
+    """Whether a streamed method holds every frame (decoded once): no explicit frame budget,
+    the codes within ``hold_bytes`` and, with the outputs, within half the available memory."""
+    from derender.core.memory import available_memory
+
+    if keep_frames is not None:
+        return False
+    if isinstance(source, ArrayFrames):
+        return True
+    info = source.infos[0]
+    px = int(info.width) * int(info.height)
+    codes = source.n * px * 3
+    if codes > hold_bytes:
+        return False
+    avail = available_memory()
+    return avail is None or codes + 13 * px <= avail // 2
 
 
 def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames: int | None,
@@ -290,7 +453,8 @@ def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
 
 
 def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,
-        keep_frames: int | None = None, keep_bytes: int = 256 << 20, output: str | os.PathLike | None = None,
+        keep_frames: int | None = None, keep_bytes: int = 256 << 20, hold_bytes: int = HOLD_BYTES,
+        output: str | os.PathLike | None = None,
         variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
         inputs: Iterable[str | os.PathLike] = (), order_hint: str | None = None) -> HDRResult:
     """Merge ``source`` with ``method`` (see the module docstring); optionally write the
@@ -300,13 +464,18 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     their exposure times (:func:`derender.core.types.check_brightness_order`), the hint
     ending the error message.
 
-    ``keep_frames`` (streamed methods): frames held between the passes (default: as many
+    Streamed methods hold every frame (decoded once, merged by a compiled kernel:
+    :func:`_run_streamed_held`) when ``keep_frames`` is None and the bracket's codes fit
+    in ``hold_bytes`` (and, with the outputs, in half the available memory); otherwise they
+    stream in two passes, ``keep_frames`` frames held between the passes (default: as many
     as fit in ``keep_bytes``, at least 1). Raises
     :class:`~derender.engine.frames.NotStreamable` for inputs without 8-bit codes.
     """
     t0 = time.perf_counter()
     if method.holds_frames:
         res = _run_held(method, source, threads, order_hint)
+    elif _hold(source, keep_frames, hold_bytes):
+        res = _run_streamed_held(method, source, threads, order_hint)
     else:
         res = _run_streamed(method, source, threads, keep_frames, keep_bytes, order_hint)
     res.info["engine_path"] = "streaming"
