@@ -209,17 +209,23 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
     return HDRResult(radiance=out.transpose(1, 2, 0), mask=mask, variance=None, info=info)
 
 
-def _warm_up_table_kernel() -> None:
-    """Import numba and load :func:`table_merge_rows` from its cache in a background thread
-    (0.5-1 s, holding the GIL less than the decoders need it)."""
+def _warm_up_kernel(which: str = "table") -> None:
+    """Import numba and load a kernel (``"table"``: :func:`table_merge_rows`, ``"gaussian"``:
+    :func:`gaussian_band`) from its cache in a background thread while the frames decode
+    (0.5-1 s; the decoders release the GIL)."""
     import threading
 
     def go() -> None:
         try:
-            from derender.engine.kernels import table_merge_rows
+            from derender.engine.kernels import gaussian_band, table_merge_rows
             from derender.engine.matrix import KERNEL_LOCK
 
             f32 = np.float32
+            if which == "gaussian":
+                z = np.zeros((3, 1, 1))
+                gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((1, 9)),
+                              np.zeros(1), 0, 1, z, z.copy(), z.copy())
+                return
             with KERNEL_LOCK:
                 table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1, np.int64),
                                  np.zeros((1, N_CODES, 3), f32), np.zeros((1, N_CODES, 3), f32), False, True,
@@ -242,7 +248,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
         raise StackError("an exposure stack needs at least two images")
     t = source.times
     t0 = time.perf_counter()
-    _warm_up_table_kernel()
+    _warm_up_kernel("table")
     frames, _ = source.read_all(threads)
     h, w = frames.shape[1:3]
     if order_hint is not None:
@@ -400,6 +406,8 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
         held["buffer"] = populated_zeros(max(nbytes, extra), np.uint8)
         return held["buffer"]
 
+    if getattr(method, "warm_up", None) == "gaussian":
+        _warm_up_kernel("gaussian")
     frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
     if order_hint is not None:
         check_brightness_order(source.times, [_brightness(f) for f in frames],

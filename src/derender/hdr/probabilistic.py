@@ -355,6 +355,7 @@ class ProbabilisticMethod:
     name = "probabilistic"
     holds_frames = True
     wants_histograms = False
+    warm_up = "gaussian"          # the engine loads its compiled kernel while the frames decode
 
     def __init__(self, opts: dict):
         self.model = as_model(opts.get("model"))
