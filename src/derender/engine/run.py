@@ -157,12 +157,52 @@ def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarra
     return values, weights
 
 
+class _RowsDone:
+    """Rows of a result finished so far (a merge producing bands, a writer waiting for them)."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self.rows = 0
+        self.failed = False
+        self.cv = threading.Condition()
+
+    def advance(self, rows: int) -> None:
+        with self.cv:
+            self.rows = rows
+            self.cv.notify_all()
+
+    def fail(self) -> None:
+        with self.cv:
+            self.failed = True
+            self.cv.notify_all()
+
+    def wait(self, rows: int) -> None:
+        with self.cv:
+            while self.rows < rows and not self.failed:
+                self.cv.wait()
+            if self.failed:
+                raise RuntimeError("the merge failed")
+
+
+#: Rows per launch of the table kernel when its output is written while it merges: the
+#: writer compresses and writes a band's 16-line blocks while the next band merges.
+OVERLAP_ROWS = 160
+
+
 def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
-                        bright_threshold: float = 0.5) -> HDRResult:
+                        bright_threshold: float = 0.5, write=None) -> HDRResult:
     """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
     kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of
     :class:`TableMerge` (frames added in ``order``; the log domain's exponential by OpenCV
-    on the engine's row blocks), no accumulator planes."""
+    on the engine's row blocks), no accumulator planes.
+
+    ``write(result, rows_done)``, if given, runs in a thread while the kernel merges bands of
+    :data:`OVERLAP_ROWS` rows; it must read row ``y`` of the result only after
+    ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile)."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
     from derender.core.memory import import_cv2, opencv_single_thread
     from derender.engine.kernels import table_merge_rows
     from derender.engine.matrix import KERNEL_LOCK, set_numba_threads
@@ -175,13 +215,12 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
     out = populated_zeros((3, h, w), dtype=np.float32)
     mask = populated_zeros((h, w), dtype=np.uint8)
     bright = code_values() >= np.float32(bright_threshold)
-    with KERNEL_LOCK:
-        set_numba_threads(threads)
-        table_merge_rows(frames, np.asarray(order, dtype=np.int64), values, weights,
-                         plan.channel_weights == "independent", log, values[0], values[n - 1], 0, n - 1, bright,
-                         0, h, out, mask)
     br = plan.block_rows if plan.block_rows is not None else max(1, (1 << 16) // max(w, 1))
-    blocks = [(r0, min(h, r0 + br)) for r0 in range(0, h, br)]
+    order_a = np.asarray(order, dtype=np.int64)
+    independent = plan.channel_weights == "independent"
+    info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "engine": "table",
+            "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
+    res = HDRResult(radiance=out.transpose(1, 2, 0), mask=mask, variance=None, info=info)
 
     def finish(r0: int, r1: int) -> None:
         for c in range(3):
@@ -191,22 +230,50 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
             if not cv2.checkRange(r)[0]:
                 np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
 
-    if log:
-        with opencv_single_thread():
-            nthreads = thread_count(threads)
-            if nthreads > 1 and len(blocks) > 1:
-                from concurrent.futures import ThreadPoolExecutor
+    # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
+    step = h if write is None else max(br, (OVERLAP_ROWS // br) * br)
+    done = _RowsDone()
+    errors: list[BaseException] = []
 
-                with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-exp") as ex:
+    def writer() -> None:
+        try:
+            write(res, done)
+        except BaseException as exc:  # noqa: BLE001
+            errors.append(exc)
+
+    wt = None
+    if write is not None:
+        wt = threading.Thread(target=writer, name="derender-exr-writer", daemon=True)
+        wt.start()
+    nthreads = thread_count(threads)
+    try:
+        with opencv_single_thread(), ThreadPoolExecutor(max(1, nthreads), thread_name_prefix="derender-exp") as ex:
+            for y0 in range(0, h, step):
+                y1 = min(h, y0 + step)
+                with KERNEL_LOCK:
+                    set_numba_threads(threads)
+                    table_merge_rows(frames, order_a, values, weights, independent, log, values[0], values[n - 1],
+                                     0, n - 1, bright, y0, y1, out, mask)
+                blocks = [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)]
+                if nthreads > 1 and len(blocks) > 1:
                     list(ex.map(lambda b: finish(*b), blocks))
-            else:
-                for b in blocks:
-                    finish(*b)
-    n_bright = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
-    n_dark = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
-    info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "n_bright": n_bright, "n_dark": n_dark,
-            "engine": "table", "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
-    return HDRResult(radiance=out.transpose(1, 2, 0), mask=mask, variance=None, info=info)
+                else:
+                    for b in blocks:
+                        finish(*b)
+                done.advance(y1)
+                if errors:
+                    break
+    except BaseException:
+        done.fail()
+        raise
+    finally:
+        if wt is not None:
+            wt.join()
+    if errors:
+        raise errors[0]
+    info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
+    info["n_dark"] = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
+    return res
 
 
 def _warm_up_kernel(which: str = "table") -> None:
@@ -237,7 +304,8 @@ def _warm_up_kernel(which: str = "table") -> None:
     threading.Thread(target=go, name="derender-warm-up", daemon=True).start()
 
 
-def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_hint: str | None) -> HDRResult:
+def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_hint: str | None,
+                       write=None) -> HDRResult:
     """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
     once into one (N, H, W, 3) array, the calibration samples (and histograms) read from it,
     and the merge in one compiled pass per pixel (:func:`_table_kernel_merge`; modes the
@@ -269,7 +337,9 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     t2 = time.perf_counter()
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
     if plan.channel_weights in ("mean", "independent"):
-        res = _table_kernel_merge(frames, plan, order, threads)
+        res = _table_kernel_merge(frames, plan, order, threads, write=write)
+        if write is not None:
+            res.info["overlapped_write"] = True
     else:
         iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
         with TableMerge((h, w), channel_weights=plan.channel_weights, domain=plan.domain, threads=threads,
@@ -278,11 +348,10 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
                 eng.add(frames[j], plan.values[j], plan.weight_of(j), image_weight=float(iw[j]))
             res = eng.finish((frames[0], plan.values[0]), (frames[n - 1], plan.values[n - 1]))
     t3 = time.perf_counter()
-    res.info.update({
-        "merge_seconds": t3 - t2,
-        "timings": {"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2, "finish_s": 0.0},
-        "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0},
-    })
+    res.info.setdefault("timings", {}).update({"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2,
+                                               "finish_s": 0.0})
+    res.info.update({"merge_seconds": t3 - t2,
+                     "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}})
     method.finish(res, access)
     return res
 
@@ -444,6 +513,22 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     return res
 
 
+def _write_radiance_while_merging(res: HDRResult, done: _RowsDone, output, *, half: bool, compression: str,
+                                  inputs, threads: int | None) -> None:
+    """:func:`write_outputs`' radiance file, each block of lines read once the merge has finished it."""
+    from derender.io.exr import write_exr_lines
+
+    arr = res.radiance
+    h, w = arr.shape[:2]
+
+    def bgr_lines(y0: int, y1: int, buf: np.ndarray) -> None:
+        done.wait(y1)
+        for k, c in enumerate((2, 1, 0)):  # channels in alphabetical order: B, G, R
+            buf[:, k, :] = arr[y0:y1, :, c]
+
+    write_exr_lines(output, w, h, bgr_lines, half=half, inputs=list(inputs), compression=compression, threads=threads)
+
+
 def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
                   variance_output: str | os.PathLike | None = None, *, half: bool = False, compression: str = "zip",
                   inputs: Iterable[str | os.PathLike] = (), threads: int | None = None, name: str = "this method") -> None:
@@ -483,7 +568,16 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     if method.holds_frames:
         res = _run_held(method, source, threads, order_hint)
     elif _hold(source, keep_frames, hold_bytes):
-        res = _run_streamed_held(method, source, threads, order_hint)
+        write = None
+        if output is not None and variance_output is None:
+            def write(res: HDRResult, done: _RowsDone) -> None:
+                tw = time.perf_counter()
+                _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
+                                              threads=threads)
+                res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
+        res = _run_streamed_held(method, source, threads, order_hint, write=write)
+        if res.info.get("overlapped_write"):
+            output = None           # written while merging
     else:
         res = _run_streamed(method, source, threads, keep_frames, keep_bytes, order_hint)
     res.info["engine_path"] = "streaming"
