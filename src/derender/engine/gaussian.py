@@ -50,9 +50,14 @@ class LogGaussianProduct:
             np.maximum(self.bound[c], t, out=self.bound[c])
 
 
-def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None) -> HDRResult:
+def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None,
+                          write=None) -> HDRResult:
     """Run a :class:`~derender.engine.plans.GaussianPlan` on held frames (N, H, W, 3) uint8
-    sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads."""
+    sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
+    ``write(result, rows_done)``: the radiance written while merging
+    (:func:`derender.engine.overlap.merge_writing`)."""
+    from derender.engine.overlap import OVERLAP_ROWS, merge_writing
+
     t0 = time.perf_counter()
     n, h, w = frames.shape[:3]
     radiance = np.empty((h, w, 3), dtype=np.float32)
@@ -78,13 +83,19 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
         radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
         mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
 
-    bands = [(y0, min(h, y0 + plan.band_rows)) for y0 in range(0, h, plan.band_rows)]
     nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
-    if nthreads > 1 and len(bands) > 1:
-        with ThreadPoolExecutor(min(nthreads, len(bands)), thread_name_prefix="derender-gauss") as ex:
-            list(ex.map(lambda b: run(*b), bands))
-    else:
-        for b in bands:
-            run(*b)
-    return HDRResult(radiance=radiance, mask=mask, variance=variance,
-                     info={"engine": "gaussian", "merge_seconds": time.perf_counter() - t0})
+    res = HDRResult(radiance=radiance, mask=mask, variance=variance, info={"engine": "gaussian"})
+    group = plan.band_rows * nthreads        # a chunk: whole rounds of bands over the threads
+    step = group * max(1, OVERLAP_ROWS // group)
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-gauss") as ex:
+        def chunk(c0: int, c1: int) -> None:
+            bands = [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)]
+            if nthreads > 1 and len(bands) > 1:
+                list(ex.map(lambda b: run(*b), bands))
+            else:
+                for b in bands:
+                    run(*b)
+
+        merge_writing(h, step, chunk, res, write)
+    res.info["merge_seconds"] = time.perf_counter() - t0
+    return res

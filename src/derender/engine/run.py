@@ -38,6 +38,7 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
+from derender.engine.overlap import OVERLAP_ROWS, RowsDone, merge_writing
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
 from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import write_exr_fast
@@ -157,39 +158,6 @@ def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarra
     return values, weights
 
 
-class _RowsDone:
-    """Rows of a result finished so far (a merge producing bands, a writer waiting for them)."""
-
-    def __init__(self) -> None:
-        import threading
-
-        self.rows = 0
-        self.failed = False
-        self.cv = threading.Condition()
-
-    def advance(self, rows: int) -> None:
-        with self.cv:
-            self.rows = rows
-            self.cv.notify_all()
-
-    def fail(self) -> None:
-        with self.cv:
-            self.failed = True
-            self.cv.notify_all()
-
-    def wait(self, rows: int) -> None:
-        with self.cv:
-            while self.rows < rows and not self.failed:
-                self.cv.wait()
-            if self.failed:
-                raise RuntimeError("the merge failed")
-
-
-#: Rows per launch of the table kernel when its output is written while it merges: the
-#: writer compresses and writes a band's 16-line blocks while the next band merges.
-OVERLAP_ROWS = 160
-
-
 def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
                         bright_threshold: float = 0.5, write=None) -> HDRResult:
     """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
@@ -200,7 +168,6 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
     ``write(result, rows_done)``, if given, runs in a thread while the kernel merges bands of
     :data:`OVERLAP_ROWS` rows; it must read row ``y`` of the result only after
     ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile)."""
-    import threading
     from concurrent.futures import ThreadPoolExecutor
 
     from derender.core.memory import import_cv2, opencv_single_thread
@@ -231,46 +198,22 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
                 np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
 
     # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
-    step = h if write is None else max(br, (OVERLAP_ROWS // br) * br)
-    done = _RowsDone()
-    errors: list[BaseException] = []
-
-    def writer() -> None:
-        try:
-            write(res, done)
-        except BaseException as exc:  # noqa: BLE001
-            errors.append(exc)
-
-    wt = None
-    if write is not None:
-        wt = threading.Thread(target=writer, name="derender-exr-writer", daemon=True)
-        wt.start()
+    step = max(br, (OVERLAP_ROWS // br) * br)
     nthreads = thread_count(threads)
-    try:
-        with opencv_single_thread(), ThreadPoolExecutor(max(1, nthreads), thread_name_prefix="derender-exp") as ex:
-            for y0 in range(0, h, step):
-                y1 = min(h, y0 + step)
-                with KERNEL_LOCK:
-                    set_numba_threads(threads)
-                    table_merge_rows(frames, order_a, values, weights, independent, log, values[0], values[n - 1],
-                                     0, n - 1, bright, y0, y1, out, mask)
-                blocks = [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)]
-                if nthreads > 1 and len(blocks) > 1:
-                    list(ex.map(lambda b: finish(*b), blocks))
-                else:
-                    for b in blocks:
-                        finish(*b)
-                done.advance(y1)
-                if errors:
-                    break
-    except BaseException:
-        done.fail()
-        raise
-    finally:
-        if wt is not None:
-            wt.join()
-    if errors:
-        raise errors[0]
+    with opencv_single_thread(), ThreadPoolExecutor(max(1, nthreads), thread_name_prefix="derender-exp") as ex:
+        def band(y0: int, y1: int) -> None:
+            with KERNEL_LOCK:
+                set_numba_threads(threads)
+                table_merge_rows(frames, order_a, values, weights, independent, log, values[0], values[n - 1],
+                                 0, n - 1, bright, y0, y1, out, mask)
+            blocks = [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)]
+            if nthreads > 1 and len(blocks) > 1:
+                list(ex.map(lambda b: finish(*b), blocks))
+            else:
+                for b in blocks:
+                    finish(*b)
+
+        merge_writing(h, step, band, res, write)
     info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
     info["n_dark"] = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
     return res
@@ -338,8 +281,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
     if plan.channel_weights in ("mean", "independent"):
         res = _table_kernel_merge(frames, plan, order, threads, write=write)
-        if write is not None:
-            res.info["overlapped_write"] = True
+        res.info["overlapped_write"] = write is not None
     else:
         iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
         with TableMerge((h, w), channel_weights=plan.channel_weights, domain=plan.domain, threads=threads,
@@ -463,7 +405,8 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
     return res
 
 
-def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str | None = None) -> HDRResult:
+def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str | None = None,
+              write=None) -> HDRResult:
     t0 = time.perf_counter()
     held: dict = {}
     out_bytes = getattr(method, "output_bytes", None)
@@ -492,11 +435,13 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     if isinstance(plan, MatrixPlan):
         from derender.engine.matrix import merge_matrix_frames
 
-        res = merge_matrix_frames(frames, plan, source.times, threads=threads, buffer=buffer)
+        res = merge_matrix_frames(frames, plan, source.times, threads=threads, buffer=buffer, write=write)
+        res.info["overlapped_write"] = write is not None
     elif isinstance(plan, GaussianPlan):
         from derender.engine.gaussian import merge_gaussian_frames
 
-        res = merge_gaussian_frames(frames, plan, threads=threads)
+        res = merge_gaussian_frames(frames, plan, threads=threads, write=write)
+        res.info["overlapped_write"] = write is not None
     elif isinstance(plan, TablePlan):
         from derender.engine.tables import merge_codes
 
@@ -513,7 +458,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     return res
 
 
-def _write_radiance_while_merging(res: HDRResult, done: _RowsDone, output, *, half: bool, compression: str,
+def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, half: bool, compression: str,
                                   inputs, threads: int | None) -> None:
     """:func:`write_outputs`' radiance file, each block of lines read once the merge has finished it."""
     from derender.io.exr import write_exr_lines
@@ -565,22 +510,23 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     :class:`~derender.engine.frames.NotStreamable` for inputs without 8-bit codes.
     """
     t0 = time.perf_counter()
+    write = None
+    if output is not None:
+        def write(res: HDRResult, done: RowsDone) -> None:
+            tw = time.perf_counter()
+            _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
+                                          threads=threads)
+            res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
+    inputs = list(inputs)
     if method.holds_frames:
-        res = _run_held(method, source, threads, order_hint)
+        res = _run_held(method, source, threads, order_hint, write=write)
     elif _hold(source, keep_frames, hold_bytes):
-        write = None
-        if output is not None and variance_output is None:
-            def write(res: HDRResult, done: _RowsDone) -> None:
-                tw = time.perf_counter()
-                _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
-                                              threads=threads)
-                res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
         res = _run_streamed_held(method, source, threads, order_hint, write=write)
-        if res.info.get("overlapped_write"):
-            output = None           # written while merging
     else:
         res = _run_streamed(method, source, threads, keep_frames, keep_bytes, order_hint)
     res.info["engine_path"] = "streaming"
+    if res.info.get("overlapped_write"):      # the radiance was written while merging
+        inputs, output = inputs + [output], None
     write_outputs(res, output, variance_output, half=half, compression=compression, inputs=inputs, threads=threads,
                   name=method.name)
     res.info["total_seconds"] = time.perf_counter() - t0
