@@ -66,17 +66,17 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     log_scales = [float(s) for s in plan.log_scales]
 
     lut = getattr(plan.index, "lut", None)
-    compiled = lut is not None and plan.planes.dtype == np.float64 and frames.flags.c_contiguous
+    compiled = (lut is not None and plan.planes.dtype == np.float64 and plan.planes.flags.c_contiguous
+                and frames.flags.c_contiguous)
     if compiled:
         from derender.engine.kernels import gaussian_band
 
-        colours = np.ascontiguousarray(plan.planes.T)      # (M, 9): one colour per row
         scales = np.asarray(log_scales, dtype=np.float64)
 
     def run(y0: int, y1: int) -> None:
         prod = LogGaussianProduct((y1 - y0, w))
         if compiled:
-            gaussian_band(frames, lut, colours, scales, y0, y1, prod.prec, prod.acc, prod.bound)
+            gaussian_band(frames, lut, plan.planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
         else:
             for j in range(n):
                 prod.add_rows(plan.planes, plan.index.rows(frames[j, y0:y1]), log_scales[j])

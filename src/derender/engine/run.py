@@ -233,7 +233,7 @@ def _warm_up_kernel(which: str = "table") -> None:
             f32 = np.float32
             if which == "gaussian":
                 z = np.zeros((3, 1, 1))
-                gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((1, 9)),
+                gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
                               np.zeros(1), 0, 1, z, z.copy(), z.copy())
                 return
             with KERNEL_LOCK:
