@@ -421,12 +421,22 @@ def run_bench(size: tuple[int, int] = (6000, 4000), frames: int = 9, workdir: st
             return None
         return _median([x["wall_s"] / y["wall_s"] for x, y in zip(ra, rb)])
 
+    def cpu_ratio(a: str, b: str) -> float | None:
+        ra, rb = rounds.get(a) or [], rounds.get(b) or []
+        if not ra or len(ra) != len(rb):
+            return None
+        return _median([x["cpu_s"] / y["cpu_s"] for x, y in zip(ra, rb)])
+
+    result["cpu_ratios"] = {}
     for ref in ("floor", "opencv", "derender-debevec"):
         for k in entries:
             if k != ref and not (ref == "derender-debevec" and not k.startswith("derender-")):
                 v = ratio(k, ref)
                 if v is not None:
                     result["ratios"][f"{k} / {ref}"] = v
+                v = cpu_ratio(k, ref)
+                if v is not None:
+                    result["cpu_ratios"][f"{k} / {ref}"] = v
     if memory_frames:
         say(f"generating {memory_frames} frames for the memory comparison")
         big = generate_bench_bracket(workdir, size, int(memory_frames), seed, texture=texture)
@@ -454,18 +464,22 @@ def format_bench(result: dict) -> str:
              f"load average {result['load_avg'][0]:.2f}, median of {result.get('rounds', 1)} alternating round(s)",
              f"8-bit codes {codes_mb:.0f} MB + outputs {out_mb:.0f} MB = {codes_mb + out_mb:.0f} MB "
              f"(RSS target +25 %: {1.25 * (codes_mb + out_mb):.0f} MB)", "",
-             "| tool | status | wall s | inner s | peak RSS MB | CPU s | EXR MB | vs floor | vs OpenCV | vs Debevec |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| tool | status | wall s | inner s | peak RSS MB | CPU s | EXR MB | vs floor | vs OpenCV | vs Debevec "
+             "| CPU vs floor | CPU vs Debevec |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     rat = result.get("ratios", {})
     for name, r in result["runs"].items():
         if r.get("status") != "ok":
-            lines.append(f"| {name} | {r.get('status')}: {r.get('reason', '')} | | | | | | | | |")
+            lines.append(f"| {name} | {r.get('status')}: {r.get('reason', '')} | | | | | | | | | | |")
             continue
         inner = f"{r['inner_s']:.2f}" if "inner_s" in r else ""
         exr = f"{r['exr_mb']:.0f}" if "exr_mb" in r else ""
         cols = []
         for ref in ("floor", "opencv", "derender-debevec"):
             v = rat.get(f"{name} / {ref}")
+            cols.append(f"{v:.2f}x" if v is not None else "")
+        for ref in ("floor", "derender-debevec"):
+            v = result.get("cpu_ratios", {}).get(f"{name} / {ref}")
             cols.append(f"{v:.2f}x" if v is not None else "")
         lines.append(f"| {name} | ok | {r['wall_s']:.2f} | {inner} | {r['peak_rss_mb']:.0f} | {r['cpu_s']:.1f} | "
                      f"{exr} | {' | '.join(cols)} |")
