@@ -22,7 +22,29 @@ import numpy as np
 from derender.core.types import HDRResult
 from derender.engine.plans import GaussianPlan
 
-__all__ = ["LogGaussianProduct", "merge_gaussian_frames"]
+__all__ = ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held"]
+
+
+def mark_colours_held(frames: np.ndarray, present: np.ndarray, threads: int | None = None) -> bool:
+    """Mark the colours of held frames (N, H, W, 3) uint8 in a presence bitmap ``present``
+    ((2**24,) bool, :class:`derender.derendering.apply.ColourIndexBuilder`'s) with the
+    compiled :func:`derender.engine.kernels.mark_colours`, the frames split over ``threads``
+    threads. Returns False (nothing marked) for frames it cannot take."""
+    if (frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3 or not frames.flags.c_contiguous
+            or present.dtype != np.bool_ or present.shape != (1 << 24,) or not present.flags.c_contiguous):
+        return False
+    from derender.core.memory import thread_count
+    from derender.engine.kernels import mark_colours
+
+    n = frames.shape[0]
+    k = max(1, min(thread_count(threads), n))
+    cuts = [n * i // k for i in range(k + 1)]
+    if k == 1:
+        mark_colours(frames, 0, n, present)
+    else:
+        with ThreadPoolExecutor(k, thread_name_prefix="derender-colours") as ex:
+            list(ex.map(lambda i: mark_colours(frames, cuts[i], cuts[i + 1], present), range(k)))
+    return True
 
 
 class LogGaussianProduct:

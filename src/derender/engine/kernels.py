@@ -390,3 +390,17 @@ def gaussian_band(frames, lut, planes, log_scales, y0, y1, prec, acc, bound):  #
                     b = planes[6 + c, k] + ls
                     if b > bound[c, r, x]:
                         bound[c, r, x] = b
+
+
+@njit(nogil=True, cache=True)
+def mark_colours(frames, j0, j1, present):  # pragma: no cover - compiled
+    """``present[R << 16 | G << 8 | B] = True`` for every pixel of frames ``j0:j1`` of
+    (N, H, W, 3) uint8 (a presence bitmap over the 2**24 colours, as
+    :class:`derender.derendering.apply.ColourIndexBuilder` fills it). Releases the GIL; two
+    threads may mark the same bitmap (they only ever store True)."""
+    h, w = frames.shape[1], frames.shape[2]
+    for j in range(j0, j1):
+        for y in range(h):
+            for x in range(w):
+                present[(np.int64(frames[j, y, x, 0]) << 16) | (np.int64(frames[j, y, x, 1]) << 8)
+                        | np.int64(frames[j, y, x, 2])] = True

@@ -373,14 +373,16 @@ class ProbabilisticMethod:
 
     def plan(self, access: FrameAccess) -> GaussianPlan:
         from derender.derendering.apply import ColourIndexBuilder
+        from derender.engine.gaussian import mark_colours_held
 
         if self.space != "log":
             raise NotStreamable("raw-space product")
         opts, a = self.opts, self.a
         t0 = time.perf_counter()
         builder = ColourIndexBuilder()
-        for f in access.frames:
-            builder.add(f)
+        if not mark_colours_held(access.frames, builder.present, access.threads):   # compiled, in threads
+            for f in access.frames:
+                builder.add(f)
         index = builder.finish()
         planes = _log_planes(self.model, index.codes.astype(np.uint8), float(opts["floor"]), int(opts["clip_code"]),
                              opts["censor"], code_noise=float(opts["code_noise"]), threads=access.threads)
