@@ -385,7 +385,7 @@ class ProbabilisticMethod:
                 builder.add(f)
         index = builder.finish()
         planes = _log_planes(self.model, index.codes.astype(np.uint8), float(opts["floor"]), int(opts["clip_code"]),
-                             opts["censor"], code_noise=float(opts["code_noise"]), threads=access.threads)
+                             opts["censor"], code_noise=float(opts["code_noise"]))
         censor = bool(opts["censor"])
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
