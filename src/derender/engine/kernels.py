@@ -22,6 +22,9 @@ __all__ = [
     "MERGE_TILE",
     "stabilized_merge_rows",
     "mtb_band_counts",
+    "table_merge_rows",
+    "gaussian_band",
+    "mark_colours",
 ]
 
 
