@@ -60,6 +60,14 @@ STREAMED_BYTES_PER_PIXEL = 32
 #: 24 MP); above it the frames stream in two passes (memory independent of their number).
 HOLD_BYTES = 1 << 30
 
+#: Pixels x frames from which a held table merge runs the compiled kernel: below, OpenCV's
+#: table engine on the held frames is faster, as importing numba and loading the kernel
+#: (0.3-0.5 CPU s) outweighs the kernel's gain. Measured in-process, Debevec, 3 + 2
+#: alternating pairs: 9 x 6 MP TableMerge 0.61-1.09 s (1.0-1.1 CPU s) against the kernel
+#: 0.81-1.43 s (1.3-1.5 CPU s); 9 x 24 MP equal (3.0-3.1 s both, 2.9-3.0 CPU s), the
+#: kernel without TableMerge's 768 MB of float64 accumulators.
+KERNEL_MIN_PIXEL_FRAMES = 150_000_000
+
 
 class FileFrames:
     """8-bit frames of image files, sorted by exposure time (``times`` in the order of ``paths``).
@@ -251,15 +259,19 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
                        write=None) -> HDRResult:
     """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
     once into one (N, H, W, 3) array, the calibration samples (and histograms) read from it,
-    and the merge in one compiled pass per pixel (:func:`_table_kernel_merge`; modes the
-    kernel lacks run :class:`TableMerge` on the held frames). Same numbers as the two-pass
-    stream."""
+    and the merge in one compiled pass per pixel (:func:`_table_kernel_merge`) from
+    :data:`KERNEL_MIN_PIXEL_FRAMES` on; smaller brackets, and modes the kernel lacks, run
+    :class:`TableMerge` on the held frames. Same numbers as the two-pass stream."""
     n = source.n
     if n < 2:
         raise StackError("an exposure stack needs at least two images")
     t = source.times
     t0 = time.perf_counter()
-    _warm_up_kernel("table")
+    px = (source.infos[0].width * source.infos[0].height if isinstance(source, FileFrames)
+          else int(np.prod(source.codes.shape[1:3])))
+    compiled = n * px >= KERNEL_MIN_PIXEL_FRAMES
+    if compiled:
+        _warm_up_kernel("table")
     frames, _ = source.read_all(threads)
     h, w = frames.shape[1:3]
     if order_hint is not None:
@@ -279,7 +291,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
         raise TypeError(f"a streamed method must return a TablePlan, {method.name} returned {type(plan).__name__}")
     t2 = time.perf_counter()
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
-    if plan.channel_weights in ("mean", "independent"):
+    if compiled and plan.channel_weights in ("mean", "independent"):
         res = _table_kernel_merge(frames, plan, order, threads, write=write)
         res.info["overlapped_write"] = write is not None
     else:
