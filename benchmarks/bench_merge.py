@@ -1,9 +1,11 @@
 #!/usr/bin/env python
-"""Side-by-side HDR merge benchmark: OpenCV vs colour-hdri vs ``derender merge``.
+"""Side-by-side HDR merge benchmark: the floor, OpenCV, colour-hdri and ``derender merge``.
 
-Generates (and caches) a bracket of upscaled simulator JPEGs, runs every tool in a fresh
-process on the same files and prints wall time, the tool's own time, peak RSS (wait4)
-and CPU time, with ratios to OpenCV. See README.md in this folder.
+Generates (and caches) a bracket of textured simulator JPEGs, runs every tool in a fresh
+process on the same files, alternating rounds, and prints median wall time, the tool's
+own time, peak RSS (the child's VmHWM), CPU time and EXR size, with same-round ratios to
+the floor (decode every frame + write the same EXR), OpenCV and derender's Debevec. See
+README.md in this folder.
 
     python benchmarks/bench_merge.py                         # 9 x 6000x4000, + 18-frame memory run
     python benchmarks/bench_merge.py --size 1200x800 --frames 5 --memory-frames 0   # quick
@@ -25,10 +27,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=9, help="exposures in the bracket (default 9)")
     ap.add_argument("--memory-frames", type=int, default=18,
                     help="also run derender-debevec on a bracket of this many frames to compare peak RSS (0: skip)")
-    ap.add_argument("--entries", default="opencv,colour-hdri,derender-debevec,derender-stabilized",
-                    help="comma-separated: opencv, colour-hdri, derender-<method>")
+    ap.add_argument("--entries", default="floor,opencv,derender-debevec,derender-stabilized",
+                    help="comma-separated: floor, opencv, opencv-robertson, colour-hdri, derender-<method>")
     ap.add_argument("--workdir", default=None, help="cache folder for brackets and outputs (default: $TMPDIR/derender-bench)")
-    ap.add_argument("--repeat", type=int, default=1, help="runs per entry; the fastest is kept")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="alternating rounds over all entries; medians and median same-round ratios are reported")
+    ap.add_argument("--no-texture", action="store_true",
+                    help="the old bracket (upscaled frames + uniform grain, decodes unrealistically fast)")
+    ap.add_argument("--model", default=None, help="de-rendering model for the probabilistic methods "
+                    "(default: a GP fitted once on simulated chart pairs, cached in the workdir)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None, help="also write the raw results to this JSON file")
     args = ap.parse_args(argv)
@@ -39,6 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     entries = [e.strip() for e in args.entries.split(",") if e.strip()]
     res = run_bench(size=(w, h), frames=args.frames, workdir=args.workdir, entries=entries,
                     memory_frames=args.memory_frames or None, seed=args.seed, repeat=args.repeat,
+                    texture=not args.no_texture, model=args.model,
                     progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_bench(res))
     if args.json:

@@ -31,14 +31,36 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- benchmark
+def _scene_texture(w: int, h: int, rng: np.random.Generator) -> np.ndarray:
+    """A log-normal multi-scale texture (H, W) float32 around 1: octaves of cubic-upscaled
+    Gaussian noise from 8 px to full resolution, the same in every frame (scene detail,
+    not noise), so that every exposure carries detail at every scale like a photograph."""
+    import cv2
+
+    acc = np.zeros((h, w), dtype=np.float32)
+    for cells, amp in ((8, 0.25), (32, 0.15), (128, 0.12), (512, 0.10), (2048, 0.08), (1 << 30, 0.06)):
+        sw = min(w, cells)
+        sh = max(2, int(round(sw * h / w)))
+        acc += np.float32(amp) * cv2.resize(rng.standard_normal((sh, sw), dtype=np.float32), (w, h),
+                                            interpolation=cv2.INTER_CUBIC)
+    return np.exp(acc, out=acc)
+
+
 def generate_bench_bracket(workdir: str | os.PathLike, size: tuple[int, int] = (6000, 4000), frames: int = 9,
                            seed: int = 0, sim_width: int = 768, grain: int = 2, quality: int = 95,
-                           camera: str = "nikon-d5100") -> list[Path]:
-    """JPEG bracket of ``size`` (W, H): simulator frames (:func:`derender.camera.simulate_bracket`,
-    ``sim_width`` wide) upscaled with bicubic interpolation, plus uniform grain of
-    +-``grain`` codes (deterministic) so the files compress like photographs, written
-    with EXIF times by :func:`derender.camera.write_jpeg`. Cached in
-    ``workdir/bracket-WxH-N-sSEED`` (reused when complete).
+                           camera: str = "nikon-d5100", texture: bool = True) -> list[Path]:
+    """JPEG bracket of ``size`` (W, H) written with EXIF times by :func:`derender.camera.write_jpeg`
+    (quality 95, 4:2:2). Cached in ``workdir/bracket-WxH-N-sSEED[-tex]`` (reused when complete).
+
+    The simulator (:func:`derender.camera.simulate_bracket`) renders the bracket ``sim_width``
+    wide; every frame is upscaled (bicubic). With ``texture`` (the default) the upscaled
+    frames get realistic entropy: the scene is multiplied (in linear light, gamma 2.2) by a
+    multi-scale texture that is the same in every exposure (:func:`_scene_texture`, detail
+    at every scale up to single pixels), then per-frame Gaussian noise of 1-3 codes is added
+    (more in the shadows, as a sensor's read noise): a 24 MP frame compresses to 4-9 MB and
+    decodes as slowly as a camera JPEG of that size (see ``benchmarks/README.md``). Without
+    it, uniform grain of +-``grain`` codes (the bracket of issues 8-15: ~3 MB per 24 MP frame,
+    decoding unrealistically fast).
     """
     import cv2
 
@@ -47,7 +69,7 @@ def generate_bench_bracket(workdir: str | os.PathLike, size: tuple[int, int] = (
     w, h = int(size[0]), int(size[1])
     if w < 16 or h < 16 or frames < 2:
         raise InputError("bench bracket needs at least 16x16 pixels and 2 frames")
-    folder = Path(workdir) / f"bracket-{w}x{h}-{frames}-s{seed}"
+    folder = Path(workdir) / (f"bracket-{w}x{h}-{frames}-s{seed}" + ("-tex" if texture else ""))
     done = folder / "bracket.json"
     if done.is_file():
         meta = json.loads(done.read_text())
@@ -59,16 +81,33 @@ def generate_bench_bracket(workdir: str | os.PathLike, size: tuple[int, int] = (
     sh = max(16, int(round(sw * h / w)))
     bracket = simulate_bracket(camera=camera, size=(sw, sh), exposures=frames, seed=seed)
     rng = np.random.default_rng(seed + 12345)
-    noise = rng.integers(-grain, grain + 1, size=(h, w, 3), dtype=np.int16) if grain > 0 else None
+    if texture:
+        tex = _scene_texture(w, h, rng)[..., None]
+        to_lin = ((np.arange(256) / 255.0) ** 2.2).astype(np.float32)
+        noise = None
+    else:
+        tex = None
+        noise = rng.integers(-grain, grain + 1, size=(h, w, 3), dtype=np.int16) if grain > 0 else None
     paths = []
     for j, t in enumerate(bracket.times):
         big = cv2.resize(bracket.jpeg_codes[j], (w, h), interpolation=cv2.INTER_CUBIC)
-        if noise is not None:
+        if tex is not None:
+            g = to_lin[big]
+            g *= tex
+            np.clip(g, 0.0, 1.0, out=g)
+            g **= np.float32(1 / 2.2)
+            g *= np.float32(255.0)
+            sigma = np.float32(3.0) - g * np.float32(2.0 / 255.0)
+            g += rng.standard_normal((h, w, 3), dtype=np.float32) * sigma
+            del sigma
+            big = np.clip(g + np.float32(0.5), 0, 255).astype(np.uint8)
+            del g
+        elif noise is not None:
             big = np.clip(big.astype(np.int16) + np.roll(noise, 7 * j, axis=0), 0, 255).astype(np.uint8)
         paths.append(write_jpeg(folder / f"{j:02d}.jpg", big, float(t), bracket.camera.make, bracket.camera.model,
                                 quality=quality))
         del big
-    done.write_text(json.dumps({"size": [w, h], "frames": frames, "seed": seed, "grain": grain,
+    done.write_text(json.dumps({"size": [w, h], "frames": frames, "seed": seed, "grain": grain, "texture": texture,
                                 "times": [float(x) for x in bracket.times], "files": [p.name for p in paths]}))
     return paths
 
@@ -78,17 +117,48 @@ import json, sys, time
 t0 = time.perf_counter()
 import cv2, numpy as np
 from derender.io.exif import read_exposure_time
-paths = sys.argv[1:]
+algo, paths = sys.argv[1], sys.argv[2:]
 times = np.array([read_exposure_time(p) for p in paths], dtype=np.float32)
 t1 = time.perf_counter()
 imgs = [cv2.imread(p) for p in paths]
 t2 = time.perf_counter()
-resp = cv2.createCalibrateDebevec().process(imgs, times)
-t3 = time.perf_counter()
-hdr = cv2.createMergeDebevec().process(imgs, times, resp)
+if algo == "robertson":
+    resp = cv2.createCalibrateRobertson().process(imgs, times)
+    t3 = time.perf_counter()
+    hdr = cv2.createMergeRobertson().process(imgs, times, resp)
+else:
+    resp = cv2.createCalibrateDebevec().process(imgs, times)
+    t3 = time.perf_counter()
+    hdr = cv2.createMergeDebevec().process(imgs, times, resp)
 t4 = time.perf_counter()
 print(json.dumps({"inner_s": t4 - t1, "decode_s": t2 - t1, "calibrate_s": t3 - t2, "merge_s": t4 - t3,
                   "threads": cv2.getNumThreads(), "finite": bool(np.isfinite(hdr).all())}))
+"""
+
+
+#: The floor: what any merge of these files into this EXR must do at least -- decode every
+#: frame once with derender's decoder and thread count (:func:`derender.engine.frames.read_frames`)
+#: and write a radiance map of the same content with the same writer and options. The image
+#: written is a merged output read beforehand (outside the timing, ``read_s``, subtracted from
+#: the wall time by the runner), so its compression costs what the merge's output costs.
+_FLOOR_WORKER = r"""
+import json, sys, time
+t0 = time.perf_counter()
+from pathlib import Path
+import numpy as np
+from derender.engine.frames import read_frames
+from derender.io.exr import read_exr, write_exr_fast
+like, out, paths = sys.argv[1], sys.argv[2], [Path(p) for p in sys.argv[3:]]
+tr = time.perf_counter()
+img = read_exr(like)
+read_s = time.perf_counter() - tr
+t1 = time.perf_counter()
+frames, _ = read_frames(paths, None)
+t2 = time.perf_counter()
+write_exr_fast(out, img)
+t3 = time.perf_counter()
+print(json.dumps({"inner_s": t3 - t1, "decode_s": t2 - t1, "write_s": t3 - t2, "read_s": read_s,
+                  "exr_mb": Path(out).stat().st_size / 1e6}))
 """
 
 
@@ -185,21 +255,57 @@ def _last_json(text: str) -> dict:
     return {}
 
 
-def _bench_one(name: str, paths: list[Path], outdir: Path, python: str) -> dict:
+#: Methods whose ``derender merge`` needs a de-rendering model (``-m``).
+MODEL_METHODS = ("probabilistic", "stabilized-probabilistic")
+
+
+def bench_model(workdir: str | os.PathLike, seed: int = 0) -> Path:
+    """A GP de-rendering model for the probabilistic methods (5000 simulated D5100 chart
+    pairs), fitted once and cached in ``workdir``."""
+    from derender.core.errors import DerenderError
+    from derender.derendering.base import fit_model, load_model, model_metadata, model_camera_to_srgb
+
+    model = Path(workdir) / "nikon-d5100-gp.npz"
+    try:
+        if model_camera_to_srgb(load_model(model)) is not None:
+            return model
+    except DerenderError:          # missing, or written by another model-file version
+        pass
+    model.unlink(missing_ok=True)
+    from derender.camera.chart import chart_pairs
+
+    pairs = chart_pairs("nikon-d5100")
+    train = np.random.default_rng(seed).permutation(len(pairs.jpeg))[:5000]
+    fit_model("gp", pairs.jpeg[train], pairs.raw[train], seed=seed, metadata=model_metadata(pairs)).save(model)
+    return model
+
+
+def _bench_one(name: str, paths: list[Path], outdir: Path, python: str, model: Path | None = None,
+               like: Path | None = None) -> dict:
     files = [str(p) for p in paths]
-    if name == "opencv":
-        cmd = [python, "-c", _OPENCV_WORKER, *files]
+    if name in ("opencv", "opencv-debevec", "opencv-robertson"):
+        cmd = [python, "-c", _OPENCV_WORKER, "robertson" if name.endswith("robertson") else "debevec", *files]
     elif name == "colour-hdri":
         cmd = [python, "-c", _COLOUR_HDRI_WORKER, *files]
+    elif name == "floor":
+        if like is None:
+            return {"status": "skipped", "reason": "needs a merged output to write (run a derender entry first)"}
+        cmd = [python, "-c", _FLOOR_WORKER, str(like), str(outdir / f"floor-{len(paths)}.exr"), *files]
     elif name.startswith("derender-"):
         method = name[len("derender-"):]
         cmd = [python, "-m", "derender.cli", "merge", *files, "-o", str(outdir / f"{name}-{len(paths)}.exr"),
                "--method", method]
+        if method in MODEL_METHODS:
+            if model is None:
+                return {"status": "skipped", "reason": "needs a de-rendering model"}
+            cmd += ["-m", str(model)]
     else:
         raise InputError(f"unknown benchmark entry {name!r}")
     run = _run_measured(cmd)
     detail = _last_json(run["stdout"])
     status = detail.pop("status", "ok" if run["returncode"] == 0 else "error")
+    if name == "floor" and "read_s" in detail:
+        run["wall_s"] -= detail["read_s"]       # reading the image to write is not part of the floor
     row = {"status": status, "command": " ".join([Path(cmd[0]).name, *cmd[1:2]] if cmd[1] == "-c" else
                                                   [Path(cmd[0]).name, *cmd[1:5], "...", *cmd[-4:]]),
            "wall_s": run["wall_s"], "peak_rss_mb": run["peak_rss_mb"], "cpu_s": run["cpu_s"], **detail}
@@ -209,6 +315,9 @@ def _bench_one(name: str, paths: list[Path], outdir: Path, python: str) -> dict:
         m = re.search(r"\(([0-9.]+) s;", run["stdout"])
         if m:
             row["inner_s"] = float(m.group(1))
+        out = outdir / f"{name}-{len(paths)}.exr"
+        if out.is_file():
+            row["exr_mb"] = out.stat().st_size / 1e6
     if status == "error":
         row["reason"] = (detail.get("reason") or run["stderr"].strip().splitlines()[-1:] or ["?"])
     return row
@@ -225,19 +334,29 @@ def method_registered(method: str) -> bool:
     return True
 
 
+def _median(xs: Sequence[float]) -> float:
+    return float(np.median(np.asarray(xs, dtype=np.float64)))
+
+
 def run_bench(size: tuple[int, int] = (6000, 4000), frames: int = 9, workdir: str | os.PathLike | None = None,
               entries: Sequence[str] | None = None, memory_frames: int | None = None, seed: int = 0,
-              repeat: int = 1, python: str | None = None, progress: Callable[[str], None] | None = None) -> dict:
+              repeat: int = 1, python: str | None = None, progress: Callable[[str], None] | None = None,
+              texture: bool = True, model: str | os.PathLike | None = None) -> dict:
     """Side-by-side benchmark on a generated bracket (:func:`generate_bench_bracket`), each run in a fresh process.
 
-    ``entries`` (default all): ``"opencv"`` (cv2.imread x N + CalibrateDebevec +
-    MergeDebevec, no file written), ``"colour-hdri"`` (``image_stack_to_HDRI``; skipped
-    when not importable), ``"derender-debevec"`` and ``"derender-stabilized"`` (the
-    ``derender merge`` command: decode, calibrate, merge and EXR write; stabilized only
-    when the method is registered). With ``memory_frames`` (e.g. 18) ``derender merge
-    --method debevec`` also runs on a bracket of that many frames, to compare peak RSS.
-    Wall time is the whole process (interpreter start included); ``inner_s`` the
-    tool's own timing; peak RSS from ``wait4``. ``repeat`` > 1 keeps the fastest run.
+    ``entries`` (default floor, OpenCV, derender's Debevec and stabilised merges):
+    ``"floor"`` (decode every frame once + write the same EXR: :data:`_FLOOR_WORKER`; it
+    writes the output of the first derender entry, so one is needed), ``"opencv"`` /
+    ``"opencv-robertson"`` (cv2.imread x N + OpenCV's calibration and merge, no file
+    written), ``"colour-hdri"`` (skipped when not importable) and ``"derender-METHOD"``
+    (the ``derender merge`` command: decode, calibrate, merge and EXR write; the
+    probabilistic methods get ``model`` or a cached GP model, :func:`bench_model`).
+    ``repeat`` rounds run every entry in turn (alternating, so slow phases of a loaded
+    machine hit all entries); a row gives the median over the rounds, and every ratio is
+    the median over the rounds of the two entries' same-round ratio. With
+    ``memory_frames`` (e.g. 18) ``derender merge --method debevec`` also runs on a bracket of
+    that many frames, to compare peak RSS. Wall time is the whole process (interpreter
+    start included); ``inner_s`` the tool's own timing; peak RSS the child's own VmHWM.
     Returns a dict (see :func:`format_bench`).
     """
     python = python or sys.executable
@@ -245,42 +364,82 @@ def run_bench(size: tuple[int, int] = (6000, 4000), frames: int = 9, workdir: st
     workdir.mkdir(parents=True, exist_ok=True)
     say = progress or (lambda msg: None)
     if entries is None:
-        entries = ["opencv", "colour-hdri", "derender-debevec", "derender-stabilized"]
+        entries = ["floor", "opencv", "derender-debevec", "derender-stabilized"]
+    entries = list(entries)
+    if "floor" in entries:     # the floor writes a derender output: run one before it
+        first = next((e for e in entries if e.startswith("derender-")), None)
+        if first is not None:
+            entries.remove("floor")
+            entries.insert(entries.index(first) + 1, "floor")
     say(f"generating {frames} frames {size[0]}x{size[1]} in {workdir} (cached)")
-    paths = generate_bench_bracket(workdir, size, frames, seed)
+    paths = generate_bench_bracket(workdir, size, frames, seed, texture=texture)
     outdir = workdir / "outputs"
     outdir.mkdir(exist_ok=True)
+    need_model = any(e.startswith("derender-") and e[len("derender-"):] in MODEL_METHODS for e in entries)
+    model_path = Path(model) if model is not None else (bench_model(workdir, seed) if need_model else None)
+    rounds: dict[str, list[dict]] = {name: [] for name in entries}
+    skipped: dict[str, dict] = {}
+    like = None
+    for r in range(max(1, int(repeat))):
+        for name in entries:
+            if name in skipped:
+                continue
+            if name.startswith("derender-") and not method_registered(name[len("derender-"):]):
+                skipped[name] = {"status": "skipped", "reason": f"method {name[len('derender-'):]!r} is not registered"}
+                continue
+            say(f"round {r + 1}: running {name}")
+            row = _bench_one(name, paths, outdir, python, model=model_path, like=like)
+            if row["status"] != "ok":
+                skipped[name] = row
+                continue
+            rounds[name].append(row)
+            if like is None and name.startswith("derender-"):
+                like = outdir / f"{name}-{len(paths)}.exr"
     runs: dict[str, dict] = {}
     for name in entries:
-        if name == "derender-stabilized" and not method_registered("stabilized"):
-            runs[name] = {"status": "skipped", "reason": "method 'stabilized' is not registered"}
+        if name in skipped and not rounds[name]:
+            runs[name] = skipped[name]
             continue
-        best = None
-        for _ in range(max(1, int(repeat))):
-            say(f"running {name}")
-            row = _bench_one(name, paths, outdir, python)
-            if row["status"] != "ok":
-                best = row
-                break
-            if best is None or row["wall_s"] < best["wall_s"]:
-                best = row
-        runs[name] = best
+        rows = rounds[name]
+        med = dict(rows[0])
+        for key in ("wall_s", "inner_s", "peak_rss_mb", "cpu_s", "decode_s", "write_s", "merge_s", "calibrate_s"):
+            if all(key in x for x in rows):
+                med[key] = _median([x[key] for x in rows])
+        med["walls"] = [x["wall_s"] for x in rows]
+        runs[name] = med
     result: dict[str, Any] = {
         "size": [int(size[0]), int(size[1])], "frames": int(frames), "workdir": str(workdir),
         "input_mb": sum(p.stat().st_size for p in paths) / 1e6,
-        "cpus": thread_count(None), "load_avg": list(os.getloadavg()), "runs": runs, "ratios": {},
+        "frame_mb": [p.stat().st_size / 1e6 for p in paths], "texture": bool(texture),
+        "cpus": thread_count(None), "load_avg": list(os.getloadavg()), "rounds": max(1, int(repeat)),
+        "runs": runs, "ratios": {},
     }
-    ok = {k: v for k, v in runs.items() if v.get("status") == "ok"}
-    if "opencv" in ok:
-        for k, v in ok.items():
-            if k != "opencv":
-                result["ratios"][f"{k} / opencv"] = v["wall_s"] / ok["opencv"]["wall_s"]
-    if "derender-stabilized" in ok and "derender-debevec" in ok:
-        result["ratios"]["derender-stabilized / derender-debevec"] = (ok["derender-stabilized"]["wall_s"]
-                                                                      / ok["derender-debevec"]["wall_s"])
+
+    def ratio(a: str, b: str) -> float | None:
+        ra, rb = rounds.get(a) or [], rounds.get(b) or []
+        if not ra or len(ra) != len(rb):
+            return None
+        return _median([x["wall_s"] / y["wall_s"] for x, y in zip(ra, rb)])
+
+    def cpu_ratio(a: str, b: str) -> float | None:
+        ra, rb = rounds.get(a) or [], rounds.get(b) or []
+        if not ra or len(ra) != len(rb):
+            return None
+        return _median([x["cpu_s"] / y["cpu_s"] for x, y in zip(ra, rb)])
+
+    result["cpu_ratios"] = {}
+    for ref in ("floor", "opencv", "derender-debevec"):
+        for k in entries:
+            if k != ref and not (ref == "derender-debevec" and not k.startswith("derender-")):
+                v = ratio(k, ref)
+                if v is not None:
+                    result["ratios"][f"{k} / {ref}"] = v
+                v = cpu_ratio(k, ref)
+                if v is not None:
+                    result["cpu_ratios"][f"{k} / {ref}"] = v
     if memory_frames:
         say(f"generating {memory_frames} frames for the memory comparison")
-        big = generate_bench_bracket(workdir, size, int(memory_frames), seed)
+        big = generate_bench_bracket(workdir, size, int(memory_frames), seed, texture=texture)
         say(f"running derender-debevec on {memory_frames} frames")
         row = _bench_one("derender-debevec", big, outdir, python)
         base = runs.get("derender-debevec") or _bench_one("derender-debevec", paths, outdir, python)
@@ -293,22 +452,40 @@ def run_bench(size: tuple[int, int] = (6000, 4000), frames: int = 9, workdir: st
 
 
 def format_bench(result: dict) -> str:
-    """Markdown table of a :func:`run_bench` result."""
+    """Markdown table of a :func:`run_bench` result (medians over the rounds; ratios are
+    medians of same-round ratios)."""
     w, h = result["size"]
-    lines = [f"{result['frames']} JPEGs {w}x{h} ({w * h / 1e6:.1f} MP, {result['input_mb']:.0f} MB), "
-             f"{result['cpus']} CPUs, load average {result['load_avg'][0]:.2f}", "",
-             "| tool | status | wall s | inner s | peak RSS MB | CPU s | vs OpenCV |",
-             "|---|---|---|---|---|---|---|"]
-    ocv = result["runs"].get("opencv", {})
+    n = result["frames"]
+    codes_mb = n * w * h * 3 / 1e6
+    out_mb = w * h * (12 + 1) / 1e6          # float32 RGB radiance + uint8 mask
+    fmb = result.get("frame_mb") or []
+    lines = [f"{n} JPEGs {w}x{h} ({w * h / 1e6:.1f} MP, {result['input_mb']:.0f} MB"
+             + (f", {min(fmb):.1f}-{max(fmb):.1f} MB per frame" if fmb else "") + f"), {result['cpus']} CPUs, "
+             f"load average {result['load_avg'][0]:.2f}, median of {result.get('rounds', 1)} alternating round(s)",
+             f"8-bit codes {codes_mb:.0f} MB + outputs {out_mb:.0f} MB = {codes_mb + out_mb:.0f} MB "
+             f"(RSS target +25 %: {1.25 * (codes_mb + out_mb):.0f} MB)", "",
+             "| tool | status | wall s | inner s | peak RSS MB | CPU s | EXR MB | vs floor | vs OpenCV | vs Debevec "
+             "| CPU vs floor | CPU vs Debevec |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rat = result.get("ratios", {})
     for name, r in result["runs"].items():
         if r.get("status") != "ok":
-            lines.append(f"| {name} | {r.get('status')}: {r.get('reason', '')} | | | | | |")
+            lines.append(f"| {name} | {r.get('status')}: {r.get('reason', '')} | | | | | | | | | | |")
             continue
-        ratio = f"{r['wall_s'] / ocv['wall_s']:.2f}x" if ocv.get("status") == "ok" else ""
         inner = f"{r['inner_s']:.2f}" if "inner_s" in r else ""
-        lines.append(f"| {name} | ok | {r['wall_s']:.2f} | {inner} | {r['peak_rss_mb']:.0f} | {r['cpu_s']:.1f} | {ratio} |")
-    for k, v in result.get("ratios", {}).items():
-        lines.append(f"\n{k}: {v:.2f}")
+        exr = f"{r['exr_mb']:.0f}" if "exr_mb" in r else ""
+        cols = []
+        for ref in ("floor", "opencv", "derender-debevec"):
+            v = rat.get(f"{name} / {ref}")
+            cols.append(f"{v:.2f}x" if v is not None else "")
+        for ref in ("floor", "derender-debevec"):
+            v = result.get("cpu_ratios", {}).get(f"{name} / {ref}")
+            cols.append(f"{v:.2f}x" if v is not None else "")
+        lines.append(f"| {name} | ok | {r['wall_s']:.2f} | {inner} | {r['peak_rss_mb']:.0f} | {r['cpu_s']:.1f} | "
+                     f"{exr} | {' | '.join(cols)} |")
+    fl = result["runs"].get("floor", {})
+    if fl.get("status") == "ok" and "decode_s" in fl:
+        lines.append(f"\nfloor: decode {fl['decode_s']:.2f} s + write {fl['write_s']:.2f} s")
     mem = result.get("memory")
     if mem:
         a, b = mem["frames"]

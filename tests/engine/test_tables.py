@@ -361,3 +361,28 @@ def test_stabilized_merge_restores_opencv_threads(tmp_path):
             assert cv2.getNumThreads() == 3
     finally:
         cv2.setNumThreads(before)
+
+
+@pytest.mark.parametrize("method,opts", [("debevec", {}), ("robertson", {}),
+                                         ("debevec", {"channel_weights": "independent"}),
+                                         ("debevec", {"domain": "linear"}),
+                                         ("debevec", {"domain": "linear", "channel_weights": "independent"}),
+                                         ("debevec", {"channel_weights": "min"})])
+def test_held_kernel_equals_two_pass_stream(jpeg_bracket, tmp_path, method, opts, monkeypatch):
+    """Frames held (decoded once, the compiled table kernel) give the two-pass stream's bytes and mask (issue 17)."""
+    import derender.engine.run as engine_run
+
+    monkeypatch.setattr(engine_run, "KERNEL_MIN_PIXEL_FRAMES", 0)     # the kernel even for this small bracket
+    held = merge_files_fast(jpeg_bracket, method=method, threads=2, output=tmp_path / "a.exr", **opts)
+    two = merge_files_fast(jpeg_bracket, method=method, threads=1, keep_frames=1, output=tmp_path / "b.exr", **opts)
+    assert held.info["streaming"]["decodes"] == 6 and two.info["streaming"]["decodes"] == 11
+    if opts.get("channel_weights", "mean") in ("mean", "independent"):
+        assert held.info["kernel"] == "table_merge_rows"
+    np.testing.assert_array_equal(np.ascontiguousarray(held.radiance), np.ascontiguousarray(two.radiance))
+    np.testing.assert_array_equal(held.mask, two.mask)
+    assert (tmp_path / "a.exr").read_bytes() == (tmp_path / "b.exr").read_bytes()
+    monkeypatch.setattr(engine_run, "KERNEL_MIN_PIXEL_FRAMES", 10 ** 12)
+    small = merge_files_fast(jpeg_bracket, method=method, threads=2, **opts)
+    assert "kernel" not in small.info and small.info["streaming"]["decodes"] == 6
+    np.testing.assert_array_equal(np.ascontiguousarray(small.radiance), np.ascontiguousarray(two.radiance))
+    np.testing.assert_array_equal(small.mask, two.mask)

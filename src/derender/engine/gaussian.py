@@ -22,7 +22,29 @@ import numpy as np
 from derender.core.types import HDRResult
 from derender.engine.plans import GaussianPlan
 
-__all__ = ["LogGaussianProduct", "merge_gaussian_frames"]
+__all__ = ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held"]
+
+
+def mark_colours_held(frames: np.ndarray, present: np.ndarray, threads: int | None = None) -> bool:
+    """Mark the colours of held frames (N, H, W, 3) uint8 in a presence bitmap ``present``
+    ((2**24,) bool, :class:`derender.derendering.apply.ColourIndexBuilder`'s) with the
+    compiled :func:`derender.engine.kernels.mark_colours`, the frames split over ``threads``
+    threads. Returns False (nothing marked) for frames it cannot take."""
+    if (frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3 or not frames.flags.c_contiguous
+            or present.dtype != np.bool_ or present.shape != (1 << 24,) or not present.flags.c_contiguous):
+        return False
+    from derender.core.memory import thread_count
+    from derender.engine.kernels import mark_colours
+
+    n = frames.shape[0]
+    k = max(1, min(thread_count(threads), n))
+    cuts = [n * i // k for i in range(k + 1)]
+    if k == 1:
+        mark_colours(frames, 0, n, present)
+    else:
+        with ThreadPoolExecutor(k, thread_name_prefix="derender-colours") as ex:
+            list(ex.map(lambda i: mark_colours(frames, cuts[i], cuts[i + 1], present), range(k)))
+    return True
 
 
 class LogGaussianProduct:
@@ -50,9 +72,14 @@ class LogGaussianProduct:
             np.maximum(self.bound[c], t, out=self.bound[c])
 
 
-def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None) -> HDRResult:
+def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None,
+                          write=None) -> HDRResult:
     """Run a :class:`~derender.engine.plans.GaussianPlan` on held frames (N, H, W, 3) uint8
-    sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads."""
+    sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
+    ``write(result, rows_done)``: the radiance written while merging
+    (:func:`derender.engine.overlap.merge_writing`)."""
+    from derender.engine.overlap import OVERLAP_ROWS, merge_writing
+
     t0 = time.perf_counter()
     n, h, w = frames.shape[:3]
     radiance = np.empty((h, w, 3), dtype=np.float32)
@@ -60,20 +87,37 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     mask = np.empty((h, w), dtype=np.uint8)
     log_scales = [float(s) for s in plan.log_scales]
 
+    lut = getattr(plan.index, "lut", None)
+    compiled = (lut is not None and plan.planes.dtype == np.float64 and plan.planes.flags.c_contiguous
+                and frames.flags.c_contiguous)
+    if compiled:
+        from derender.engine.kernels import gaussian_band
+
+        scales = np.asarray(log_scales, dtype=np.float64)
+
     def run(y0: int, y1: int) -> None:
         prod = LogGaussianProduct((y1 - y0, w))
-        for j in range(n):
-            prod.add_rows(plan.planes, plan.index.rows(frames[j, y0:y1]), log_scales[j])
+        if compiled:
+            gaussian_band(frames, lut, plan.planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
+        else:
+            for j in range(n):
+                prod.add_rows(plan.planes, plan.index.rows(frames[j, y0:y1]), log_scales[j])
         radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
         mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
 
-    bands = [(y0, min(h, y0 + plan.band_rows)) for y0 in range(0, h, plan.band_rows)]
     nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
-    if nthreads > 1 and len(bands) > 1:
-        with ThreadPoolExecutor(min(nthreads, len(bands)), thread_name_prefix="derender-gauss") as ex:
-            list(ex.map(lambda b: run(*b), bands))
-    else:
-        for b in bands:
-            run(*b)
-    return HDRResult(radiance=radiance, mask=mask, variance=variance,
-                     info={"engine": "gaussian", "merge_seconds": time.perf_counter() - t0})
+    res = HDRResult(radiance=radiance, mask=mask, variance=variance, info={"engine": "gaussian"})
+    group = plan.band_rows * nthreads        # a chunk: whole rounds of bands over the threads
+    step = group * max(1, OVERLAP_ROWS // group)
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-gauss") as ex:
+        def chunk(c0: int, c1: int) -> None:
+            bands = [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)]
+            if nthreads > 1 and len(bands) > 1:
+                list(ex.map(lambda b: run(*b), bands))
+            else:
+                for b in bands:
+                    run(*b)
+
+        merge_writing(h, step, chunk, res, write)
+    res.info["merge_seconds"] = time.perf_counter() - t0
+    return res

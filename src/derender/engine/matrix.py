@@ -80,7 +80,7 @@ def warm_up_kernels() -> threading.Thread:
 
 
 def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray, valid: np.ndarray | None = None,
-                        threads: int | None = None, buffer: np.ndarray | None = None) -> HDRResult:
+                        threads: int | None = None, buffer: np.ndarray | None = None, write=None) -> HDRResult:
     """Run a :class:`~derender.engine.plans.MatrixPlan` on held frames (N, H, W, 3) uint8.
 
     Frame ``j`` is read through ``plan.shifts[j]`` and restricted to ``valid`` (N, H, W)
@@ -89,7 +89,9 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     :func:`matrix_output_bytes` to hold the radiance and mask (the kernel writes every
     pixel of both, so it need not be zero). The radiance is an (H, W, 3) view of planar
     float32 memory; sums are float32 (2e-7 to 4e-7 relative to the float64 reference).
+    ``write(result, rows_done)``: written while merging (:func:`derender.engine.overlap.merge_writing`).
     """
+    from derender.engine.overlap import OVERLAP_ROWS, merge_writing
     from derender.engine.kernels import stabilized_merge_rows
 
     times = np.asarray(times, dtype=np.float64)
@@ -116,14 +118,20 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
         radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
         mask = populated_zeros((h, w), dtype=np.uint8)
     t0 = time.perf_counter()
-    with KERNEL_LOCK:
-        set_numba_threads(threads)
-        stabilized_merge_rows(np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
-                              np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32),
-                              mats64, wt, inv_var, inv_k, use_iv, int(np.argmin(times)), int(np.argmax(times)),
-                              bright, 0, h, radiance, mask)
-    info = {"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
+    info: dict = {}
+    res = HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
+    args = (np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
+            np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32), mats64, wt, inv_var, inv_k,
+            use_iv, int(np.argmin(times)), int(np.argmax(times)), bright)
+
+    def band(y0: int, y1: int) -> None:
+        with KERNEL_LOCK:
+            set_numba_threads(threads)
+            stabilized_merge_rows(*args, y0, y1, radiance, mask)
+
+    merge_writing(h, OVERLAP_ROWS, band, res, write)
+    info.update({"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
             "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
             "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),
-            "merge_seconds": time.perf_counter() - t0}
-    return HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
+            "merge_seconds": time.perf_counter() - t0})
+    return res

@@ -16,7 +16,7 @@ import os
 import struct
 import zlib
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
@@ -118,8 +118,8 @@ def _deflate(level: int) -> Callable[[bytes], bytes]:
         return lambda b: zlib.compress(b, level)
 
 
-def _zip_chunk(raw: np.ndarray, deflate: Callable[[bytes], bytes]) -> bytes:
-    """OpenEXR ZIP: split even/odd bytes, delta predictor (+128), zlib; raw when not smaller."""
+def _zip_chunk(raw: np.ndarray, deflate: Callable[[bytes], bytes]):
+    """OpenEXR ZIP: split even/odd bytes, delta predictor (+128), zlib; ``raw`` itself when not smaller."""
     n = raw.size
     half = (n + 1) // 2
     tmp = np.empty(n, dtype=np.uint8)
@@ -129,8 +129,8 @@ def _zip_chunk(raw: np.ndarray, deflate: Callable[[bytes], bytes]) -> bytes:
     d[0] = tmp[0]
     np.subtract(tmp[1:], tmp[:-1], out=d[1:])
     d[1:] += np.uint8(128)
-    comp = deflate(d.tobytes())
-    return comp if len(comp) < n else raw.tobytes()
+    comp = deflate(d)
+    return comp if len(comp) < n else raw
 
 
 def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = False,
@@ -201,49 +201,63 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
             return np.clip(buf, -65504.0, 65504.0).astype(dtype)
         return buf
 
-    def group(g: int) -> list[bytes]:
-        """Blocks of group ``g`` (``probe`` ZIP blocks, or 16 uncompressed lines) as chunk bytes."""
-        out = []
-        if comp_id == 0:
-            y0, y1 = g * 16, min(h, g * 16 + 16)
-            buf = raw_lines(y0, y1)
-            for y in range(y0, y1):
-                data = buf[y - y0].tobytes()
-                out.append(struct.pack("<ii", y, len(data)) + data)
-            return out
-        squeeze = True
-        for b in range(g * probe, min(n_blocks, (g + 1) * probe)):
-            y0, y1 = b * 16, min(h, b * 16 + 16)
-            raw = raw_lines(y0, y1).reshape(-1).view(np.uint8)
-            if squeeze:
-                data = _zip_chunk(raw, deflate)
-                if b == g * probe and len(data) > (1.0 - min_saving) * raw.size:
-                    squeeze = False
-            else:
-                data = raw.tobytes()
-            out.append(struct.pack("<ii", y0, len(data)) + data)
-        return out
+    def lines_task(g: int) -> list[tuple[int, np.ndarray]]:
+        """16 uncompressed lines from line ``16 g`` as (y, line) chunks."""
+        y0, y1 = g * 16, min(h, g * 16 + 16)
+        buf = raw_lines(y0, y1)
+        return [(y, buf[y - y0].reshape(-1).view(np.uint8)) for y in range(y0, y1)]
 
-    n_groups = (h + 15) // 16 if comp_id == 0 else (n_blocks + probe - 1) // probe
+    firsts: dict[int, Future] = {}
+
+    def block_task(b: int) -> tuple[list[tuple[int, object]], bool]:
+        """ZIP block ``b`` (16 lines) as one chunk, and (first block of its group) whether
+        compressing it saved ``min_saving``. The other blocks of the group are compressed
+        only if it did: they wait for the group's first block, always submitted before them
+        (the pool takes tasks in order, so no wait can block the block it waits for)."""
+        y0, y1 = b * 16, min(h, b * 16 + 16)
+        raw = raw_lines(y0, y1).reshape(-1).view(np.uint8)
+        first = (b // probe) * probe
+        if b == first:
+            data = _zip_chunk(raw, deflate)
+            return [(y0, data)], not len(data) > (1.0 - min_saving) * raw.size
+        squeeze = firsts[b // probe].result()[1]
+        return [(y0, _zip_chunk(raw, deflate) if squeeze else raw)], False
+
+    n_tasks = (h + 15) // 16 if comp_id == 0 else n_blocks
     nthreads = thread_count(threads)
     path = Path(path)
     with atomic_output(path, inputs) as tmp, open(tmp, "wb") as fh:
         fh.write(header)
-        table_pos = fh.tell()
+        pos = len(header)
+        table_pos = pos
         fh.write(b"\0" * (8 * n_blocks))
+        pos += 8 * n_blocks
         offsets = np.empty(n_blocks, dtype="<u8")
         i = 0
         with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-exr") as ex:
             futs: deque = deque()
             nxt = 0
-            for _ in range(n_groups):
-                while nxt < n_groups and len(futs) < 2 * nthreads:
-                    futs.append(ex.submit(group, nxt))
+            window = 2 * nthreads + 2
+            for _ in range(n_tasks):
+                while nxt < n_tasks and len(futs) < window:
+                    if comp_id == 0:
+                        futs.append(ex.submit(lines_task, nxt))
+                    else:
+                        fut = ex.submit(block_task, nxt)
+                        if nxt % probe == 0:
+                            firsts[nxt // probe] = fut
+                        futs.append(fut)
                     nxt += 1
-                for data in futs.popleft().result():
-                    offsets[i] = fh.tell()
+                res = futs.popleft().result()
+                for y, data in (res if comp_id == 0 else res[0]):
+                    offsets[i] = pos
+                    size = len(data) if isinstance(data, bytes) else data.nbytes
+                    fh.write(struct.pack("<ii", y, size))
                     fh.write(data)
+                    pos += 8 + size
                     i += 1
+                if comp_id != 0 and i % probe == 0:
+                    firsts.pop(i // probe - 1, None)
         fh.seek(table_pos)
         fh.write(offsets.tobytes())
     return path
