@@ -78,7 +78,7 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
     ``write(result, rows_done)``: the radiance written while merging
     (:func:`derender.engine.overlap.merge_writing`)."""
-    from derender.engine.overlap import OVERLAP_ROWS, merge_writing
+    from derender.engine.overlap import OVERLAP_ROWS, merge_writing, run_bands
 
     t0 = time.perf_counter()
     n, h, w = frames.shape[:3]
@@ -111,12 +111,7 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     step = group * max(1, OVERLAP_ROWS // group)
     with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-gauss") as ex:
         def chunk(c0: int, c1: int) -> None:
-            bands = [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)]
-            if nthreads > 1 and len(bands) > 1:
-                list(ex.map(lambda b: run(*b), bands))
-            else:
-                for b in bands:
-                    run(*b)
+            run_bands(ex, nthreads, run, [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)])
 
         merge_writing(h, step, chunk, res, write)
     res.info["merge_seconds"] = time.perf_counter() - t0

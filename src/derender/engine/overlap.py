@@ -12,7 +12,7 @@ from __future__ import annotations
 import threading
 from typing import Any, Callable
 
-__all__ = ["OVERLAP_ROWS", "RowsDone", "merge_writing"]
+__all__ = ["OVERLAP_ROWS", "RowsDone", "merge_writing", "run_bands"]
 
 #: Rows per band when a merge's output is written while it merges.
 OVERLAP_ROWS = 160
@@ -79,3 +79,13 @@ def merge_writing(h: int, step: int, band: Callable[[int, int], None], result: A
             th.join()
     if errors:
         raise errors[0]
+
+
+def run_bands(executor: Any, nthreads: int, fn: Callable[[int, int], None], bands: list[tuple[int, int]]) -> None:
+    """``fn(y0, y1)`` for every band: on ``executor``'s threads when there are several threads
+    and bands, otherwise in order on the calling thread (errors are raised either way)."""
+    if nthreads > 1 and len(bands) > 1:
+        list(executor.map(lambda b: fn(*b), bands))
+    else:
+        for b in bands:
+            fn(*b)

@@ -38,7 +38,7 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
-from derender.engine.overlap import OVERLAP_ROWS, RowsDone, merge_writing
+from derender.engine.overlap import OVERLAP_ROWS, RowsDone, merge_writing, run_bands
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
 from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import write_exr_fast
@@ -214,12 +214,7 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
                 set_numba_threads(threads)
                 table_merge_rows(frames, order_a, values, weights, independent, log, values[0], values[n - 1],
                                  0, n - 1, bright, y0, y1, out, mask)
-            blocks = [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)]
-            if nthreads > 1 and len(blocks) > 1:
-                list(ex.map(lambda b: finish(*b), blocks))
-            else:
-                for b in blocks:
-                    finish(*b)
+            run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
 
         merge_writing(h, step, band, res, write)
     info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
