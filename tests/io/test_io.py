@@ -294,3 +294,19 @@ def test_hostile_times_give_clear_errors(tmp_path, times):
     except (InputError, StackError):
         return
     assert np.all(np.isfinite(stack.times)) and np.all(np.diff(stack.times) > 0)
+
+
+def test_srgb8_table_matches_the_power_function_within_a_code():
+    """The preview's table encoder agrees with the exact sRGB encoding to within one code
+    (rounding boundaries only), exactly at black and white, and is monotone."""
+    from derender.io.preview import encode_srgb, encode_srgb8
+
+    x = np.concatenate([np.linspace(0.0, 1.0, 200001, dtype=np.float32),
+                        np.random.default_rng(0).random(100000, dtype=np.float32) ** 4])
+    exact = np.rint(encode_srgb(x) * 255.0).astype(int)
+    fast = encode_srgb8(x).astype(int)
+    assert fast.dtype == int and np.abs(fast - exact).max() <= 1
+    assert np.mean(fast != exact) < 0.01
+    ramp = encode_srgb8(np.linspace(0, 1, 5000, dtype=np.float32)).astype(int)
+    assert ramp[0] == 0 and ramp[-1] == 255 and np.all(np.diff(ramp) >= 0)
+    assert encode_srgb8(np.array([-1.0, np.float32(2.0)])).tolist() == [0, 255]

