@@ -103,6 +103,34 @@ def test_disk_full_while_writing_names_the_output(tmp_path, capsys, monkeypatch)
     assert _listing(tmp_path) == listing
 
 
+def test_out_of_memory_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    """A step the memory checks did not foresee runs out of memory (a fake: the preview's tone
+    mapping raises NumPy's MemoryError after the EXR was written) -> exit 2, one line, no output."""
+    import derender.io.preview as preview
+
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    listing = _listing(tmp_path)
+
+    def oom(*a, **k):
+        raise MemoryError("Unable to allocate 2.41 GiB for an array with shape (9, 4000, 6000, 3)")
+
+    monkeypatch.setattr(preview, "reinhard_photographic", oom)
+    code, _, err = run_cli(["merge", *ins, "-o", "o.exr", *TIMES, "--preview", "p.png"], capsys)
+    _assert_error(code, err, "out of memory")
+    assert "2.41 GiB" in err
+    assert _listing(tmp_path) == listing
+
+
+def test_address_space_limit_counts_as_available_memory():
+    """``ulimit -v`` lowers what derender believes it can allocate (checked in a child)."""
+    code = ("import resource; from derender.core.memory import available_memory; "
+            "resource.setrlimit(resource.RLIMIT_AS, (3 << 30, resource.RLIM_INFINITY)); "
+            "a = available_memory(); print(a); assert a is not None and a < 3 << 30")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+
+
 def test_disk_full_on_a_real_small_filesystem(tmp_path):
     """The same on a 64 kB tmpfs (needs mount rights: root on Linux; skipped elsewhere)."""
     mnt = tmp_path / "small"

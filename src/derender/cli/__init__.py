@@ -55,6 +55,11 @@ def _run(click_errors, aborts, exits) -> None:
     except click_errors as exc:
         typer.echo(f"error: {exc.format_message()}", err=True)
         sys.exit(2)
+    except MemoryError as exc:   # a step the memory checks did not foresee: every temporary is already removed
+        detail = f" ({exc})" if str(exc) else ""
+        typer.echo(f"error: out of memory{detail}; use fewer or smaller images, or a streamed method "
+                   "(debevec, robertson, stabilized, stabilized-joint, probabilistic)", err=True)
+        sys.exit(2)
     except OSError as exc:   # disk full, permissions, name too long, ... (messages name the user's paths)
         where = f": {exc.filename}" if exc.filename else ""
         typer.echo(f"error: {exc.strerror or exc}{where}", err=True)

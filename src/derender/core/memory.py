@@ -42,16 +42,21 @@ N_CODES = 256
 
 def available_memory() -> int | None:
     """Bytes the system can still give this process (``MemAvailable`` of ``/proc/meminfo``,
-    lowered by a cgroup limit when one applies), or None where neither can be read."""
-    avail = None
+    lowered by a cgroup limit and by the address-space limit (``ulimit -v``) when they
+    apply), or None where none can be read."""
+    avail = _address_space_room()
     try:
         with open("/proc/meminfo") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    avail = int(line.split()[1]) * 1024
+                    mem = int(line.split()[1]) * 1024
                     break
+            else:
+                mem = None
     except OSError:
-        return None
+        return avail
+    if mem is not None:
+        avail = mem if avail is None else min(avail, mem)
     for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
                                    ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
                                     "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
@@ -66,6 +71,21 @@ def available_memory() -> int | None:
         except (OSError, ValueError):
             continue
     return avail
+
+
+def _address_space_room() -> int | None:
+    """``RLIMIT_AS`` minus this process's ``VmSize``, or None without a limit."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/status") as f:
+            size = next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmSize:"))
+        return max(0, soft - size)
+    except (ImportError, OSError, StopIteration, ValueError):
+        return None
 
 
 def check_memory(nbytes: int, what: str) -> None:
