@@ -78,18 +78,22 @@ def _scan(images: Any, times: Sequence[float], keep: bool) -> tuple[np.ndarray |
         if k + 1 < n:
             nxt = np.asarray(images[k + 1])
             if t[k + 1] >= STAGNATION_RATIO * t[k]:
-                if a.dtype == np.uint8:       # the same tests on codes
-                    lo, hi = STAGNATION_FLOOR * 255.0, STAGNATION_CEILING * 255.0
-                    ai = a.astype(np.int16)
-                    flat = (ai > lo) & (ai < hi) & (nxt.astype(np.int16) <= ai + int(STAGNATION_CODES))
+                if a.dtype == np.uint8:       # the same tests on codes, channel by channel (no int16 copies)
+                    lo = int(np.floor(STAGNATION_FLOOR * 255.0))      # code > lo  <=>  code > FLOOR * 255
+                    hi = int(np.ceil(STAGNATION_CEILING * 255.0))     # code < hi  <=>  code < CEILING * 255
+                    for c in range(a.shape[-1]):
+                        ac, nc = a[..., c], nxt[..., c]
+                        # ac < hi <= 255 - STAGNATION_CODES, so ac + codes cannot wrap where it counts
+                        cum |= (ac > lo) & (ac < hi) & (nc <= ac + np.uint8(STAGNATION_CODES))
                 else:
                     step = np.float32(STAGNATION_CODES / 255.0)
                     flat = (a > STAGNATION_FLOOR) & (a < STAGNATION_CEILING) & (nxt <= a + step)
-                cum |= flat.any(axis=-1)
+                    cum |= flat.any(axis=-1)
         if keep:
             out[k] = cum
         top = FIT_HIGH * 255.0 if a.dtype == np.uint8 else FIT_HIGH
-        best = max(best, float((cum & (a.max(axis=-1) < top)).mean()))
+        amax = np.maximum(np.maximum(a[..., 0], a[..., 1]), a[..., 2]) if a.shape[-1] == 3 else a.max(axis=-1)
+        best = max(best, float(np.count_nonzero(cum & (amax < top)) / cum.size))
     return out, best
 
 
