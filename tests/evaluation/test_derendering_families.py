@@ -32,7 +32,13 @@ def test_derender_families_rows_are_finite():
         (f, s) for f in ("camera", "dslr-lut") for s in ("random", "held-out illuminants")}
     assert {r["role"] for r in rows if r["family"] == "dslr-lut"} == {"held out"}
     assert {r["role"] for r in rows if r["family"] == "camera"} == {"tuning"}
+    assert {r["method"] for r in rows} == {"poly", "floor"}
     for r in rows:
-        assert r["n_train"] == 600 and r["n_test"] > 0
+        assert np.isfinite(r["rel_rmse_all"]) and r["n_test"] > 0
+        if r["method"] == "floor":
+            assert r["rel_rmse_all"] <= next(q["rel_rmse_all"] for q in rows if q["method"] == "poly"
+                                             and (q["family"], q["split"]) == (r["family"], r["split"])) + 1e-12
+            continue
+        assert r["n_train"] == 600
         assert np.isfinite(r["rel_rmse_all"]) and np.isfinite(r["rel_rmse_clipped"])
         assert np.all(np.isfinite(r["coverage95"]))

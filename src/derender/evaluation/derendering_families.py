@@ -13,7 +13,10 @@ models on it, under two splits:
 Per (family, split, method): relative RMSE (MAP point estimate, as in
 :func:`derender.evaluation.experiments.derender_table`) over all test colours, over those with a
 channel clipped at 255 and over those outside the sRGB gamut, and the 95 % interval coverage
-per channel (predictive mean and variance). The RAW side (the truth) of every family is the
+per channel (predictive mean and variance). A ``floor`` row per (family, split) gives the
+smallest relative RMSE *any* function of the JPEG code can reach on the same test colours
+(:func:`derender.evaluation.derendering_metrics.code_floor_errors`): where it rises with the
+family, the rendering itself has become one-to-many, not the model worse. The RAW side (the truth) of every family is the
 same; only the JPEG engine differs, and in the held-out families it also changes from
 exposure to exposure (gain jitter, switching or drifting white balance, a local tone map),
 so that one JPEG colour no longer has one RAW colour.
@@ -61,20 +64,21 @@ def _split(pairs, split: str, n_train: int, rng: np.random.Generator) -> tuple[n
 def derender_families(families: Sequence[str] | None = None, cameras: Sequence[str] | None = None,
                       methods: Sequence[str] = ("gp", "poly", "rbf"), splits: Sequence[str] = SPLITS,
                       n_train: int = 5000, seed: int = 0, n_illuminants: int = 16, n_exposures: int = 22,
-                      progress: Callable[[str], None] | None = None) -> list[dict]:
+                      floor: bool = True, progress: Callable[[str], None] | None = None) -> list[dict]:
     """One row per (camera, family, split, method); see the module doc.
 
     Keys: ``camera``, ``family``, ``role`` (``"tuning"`` or ``"held out"``), ``split``,
     ``method``, ``n_train``, ``n_test``, ``rel_rmse_all``, ``rel_rmse_clipped``,
     ``rel_rmse_oog`` (NaN when no test colour is clipped / out of gamut), ``coverage95``
     (R, G, B), ``coverage95_mean``, ``share_clipped``, ``share_oog``, ``fit_seconds``.
+    ``floor`` rows (when ``floor``) carry the three relative RMSEs, ``n_train`` 0 and no coverage.
     Defaults: every family, nikon-d5100, 5000 training pairs.
     """
     from derender.camera.chart import chart_pairs
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.spectral import camera_search_dirs, load_camera
     from derender.derendering.base import fit_model
-    from derender.evaluation.derendering_metrics import interval_coverage, relative_rmse
+    from derender.evaluation.derendering_metrics import code_floor_errors, interval_coverage, relative_rmse
     from derender.evaluation.families import TUNING_FAMILIES
 
     families = list(families) if families else list(FAMILIES)
@@ -115,4 +119,17 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
                         progress(f"{cam.name} {fam} {split} {m}: rel RMSE {r['rel_rmse_all']:.3f} "
                                  f"(clipped {r['rel_rmse_clipped']:.3f}, oog {r['rel_rmse_oog']:.3f}), "
                                  f"coverage {r['coverage95_mean']:.3f}, {fit_s:.1f} s fit")
+                if floor:
+                    jt = pairs.jpeg[te]
+
+                    def fl(sel):
+                        return float(np.sqrt(code_floor_errors(jt[sel], x[sel]).mean())) if sel.any() else float("nan")
+
+                    rows.append({
+                        "camera": cam.name, "family": fam, "role": "tuning" if fam in TUNING_FAMILIES else "held out",
+                        "split": split, "method": "floor", "n_train": 0, "n_test": int(te.size),
+                        "rel_rmse_all": fl(np.ones(te.size, bool)), "rel_rmse_clipped": fl(clipped),
+                        "rel_rmse_oog": fl(oog), "share_clipped": float(clipped.mean()),
+                        "share_oog": float(oog.mean()),
+                    })
     return rows
