@@ -24,6 +24,15 @@ per patch. :func:`chart_pairs` does the same with the camera simulator:
   the exact value), in camera space without white balance ("white balance fixed").
 
 The result has 140 x 16 x 22 = 49,280 pairs, within the paper's 30,000-50,000.
+
+``family`` (one of :data:`derender.camera.families.FAMILIES`) renders the chart JPEGs
+through that pipeline family instead: one camera is drawn per family from the seed
+(:func:`derender.camera.families.family_settings` with the chart's ``n_exposures`` as the
+bracket, the daylight preset as the render white balance) and exposure ``e`` of every
+illuminant is rendered with frame ``e``'s settings (:func:`derender.camera.stages.render_frame`;
+``phone-local`` frames get their gain map from the chart frame itself). ``"paper"`` and
+``"camera"`` are the fixed pipelines of ``style="simple"`` / ``style="camera"``, byte for
+byte. The RAW side (the truth) and the noise are the same for every family.
 """
 
 from __future__ import annotations
@@ -128,23 +137,34 @@ class ChartPairs:
     model: str
     camera_to_srgb: np.ndarray  # (3, 3) for white-balanced camera RGB
     wb: np.ndarray               # (3,) the in-camera white balance used
+    family: str | None = None    # pipeline family of the JPEGs (None: ``style``'s fixed pipeline)
 
 
 def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int = 16, n_exposures: int = 22,
                 style: str = "camera", patch_px: int = 16, seed: int = 0, core: int = 4,
-                progress: Callable[[int, int], None] | None = None) -> ChartPairs:
-    """Simulate the paper-2 calibration session for one camera (see module doc)."""
+                progress: Callable[[int, int], None] | None = None, family: str | None = None) -> ChartPairs:
+    """Simulate the paper-2 calibration session for one camera (see module doc; ``family``
+    overrides ``style``)."""
     from derender.camera import (
         CFA_PATTERN,
         RenderSettings,
+        camera_rgb_from_mosaic,
         expose_mosaic,
         fit_xyz_to_camera,
         isp_render,
         mosaic_signal,
         white_balance_for,
     )
+    from derender.camera.stages import prepare_frame, render_frame
     from derender.core.colorimetry import camera_to_linear_srgb_matrix
 
+    frames = None
+    if family is not None:
+        from derender.camera.families import FAMILIES, check_family
+
+        check_family(family)
+        if family in ("paper", "camera"):
+            style = "simple" if family == "paper" else "camera"
     if isinstance(camera, str):
         camera = load_camera(camera)
     if n_illuminants < 1 or n_exposures < 2:
@@ -155,6 +175,12 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int
     cam_to_srgb = camera_to_linear_srgb_matrix(xyz_to_cam)
     wb = white_balance_for(camera, "D65")  # daylight preset
     settings = RenderSettings(wb=[float(v) for v in wb], style=style)
+    if family is not None and family not in ("paper", "camera"):
+        from derender.camera.families import family_settings
+
+        # one camera per family (its own stream: the noise stays that of the other families)
+        rng_fam = np.random.default_rng(np.random.SeedSequence([int(seed), 13, list(FAMILIES).index(family)]))
+        frames = family_settings(family, n_exposures, rng_fam, wb, wb, cam_to_srgb)
     n_patch = refl.shape[0]
     cols = 14
     rows = int(np.ceil(n_patch / cols))
@@ -191,7 +217,11 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int
         signal = mosaic_signal(img, CFA_PATTERN)
         for e, t in enumerate(exposures):
             mosaic = expose_mosaic(signal, camera, float(t), rng)
-            codes = isp_render(mosaic, camera, cam_to_srgb, settings)
+            if frames is None:
+                codes = isp_render(mosaic, camera, cam_to_srgb, settings)
+            else:
+                rgb = camera_rgb_from_mosaic(mosaic, camera)
+                codes = render_frame(rgb, prepare_frame(frames[e], rgb))
             sums = np.stack([np.bincount(flat_idx, weights=codes[..., c][valid].astype(np.float64), minlength=n_patch)
                              for c in range(3)], axis=1)
             jpeg_rows.append(np.clip(np.rint(sums / counts[:, None]), 0, 255).astype(np.uint8))
@@ -207,7 +237,7 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int
         jpeg=np.concatenate(jpeg_rows), raw=raw, illuminant=np.concatenate(il_rows),
         exposure=np.concatenate(ex_rows), patch=np.concatenate(pa_rows),
         out_of_gamut=np.any(srgb < -1e-6 * np.maximum(srgb.max(axis=1, keepdims=True), 1e-12), axis=1),
-        camera=camera.name, make=camera.make, model=camera.model, camera_to_srgb=cam_to_srgb, wb=wb,
+        camera=camera.name, make=camera.make, model=camera.model, camera_to_srgb=cam_to_srgb, wb=wb, family=family,
     )
 
 
@@ -223,7 +253,7 @@ def save_pairs(pairs: ChartPairs, path: str | os.PathLike) -> Path:
                 jpeg=pairs.jpeg, raw=pairs.raw.astype(np.float64), illuminant=pairs.illuminant,
                 exposure=pairs.exposure, patch=pairs.patch, out_of_gamut=pairs.out_of_gamut,
                 camera=np.array(pairs.camera), make=np.array(pairs.make), model=np.array(pairs.model),
-                camera_to_srgb=pairs.camera_to_srgb, wb=pairs.wb,
+                camera_to_srgb=pairs.camera_to_srgb, wb=pairs.wb, family=np.array(pairs.family or ""),
             )
     return path
 
@@ -259,5 +289,5 @@ def load_pairs(path: str | os.PathLike) -> ChartPairs:
         exposure=get("exposure", np.zeros(n, int)), patch=get("patch", np.arange(n)),
         out_of_gamut=get("out_of_gamut", np.zeros(n, bool)).astype(bool), camera=str(get("camera", "")),
         make=str(get("make", "")), model=str(get("model", "")), camera_to_srgb=get("camera_to_srgb", np.eye(3)),
-        wb=get("wb", np.ones(3)),
+        wb=get("wb", np.ones(3)), family=str(get("family", "")) or None,
     )

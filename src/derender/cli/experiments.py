@@ -47,6 +47,34 @@ def exp_derender_table(
         output.write_text(json.dumps(rows, indent=2, default=float))
 
 
+@experiment_app.command("derender-families")
+def exp_derender_families(
+    families: Optional[str] = typer.Option(None, "--families", help="Pipeline families, comma separated (default: all; see 'derender simulate --help')."),
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated cameras (default: nikon-d5100)."),
+    n_train: int = typer.Option(5000, "--n-train", help="Training pairs."),
+    methods: str = typer.Option("gp,poly,rbf", "--methods", help="Methods."),
+    seed: int = typer.Option(0, "--seed", help="Seed."),
+    output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
+) -> None:
+    """Issue 16: paper 2's de-rendering models on chart sessions rendered by every pipeline family
+    (random split and 4 held-out illuminants); relative RMSE all / clipped / out-of-gamut, 95 % coverage;
+    tuning families (paper, camera) vs held out."""
+    from derender.evaluation.derendering_families import derender_families
+    from derender.evaluation.experiments import format_table
+    from derender.io.files import OutputTransaction
+
+    with OutputTransaction() as tx:
+        json_tmp = tx.add(output, "--json", (".json",))
+        rows = derender_families(_cams(families), _cams(cameras), methods=[m.strip() for m in methods.split(",")],
+                                 n_train=n_train, seed=seed, progress=lambda msg: console().print(msg))
+        if json_tmp is not None:
+            json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")
+    typer.echo(format_table(rows, [("family", "family", ""), ("role", "role", ""), ("split", "split", ""),
+                                   ("method", "method", ""), ("rel_rmse_all", "rel RMSE all", ".3f"),
+                                   ("rel_rmse_clipped", "rel clipped", ".3f"), ("rel_rmse_oog", "rel out-of-gamut", ".3f"),
+                                   ("coverage95", "95% coverage R/G/B", ".3f"), ("fit_seconds", "fit s", ".1f")]))
+
+
 @experiment_app.command("threshold-sweep")
 def exp_threshold_sweep(
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated cameras."),

@@ -1,6 +1,7 @@
 """Scoring: the PSNR protocol, paper 1 Table 1 on datasets (Dask), paper 2 experiments, response diagnostics.
 
 Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`,
+:mod:`derender.evaluation.derendering_families` (paper 2's de-rendering models on every camera-pipeline family),
 :mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`.
 """
@@ -13,6 +14,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "metrics": ["PSNR_CAP", "fit_scale", "remap_minmax", "psnr", "psnr_rgbl", "fit_colour_matrix", "relative_errors", "log_psnr", "hdr_scores"],
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
     "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage"],
+    "derendering_families": ["HELDOUT_ILLUMINANTS", "SPLITS", "derender_families"],
     "demo": ["run_demo"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
