@@ -95,7 +95,19 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
 
         scales = np.asarray(log_scales, dtype=np.float64)
 
+    fused = plan.lognormal if compiled else None
+    if fused is not None:
+        from derender.engine.kernels import gaussian_moments_band
+
+        use_a = fused.matrix is not None
+        a = np.ascontiguousarray(fused.matrix if use_a else np.eye(3), dtype=np.float64)
+
     def run(y0: int, y1: int) -> None:
+        if fused is not None:    # sums and moments in one compiled pass, no float64 band arrays
+            gaussian_moments_band(frames, lut, plan.planes, scales, y0, y1, bool(fused.censor),
+                                  float(fused.max_log), float(fused.max_v), a, use_a, radiance, variance)
+            mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
+            return
         prod = LogGaussianProduct((y1 - y0, w))
         if compiled:
             gaussian_band(frames, lut, plan.planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)

@@ -15,6 +15,8 @@ thread while it decodes (:func:`derender.fastmerge._warm_up_stabilized`).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -24,6 +26,7 @@ __all__ = [
     "mtb_band_counts",
     "table_merge_rows",
     "gaussian_band",
+    "gaussian_moments_band",
     "mark_colours",
 ]
 
@@ -393,6 +396,105 @@ def gaussian_band(frames, lut, planes, log_scales, y0, y1, prec, acc, bound):  #
                     b = planes[6 + c, k] + ls
                     if b > bound[c, r, x]:
                         bound[c, r, x] = b
+
+
+@njit(inline="always")
+def _ndtr(a):  # pragma: no cover - compiled
+    """Standard normal CDF, the algorithm of cephes' (SciPy's) ``ndtr`` on libm's erf / erfc."""
+    x = a * 0.7071067811865476
+    z = abs(x)
+    if z < 0.7071067811865476:
+        return 0.5 + 0.5 * math.erf(x)
+    y = 0.5 * math.erfc(z)
+    return 1.0 - y if x > 0.0 else y
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
+def gaussian_moments_band(frames, lut, planes, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
+                          radiance, variance):  # pragma: no cover - compiled
+    """Rows ``y0:y1`` of the log-space Gaussian product, sums and moments in one pass: the sums of
+    :func:`gaussian_band` (same float64 operations and order), kept for one row at a time, then
+    per pixel and channel what :func:`derender.hdr.probabilistic.log_product_moments` and
+    :func:`derender.hdr.probabilistic.finite_outputs` compute from them: ``v = 1 / prec``,
+    ``m = acc v`` (``inf``, 0 where ``prec`` is 0); with ``censor`` the truncated-normal
+    moments below ``bound`` (``_truncate_below_log``); ``m`` clipped to ``+-max_log``, ``v`` to
+    ``[0, max_v]``; raw moments ``exp(m + v/2)``, ``expm1(v) exp(2m + v)``; through ``a`` (3x3,
+    camera -> output, variance by ``a * a``) if ``use_a``; clipped to ``+-f32max/4`` and written
+    as float32 into ``radiance`` and ``variance`` (H, W, 3). Releases the GIL."""
+    n = frames.shape[0]
+    w = frames.shape[2]
+    prec = np.empty((3, w))
+    acc = np.empty((3, w))
+    bound = np.empty((3, w))
+    big = np.float64(np.finfo(np.float32).max) / 4.0
+    inf = np.inf
+    rs2pi = 1.0 / math.sqrt(2.0 * math.pi)
+    mean0 = np.empty(3)
+    var0 = np.empty(3)
+    for y in range(y0, y1):
+        prec[:, :] = 0.0
+        acc[:, :] = 0.0
+        bound[:, :] = -inf
+        for j in range(n):
+            ls = log_scales[j]
+            for x in range(w):
+                k = lut[(np.int64(frames[j, y, x, 0]) << 16) | (np.int64(frames[j, y, x, 1]) << 8)
+                        | np.int64(frames[j, y, x, 2])]
+                for c in range(3):
+                    p = planes[3 + c, k]
+                    prec[c, x] += p
+                    acc[c, x] += (planes[c, k] + ls) * p
+                    b = planes[6 + c, k] + ls
+                    if b > bound[c, x]:
+                        bound[c, x] = b
+        for x in range(w):
+            for c in range(3):
+                pr = prec[c, x]
+                if pr > 0.0:
+                    v = 1.0 / pr
+                    m = acc[c, x] * v
+                else:
+                    v = inf
+                    m = 0.0
+                if censor:
+                    bd = bound[c, x]
+                    active = np.isfinite(bd)
+                    finite = np.isfinite(v)
+                    om = m
+                    ov = v
+                    if active and finite:
+                        sd = math.sqrt(v)
+                        alpha = (bd - m) / max(sd, 1e-300)
+                        if alpha < 3.0 and alpha > -8.0:
+                            tail = max(1.0 - _ndtr(alpha), 1e-300)
+                            lam = math.exp(-0.5 * alpha * alpha) * rs2pi / tail
+                            om = m + sd * lam
+                            ov = v * max(1.0 + alpha * lam - lam * lam, 1e-6)
+                    elif active:
+                        om = bd - 0.5
+                        ov = 1.0
+                    if not (np.isfinite(ov) and np.isfinite(om)):
+                        om = -max_log
+                        ov = 1.0
+                    m = om
+                    v = ov
+                m = min(max(m, -max_log), max_log)
+                v = min(max(v, 0.0), max_v)
+                mean0[c] = math.exp(m + 0.5 * v)
+                var0[c] = math.expm1(v) * math.exp(2.0 * m + v)
+            for c in range(3):
+                if use_a:
+                    mo = mean0[0] * a[c, 0] + mean0[1] * a[c, 1] + mean0[2] * a[c, 2]
+                    vo = var0[0] * (a[c, 0] * a[c, 0]) + var0[1] * (a[c, 1] * a[c, 1]) + var0[2] * (a[c, 2] * a[c, 2])
+                else:
+                    mo = mean0[c]
+                    vo = var0[c]
+                if np.isnan(mo):
+                    mo = 0.0
+                radiance[y, x, c] = np.float32(min(max(mo, -big), big))
+                if np.isnan(vo):
+                    vo = big
+                variance[y, x, c] = np.float32(min(max(vo, 0.0), big))
 
 
 @njit(nogil=True, cache=True)

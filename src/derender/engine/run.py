@@ -224,13 +224,13 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
 
 def _warm_up_kernel(which: str = "table") -> None:
     """Import numba and load a kernel (``"table"``: :func:`table_merge_rows`, ``"gaussian"``:
-    :func:`gaussian_band`) from its cache in a background thread while the frames decode
+    :func:`gaussian_band`, :func:`gaussian_moments_band`) from its cache in a background thread while the frames decode
     (0.5-1 s; the decoders release the GIL)."""
     import threading
 
     def go() -> None:
         try:
-            from derender.engine.kernels import gaussian_band, table_merge_rows
+            from derender.engine.kernels import gaussian_band, gaussian_moments_band, table_merge_rows
             from derender.engine.matrix import KERNEL_LOCK
 
             f32 = np.float32
@@ -238,6 +238,9 @@ def _warm_up_kernel(which: str = "table") -> None:
                 z = np.zeros((3, 1, 1))
                 gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
                               np.zeros(1), 0, 1, z, z.copy(), z.copy())
+                o = np.zeros((1, 1, 3), np.float32)
+                gaussian_moments_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
+                                      np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, o, o.copy())
                 return
             with KERNEL_LOCK:
                 table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1, np.int64),

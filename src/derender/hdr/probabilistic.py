@@ -130,7 +130,7 @@ from derender.core.memory import thread_count
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
-from derender.engine.plans import FrameAccess, GaussianPlan
+from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments
 from derender.engine.run import ArrayFrames, run
 from derender.hdr.registry import register_method
 
@@ -149,6 +149,7 @@ __all__ = [
 
 
 _MAX_LOG = 80.0   # cap on |log raw| of the log-space product (keeps exp finite)
+_MAX_V = 60.0     # cap on the log variance of the product
 
 
 _BOUND_SIGMAS = 1.0   # censoring bound: the GP's mu - k sigma quantile (module docstring)
@@ -395,7 +396,8 @@ class ProbabilisticMethod:
 
         return GaussianPlan(planes=planes, index=index,
                             log_scales=np.array([np.log(opts["target_time"] / t) for t in access.times]),
-                            moments=moments, mask=saturation_mask)
+                            moments=moments, mask=saturation_mask,
+                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a))
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         o = self.opts
@@ -499,7 +501,7 @@ def log_product_moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, ce
     if censor:
         m, v = _truncate_below_log(m, v, bound)
     m = np.clip(m, -_MAX_LOG, _MAX_LOG)
-    v = np.clip(v, 0.0, 60.0)
+    v = np.clip(v, 0.0, _MAX_V)
     with np.errstate(over="ignore"):
         mean0 = np.exp(m + 0.5 * v)
         var0 = np.expm1(v) * np.exp(2.0 * m + v)
