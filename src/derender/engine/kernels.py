@@ -27,6 +27,7 @@ __all__ = [
     "table_merge_rows",
     "gaussian_band",
     "gaussian_moments_band",
+    "log_tables_rows",
     "mark_colours",
 ]
 
@@ -495,6 +496,98 @@ def gaussian_moments_band(frames, lut, planes, log_scales, y0, y1, censor, max_l
                 if np.isnan(vo):
                     vo = big
                 variance[y, x, c] = np.float32(min(max(vo, 0.0), big))
+
+
+@njit(inline="always")
+def _table_mu(tab, lut_lo, lut_w, c0, c1, c2, ch):  # pragma: no cover - compiled
+    """Channel ``ch`` of :meth:`derender.derendering.base.LatentTable.at_codes` at one colour
+    (float32 linear interpolation along R of the G/B-interpolated table, as float64)."""
+    j = np.int64(lut_lo[c0]) * 65536 + np.int64(c1) * 256 + np.int64(c2)
+    v0 = tab[j, ch]
+    v1 = tab[j + 65536, ch]
+    return np.float64((v1 - v0) * lut_w[c0] + v0)
+
+
+@njit(inline="always")
+def _log_median(m, eps, max_log):  # pragma: no cover - compiled
+    """``log(max(exp(m) - eps, 1e-30))`` of a log mean ``m`` (NaN -> 0, clipped to +-max_log)."""
+    if np.isnan(m):
+        m = 0.0
+    m = min(max(m, -max_log), max_log)
+    return math.log(max(math.exp(m) - eps, 1e-30))
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
+def log_tables_rows(colours, s0, s1, tab_mu, tab_lv, lut_lo, lut_w, eps, floor, clip_code, censor, per_channel,
+                    code_noise, step, bound_sigmas, max_log, planes):  # pragma: no cover - compiled
+    """Columns ``s0:s1`` of the probabilistic merge's per-colour planes (9, M) ``[lg; p; low]``
+    (:func:`derender.hdr.probabilistic._log_tables` with :func:`~derender.hdr.probabilistic._log_slope`)
+    for (M, 3) uint8 ``colours``, read from a GP's interpolation table (``tab_mu``, ``tab_lv``:
+    the float32 G/B tables of :class:`~derender.derendering.base.LatentTable`, ``lut_lo`` /
+    ``lut_w`` (float32) its R nodes and weights): the same operations, colour by colour, in
+    float64 after the float32 interpolation. Releases the GIL."""
+    tiny = 1e-30
+    lg = np.empty(3)
+    s2l = np.empty(3)
+    low = np.empty(3)
+    clipped = np.empty(3, dtype=np.bool_)
+    cc = np.empty(3, dtype=np.int64)
+    for i in range(s0, s1):
+        for ch in range(3):
+            cc[ch] = np.int64(colours[i, ch])
+        any_clipped = False
+        for ch in range(3):
+            clipped[ch] = censor and cc[ch] >= clip_code
+            any_clipped = any_clipped or clipped[ch]
+        if not per_channel:
+            for ch in range(3):
+                clipped[ch] = any_clipped
+        for ch in range(3):
+            mu = _table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], cc[2], ch)
+            s2 = math.exp(_table_mu(tab_lv, lut_lo, lut_w, cc[0], cc[1], cc[2], ch))
+            if np.isnan(mu):
+                mu = 0.0
+            mu = min(max(mu, -max_log), max_log)
+            if np.isnan(s2):
+                s2 = 1e6
+            s2 = min(max(s2, 1e-12), 1e6)
+            e = math.exp(mu)
+            r = max(e - eps, tiny)
+            lg[ch] = math.log(r)
+            q = e / r
+            v = min(s2 * (q * q), 1e6) + floor
+            if code_noise > 0:
+                up = min(cc[ch] + step, 255)
+                dn = max(cc[ch] - step, 0)
+                if ch == 0:
+                    mu_u = _table_mu(tab_mu, lut_lo, lut_w, up, cc[1], cc[2], 0)
+                    mu_d = _table_mu(tab_mu, lut_lo, lut_w, dn, cc[1], cc[2], 0)
+                elif ch == 1:
+                    mu_u = _table_mu(tab_mu, lut_lo, lut_w, cc[0], up, cc[2], 1)
+                    mu_d = _table_mu(tab_mu, lut_lo, lut_w, cc[0], dn, cc[2], 1)
+                else:
+                    mu_u = _table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], up, 2)
+                    mu_d = _table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], dn, 2)
+                slope = (_log_median(mu_u, eps, max_log) - _log_median(mu_d, eps, max_log)) / np.float64(
+                    max(up - dn, 1))
+                t = code_noise * slope
+                v = min(v + t * t, 1e6)
+            s2l[ch] = v
+            if clipped[ch]:
+                low[ch] = math.log(max(math.exp(mu - bound_sigmas * math.sqrt(s2)) - eps, tiny))
+            else:
+                low[ch] = -np.inf
+        n_ok = 0
+        tot = 0.0
+        for ch in range(3):
+            if not clipped[ch]:
+                n_ok += 1
+                tot += s2l[ch]
+        pj = 1.0 / max(tot / np.float64(max(n_ok, 1)), 1e-12)
+        for ch in range(3):
+            planes[ch, i] = lg[ch]
+            planes[3 + ch, i] = 0.0 if (clipped[ch] or n_ok == 0) else pj
+            planes[6 + ch, i] = low[ch]
 
 
 @njit(nogil=True, cache=True)

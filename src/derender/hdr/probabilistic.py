@@ -385,8 +385,11 @@ class ProbabilisticMethod:
             for f in access.frames:
                 builder.add(f)
         index = builder.finish()
-        planes = _log_planes(self.model, index.codes.astype(np.uint8), float(opts["floor"]), int(opts["clip_code"]),
-                             opts["censor"], code_noise=float(opts["code_noise"]))
+        colours = np.ascontiguousarray(index.codes, dtype=np.uint8)
+        # compiled tables in the engine's threads; NumPy's serial (threads measured no faster under load)
+        threads = access.threads if _compiled_tables(self.model, colours) is not None else 1
+        planes = _log_planes(self.model, colours, float(opts["floor"]), int(opts["clip_code"]),
+                             opts["censor"], code_noise=float(opts["code_noise"]), threads=threads)
         censor = bool(opts["censor"])
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
@@ -508,6 +511,24 @@ def log_product_moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, ce
     return np.moveaxis(mean0, 0, -1), np.moveaxis(var0, 0, -1)
 
 
+def _compiled_tables(model, colours: np.ndarray) -> tuple | None:
+    """The GP's interpolation tables for :func:`derender.engine.kernels.log_tables_rows` (the
+    compiled :func:`_log_tables`), or None where that kernel does not apply (other models, exact
+    predictions, colours that are not a contiguous (M, 3) uint8 array)."""
+    from derender.derendering.local_gp import LocalGPModel
+
+    if (not isinstance(model, LocalGPModel) or type(model).predict_log is not LocalGPModel.predict_log
+            or getattr(model, "_table", None) is None or not model.fitted or colours.dtype != np.uint8
+            or colours.ndim != 2 or colours.shape[1] != 3 or not colours.flags.c_contiguous):
+        return None
+    table = model._table
+    tabs = table._gb_tables()
+    if len(tabs) != 2:
+        return None
+    return (tabs[0], tabs[1], np.ascontiguousarray(table._lut_lo, dtype=np.int64),
+            np.ascontiguousarray(table._lut_w, dtype=np.float32))
+
+
 def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
                 per_channel: bool = True, chunk: int = 1 << 18, code_noise: float = 0.0,
                 threads: int | None = 1) -> np.ndarray:
@@ -515,8 +536,18 @@ def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor
     computed ``chunk`` colours at a time (72 bytes per colour, temporaries bounded), after the
     first chunk in ``threads`` threads (None: all CPUs)."""
     planes = np.empty((9, colours.shape[0]), dtype=np.float64)
+    compiled = _compiled_tables(model, colours)
+    if compiled is not None:
+        from derender.engine.kernels import log_tables_rows
+
+        chunk = max(1, min(chunk, -(-colours.shape[0] // max(1, 4 * thread_count(threads)))))
+        args = (*compiled, float(getattr(model, "eps", 0.0)), float(floor), int(clip_code), bool(censor),
+                bool(per_channel), float(code_noise), 2, _BOUND_SIGMAS, _MAX_LOG, planes)
 
     def one(s: int) -> None:
+        if compiled is not None:
+            log_tables_rows(colours, s, min(s + chunk, colours.shape[0]), *args)
+            return
         part = _log_tables(model, colours[s:s + chunk], floor, clip_code, censor, per_channel, code_noise)
         for k, arr in enumerate(part):
             planes[3 * k:3 * k + 3, s:s + chunk] = arr.T
@@ -524,8 +555,9 @@ def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor
     starts = list(range(0, colours.shape[0], chunk))
     if not starts:
         return planes
-    one(starts[0])          # the first chunk alone: the model's lazily built tables are made once
-    rest = starts[1:]
+    if compiled is None:
+        one(starts[0])      # the first chunk alone: the model's lazily built tables are made once
+    rest = starts if compiled is not None else starts[1:]
     nthreads = min(thread_count(threads), len(rest))
     if nthreads > 1:        # chunks are independent (disjoint columns): the bytes do not depend on threads
         from concurrent.futures import ThreadPoolExecutor
