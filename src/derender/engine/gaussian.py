@@ -88,14 +88,18 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     log_scales = [float(s) for s in plan.log_scales]
 
     lut = getattr(plan.index, "lut", None)
-    compiled = (lut is not None and plan.planes.dtype == np.float64 and plan.planes.flags.c_contiguous
-                and frames.flags.c_contiguous)
+    table = plan.table
+    fused = plan.lognormal if (lut is not None and table is not None and table.dtype == np.float64
+                               and table.ndim == 2 and table.shape[1] == 8 and table.flags.c_contiguous
+                               and frames.flags.c_contiguous) else None
+    planes = None if fused is not None else plan.rows_planes()
+    compiled = (fused is not None or (lut is not None and planes.dtype == np.float64 and planes.flags.c_contiguous
+                                      and frames.flags.c_contiguous))
     if compiled:
         from derender.engine.kernels import gaussian_band
 
         scales = np.asarray(log_scales, dtype=np.float64)
 
-    fused = plan.lognormal if compiled else None
     if fused is not None:
         from derender.engine.kernels import gaussian_moments_band
 
@@ -104,16 +108,16 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
 
     def run(y0: int, y1: int) -> None:
         if fused is not None:    # sums and moments in one compiled pass, no float64 band arrays
-            gaussian_moments_band(frames, lut, plan.planes, scales, y0, y1, bool(fused.censor),
+            gaussian_moments_band(frames, lut, table, scales, y0, y1, bool(fused.censor),
                                   float(fused.max_log), float(fused.max_v), a, use_a, radiance, variance)
             mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
             return
         prod = LogGaussianProduct((y1 - y0, w))
         if compiled:
-            gaussian_band(frames, lut, plan.planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
+            gaussian_band(frames, lut, planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
         else:
             for j in range(n):
-                prod.add_rows(plan.planes, plan.index.rows(frames[j, y0:y1]), log_scales[j])
+                prod.add_rows(planes, plan.index.rows(frames[j, y0:y1]), log_scales[j])
         radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
         mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
 

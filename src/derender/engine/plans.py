@@ -108,15 +108,28 @@ class GaussianPlan:
     ``mask(short_codes, long_codes)`` gives the result mask of a band. ``lognormal``
     (optional) says that ``moments`` are the log-normal ones of :class:`LogNormalMoments`:
     the engine then computes sums and moments in one compiled pass
-    (:func:`derender.engine.kernels.gaussian_moments_band`) instead of calling ``moments``."""
+    (:func:`derender.engine.kernels.gaussian_moments_band`) instead of calling ``moments``,
+    from ``table``, the planes colour-major (M, 8) ``[mean (3), p, bound (3), 0]`` (a channel's
+    precision is ``p`` where its bound is ``-inf``, else 0); ``planes`` may then be None
+    (:meth:`rows_planes` derives them)."""
 
-    planes: np.ndarray
+    planes: np.ndarray | None
     index: Any
     log_scales: np.ndarray
     moments: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
     mask: Callable[[np.ndarray, np.ndarray], np.ndarray]
     band_rows: int = 32
     lognormal: "LogNormalMoments | None" = None
+    table: np.ndarray | None = None
+
+    def rows_planes(self) -> np.ndarray:
+        """``planes`` (9, M), or derived from ``table`` when only that is given."""
+        if self.planes is not None:
+            return self.planes
+        t = self.table
+        low = np.ascontiguousarray(t[:, 4:7].T)
+        p = np.where(np.isneginf(low), t[:, 3], 0.0)
+        return np.concatenate([t[:, 0:3].T, p, low])
 
 
 @dataclass

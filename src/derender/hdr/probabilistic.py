@@ -386,10 +386,13 @@ class ProbabilisticMethod:
                 builder.add(f)
         index = builder.finish()
         colours = np.ascontiguousarray(index.codes, dtype=np.uint8)
-        # compiled tables in the engine's threads; NumPy's serial (threads measured no faster under load)
-        threads = access.threads if _compiled_tables(self.model, colours) is not None else 1
+        # compiled tables in the engine's threads, colour-major for the fused pass where the index
+        # has a look-up table; NumPy's serial (threads measured no faster under load)
+        compiled = _compiled_tables(self.model, colours) is not None
+        fused = compiled and getattr(index, "lut", None) is not None
         planes = _log_planes(self.model, colours, float(opts["floor"]), int(opts["clip_code"]),
-                             opts["censor"], code_noise=float(opts["code_noise"]), threads=threads)
+                             opts["censor"], code_noise=float(opts["code_noise"]),
+                             threads=access.threads if compiled else 1, colour_major=fused)
         censor = bool(opts["censor"])
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
@@ -397,7 +400,7 @@ class ProbabilisticMethod:
         def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return finite_outputs(*log_product_moments(prec, acc, bound, censor), a)
 
-        return GaussianPlan(planes=planes, index=index,
+        return GaussianPlan(planes=None if fused else planes, table=planes if fused else None, index=index,
                             log_scales=np.array([np.log(opts["target_time"] / t) for t in access.times]),
                             moments=moments, mask=saturation_mask,
                             lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a))
@@ -531,18 +534,29 @@ def _compiled_tables(model, colours: np.ndarray) -> tuple | None:
 
 def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
                 per_channel: bool = True, chunk: int = 1 << 18, code_noise: float = 0.0,
-                threads: int | None = 1) -> np.ndarray:
+                threads: int | None = 1, colour_major: bool = False) -> np.ndarray:
     """:func:`_log_tables` as contiguous (9, M) planes ``[lg; p; low]`` for :meth:`_LogProduct.add_rows`,
     computed ``chunk`` colours at a time (72 bytes per colour, temporaries bounded), after the
-    first chunk in ``threads`` threads (None: all CPUs)."""
-    planes = np.empty((9, colours.shape[0]), dtype=np.float64)
+    first chunk in ``threads`` threads (None: all CPUs). For a GP with an interpolation table the
+    compiled :func:`derender.engine.kernels.log_tables_rows` computes them (all chunks in threads);
+    ``colour_major`` (compiled only): the (M, 8) table of
+    :func:`derender.engine.kernels.gaussian_moments_band` instead, rows 64-byte aligned."""
     compiled = _compiled_tables(model, colours)
+    if colour_major:
+        if compiled is None:
+            raise ValueError("colour-major tables need the compiled kernel (_compiled_tables)")
+        m = colours.shape[0]
+        raw = np.empty(8 * m + 8, dtype=np.float64)      # rows on 64-byte cache lines
+        off = (-raw.ctypes.data % 64) // 8
+        planes = raw[off:off + 8 * m].reshape(m, 8)
+    else:
+        planes = np.empty((9, colours.shape[0]), dtype=np.float64)
     if compiled is not None:
         from derender.engine.kernels import log_tables_rows
 
         chunk = max(1, min(chunk, -(-colours.shape[0] // max(1, 4 * thread_count(threads)))))
         args = (*compiled, float(getattr(model, "eps", 0.0)), float(floor), int(clip_code), bool(censor),
-                bool(per_channel), float(code_noise), 2, _BOUND_SIGMAS, _MAX_LOG, planes)
+                bool(per_channel), float(code_noise), 2, _BOUND_SIGMAS, _MAX_LOG, planes, bool(colour_major))
 
     def one(s: int) -> None:
         if compiled is not None:
