@@ -423,7 +423,7 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
     :func:`derender.hdr.probabilistic.finite_outputs` compute from them: ``v = 1 / prec``,
     ``m = acc v`` (``inf``, 0 where ``prec`` is 0); with ``censor`` the truncated-normal
     moments below ``bound`` (``_truncate_below_log``); ``m`` clipped to ``+-max_log``, ``v`` to
-    ``[0, max_v]``; raw moments ``exp(m + v/2)``, ``expm1(v) exp(2m + v)``; through ``a`` (3x3,
+    ``[0, max_v]``; raw moments ``e = exp(m + v/2)``, ``expm1(v) e^2``; through ``a`` (3x3,
     camera -> output, variance by ``a * a``) if ``use_a``; clipped to ``+-f32max/4`` and written
     as float32 into ``radiance`` and ``variance`` (H, W, 3). Releases the GIL."""
     n = frames.shape[0]
@@ -487,8 +487,9 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
                     v = ov
                 m = min(max(m, -max_log), max_log)
                 v = min(max(v, 0.0), max_v)
-                mean0[c] = math.exp(m + 0.5 * v)
-                var0[c] = math.expm1(v) * math.exp(2.0 * m + v)
+                e = math.exp(m + 0.5 * v)
+                mean0[c] = e
+                var0[c] = math.expm1(v) * (e * e)     # exp(2m + v) within an ulp, one exp less
             for c in range(3):
                 if use_a:
                     mo = mean0[0] * a[c, 0] + mean0[1] * a[c, 1] + mean0[2] * a[c, 2]

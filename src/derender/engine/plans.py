@@ -138,7 +138,7 @@ class LogNormalMoments:
     product ``v = 1 / prec``, ``m = acc v``, truncated below at ``bound`` if ``censor``
     (truncated-normal moments; a bound more than 3 sigma above ``m`` dropped, a bound
     without evidence giving ``bound - 1/2`` with ``v`` 1), ``m`` clipped to ``+-max_log`` and
-    ``v`` to ``[0, max_v]``, raw moments ``exp(m + v/2)`` and ``expm1(v) exp(2m + v)``, mapped
+    ``v`` to ``[0, max_v]``, raw moments ``exp(m + v/2)`` and ``expm1(v) exp(2m + v)`` (as ``expm1(v) exp(m + v/2)^2``), mapped
     by ``matrix`` (3x3, variances by its squares) if given, float32 clipped to
     ``+-f32max/4`` (NaN means 0, NaN variances f32max/4)."""
 
