@@ -28,6 +28,7 @@ alike, so the two give the same numbers by construction:
 from __future__ import annotations
 
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -469,11 +470,12 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
 
 
 def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, half: bool, compression: str,
-                                  inputs, threads: int | None) -> None:
-    """:func:`write_outputs`' radiance file, each block of lines read once the merge has finished it."""
+                                  inputs, threads: int | None, arr: np.ndarray | None = None) -> None:
+    """:func:`write_outputs`' radiance file (or ``arr``, e.g. the variance), each block of lines
+    read once the merge has finished it."""
     from derender.io.exr import write_exr_lines
 
-    arr = res.radiance
+    arr = res.radiance if arr is None else arr
     h, w = arr.shape[:2]
 
     def bgr_lines(y0: int, y1: int, buf: np.ndarray) -> None:
@@ -524,8 +526,30 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     if output is not None:
         def write(res: HDRResult, done: RowsDone) -> None:
             tw = time.perf_counter()
-            _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
-                                          threads=threads)
+            var_thread, var_error = None, []
+            if variance_output is not None and res.variance is not None:
+                # a result with its variance array from the start (the Gaussian engine): the
+                # variance file is written while merging too, in a second writer thread
+                def write_variance() -> None:
+                    try:
+                        _write_radiance_while_merging(res, done, variance_output, half=half,
+                                                      compression=compression, inputs=inputs + [output],
+                                                      threads=threads, arr=res.variance)
+                    except BaseException as exc:  # noqa: BLE001
+                        var_error.append(exc)
+
+                var_thread = threading.Thread(target=write_variance, name="derender-exr-variance", daemon=True)
+                var_thread.start()
+            try:
+                _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
+                                              threads=threads)
+            finally:
+                if var_thread is not None:
+                    var_thread.join()
+            if var_error:
+                raise var_error[0]
+            if var_thread is not None:
+                res.info["overlapped_variance_write"] = True
             res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
     inputs = list(inputs)
     if method.holds_frames:
@@ -537,6 +561,8 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     res.info["engine_path"] = "streaming"
     if res.info.get("overlapped_write"):      # the radiance was written while merging
         inputs, output = inputs + [output], None
+    if res.info.pop("overlapped_variance_write", False):     # ... and the variance
+        variance_output = None
     write_outputs(res, output, variance_output, half=half, compression=compression, inputs=inputs, threads=threads,
                   name=method.name)
     res.info["total_seconds"] = time.perf_counter() - t0
