@@ -78,12 +78,15 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
     ``write(result, rows_done)``: the radiance written while merging
     (:func:`derender.engine.overlap.merge_writing`)."""
+    from derender.core.memory import populated_zeros
     from derender.engine.overlap import OVERLAP_ROWS, merge_writing, run_bands
 
     t0 = time.perf_counter()
     n, h, w = frames.shape[:3]
-    radiance = np.empty((h, w, 3), dtype=np.float32)
-    variance = np.empty((h, w, 3), dtype=np.float32)
+    # outputs mapped with their pages present: first-touch faults inside the merge cost 2-4 ms
+    # per MB here (576 MB at 24 MP), populating ~0.5 ms per MB (core.memory.populated_zeros)
+    radiance = populated_zeros((h, w, 3), np.float32)
+    variance = populated_zeros((h, w, 3), np.float32)
     mask = np.empty((h, w), dtype=np.uint8)
     log_scales = [float(s) for s in plan.log_scales]
 
