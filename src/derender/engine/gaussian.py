@@ -8,7 +8,10 @@ accumulates ``sum p``, ``sum p (mu + log s_j)`` and ``max bound`` in float64. Th
 tabulates ``[mu; p; low]`` once per distinct colour of the bracket
 (:class:`~derender.engine.plans.GaussianPlan`) and turns the sums into moments; the
 engine gathers the tables band by band (``band_rows`` rows, in threads), so no
-full-size float image but the outputs exists.
+full-size float image but the outputs exists. A plan with a colour-major ``table`` and
+log-normal moments (:class:`~derender.engine.plans.LogNormalMoments`, the probabilistic
+merge's) runs sums and moments in one compiled pass per band
+(:func:`~derender.engine.kernels.gaussian_moments_band`), without float64 band arrays.
 """
 
 from __future__ import annotations

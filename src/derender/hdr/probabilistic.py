@@ -350,8 +350,11 @@ class ProbabilisticMethod:
 
     Every frame is held once as 8-bit codes; every distinct colour of the bracket is
     de-rendered once (:func:`_log_tables` on the union of the frames' colours, in
-    chunks), and the engine's Gaussian kernel multiplies the exposures band by band
-    (:func:`derender.engine.gaussian.merge_gaussian_frames`). Raw-space models
+    chunks; for a GP with its interpolation table the compiled
+    :func:`derender.engine.kernels.log_tables_rows`, in threads, as a colour-major table),
+    and the engine's Gaussian kernel multiplies the exposures band by band and turns the
+    sums into moments in the same pass (:func:`derender.engine.gaussian.merge_gaussian_frames`,
+    :func:`derender.engine.kernels.gaussian_moments_band`). Raw-space models
     (deterministic baselines) have no log-space Gaussians: :func:`merge_probabilistic`
     multiplies them in memory (:func:`_product_linear`)."""
 
