@@ -76,11 +76,12 @@ class LogGaussianProduct:
 
 
 def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None,
-                          write=None) -> HDRResult:
+                          write=None, outputs: tuple[np.ndarray, np.ndarray] | None = None) -> HDRResult:
     """Run a :class:`~derender.engine.plans.GaussianPlan` on held frames (N, H, W, 3) uint8
     sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
     ``write(result, rows_done)``: the radiance written while merging
-    (:func:`derender.engine.overlap.merge_writing`)."""
+    (:func:`derender.engine.overlap.merge_writing`). ``outputs``: radiance and variance arrays
+    (H, W, 3) float32 to fill (allocated here when None)."""
     from derender.core.memory import populated_zeros
     from derender.engine.overlap import OVERLAP_ROWS, merge_writing, run_bands
 
@@ -88,8 +89,12 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     n, h, w = frames.shape[:3]
     # outputs mapped with their pages present: first-touch faults inside the merge cost 2-4 ms
     # per MB here (576 MB at 24 MP), populating ~0.5 ms per MB (core.memory.populated_zeros)
-    radiance = populated_zeros((h, w, 3), np.float32)
-    variance = populated_zeros((h, w, 3), np.float32)
+    if outputs is not None and all(o.shape == (h, w, 3) and o.dtype == np.float32 and o.flags.c_contiguous
+                                   and o.flags.writeable for o in outputs):
+        radiance, variance = outputs
+    else:
+        radiance = populated_zeros((h, w, 3), np.float32)
+        variance = populated_zeros((h, w, 3), np.float32)
     mask = np.empty((h, w), dtype=np.uint8)
     log_scales = [float(s) for s in plan.log_scales]
 
