@@ -281,3 +281,55 @@ def test_code_noise_makes_merged_variances_less_over_confident(model_file):
         z = (np.log(tcam) - np.log(np.maximum(r.radiance, 1e-12)) + 0.5 * lv) / np.sqrt(lv)
         med_z[cn] = float(np.median(np.abs(z[ok])))
     assert med_z[2.0] < 0.6 * med_z[0.0], med_z
+
+
+def test_compiled_log_tables_match_numpy(model_file):
+    """The compiled per-colour tables (engine.kernels.log_tables_rows) are _log_tables' values
+    (up to libm's exp/log against NumPy's), in both layouts; with and without censoring and code noise."""
+    from derender.derendering.apply import index_colours
+    from derender.hdr.probabilistic import _compiled_tables, _log_planes, _log_tables
+
+    m = load_model(model_file)
+    codes = np.random.default_rng(6).integers(0, 256, size=(60, 50, 3)).astype(np.uint8)
+    codes[:5] = 255
+    codes[5:10, :, 1] = 250
+    codes[10:12] = 0
+    cols = np.ascontiguousarray(index_colours(codes).codes, dtype=np.uint8)
+    assert _compiled_tables(m, cols) is not None
+    for censor, noise, per_channel in ((True, 2.0, True), (False, 0.0, True), (True, 0.0, False)):
+        ref = np.concatenate([a.T for a in _log_tables(m, cols, 0.01, 245, censor, per_channel, noise)])
+        got = _log_planes(m, cols, 0.01, 245, censor, per_channel, code_noise=noise, threads=2, chunk=100)
+        np.testing.assert_array_equal(np.isneginf(got), np.isneginf(ref))
+        fin = np.isfinite(ref)
+        np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-12, atol=0)
+        table = _log_planes(m, cols, 0.01, 245, censor, per_channel, code_noise=noise, colour_major=True)
+        assert table.shape == (cols.shape[0], 8) and table.ctypes.data % 64 == 0
+        from derender.engine.plans import GaussianPlan
+
+        derived = GaussianPlan(planes=None, table=table, index=None, log_scales=np.zeros(1), moments=None,
+                               mask=None).rows_planes()
+        np.testing.assert_array_equal(derived, got)
+
+
+def test_fused_gaussian_pass_matches_the_numpy_moments(model_file):
+    """The engine's fused sums-and-moments pass gives the outputs of the NumPy moments on the sums."""
+    import dataclasses
+
+    from derender.engine.gaussian import merge_gaussian_frames
+    from derender.engine.plans import FrameAccess
+    from derender.hdr.probabilistic import ProbabilisticMethod
+
+    frames = np.random.default_rng(7).integers(0, 256, size=(3, 40, 37, 3)).astype(np.uint8)
+    frames[:, :4] = 255
+    frames[:, 4:8, :, 0] = 250
+    opts = {"model": load_model(model_file), "target_time": 1.0, "colour_space": "linear_srgb", "censor": True,
+            "space": None, "floor": 0.0, "clip_code": 245, "code_noise": 2.0}
+    method = ProbabilisticMethod(opts)
+    access = FrameAccess(frames=frames, times=np.array([0.01, 0.04, 0.16]), shape=frames.shape[1:3], threads=2)
+    plan = method.plan(access)
+    assert plan.table is not None and plan.lognormal is not None
+    fused = merge_gaussian_frames(frames, plan, threads=2)
+    slow = merge_gaussian_frames(frames, dataclasses.replace(plan, planes=plan.rows_planes(), table=None), threads=2)
+    np.testing.assert_allclose(fused.radiance, slow.radiance, rtol=1e-6, atol=0)
+    np.testing.assert_allclose(fused.variance, slow.variance, rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(fused.mask, slow.mask)

@@ -105,14 +105,47 @@ class GaussianPlan:
     rows of ``planes`` (:class:`derender.derendering.apply.ColourIndex`); ``log_scales`` (N,)
     is added to means and bounds of frame j; ``moments(prec, acc, bound)`` turns the
     accumulated sums of a band (3, rows, W) into (mean, variance) (rows, W, 3) float32;
-    ``mask(short_codes, long_codes)`` gives the result mask of a band."""
+    ``mask(short_codes, long_codes)`` gives the result mask of a band. ``lognormal``
+    (optional) says that ``moments`` are the log-normal ones of :class:`LogNormalMoments`:
+    the engine then computes sums and moments in one compiled pass
+    (:func:`derender.engine.kernels.gaussian_moments_band`) instead of calling ``moments``,
+    from ``table``, the planes colour-major (M, 8) ``[mean (3), p, bound (3), 0]`` (a channel's
+    precision is ``p`` where its bound is ``-inf``, else 0); ``planes`` may then be None
+    (:meth:`rows_planes` derives them)."""
 
-    planes: np.ndarray
+    planes: np.ndarray | None
     index: Any
     log_scales: np.ndarray
     moments: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
     mask: Callable[[np.ndarray, np.ndarray], np.ndarray]
     band_rows: int = 32
+    lognormal: "LogNormalMoments | None" = None
+    table: np.ndarray | None = None
+
+    def rows_planes(self) -> np.ndarray:
+        """``planes`` (9, M), or derived from ``table`` when only that is given."""
+        if self.planes is not None:
+            return self.planes
+        t = self.table
+        low = np.ascontiguousarray(t[:, 4:7].T)
+        p = np.where(np.isneginf(low), t[:, 3], 0.0)
+        return np.concatenate([t[:, 0:3].T, p, low])
+
+
+@dataclass
+class LogNormalMoments:
+    """What a :class:`GaussianPlan`'s ``moments`` compute, for the compiled pass: the log-space
+    product ``v = 1 / prec``, ``m = acc v``, truncated below at ``bound`` if ``censor``
+    (truncated-normal moments; a bound more than 3 sigma above ``m`` dropped, a bound
+    without evidence giving ``bound - 1/2`` with ``v`` 1), ``m`` clipped to ``+-max_log`` and
+    ``v`` to ``[0, max_v]``, raw moments ``exp(m + v/2)`` and ``expm1(v) exp(2m + v)`` (as ``expm1(v) exp(m + v/2)^2``), mapped
+    by ``matrix`` (3x3, variances by its squares) if given, float32 clipped to
+    ``+-f32max/4`` (NaN means 0, NaN variances f32max/4)."""
+
+    censor: bool
+    max_log: float
+    max_v: float
+    matrix: np.ndarray | None = None
 
 
 class EngineMethod(Protocol):

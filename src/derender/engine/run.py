@@ -28,6 +28,7 @@ alike, so the two give the same numbers by construction:
 from __future__ import annotations
 
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -224,13 +225,13 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
 
 def _warm_up_kernel(which: str = "table") -> None:
     """Import numba and load a kernel (``"table"``: :func:`table_merge_rows`, ``"gaussian"``:
-    :func:`gaussian_band`) from its cache in a background thread while the frames decode
+    :func:`gaussian_band`, :func:`gaussian_moments_band`) from its cache in a background thread while the frames decode
     (0.5-1 s; the decoders release the GIL)."""
     import threading
 
     def go() -> None:
         try:
-            from derender.engine.kernels import gaussian_band, table_merge_rows
+            from derender.engine.kernels import gaussian_band, gaussian_moments_band, table_merge_rows
             from derender.engine.matrix import KERNEL_LOCK
 
             f32 = np.float32
@@ -238,6 +239,9 @@ def _warm_up_kernel(which: str = "table") -> None:
                 z = np.zeros((3, 1, 1))
                 gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
                               np.zeros(1), 0, 1, z, z.copy(), z.copy())
+                o = np.zeros((1, 1, 3), np.float32)
+                gaussian_moments_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
+                                      np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, o, o.copy())
                 return
             with KERNEL_LOCK:
                 table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1, np.int64),
@@ -435,7 +439,23 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     access = FrameAccess(times=source.times, shape=frames.shape[1:3], frames=frames, planes=planes, threads=threads,
                          histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]))
     del planes
-    plan = method.plan(access)
+    outputs: list = []
+    prepare = None
+    if getattr(method, "warm_up", None) == "gaussian":
+        # the Gaussian merge's float32 outputs, pages present, mapped in a thread while the
+        # plan runs (its serial parts leave a core idle; populating 576 MB at 24 MP takes ~0.3 s)
+        h, w = frames.shape[1:3]
+
+        def alloc() -> None:
+            outputs.extend(populated_zeros((h, w, 3), np.float32) for _ in range(2))
+
+        prepare = threading.Thread(target=alloc, name="derender-outputs", daemon=True)
+        prepare.start()
+    try:
+        plan = method.plan(access)
+    finally:
+        if prepare is not None:
+            prepare.join()
     access.planes = None
     t2 = time.perf_counter()
     buffer = held.pop("buffer", None)
@@ -447,7 +467,8 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     elif isinstance(plan, GaussianPlan):
         from derender.engine.gaussian import merge_gaussian_frames
 
-        res = merge_gaussian_frames(frames, plan, threads=threads, write=write)
+        res = merge_gaussian_frames(frames, plan, threads=threads, write=write,
+                                    outputs=tuple(outputs) if len(outputs) == 2 else None)
         res.info["overlapped_write"] = write is not None
     elif isinstance(plan, TablePlan):
         from derender.engine.tables import merge_codes
@@ -466,11 +487,12 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
 
 
 def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, half: bool, compression: str,
-                                  inputs, threads: int | None) -> None:
-    """:func:`write_outputs`' radiance file, each block of lines read once the merge has finished it."""
+                                  inputs, threads: int | None, arr: np.ndarray | None = None) -> None:
+    """:func:`write_outputs`' radiance file (or ``arr``, e.g. the variance), each block of lines
+    read once the merge has finished it."""
     from derender.io.exr import write_exr_lines
 
-    arr = res.radiance
+    arr = res.radiance if arr is None else arr
     h, w = arr.shape[:2]
 
     def bgr_lines(y0: int, y1: int, buf: np.ndarray) -> None:
@@ -521,8 +543,30 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     if output is not None:
         def write(res: HDRResult, done: RowsDone) -> None:
             tw = time.perf_counter()
-            _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
-                                          threads=threads)
+            var_thread, var_error = None, []
+            if variance_output is not None and res.variance is not None:
+                # a result with its variance array from the start (the Gaussian engine): the
+                # variance file is written while merging too, in a second writer thread
+                def write_variance() -> None:
+                    try:
+                        _write_radiance_while_merging(res, done, variance_output, half=half,
+                                                      compression=compression, inputs=inputs + [output],
+                                                      threads=threads, arr=res.variance)
+                    except BaseException as exc:  # noqa: BLE001
+                        var_error.append(exc)
+
+                var_thread = threading.Thread(target=write_variance, name="derender-exr-variance", daemon=True)
+                var_thread.start()
+            try:
+                _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
+                                              threads=threads)
+            finally:
+                if var_thread is not None:
+                    var_thread.join()
+            if var_error:
+                raise var_error[0]
+            if var_thread is not None:
+                res.info["overlapped_variance_write"] = True
             res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
     inputs = list(inputs)
     if method.holds_frames:
@@ -534,6 +578,8 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     res.info["engine_path"] = "streaming"
     if res.info.get("overlapped_write"):      # the radiance was written while merging
         inputs, output = inputs + [output], None
+    if res.info.pop("overlapped_variance_write", False):     # ... and the variance
+        variance_output = None
     write_outputs(res, output, variance_output, half=half, compression=compression, inputs=inputs, threads=threads,
                   name=method.name)
     res.info["total_seconds"] = time.perf_counter() - t0

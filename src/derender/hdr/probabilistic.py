@@ -130,7 +130,7 @@ from derender.core.memory import thread_count
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
-from derender.engine.plans import FrameAccess, GaussianPlan
+from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments
 from derender.engine.run import ArrayFrames, run
 from derender.hdr.registry import register_method
 
@@ -149,6 +149,7 @@ __all__ = [
 
 
 _MAX_LOG = 80.0   # cap on |log raw| of the log-space product (keeps exp finite)
+_MAX_V = 60.0     # cap on the log variance of the product
 
 
 _BOUND_SIGMAS = 1.0   # censoring bound: the GP's mu - k sigma quantile (module docstring)
@@ -349,8 +350,11 @@ class ProbabilisticMethod:
 
     Every frame is held once as 8-bit codes; every distinct colour of the bracket is
     de-rendered once (:func:`_log_tables` on the union of the frames' colours, in
-    chunks), and the engine's Gaussian kernel multiplies the exposures band by band
-    (:func:`derender.engine.gaussian.merge_gaussian_frames`). Raw-space models
+    chunks; for a GP with its interpolation table the compiled
+    :func:`derender.engine.kernels.log_tables_rows`, in threads, as a colour-major table),
+    and the engine's Gaussian kernel multiplies the exposures band by band and turns the
+    sums into moments in the same pass (:func:`derender.engine.gaussian.merge_gaussian_frames`,
+    :func:`derender.engine.kernels.gaussian_moments_band`). Raw-space models
     (deterministic baselines) have no log-space Gaussians: :func:`merge_probabilistic`
     multiplies them in memory (:func:`_product_linear`)."""
 
@@ -384,8 +388,14 @@ class ProbabilisticMethod:
             for f in access.frames:
                 builder.add(f)
         index = builder.finish()
-        planes = _log_planes(self.model, index.codes.astype(np.uint8), float(opts["floor"]), int(opts["clip_code"]),
-                             opts["censor"], code_noise=float(opts["code_noise"]))
+        colours = np.ascontiguousarray(index.codes, dtype=np.uint8)
+        # compiled tables in the engine's threads, colour-major for the fused pass where the index
+        # has a look-up table; NumPy's serial (threads measured no faster under load)
+        compiled = _compiled_tables(self.model, colours) is not None
+        fused = compiled and getattr(index, "lut", None) is not None
+        planes = _log_planes(self.model, colours, float(opts["floor"]), int(opts["clip_code"]),
+                             opts["censor"], code_noise=float(opts["code_noise"]),
+                             threads=access.threads if compiled else 1, colour_major=fused)
         censor = bool(opts["censor"])
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
@@ -393,9 +403,10 @@ class ProbabilisticMethod:
         def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return finite_outputs(*log_product_moments(prec, acc, bound, censor), a)
 
-        return GaussianPlan(planes=planes, index=index,
+        return GaussianPlan(planes=None if fused else planes, table=planes if fused else None, index=index,
                             log_scales=np.array([np.log(opts["target_time"] / t) for t in access.times]),
-                            moments=moments, mask=saturation_mask)
+                            moments=moments, mask=saturation_mask,
+                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a))
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         o = self.opts
@@ -499,22 +510,61 @@ def log_product_moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, ce
     if censor:
         m, v = _truncate_below_log(m, v, bound)
     m = np.clip(m, -_MAX_LOG, _MAX_LOG)
-    v = np.clip(v, 0.0, 60.0)
+    v = np.clip(v, 0.0, _MAX_V)
     with np.errstate(over="ignore"):
         mean0 = np.exp(m + 0.5 * v)
         var0 = np.expm1(v) * np.exp(2.0 * m + v)
     return np.moveaxis(mean0, 0, -1), np.moveaxis(var0, 0, -1)
 
 
+def _compiled_tables(model, colours: np.ndarray) -> tuple | None:
+    """The GP's interpolation tables for :func:`derender.engine.kernels.log_tables_rows` (the
+    compiled :func:`_log_tables`), or None where that kernel does not apply (other models, exact
+    predictions, colours that are not a contiguous (M, 3) uint8 array)."""
+    from derender.derendering.local_gp import LocalGPModel
+
+    if (not isinstance(model, LocalGPModel) or type(model).predict_log is not LocalGPModel.predict_log
+            or getattr(model, "_table", None) is None or not model.fitted or colours.dtype != np.uint8
+            or colours.ndim != 2 or colours.shape[1] != 3 or not colours.flags.c_contiguous):
+        return None
+    table = model._table
+    tabs = table._gb_tables()
+    if len(tabs) != 2:
+        return None
+    return (tabs[0], tabs[1], np.ascontiguousarray(table._lut_lo, dtype=np.int64),
+            np.ascontiguousarray(table._lut_w, dtype=np.float32))
+
+
 def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
                 per_channel: bool = True, chunk: int = 1 << 18, code_noise: float = 0.0,
-                threads: int | None = 1) -> np.ndarray:
+                threads: int | None = 1, colour_major: bool = False) -> np.ndarray:
     """:func:`_log_tables` as contiguous (9, M) planes ``[lg; p; low]`` for :meth:`_LogProduct.add_rows`,
     computed ``chunk`` colours at a time (72 bytes per colour, temporaries bounded), after the
-    first chunk in ``threads`` threads (None: all CPUs)."""
-    planes = np.empty((9, colours.shape[0]), dtype=np.float64)
+    first chunk in ``threads`` threads (None: all CPUs). For a GP with an interpolation table the
+    compiled :func:`derender.engine.kernels.log_tables_rows` computes them (all chunks in threads);
+    ``colour_major`` (compiled only): the (M, 8) table of
+    :func:`derender.engine.kernels.gaussian_moments_band` instead, rows 64-byte aligned."""
+    compiled = _compiled_tables(model, colours)
+    if colour_major:
+        if compiled is None:
+            raise ValueError("colour-major tables need the compiled kernel (_compiled_tables)")
+        m = colours.shape[0]
+        raw = np.empty(8 * m + 8, dtype=np.float64)      # rows on 64-byte cache lines
+        off = (-raw.ctypes.data % 64) // 8
+        planes = raw[off:off + 8 * m].reshape(m, 8)
+    else:
+        planes = np.empty((9, colours.shape[0]), dtype=np.float64)
+    if compiled is not None:
+        from derender.engine.kernels import log_tables_rows
+
+        chunk = max(1, min(chunk, -(-colours.shape[0] // max(1, 4 * thread_count(threads)))))
+        args = (*compiled, float(getattr(model, "eps", 0.0)), float(floor), int(clip_code), bool(censor),
+                bool(per_channel), float(code_noise), 2, _BOUND_SIGMAS, _MAX_LOG, planes, bool(colour_major))
 
     def one(s: int) -> None:
+        if compiled is not None:
+            log_tables_rows(colours, s, min(s + chunk, colours.shape[0]), *args)
+            return
         part = _log_tables(model, colours[s:s + chunk], floor, clip_code, censor, per_channel, code_noise)
         for k, arr in enumerate(part):
             planes[3 * k:3 * k + 3, s:s + chunk] = arr.T
@@ -522,8 +572,9 @@ def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor
     starts = list(range(0, colours.shape[0], chunk))
     if not starts:
         return planes
-    one(starts[0])          # the first chunk alone: the model's lazily built tables are made once
-    rest = starts[1:]
+    if compiled is None:
+        one(starts[0])      # the first chunk alone: the model's lazily built tables are made once
+    rest = starts if compiled is not None else starts[1:]
     nthreads = min(thread_count(threads), len(rest))
     if nthreads > 1:        # chunks are independent (disjoint columns): the bytes do not depend on threads
         from concurrent.futures import ThreadPoolExecutor
