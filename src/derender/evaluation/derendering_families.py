@@ -24,7 +24,6 @@ so that one JPEG colour no longer has one RAW colour.
 
 from __future__ import annotations
 
-import time
 from typing import Callable, Sequence
 
 import numpy as np
@@ -77,8 +76,7 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
     from derender.camera.chart import chart_pairs
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.spectral import camera_search_dirs, load_camera
-    from derender.derendering.base import fit_model
-    from derender.evaluation.derendering_metrics import code_floor_errors, interval_coverage, relative_rmse
+    from derender.evaluation.derendering_metrics import code_floor_errors, fit_and_predict, relative_rmse
     from derender.evaluation.families import TUNING_FAMILIES
 
     families = list(families) if families else list(FAMILIES)
@@ -98,12 +96,8 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
                 oog = pairs.out_of_gamut[te]
                 clipped = np.any(pairs.jpeg[te] == 255, axis=1)
                 for m in methods:
-                    t0 = time.perf_counter()
-                    model = fit_model(m, pairs.jpeg[tr], pairs.raw[tr], seed=seed)
-                    fit_s = time.perf_counter() - t0
-                    mean, var = model.predict(pairs.jpeg[te])
-                    cov = interval_coverage(mean, var, x)
-                    point, _ = model.predict(pairs.jpeg[te], point="map")
+                    fp = fit_and_predict(m, pairs.jpeg[tr], pairs.raw[tr], pairs.jpeg[te], x, seed=seed)
+                    fit_s, cov, point = fp["fit_seconds"], fp["coverage"], fp["point"]
                     rows.append({
                         "camera": cam.name, "family": fam, "role": "tuning" if fam in TUNING_FAMILIES else "held out",
                         "split": split, "method": m, "n_train": int(tr.size), "n_test": int(te.size),

@@ -30,7 +30,6 @@
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -86,10 +85,9 @@ def derender_table(cameras: Sequence[str] | None = None, methods: Sequence[str] 
     """Paper 2 Table 1 on simulated cameras; one row per (camera, method), plus a ``floor`` row
     per camera when ``floor`` (lower bound for any predictor from the code, see module doc)."""
     from derender.camera.chart import chart_pairs
-    from derender.derendering.base import fit_model
     from derender.evaluation.derendering_metrics import (
         code_floor_errors,
-        interval_coverage,
+        fit_and_predict,
         median_relative_error,
         relative_rmse,
         rmse,
@@ -105,13 +103,10 @@ def derender_table(cameras: Sequence[str] | None = None, methods: Sequence[str] 
         x = pairs.raw[te]
         oog = pairs.out_of_gamut[te]
         for m in methods:
-            t0 = time.perf_counter()
-            model = fit_model(m, pairs.jpeg[tr], pairs.raw[tr], seed=seed)
-            fit_s = time.perf_counter() - t0
-            mean, var = model.predict(pairs.jpeg[te])
-            cov = interval_coverage(mean, var, x)
-            rel_mean = relative_rmse(mean, x)
-            mean, _ = model.predict(pairs.jpeg[te], point="map")  # point estimate: MAP (paper 2 Sec. 4.1)
+            fp = fit_and_predict(m, pairs.jpeg[tr], pairs.raw[tr], pairs.jpeg[te], x, seed=seed)
+            fit_s, cov = fp["fit_seconds"], fp["coverage"]
+            rel_mean = relative_rmse(fp["mean"], x)
+            mean = fp["point"]  # point estimate: MAP (paper 2 Sec. 4.1)
             rows.append({
                 "camera": cam.name, "method": m, "n_train": int(tr.size), "n_test": int(te.size),
                 "rmse_all": rmse(mean, x), "rmse_oog": rmse(mean[oog], x[oog]) if oog.any() else float("nan"),

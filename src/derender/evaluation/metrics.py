@@ -226,16 +226,14 @@ def _trimmed_fit(r: np.ndarray, g: np.ndarray, n2: np.ndarray, fit: str) -> np.n
     are fitted on a random subset of that many (the errors are then taken over every pixel).
     The generator has seed 0, so the metric is deterministic."""
 
-    def errors(mm: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.sum((r @ mm.T - g) ** 2, axis=1) / n2)
-
     rng = np.random.default_rng(0)
     if r.shape[0] > TRIM_FIT_PIXELS:
         idx = np.sort(rng.choice(r.shape[0], TRIM_FIT_PIXELS, replace=False))
         r, g, n2 = r[idx], g[idx], n2[idx]
 
-        def errors(mm: np.ndarray) -> np.ndarray:
-            return np.sqrt(np.sum((r @ mm.T - g) ** 2, axis=1) / n2)
+    def errors(mm: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.sum((r @ mm.T - g) ** 2, axis=1) / n2)
+
     w = 1.0 / n2
     sel = (rng.choice(r.shape[0], TRIM_SELECT_PIXELS, replace=False) if r.shape[0] > TRIM_SELECT_PIXELS
            else np.arange(r.shape[0]))
