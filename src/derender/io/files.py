@@ -110,7 +110,7 @@ def resolve_path(path: str | os.PathLike) -> Path:
     """``Path.resolve`` with a symlink loop reported as :class:`InputError`."""
     try:
         return Path(path).resolve()
-    except (RuntimeError, OSError) as exc:
+    except (RuntimeError, OSError):
         raise InputError(f"symbolic link loop: {path}") from None
 
 
