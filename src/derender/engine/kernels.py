@@ -42,7 +42,7 @@ MERGE_TILE = 256
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
-                          j_short, j_long, bright, y0, y1, out, mask):  # pragma: no cover - compiled
+                          colour_w, use_colour_w, j_short, j_long, bright, y0, y1, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the stabilised merge of paper 1 (Algorithm 1 step 4) from 8-bit codes.
 
     ``frames`` (N, H, W, 3) uint8; image ``j`` is read at ``(y + shifts[j, 0], x + shifts[j, 1])``
@@ -52,7 +52,9 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
     exist: a 3x3 matrix with negative off-diagonals, fitted on near-neutral colours, sends a
     saturated colour's weak channel below 0) with
     weight ``w_j = w(z) * inv_k[j] / max(sum_c inv_var[j, z_c, c], 1e-30)`` (the last factor
-    only if ``use_inv_var``), where ``w(z)`` is the smallest channel weight
+    only if ``use_inv_var``), times ``colour_w[R << 16 | G << 8 | B]`` of the pixel's colour in
+    frame j if ``use_colour_w`` (a per-colour reliability, e.g. the inverse relative variance
+    of a de-rendering model), where ``w(z)`` is the smallest channel weight
     ``min_c weights[z_c, c]`` if some image sees all channels of the pixel with positive
     weight, else the weight of the brightest channel ``weights[max_c z_c, 0]``. Both sums are
     kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
@@ -110,6 +112,10 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                         f = ik / max(d, tiny)
                         wmin = wmin * f
                         wbright = wbright * f
+                    if use_colour_w:
+                        cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
+                        wmin = wmin * cw
+                        wbright = wbright * cw
                     l0 = lin[j, z0, 0]
                     l1 = lin[j, z1, 1]
                     l2 = lin[j, z2, 2]

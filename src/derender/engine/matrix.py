@@ -68,7 +68,8 @@ def warm_up_kernels() -> threading.Thread:
                 stabilized_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros((1, 2), np.int64),
                                       np.ones((1, 1, 1), np.uint8), np.zeros((1, N_CODES, 3), f32),
                                       np.zeros((1, 3, 3), f32), np.zeros((1, 3, 3)), np.zeros((N_CODES, 3), f32),
-                                      np.zeros((1, N_CODES, 3), f32), np.ones(1, f32), True, 0, 0,
+                                      np.zeros((1, N_CODES, 3), f32), np.ones(1, f32), True,
+                                      np.ones(1, f32), False, 0, 0,
                                       np.zeros(N_CODES, bool), 0, 1, np.zeros((3, 1, 1), f32),
                                       np.zeros((1, 1), np.uint8))
         except Exception:  # noqa: BLE001
@@ -107,6 +108,11 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     else:
         inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
         inv_k = np.ones(n, dtype=np.float32)
+    use_cw = plan.colour_weights is not None
+    colour_w = (np.ascontiguousarray(plan.colour_weights, dtype=np.float32) if use_cw
+                else np.ones(1, dtype=np.float32))
+    if use_cw and colour_w.shape != (1 << 24,):
+        raise ValueError(f"colour_weights must have 2**24 entries, got {colour_w.shape}")
     bright = code_values() >= np.float32(0.5)
     if valid is None:
         valid = np.ones((n, 1, 1), dtype=np.uint8)
@@ -122,7 +128,7 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     res = HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
     args = (np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
             np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32), mats64, wt, inv_var, inv_k,
-            use_iv, int(np.argmin(times)), int(np.argmax(times)), bright)
+            use_iv, colour_w, use_cw, int(np.argmin(times)), int(np.argmax(times)), bright)
 
     def band(y0: int, y1: int) -> None:
         with KERNEL_LOCK:

@@ -87,7 +87,10 @@ class MatrixPlan:
     """Linearisation tables (N, 256, 3) float32, matrices (N, 3, 3) (frame j contributes
     ``matrices[j] @ values[j](z)``), a weight table (256, 3), an optional inverse-variance
     table (N, 256, 3) with per-frame factors (N,), and registration shifts (N, 2) (dy, dx):
-    frame j is read at ``(y + dy, x + dx)``; outside the frame it does not take part."""
+    frame j is read at ``(y + dy, x + dx)``; outside the frame it does not take part.
+    ``colour_weights`` (optional, (2**24,) float32, positive where read): a factor on the
+    weight of every observation by its colour, indexed ``R << 16 | G << 8 | B`` (64 MB; e.g.
+    the inverse relative variance of a de-rendering model, ``stabilized-probabilistic``)."""
 
     values: np.ndarray
     matrices: np.ndarray
@@ -95,6 +98,7 @@ class MatrixPlan:
     shifts: np.ndarray
     inverse_variance: np.ndarray | None = None
     inverse_variance_k: np.ndarray | None = None
+    colour_weights: np.ndarray | None = None
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """HDR merge methods: the registry, the classic merges, paper 1 (alignment, stabilisation) and paper 2 (probabilistic HDR).
 
-Modules: :mod:`derender.hdr.align`, :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.ward2003`.
+Modules: :mod:`derender.hdr.align`, :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.stabilized_probabilistic`, :mod:`derender.hdr.ward2003`.
 """
 
 from derender.core.lazy import attach
@@ -10,7 +10,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "batch": ["stack_files", "merge_one_stack", "merge_batch"],
     "classic": ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"],
     "files": ["merge_files"],
-    "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments", "merge_stabilized_probabilistic"],
+    "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
+    "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
     "registry": ["MERGE_METHODS", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded"],
     "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
 })

@@ -144,7 +144,6 @@ __all__ = [
     "check_options",
     "ProbabilisticMethod",
     "log_product_moments",
-    "merge_stabilized_probabilistic",
 ]
 
 
@@ -585,34 +584,3 @@ def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor
         for s in rest:
             one(s)
     return planes
-
-
-@register_method("stabilized-probabilistic")
-def merge_stabilized_probabilistic(stack: Stack, model: Any, reference: int | None = None, align: str = "mtb",
-                                   seed: int = 0) -> HDRResult:
-    """Both papers together: paper 1's stabilised merge weighted by paper 2's de-rendering variances.
-
-    The stabilisation (reference, registration, gamma_j, H_j) is paper 1's; each image's
-    weight is its trapezoid weight times the inverse *relative* variance of its pixels'
-    de-rendered RAW colours, ``1 / mean_c(var_c / mean_c^2)``. The estimate of radiance
-    from image j has variance ``r_j L^2`` for relative variance ``r_j`` and radiance L, so
-    for the same pixel inverse-variance weighting reduces to weights ``1 / r_j``; this
-    replaces paper 1's plain noise weighting.
-    """
-    from derender.hdr.stabilize import stabilize, stabilized_merge
-
-    model = as_model(model)
-    if stack.bit_depth == 16:
-        raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
-    t0 = time.perf_counter()
-    stab = stabilize(stack, reference=reference, align=align, mode="reference", seed=seed)
-    aligned = np.rint(np.clip(stab.alignment.images, 0.0, 1.0) * 255.0).astype(np.uint8)
-    weights = np.empty(aligned.shape[:3], dtype=np.float64)
-    for j in range(aligned.shape[0]):
-        mean, var = model.predict(aligned[j], point="map")
-        rel = np.mean(var.astype(np.float64) / np.maximum(mean.astype(np.float64), 1e-12) ** 2, axis=-1)
-        weights[j] = 1.0 / np.maximum(rel, 1e-12)
-    res = stabilized_merge(stab, noise_weighting=False, pixel_weights=weights)
-    res.info.update({"method": "stabilized-probabilistic", "model": getattr(model, "method", "?"),
-                     "merge_seconds": time.perf_counter() - t0})
-    return res

@@ -4,8 +4,8 @@ Methods register themselves with :func:`register_method`; :func:`merge` dispatch
 in-memory :class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files`
 image files. The methods live in :mod:`derender.hdr.classic` (``debevec``,
 ``robertson``), :mod:`derender.hdr.stabilize` (``stabilized``, ``stabilized-joint``,
-paper 1) and :mod:`derender.hdr.probabilistic` (``probabilistic``,
-``stabilized-probabilistic``, paper 2); they are imported on first use.
+paper 1) and :mod:`derender.hdr.probabilistic` (``probabilistic``, paper 2),
+:mod:`derender.hdr.stabilized_probabilistic` (``stabilized-probabilistic``, both papers); they are imported on first use.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ BUILTIN_METHODS = {
     "stabilized": "derender.hdr.stabilize.method",
     "stabilized-joint": "derender.hdr.stabilize.method",
     "probabilistic": "derender.hdr.probabilistic",
-    "stabilized-probabilistic": "derender.hdr.probabilistic",
+    "stabilized-probabilistic": "derender.hdr.stabilized_probabilistic",
 }
 
 
