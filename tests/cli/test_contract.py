@@ -275,3 +275,26 @@ def test_flags_are_shown_as_flags_in_help(capsys, monkeypatch):
         out = _help(capsys, monkeypatch, *args)
         assert "<bool>" not in out and "--help" in out
     assert "--times-inverse" in _help(capsys, monkeypatch, "merge")
+
+
+def test_console_entry_leaves_failed_runs_without_finalisation(monkeypatch, capsys):
+    """A failed or interrupted ``derender`` process exits through ``os._exit`` (no interpreter
+    finalisation under background threads still in native code: it crashed with SIGSEGV after
+    ``interrupted``); a successful run exits normally."""
+    import derender.cli as cli
+
+    codes = []
+
+    def fake_exit(code):
+        codes.append(code)
+        raise RuntimeError("os._exit")
+
+    monkeypatch.setattr(cli.os, "_exit", fake_exit)
+    monkeypatch.setattr(sys, "argv", ["derender", "merge", "missing-a.jpg", "missing-b.jpg", "-o", "x.exr"])
+    with pytest.raises(RuntimeError, match="os._exit"):
+        cli.console_main()
+    assert codes == [2] and capsys.readouterr().err.startswith("error: ")
+    monkeypatch.setattr(sys, "argv", ["derender", "--help"])
+    with pytest.raises(SystemExit) as exc:
+        cli.console_main()
+    assert exc.value.code in (None, 0) and codes == [2]
