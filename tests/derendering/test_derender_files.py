@@ -379,3 +379,26 @@ def test_stabilized_probabilistic_files_take_the_engine(model_file, tmp_path, ca
     ref = stabilized_probabilistic_stack(read_stack(jpgs), load_model(model_file))
     back = read_exr(tmp_path / "sp.exr")
     assert np.max(np.abs(back - ref.radiance)) <= 1e-5 * np.max(ref.radiance)
+
+
+def test_probabilistic_outputs_written_from_band_buffers_are_the_same_files(model_file, tmp_path, monkeypatch):
+    """``hold_outputs=False`` (what ``derender merge`` does without --preview): radiance and variance
+    go from the merge's band buffers into the files; same bytes as writing held arrays."""
+    from helpers import write_png_codes
+
+    from derender.hdr.files import merge_files
+
+    b = simulate_bracket(size=(100, 175), exposures=4, pipeline="auto", style="simple", seed=4)
+    paths = [write_png_codes(tmp_path / f"f{j}.png", np.repeat(np.repeat(b.jpeg_codes[j], 4, axis=0), 4, axis=1))
+             for j in range(4)]
+    times = [float(t) for t in b.times]
+    model = load_model(model_file)
+    files = {}
+    for hold in (True, False):
+        for var in (True, False):
+            out, vout = tmp_path / f"m-{hold}-{var}.exr", (tmp_path / f"v-{hold}-{var}.exr" if var else None)
+            res = merge_files(paths, times, "probabilistic", model=model, output=out, variance_output=vout,
+                              hold_outputs=hold)
+            assert res.info["outputs_held"] == hold and (res.variance is None) == (not hold)
+            files[hold, var] = out.read_bytes() + (vout.read_bytes() if var else b"")
+    assert files[True, True] == files[False, True] and files[True, False] == files[False, False]

@@ -140,7 +140,7 @@ def merge_cmd(
         result = merge_files(images, parse_times(times) if times is not None else None, method,
                              times_file=times_file, times_file_inverse=times_inverse, output=out_tmp,
                              variance_output=var_tmp, half=half, inputs=inputs, seed=seed,
-                             max_megapixels=max_megapixels, **extra)
+                             max_megapixels=max_megapixels, hold_outputs=preview_tmp is not None, **extra)
         if preview_tmp is not None:
             write_preview(preview_tmp, result.radiance, inputs=inputs)
         if mask_tmp is not None:
@@ -154,7 +154,7 @@ def merge_cmd(
             plot_response(result.info["curves"], plot_tmp, inputs=inputs)
     n_bright = int((result.mask == 1).sum())
     n_dark = int((result.mask == 2).sum())
-    typer.echo(f"{method}: {len(images)} images {result.radiance.shape[1]}x{result.radiance.shape[0]} -> {output} "
+    typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
                f"({time.perf_counter() - t0:.2f} s; {n_bright} px over-exposed everywhere, {n_dark} px under-exposed)")
 
 

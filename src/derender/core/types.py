@@ -203,13 +203,15 @@ class HDRResult:
     Attributes
     ----------
     radiance : numpy.ndarray
-        (H, W, 3) float32 linear radiance (relative units), finite everywhere.
+        (H, W, 3) float32 linear radiance (relative units), finite everywhere; None when a
+        file merge wrote it without holding it (``merge_files(..., hold_outputs=False)``).
     mask : numpy.ndarray
         (H, W) uint8, 0 = well exposed somewhere, 1 = taken from the shortest exposure
         (over-exposed everywhere), 2 = from the longest (under-exposed); the class
         constants ``MASK_OK``, ``MASK_BRIGHT``, ``MASK_DARK`` name them.
     variance : numpy.ndarray or None
-        (H, W, 3) float32 per-pixel variance of ``radiance`` (probabilistic methods), else None.
+        (H, W, 3) float32 per-pixel variance of ``radiance`` (probabilistic methods), else None
+        (also when written without being held, as ``radiance``).
     info : dict
         Free-form details (curves, gammas, matrices, reference index, timings).
     """

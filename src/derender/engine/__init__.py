@@ -13,7 +13,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "tables": ["code_histograms", "F32_MAX", "code_values", "weight_table", "curve_value_tables", "stack_codes_exact", "TableMerge", "merge_codes", "merge_curves_table"],
     "weights": ["F32_MAX", "weight_hat", "weight_trapezoid", "weight_gaussian", "WEIGHTS", "get_weight"],
     "gaussian": ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held"],
-    "overlap": ["OVERLAP_ROWS", "RowsDone", "merge_writing", "run_bands"],
+    "overlap": ["OVERLAP_ROWS", "RING_SLOTS", "RowsDone", "OutputRing", "merge_writing", "run_bands"],
     "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"],
     "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "ENGINES"],
 })

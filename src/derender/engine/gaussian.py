@@ -76,33 +76,46 @@ class LogGaussianProduct:
 
 
 def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None,
-                          write=None, outputs: tuple[np.ndarray, np.ndarray] | None = None) -> HDRResult:
+                          write=None, outputs: tuple[np.ndarray, np.ndarray] | None = None,
+                          ring: int = 0) -> HDRResult:
     """Run a :class:`~derender.engine.plans.GaussianPlan` on held frames (N, H, W, 3) uint8
     sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
     ``write(result, rows_done)``: the radiance written while merging
     (:func:`derender.engine.overlap.merge_writing`). ``outputs``: radiance and variance arrays
-    (H, W, 3) float32 to fill (allocated here when None)."""
+    (H, W, 3) float32 to fill (allocated here when None). ``ring`` > 0 (with ``write`` and the
+    fused compiled pass): radiance and variance go through an
+    :class:`~derender.engine.overlap.OutputRing` of band buffers read by ``ring`` writers (1:
+    the radiance file, 2: and the variance file); the result's ``radiance`` and ``variance``
+    are None."""
     from derender.core.memory import populated_zeros
-    from derender.engine.overlap import OVERLAP_ROWS, merge_writing, run_bands
+    from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing, run_bands
 
     t0 = time.perf_counter()
     n, h, w = frames.shape[:3]
     # outputs mapped with their pages present: first-touch faults inside the merge cost 2-4 ms
     # per MB here (576 MB at 24 MP), populating ~0.5 ms per MB (core.memory.populated_zeros)
-    if outputs is not None and all(o.shape == (h, w, 3) and o.dtype == np.float32 and o.flags.c_contiguous
-                                   and o.flags.writeable for o in outputs):
-        radiance, variance = outputs
-    else:
-        radiance = populated_zeros((h, w, 3), np.float32)
-        variance = populated_zeros((h, w, 3), np.float32)
-    mask = np.empty((h, w), dtype=np.uint8)
     log_scales = [float(s) for s in plan.log_scales]
-
     lut = getattr(plan.index, "lut", None)
     table = plan.table
     fused = plan.lognormal if (lut is not None and table is not None and table.dtype == np.float64
                                and table.ndim == 2 and table.shape[1] == 8 and table.flags.c_contiguous
                                and frames.flags.c_contiguous) else None
+    nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
+    group = plan.band_rows * nthreads        # a chunk: whole rounds of bands over the threads
+    step = group * max(1, OVERLAP_ROWS // group)
+    rng = None
+    if ring and write is not None and fused is not None:
+        rng = OutputRing(h, w, step, lambda: (populated_zeros((step, w, 3), np.float32),
+                                              populated_zeros((step, w, 3), np.float32)), writers=ring,
+                         planar=False)
+        radiance = variance = None
+    elif outputs is not None and all(o.shape == (h, w, 3) and o.dtype == np.float32 and o.flags.c_contiguous
+                                     and o.flags.writeable for o in outputs):
+        radiance, variance = outputs
+    else:
+        radiance = populated_zeros((h, w, 3), np.float32)
+        variance = populated_zeros((h, w, 3), np.float32)
+    mask = np.empty((h, w), dtype=np.uint8)
     planes = None if fused is not None else plan.rows_planes()
     compiled = (fused is not None or (lut is not None and planes.dtype == np.float64 and planes.flags.c_contiguous
                                       and frames.flags.c_contiguous))
@@ -119,8 +132,12 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
 
     def run(y0: int, y1: int) -> None:
         if fused is not None:    # sums and moments in one compiled pass, no float64 band arrays
+            if rng is not None:
+                (rad, var), row0 = rng.slot(y0)
+            else:
+                rad, var, row0 = radiance, variance, 0
             gaussian_moments_band(frames, lut, table, scales, y0, y1, bool(fused.censor),
-                                  float(fused.max_log), float(fused.max_v), a, use_a, radiance, variance)
+                                  float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var)
             mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
             return
         prod = LogGaussianProduct((y1 - y0, w))
@@ -132,14 +149,11 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
         radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
         mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
 
-    nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
     res = HDRResult(radiance=radiance, mask=mask, variance=variance, info={"engine": "gaussian"})
-    group = plan.band_rows * nthreads        # a chunk: whole rounds of bands over the threads
-    step = group * max(1, OVERLAP_ROWS // group)
     with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-gauss") as ex:
         def chunk(c0: int, c1: int) -> None:
             run_bands(ex, nthreads, run, [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)])
 
-        merge_writing(h, step, chunk, res, write)
+        merge_writing(h, step, chunk, res, write, ring=rng)
     res.info["merge_seconds"] = time.perf_counter() - t0
     return res

@@ -42,7 +42,7 @@ MERGE_TILE = 256
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
-                          colour_w, use_colour_w, j_short, j_long, bright, y0, y1, out, mask):  # pragma: no cover - compiled
+                          colour_w, use_colour_w, j_short, j_long, bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the stabilised merge of paper 1 (Algorithm 1 step 4) from 8-bit codes.
 
     ``frames`` (N, H, W, 3) uint8; image ``j`` is read at ``(y + shifts[j, 0], x + shifts[j, 1])``
@@ -60,7 +60,8 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
     kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
     comes from the shortest exposure (``mask`` 1) if its largest code is ``bright``, else
     from the longest (``mask`` 2), with ``mats64`` (projected as above); elsewhere ``mask`` is 0. ``out`` is
-    (3, H, W) float32. Rows run in parallel; within a row, tiles of :data:`MERGE_TILE`
+    (3, rows, W) float32, row ``y`` at ``out[:, y - row0]`` (the whole image: ``row0`` 0; a band
+    buffer: its first row). Rows run in parallel; within a row, tiles of :data:`MERGE_TILE`
     pixels take the frames one after another (each pixel's sums still run over the frames in
     order, so the sums are those of a per-pixel loop).
     """
@@ -136,9 +137,9 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                 k = 0 if usable[t] else 4
                 dm = acc[k, t]
                 if dm > zero:
-                    out[0, y, x] = acc[k + 1, t] / dm
-                    out[1, y, x] = acc[k + 2, t] / dm
-                    out[2, y, x] = acc[k + 3, t] / dm
+                    out[0, y - row0, x] = acc[k + 1, t] / dm
+                    out[1, y - row0, x] = acc[k + 2, t] / dm
+                    out[2, y - row0, x] = acc[k + 3, t] / dm
                     mask[y, x] = 0
                     continue
                 ys = min(max(y + shifts[j_short, 0], 0), h - 1)
@@ -155,7 +156,7 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                 e1 = np.float64(lin[jj, frames[jj, ys, xs, 1], 1])
                 e2 = np.float64(lin[jj, frames[jj, ys, xs, 2], 2])
                 for c in range(3):
-                    out[c, y, x] = np.float32(max(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1]
+                    out[c, y - row0, x] = np.float32(max(e0 * mats64[jj, c, 0] + e1 * mats64[jj, c, 1]
                                                   + e2 * mats64[jj, c, 2], 0.0))
 
 
@@ -271,7 +272,7 @@ def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margi
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def table_merge_rows(frames, order, values, weights, independent, log_domain, v_short, v_long, j_short, j_long,
-                     bright, y0, y1, out, mask):  # pragma: no cover - compiled
+                     bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the table merge (:class:`derender.engine.tables.TableMerge`, modes
     ``"mean"`` and ``"independent"``) of held frames in one pass per pixel, same arithmetic.
 
@@ -286,7 +287,8 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
     weights sum to 0 its value comes from the shortest exposure (``j_short``, table
     ``v_short``) if ``bright[code]`` (the ``"mean"`` mode: the channel's code, like the
     engine's finish), else from the longest; ``mask`` 1 if some channel took the shortest,
-    else 2 if some took the longest, else 0. ``out`` (3, H, W) float32 receives the value
+    else 2 if some took the longest, else 0. ``out`` (3, rows, W) float32 receives row ``y``'s
+    value at ``out[:, y - row0]`` (the whole image: ``row0`` 0; a band buffer: its first row)
     (log domain: ``min(value, 88)``, to be exponentiated by the caller with OpenCV on the
     engine's blocks; linear: non-finite values replaced as ``np.nan_to_num``).
     """
@@ -361,7 +363,7 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
                             r = np.float64(v_long[frames[j_long, y, x, c], c])
                             ndk = True
                     if log_domain:
-                        out[c, y, x] = np.float32(min(r, 88.0))
+                        out[c, y - row0, x] = np.float32(min(r, 88.0))
                     else:
                         o = np.float32(r)
                         if np.isnan(o):
@@ -370,7 +372,7 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
                             o = f32max
                         elif o < -f32max:
                             o = -f32max
-                        out[c, y, x] = o
+                        out[c, y - row0, x] = o
                 mask[y, x] = 1 if nb else (2 if ndk else 0)
 
 
@@ -420,7 +422,7 @@ def _ndtr(a):  # pragma: no cover - compiled
 
 @njit(nogil=True, cache=True, error_model="numpy")
 def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
-                          radiance, variance):  # pragma: no cover - compiled
+                          row0, radiance, variance):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the log-space Gaussian product, sums and moments in one pass: the sums of
     :func:`gaussian_band` (same float64 operations and order), kept for one row at a time, from a
     colour-major table (M, 8) ``[mu (3), p, low (3), 0]`` per colour (channel ``c``'s precision
@@ -433,7 +435,8 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
     moments below ``bound`` (``_truncate_below_log``); ``m`` clipped to ``+-max_log``, ``v`` to
     ``[0, max_v]``; raw moments ``e = exp(m + v/2)``, ``expm1(v) e^2``; through ``a`` (3x3,
     camera -> output, variance by ``a * a``) if ``use_a``; clipped to ``+-f32max/4`` and written
-    as float32 into ``radiance`` and ``variance`` (H, W, 3). Releases the GIL."""
+    as float32 into ``radiance`` and ``variance`` (rows, W, 3), row ``y`` at index ``y - row0``
+    (the whole image: ``row0`` 0; band buffers: the band's first row). Releases the GIL."""
     n = frames.shape[0]
     w = frames.shape[2]
     prec = np.empty((3, w))
@@ -507,10 +510,10 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
                     vo = var0[c]
                 if np.isnan(mo):
                     mo = 0.0
-                radiance[y, x, c] = np.float32(min(max(mo, -big), big))
+                radiance[y - row0, x, c] = np.float32(min(max(mo, -big), big))
                 if np.isnan(vo):
                     vo = big
-                variance[y, x, c] = np.float32(min(max(vo, 0.0), big))
+                variance[y - row0, x, c] = np.float32(min(max(vo, 0.0), big))
 
 
 @njit(inline="always")

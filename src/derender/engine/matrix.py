@@ -70,7 +70,7 @@ def warm_up_kernels() -> threading.Thread:
                                       np.zeros((1, 3, 3), f32), np.zeros((1, 3, 3)), np.zeros((N_CODES, 3), f32),
                                       np.zeros((1, N_CODES, 3), f32), np.ones(1, f32), True,
                                       np.ones(1, f32), False, 0, 0,
-                                      np.zeros(N_CODES, bool), 0, 1, np.zeros((3, 1, 1), f32),
+                                      np.zeros(N_CODES, bool), 0, 1, 0, np.zeros((3, 1, 1), f32),
                                       np.zeros((1, 1), np.uint8))
         except Exception:  # noqa: BLE001
             pass
@@ -81,7 +81,8 @@ def warm_up_kernels() -> threading.Thread:
 
 
 def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray, valid: np.ndarray | None = None,
-                        threads: int | None = None, buffer: np.ndarray | None = None, write=None) -> HDRResult:
+                        threads: int | None = None, buffer: np.ndarray | None = None, write=None,
+                        ring: int = 0) -> HDRResult:
     """Run a :class:`~derender.engine.plans.MatrixPlan` on held frames (N, H, W, 3) uint8.
 
     Frame ``j`` is read through ``plan.shifts[j]`` and restricted to ``valid`` (N, H, W)
@@ -90,9 +91,11 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     :func:`matrix_output_bytes` to hold the radiance and mask (the kernel writes every
     pixel of both, so it need not be zero). The radiance is an (H, W, 3) view of planar
     float32 memory; sums are float32 (2e-7 to 4e-7 relative to the float64 reference).
-    ``write(result, rows_done)``: written while merging (:func:`derender.engine.overlap.merge_writing`).
+    ``write(result, rows_done)``: written while merging (:func:`derender.engine.overlap.merge_writing`);
+    with ``ring`` too the radiance goes through an :class:`~derender.engine.overlap.OutputRing` of
+    band buffers into the file and the result's ``radiance`` is None (the mask is kept).
     """
-    from derender.engine.overlap import OVERLAP_ROWS, merge_writing
+    from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing
     from derender.engine.kernels import stabilized_merge_rows
 
     times = np.asarray(times, dtype=np.float64)
@@ -116,7 +119,13 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     bright = code_values() >= np.float32(0.5)
     if valid is None:
         valid = np.ones((n, 1, 1), dtype=np.uint8)
-    if buffer is not None and buffer.nbytes >= matrix_output_bytes(h, w):
+    rng = None
+    if ring and write is not None:
+        rng = OutputRing(h, w, OVERLAP_ROWS, lambda: (populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32),))
+        radiance = None
+        mask = (buffer.reshape(-1)[:h * w].reshape(h, w) if buffer is not None and buffer.nbytes >= h * w
+                else populated_zeros((h, w), dtype=np.uint8))
+    elif buffer is not None and buffer.nbytes >= matrix_output_bytes(h, w):
         flat = buffer.reshape(-1)
         radiance = flat[:12 * h * w].view(np.float32).reshape(3, h, w)
         mask = flat[12 * h * w:13 * h * w].reshape(h, w)
@@ -125,17 +134,22 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
         mask = populated_zeros((h, w), dtype=np.uint8)
     t0 = time.perf_counter()
     info: dict = {}
-    res = HDRResult(radiance=radiance.transpose(1, 2, 0), mask=mask, variance=None, info=info)
+    res = HDRResult(radiance=None if radiance is None else radiance.transpose(1, 2, 0), mask=mask, variance=None,
+                    info=info)
     args = (np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
             np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32), mats64, wt, inv_var, inv_k,
             use_iv, colour_w, use_cw, int(np.argmin(times)), int(np.argmax(times)), bright)
 
     def band(y0: int, y1: int) -> None:
+        if rng is not None:
+            (dst,), row0 = rng.slot(y0)
+        else:
+            dst, row0 = radiance, 0
         with KERNEL_LOCK:
             set_numba_threads(threads)
-            stabilized_merge_rows(*args, y0, y1, radiance, mask)
+            stabilized_merge_rows(*args, y0, y1, row0, dst, mask)
 
-    merge_writing(h, OVERLAP_ROWS, band, res, write)
+    merge_writing(h, OVERLAP_ROWS, band, res, write, ring=rng)
     info.update({"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
             "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
             "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),

@@ -39,7 +39,7 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
-from derender.engine.overlap import OVERLAP_ROWS, RowsDone, merge_writing, run_bands
+from derender.engine.overlap import OVERLAP_ROWS, OutputRing, RowsDone, merge_writing, run_bands
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
 from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import write_exr_fast
@@ -168,7 +168,7 @@ def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarra
 
 
 def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
-                        bright_threshold: float = 0.5, write=None) -> HDRResult:
+                        bright_threshold: float = 0.5, write=None, ring: int = 0) -> HDRResult:
     """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
     kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of
     :class:`TableMerge` (frames added in ``order``; the log domain's exponential by OpenCV
@@ -176,7 +176,9 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
 
     ``write(result, rows_done)``, if given, runs in a thread while the kernel merges bands of
     :data:`OVERLAP_ROWS` rows; it must read row ``y`` of the result only after
-    ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile)."""
+    ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile). ``ring``
+    (with ``write``): the radiance goes through an :class:`~derender.engine.overlap.OutputRing`
+    of band buffers into the file, the result's ``radiance`` is None."""
     from concurrent.futures import ThreadPoolExecutor
 
     from derender.core.memory import import_cv2, opencv_single_thread
@@ -188,36 +190,46 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
     n, h, w = frames.shape[:3]
     values, weights = _table_kernel_tables(plan, n)
     log = plan.domain == "log"
-    out = populated_zeros((3, h, w), dtype=np.float32)
     mask = populated_zeros((h, w), dtype=np.uint8)
     bright = code_values() >= np.float32(bright_threshold)
     br = plan.block_rows if plan.block_rows is not None else max(1, (1 << 16) // max(w, 1))
+    # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
+    step = max(br, (OVERLAP_ROWS // br) * br)
+    rng = None
+    if ring and write is not None:
+        rng = OutputRing(h, w, step, lambda: (populated_zeros((3, step, w), dtype=np.float32),))
+        out = None
+    else:
+        out = populated_zeros((3, h, w), dtype=np.float32)
     order_a = np.asarray(order, dtype=np.int64)
     independent = plan.channel_weights == "independent"
     info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "engine": "table",
             "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
-    res = HDRResult(radiance=out.transpose(1, 2, 0), mask=mask, variance=None, info=info)
-
-    def finish(r0: int, r1: int) -> None:
-        for c in range(3):
-            r = out[c, r0:r1]
-            if log:
-                cv2.exp(r, dst=r)
-            if not cv2.checkRange(r)[0]:
-                np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
-
-    # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
-    step = max(br, (OVERLAP_ROWS // br) * br)
+    res = HDRResult(radiance=None if rng is not None else out.transpose(1, 2, 0), mask=mask, variance=None,
+                    info=info)
     nthreads = thread_count(threads)
     with opencv_single_thread(), ThreadPoolExecutor(max(1, nthreads), thread_name_prefix="derender-exp") as ex:
         def band(y0: int, y1: int) -> None:
+            if rng is not None:
+                (dst,), row0 = rng.slot(y0)
+            else:
+                dst, row0 = out, 0
+
+            def finish(r0: int, r1: int) -> None:
+                for c in range(3):
+                    r = dst[c, r0 - row0:r1 - row0]
+                    if log:
+                        cv2.exp(r, dst=r)
+                    if not cv2.checkRange(r)[0]:
+                        np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
+
             with KERNEL_LOCK:
                 set_numba_threads(threads)
                 table_merge_rows(frames, order_a, values, weights, independent, log, values[0], values[n - 1],
-                                 0, n - 1, bright, y0, y1, out, mask)
+                                 0, n - 1, bright, y0, y1, row0, dst, mask)
             run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
 
-        merge_writing(h, step, band, res, write)
+        merge_writing(h, step, band, res, write, ring=rng)
     info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
     info["n_dark"] = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
     return res
@@ -241,13 +253,13 @@ def _warm_up_kernel(which: str = "table") -> None:
                               np.zeros(1), 0, 1, z, z.copy(), z.copy())
                 o = np.zeros((1, 1, 3), np.float32)
                 gaussian_moments_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
-                                      np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, o, o.copy())
+                                      np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, 0, o, o.copy())
                 return
             with KERNEL_LOCK:
                 table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1, np.int64),
                                  np.zeros((1, N_CODES, 3), f32), np.zeros((1, N_CODES, 3), f32), False, True,
                                  np.zeros((N_CODES, 3), f32), np.zeros((N_CODES, 3), f32), 0, 0,
-                                 np.zeros(N_CODES, bool), 0, 1, np.zeros((3, 1, 1), f32), np.zeros((1, 1), np.uint8))
+                                 np.zeros(N_CODES, bool), 0, 1, 0, np.zeros((3, 1, 1), f32), np.zeros((1, 1), np.uint8))
         except Exception:  # noqa: BLE001
             pass
 
@@ -255,7 +267,7 @@ def _warm_up_kernel(which: str = "table") -> None:
 
 
 def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_hint: str | None,
-                       write=None) -> HDRResult:
+                       write=None, ring: int = 0) -> HDRResult:
     """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
     once into one (N, H, W, 3) array, the calibration samples (and histograms) read from it,
     and the merge in one compiled pass per pixel (:func:`_table_kernel_merge`) from
@@ -291,7 +303,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     t2 = time.perf_counter()
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
     if compiled and plan.channel_weights in ("mean", "independent"):
-        res = _table_kernel_merge(frames, plan, order, threads, write=write)
+        res = _table_kernel_merge(frames, plan, order, threads, write=write, ring=ring)
         res.info["overlapped_write"] = write is not None
     else:
         iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
@@ -417,7 +429,7 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
 
 
 def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str | None = None,
-              write=None) -> HDRResult:
+              write=None, ring: int = 0) -> HDRResult:
     t0 = time.perf_counter()
     held: dict = {}
     out_bytes = getattr(method, "output_bytes", None)
@@ -425,7 +437,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     def derive_alloc(h: int, w: int, nbytes: int) -> np.ndarray:
         # the derived planes' memory is reused for the outputs once the plan is made: fresh
         # memory costs 0.5-3 ms/MB here (page population), 216 MB of it per 24 MP bracket
-        extra = out_bytes(h, w) if out_bytes is not None else 0
+        extra = out_bytes(h, w) if out_bytes is not None and not ring else 0
         held["buffer"] = populated_zeros(max(nbytes, extra), np.uint8)
         return held["buffer"]
 
@@ -441,7 +453,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     del planes
     outputs: list = []
     prepare = None
-    if getattr(method, "warm_up", None) == "gaussian":
+    if getattr(method, "warm_up", None) == "gaussian" and not ring:
         # the Gaussian merge's float32 outputs, pages present, mapped in a thread while the
         # plan runs (its serial parts leave a core idle; populating 576 MB at 24 MP takes ~0.3 s)
         h, w = frames.shape[1:3]
@@ -459,16 +471,18 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     access.planes = None
     t2 = time.perf_counter()
     buffer = held.pop("buffer", None)
+    if ring:
+        buffer = None        # the derived planes' memory is released: the outputs are band buffers
     if isinstance(plan, MatrixPlan):
         from derender.engine.matrix import merge_matrix_frames
 
-        res = merge_matrix_frames(frames, plan, source.times, threads=threads, buffer=buffer, write=write)
+        res = merge_matrix_frames(frames, plan, source.times, threads=threads, buffer=buffer, write=write, ring=ring)
         res.info["overlapped_write"] = write is not None
     elif isinstance(plan, GaussianPlan):
         from derender.engine.gaussian import merge_gaussian_frames
 
         res = merge_gaussian_frames(frames, plan, threads=threads, write=write,
-                                    outputs=tuple(outputs) if len(outputs) == 2 else None)
+                                    outputs=tuple(outputs) if len(outputs) == 2 else None, ring=ring)
         res.info["overlapped_write"] = write is not None
     elif isinstance(plan, TablePlan):
         from derender.engine.tables import merge_codes
@@ -487,20 +501,31 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
 
 
 def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, half: bool, compression: str,
-                                  inputs, threads: int | None, arr: np.ndarray | None = None) -> None:
+                                  inputs, threads: int | None, arr: np.ndarray | None = None, k: int = 0) -> None:
     """:func:`write_outputs`' radiance file (or ``arr``, e.g. the variance), each block of lines
-    read once the merge has finished it."""
+    read once the merge has finished it; from ``done.ring`` (output ``k``: 0 radiance, 1
+    variance) when the merge fills band slots instead of whole arrays."""
     from derender.io.exr import write_exr_lines
 
-    arr = res.radiance if arr is None else arr
-    h, w = arr.shape[:2]
+    ring = done.ring
+    if ring is None:
+        arr = res.radiance if arr is None else arr
+        h, w = arr.shape[:2]
+    else:
+        h, w = ring.h, ring.w
 
     def bgr_lines(y0: int, y1: int, buf: np.ndarray) -> None:
         done.wait(y1)
-        for k, c in enumerate((2, 1, 0)):  # channels in alphabetical order: B, G, R
-            buf[:, k, :] = arr[y0:y1, :, c]
+        if ring is None:
+            for kk, c in enumerate((2, 1, 0)):  # channels in alphabetical order: B, G, R
+                buf[:, kk, :] = arr[y0:y1, :, c]
+            return
+        for ya, yb, view in ring.segments(k, y0, y1):
+            for kk, c in enumerate((2, 1, 0)):
+                buf[ya - y0:yb - y0, kk, :] = view[:, :, c]
 
-    write_exr_lines(output, w, h, bgr_lines, half=half, inputs=list(inputs), compression=compression, threads=threads)
+    write_exr_lines(output, w, h, bgr_lines, half=half, inputs=list(inputs), compression=compression, threads=threads,
+                    rows_read=None if ring is None else (lambda y: ring.read(k, y)))
 
 
 def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
@@ -523,9 +548,17 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
         keep_frames: int | None = None, keep_bytes: int = 256 << 20, hold_bytes: int = HOLD_BYTES,
         output: str | os.PathLike | None = None,
         variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
-        inputs: Iterable[str | os.PathLike] = (), order_hint: str | None = None) -> HDRResult:
+        inputs: Iterable[str | os.PathLike] = (), order_hint: str | None = None,
+        hold_outputs: bool = True) -> HDRResult:
     """Merge ``source`` with ``method`` (see the module docstring); optionally write the
     radiance to ``output`` and the variance to ``variance_output`` (OpenEXR).
+
+    ``hold_outputs=False`` (with ``output``): where the merge writes while merging (held
+    frames merged by a compiled kernel), the outputs go through a ring of band buffers
+    (:class:`~derender.engine.overlap.OutputRing`) straight into the files and are never
+    held whole: the result's ``radiance`` (and ``variance``) are then None, its mask and
+    info as usual (9 x 24 MP: 288 MB less memory per output). Elsewhere the outputs are
+    held as usual.
 
     ``order_hint`` (for user input): check while decoding that the images brighten with
     their exposure times (:func:`derender.core.types.check_brightness_order`), the hint
@@ -544,16 +577,19 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
         def write(res: HDRResult, done: RowsDone) -> None:
             tw = time.perf_counter()
             var_thread, var_error = None, []
-            if variance_output is not None and res.variance is not None:
+            has_variance = res.variance is not None or (done.ring is not None and len(done.ring.rows_read) > 1)
+            if variance_output is not None and has_variance:
                 # a result with its variance array from the start (the Gaussian engine): the
                 # variance file is written while merging too, in a second writer thread
                 def write_variance() -> None:
                     try:
                         _write_radiance_while_merging(res, done, variance_output, half=half,
                                                       compression=compression, inputs=inputs + [output],
-                                                      threads=threads, arr=res.variance)
+                                                      threads=threads, arr=res.variance, k=1)
                     except BaseException as exc:  # noqa: BLE001
                         var_error.append(exc)
+                        if done.ring is not None:
+                            done.ring.fail()      # the merge waits for this writer's rows
 
                 var_thread = threading.Thread(target=write_variance, name="derender-exr-variance", daemon=True)
                 var_thread.start()
@@ -569,13 +605,16 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
                 res.info["overlapped_variance_write"] = True
             res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
     inputs = list(inputs)
+    # outputs streamed through band buffers: how many files read them (the variance's too if asked)
+    ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)
     if method.holds_frames:
-        res = _run_held(method, source, threads, order_hint, write=write)
+        res = _run_held(method, source, threads, order_hint, write=write, ring=ring)
     elif _hold(source, keep_frames, hold_bytes):
-        res = _run_streamed_held(method, source, threads, order_hint, write=write)
+        res = _run_streamed_held(method, source, threads, order_hint, write=write, ring=ring)
     else:
         res = _run_streamed(method, source, threads, keep_frames, keep_bytes, order_hint)
     res.info["engine_path"] = "streaming"
+    res.info["outputs_held"] = res.radiance is not None
     if res.info.get("overlapped_write"):      # the radiance was written while merging
         inputs, output = inputs + [output], None
     if res.info.pop("overlapped_variance_write", False):     # ... and the variance

@@ -37,7 +37,8 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 variance_output: str | os.PathLike | None = None, half: bool = False,
                 inputs: Iterable[str | os.PathLike] = (), threads: int | None = None, keep_frames: int | None = None,
                 keep_bytes: int = 256 << 20, compression: str = "zip",
-                max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS, **options: Any) -> HDRResult:
+                max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS, hold_outputs: bool = True,
+                **options: Any) -> HDRResult:
     """Merge image files into a radiance map; optionally write ``output`` (and ``variance_output``), .exr.
 
     Times as :func:`derender.io.images.read_stack` (``times`` in the order of ``paths``,
@@ -48,6 +49,9 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     ``max_megapixels`` megapixels and stacks that need more memory than is available are
     refused first). The result equals ``merge(read_stack(paths), method,
     ...)``. The radiance may be an (H, W, 3) view of planar float32 memory.
+    ``hold_outputs=False`` (with ``output``): the outputs may go from the merge straight into
+    the files through band buffers, never held whole (:func:`derender.engine.run.run`); the
+    result's ``radiance`` and ``variance`` are then None (``info["outputs_held"]`` False).
     """
     t_start = time.perf_counter()
     fn = get_method(method)   # an unknown method is an error before any file is read
@@ -77,7 +81,8 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
             if engine_method is not None:
                 res = run(engine_method, FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
                           keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
-                          compression=compression, inputs=all_inputs, order_hint=hint)
+                          compression=compression, inputs=all_inputs, order_hint=hint,
+                          hold_outputs=hold_outputs or output is None)
         except NotStreamable:
             res = None
     if res is None:
@@ -93,5 +98,6 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         res.info["engine_path"] = "stack"
         write_outputs(res, output, variance_output, half=half, compression=compression, inputs=all_inputs,
                       threads=threads, name=method)
+    res.info.setdefault("outputs_held", True)
     res.info["total_seconds"] = time.perf_counter() - t_start
     return res

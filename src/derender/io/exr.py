@@ -167,14 +167,17 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
 def write_exr_lines(path: str | os.PathLike, width: int, height: int,
                     lines: Callable[[int, int, np.ndarray], None], half: bool = False,
                     inputs: Iterable[str | os.PathLike] = (), compression: str = "zip", level: int = 1,
-                    threads: int | None = None, probe: int = 16, min_saving: float = 0.1) -> Path:
+                    threads: int | None = None, probe: int = 16, min_saving: float = 0.1,
+                    rows_read: Callable[[int], None] | None = None) -> Path:
     """:func:`write_exr_fast` for an image that exists only block by block.
 
     ``lines(y0, y1, buf)`` fills ``buf`` (float32, shape ``(y1 - y0, 3, width)``) with rows
     ``y0:y1`` in planar B, G, R order (the alphabetical channel order of the file). It is
     called from a thread pool on blocks of at most 16 rows, so it must be thread-safe and
     should release the GIL (NumPy gathers and arithmetic do). Non-finite values are
-    refused; the other options are :func:`write_exr_fast`'s.
+    refused; the other options are :func:`write_exr_fast`'s. ``rows_read(y)``, if given, is
+    called (in the calling thread, ``y`` rising) once rows ``0:y`` have been read through
+    ``lines``: their memory may be reused from then on.
     """
     import cv2
 
@@ -249,6 +252,7 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
                         futs.append(fut)
                     nxt += 1
                 res = futs.popleft().result()
+                y_end = 0
                 for y, data in (res if comp_id == 0 else res[0]):
                     offsets[i] = pos
                     size = len(data) if isinstance(data, bytes) else data.nbytes
@@ -256,6 +260,9 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
                     fh.write(data)
                     pos += 8 + size
                     i += 1
+                    y_end = y + (1 if comp_id == 0 else 16)
+                if rows_read is not None:      # this task's rows (and every earlier one's) are read
+                    rows_read(min(h, y_end))
                 if comp_id != 0 and i % probe == 0:
                     firsts.pop(i // probe - 1, None)
         fh.seek(table_pos)
