@@ -38,7 +38,9 @@ class FrameAccess:
     (streamed methods); ``frames``: (N, H, W, 3) uint8 (held methods); ``planes``: the
     per-frame uint8 planes of :meth:`~EngineMethod.derive` (held methods, else None).
     :meth:`histograms` gives the per-frame code histograms (N, 3, 256), computed on
-    first use (from the held frames, or by decoding the frames again).
+    first use (from the held frames, or by decoding the frames again). A method done with
+    ``planes`` calls :meth:`release_planes`: the engine frees them then if it has no later
+    use for their memory (``release_fn``).
     """
 
     times: np.ndarray
@@ -49,7 +51,14 @@ class FrameAccess:
     histogram_fn: Callable[[], np.ndarray] | None = None
     threads: int | None = None
     info: dict = field(default_factory=dict)
+    release_fn: Callable[[], None] | None = None
     _hists: np.ndarray | None = None
+
+    def release_planes(self) -> None:
+        """The method no longer reads ``planes`` (they become None)."""
+        self.planes = None
+        if self.release_fn is not None:
+            self.release_fn()
 
     @property
     def n(self) -> int:

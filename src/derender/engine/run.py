@@ -449,7 +449,9 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
                                [source.name(j) for j in range(source.n)], order_hint)
     t1 = time.perf_counter()
     access = FrameAccess(times=source.times, shape=frames.shape[1:3], frames=frames, planes=planes, threads=threads,
-                         histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]))
+                         histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]),
+                         # outputs in band buffers: the derived planes' memory has no later use
+                         release_fn=(lambda: held.pop("buffer", None)) if ring else None)
     del planes
     outputs: list = []
     prepare = None

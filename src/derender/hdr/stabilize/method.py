@@ -257,6 +257,7 @@ class StabilizedMethod:
                 raise InputError(f"reference image {opts['reference']} is out of range 0..{n - 1}")
         if self.align == "mtb":
             transforms, ainfo = chain_transforms(access.planes, "mtb", ref, seed=seed, threads=access.threads)
+            access.release_planes()      # Ward's grey images (N bytes per pixel) are done with
         else:
             transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         shifts = transforms_to_shifts(transforms)
