@@ -15,6 +15,7 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.memory import N_CODES
+from derender.core.parallel import one_blas_thread
 from derender.core.types import Stack
 from derender.response.curves import (
     DEFAULT_LAMBDA,
@@ -113,14 +114,15 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
     live = d > 0
     dinv = np.zeros(p)
     dinv[live] = 1.0 / d[live]
-    schur = a_gg - (m * dinv) @ m.T
-    rhs = b_g - m @ (dinv * b_e)
-    try:
-        g = np.linalg.solve(schur, rhs)
-        if not np.all(np.isfinite(g)):
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        g = np.linalg.lstsq(schur, rhs, rcond=None)[0]
+    with one_blas_thread():      # a 256-square system: threads only wait on a busy machine
+        schur = a_gg - (m * dinv) @ m.T
+        rhs = b_g - m @ (dinv * b_e)
+        try:
+            g = np.linalg.solve(schur, rhs)
+            if not np.all(np.isfinite(g)):
+                raise np.linalg.LinAlgError
+        except np.linalg.LinAlgError:
+            g = np.linalg.lstsq(schur, rhs, rcond=None)[0]
     log_e = np.zeros(p)
     log_e[live] = ((w2 * (g[z] - b[:, None])).sum(axis=0))[live] * dinv[live]
     return g, log_e
