@@ -46,11 +46,11 @@ def merge_one_stack(folder: str, outdir: str, method: str, seed: int = 0, half: 
     try:
         files, times_file = stack_files(folder)
         result = merge_files(files, None, method, times_file=times_file, output=out, half=half, seed=seed,
-                                  inputs=files, threads=1)
+                             inputs=files, threads=1, hold_outputs=False)   # written band by band
     except DerenderError as exc:
         return {"stack": name, "ok": False, "error": str(exc)}
     return {"stack": name, "ok": True, "output": str(out), "seconds": time.perf_counter() - t0,
-            "shape": list(result.radiance.shape[:2]), "over_exposed_px": int((result.mask == 1).sum()),
+            "shape": list(result.mask.shape[:2]), "over_exposed_px": int((result.mask == 1).sum()),
             "under_exposed_px": int((result.mask == 2).sum())}
 
 
