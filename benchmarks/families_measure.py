@@ -3,6 +3,10 @@
 Tuning families: paper, camera. Held out: dslr-lut, phone-local, drift.
 
     PYTHONPATH=src python benchmarks/families_measure.py [--families ...] [--seeds 0 1] [--out file.json]
+        [--opts '{"stabilized": {"exposure_rounds": 3}}']
+
+``--opts``: JSON of per-method keyword options (e.g. the stabilised merges' ``exposure_rounds``,
+:mod:`derender.hdr.stabilize.filmic`).
 """
 
 from __future__ import annotations
@@ -97,8 +101,9 @@ if __name__ == "__main__":
     ap.add_argument("--seeds", nargs="*", type=int, default=[0, 1])
     ap.add_argument("--methods", nargs="*", default=["debevec", "stabilized", "stabilized-joint", "oracle"])
     ap.add_argument("--out", default=None)
+    ap.add_argument("--opts", default=None, help="JSON: {method: {option: value}}")
     a = ap.parse_args()
-    rows = run(a.families, a.kinds, a.seeds, a.methods)
+    rows = run(a.families, a.kinds, a.seeds, a.methods, json.loads(a.opts) if a.opts else None)
     print(table(rows, a.methods))
     if a.out:
         with open(a.out, "w") as fh:

@@ -18,7 +18,8 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   with exposure time the tone curve is not a power law (film, filmic picture styles) and
   ``response="auto"`` switches to one common Debevec & Malik curve (:mod:`.filmic`:
   :func:`power_law_plausible`, :func:`curve_model`), fitted on samples away from clipped
-  pixels (:func:`unclipped_debevec`). A quick search runs first and sends clearly filmic
+  pixels (:func:`unclipped_debevec`; beyond Debevec & Malik, per-frame exposure offsets
+  re-estimated with the curve, :data:`CURVE_EXPOSURE_ROUNDS`). A quick search runs first and sends clearly filmic
   brackets to the curve straight away (:data:`SCREEN_TREND`).
 * Step 3.2, :mod:`.colour_matrices` -- :func:`fit_color_matrix` / :func:`color_matrices_to_reference`:
   H_j by weighted least squares inside a seeded RANSAC, clipped and dark pixels left out
@@ -55,7 +56,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "colour_matrices": ["fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
-    "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "unclipped_debevec", "curve_model"],
+    "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"],
     "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],
     "pair_fit": ["RIDGE", "predict_codes", "pair_weights", "fit_pair", "effective_codes", "pair_cost", "pair_residuals", "pair_costs_power"],
     "reference": ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fractions", "select_reference", "reasonable_references"],

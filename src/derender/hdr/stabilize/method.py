@@ -270,7 +270,8 @@ class StabilizedMethod:
         t1 = time.perf_counter()
 
         def calibrate():
-            cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed)
+            cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed,
+                                    exposure_rounds=opts.get("exposure_rounds"))
             if cur is not None:
                 return cur
             ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
@@ -286,7 +287,7 @@ class StabilizedMethod:
         stab = stabilize_aligned(al, t, mode=mode, response=opts["response"], gammas=opts["gammas"],
                                  use_times=opts["use_times"], path=opts.get("path", "auto"), block=opts["block"],
                                  max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"], seed=seed,
-                                 calibrate=calibrate)
+                                 calibrate=calibrate, exposure_rounds=opts.get("exposure_rounds"))
         self.stab = stab
         self.align_s = t1 - t0
         plan = stabilized_plan(stab, opts["weight"], opts["noise_weighting"], shifts=shifts)
@@ -355,7 +356,7 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
               response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
               path: str = "auto", block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW,
               high: float = FIT_HIGH, floor: float = FIT_FLOOR, ransac_iter: int = 100,
-              seed: int = 0) -> Stabilization:
+              seed: int = 0, exposure_rounds: int | None = None) -> Stabilization:
     """Paper 1, Algorithm 1 steps 1-3 (reference, registration, per-image linearisation and
     H_j), or the reference-free joint fit (``mode="joint"``).
 
@@ -366,7 +367,10 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
     filmic picture styles); ``"auto"`` (default) -- the power model unless
     :func:`power_law_plausible` rejects its gammas, then the curve model (the choice and
     the gamma trend are in ``info``). ``gammas`` (display gammas, one per image) skips the
-    estimation. Randomness follows ``seed``.
+    estimation. ``exposure_rounds`` (curve model; default
+    :data:`~derender.hdr.stabilize.filmic.CURVE_EXPOSURE_ROUNDS`): rounds of per-frame exposure
+    offsets re-estimated with the common curve (:func:`~derender.hdr.stabilize.filmic.unclipped_debevec`).
+    Randomness follows ``seed``.
     """
     if not isinstance(stack, Stack):
         raise InputError(f"stabilize() needs a Stack, got {type(stack).__name__}")
@@ -391,7 +395,7 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
     t1 = time.perf_counter()
     stab = stabilize_aligned(al, stack.times, mode=mode, response=response, gammas=gammas, use_times=use_times,
                              path=path, block=block, max_blocks=max_blocks, low=low, high=high, floor=floor,
-                             ransac_iter=ransac_iter, seed=seed)
+                             ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds)
     stab.info["timings"] = {"align_s": t1 - t0, **stab.info["timings"]}
     stab.info["hidden_saturation"] = {"fraction": hidden_frac, "masked": hidden is not None}
     return stab
@@ -408,7 +412,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
                       gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                       block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW, high: float = FIT_HIGH,
                       floor: float = FIT_FLOOR, ransac_iter: int = 100, seed: int = 0,
-                      calibrate: Any = None) -> Stabilization:
+                      calibrate: Any = None, exposure_rounds: int | None = None) -> Stabilization:
     """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
 
     ``al`` is an :class:`derender.hdr.align.Alignment`, or a lazy equivalent with ``images``
@@ -448,7 +452,8 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
             info["gamma_trend"] = gamma_trend(ge.gammas, times)
             info["response"] = "power"
         if response == "curve" or (response == "auto" and (screened or not power_law_plausible(ge.gammas, times))):
-            cc, cinfo = curve_model(blocks, al.images, times, low, high, floor, seed=seed, calibrate=calibrate)
+            cc, cinfo = curve_model(blocks, al.images, times, low, high, floor, seed=seed, calibrate=calibrate,
+                                    exposure_rounds=exposure_rounds)
             if ge is not None:
                 cinfo["rejected_power_gammas"] = ge.gammas.tolist()
             ge = GammaEstimate(gammas=np.array([c.effective_gamma for c in cc]), method="curve", info=cinfo)
@@ -565,9 +570,11 @@ def _on_engine(name: str, stack: Stack, opts: dict) -> HDRResult | None:
 def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "mtb", response: str = "auto",
                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
-                     max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0) -> HDRResult:
+                     max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
+                     exposure_rounds: int | None = None) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
+    ``exposure_rounds``: see :func:`stabilize`.
 
     8-bit stacks with translation-only alignment run on the engine
     (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
@@ -575,13 +582,13 @@ def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "m
     res = _on_engine("stabilized", stack, dict(reference=reference, align=align, response=response, gammas=gammas,
                                                use_times=use_times, path=path, weight=weight,
                                                noise_weighting=noise_weighting, block=block, max_blocks=max_blocks,
-                                               ransac_iter=ransac_iter, seed=seed))
+                                               ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds))
     if res is not None:
         return res
     t0 = time.perf_counter()
     stab = stabilize(stack, reference=reference, align=align, mode="reference", response=response, gammas=gammas,
                      use_times=use_times, path=path, block=block, max_blocks=max_blocks,
-                     ransac_iter=ransac_iter, seed=seed)
+                     ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds)
     t1 = time.perf_counter()
     res = stabilized_merge(stab, weight=weight, noise_weighting=noise_weighting)
     res.info.update({"method": "stabilized", "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
@@ -593,20 +600,22 @@ def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "m
 def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: str = "mtb",
                            response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
                            weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
-                           max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0) -> HDRResult:
+                           max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
+                           exposure_rounds: int | None = None) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
     (:func:`joint_color_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
     res = _on_engine("stabilized-joint", stack, dict(reference=reference, align=align, response=response,
                                                      gammas=gammas, use_times=use_times, weight=weight,
                                                      noise_weighting=noise_weighting, block=block,
-                                                     max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed))
+                                                     max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed,
+                                                     exposure_rounds=exposure_rounds))
     if res is not None:
         return res
     t0 = time.perf_counter()
     stab = stabilize(stack, reference=reference, align=align, mode="joint", response=response, gammas=gammas,
                      use_times=use_times, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter,
-                     seed=seed)
+                     seed=seed, exposure_rounds=exposure_rounds)
     t1 = time.perf_counter()
     res = stabilized_merge(stab, weight=weight, noise_weighting=noise_weighting)
     res.info.update({"method": "stabilized-joint",
