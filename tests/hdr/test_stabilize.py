@@ -178,11 +178,12 @@ def test_unclipped_debevec_keeps_the_filmic_shoulder():
 def test_unclipped_debevec_recovers_curve_and_exposure_offsets():
     """Oracle: a known S-shaped curve (not a power law) renders 7 frames whose channels are
     exposed by ``t_j exp(o_jc)``, ``o_jc`` ~ U(-0.25, 0.25) per frame and channel (gain and
-    white balance changing, centred and without a trend in ``ln t``: the gauge the times fix),
-    noise-free. With the exposures re-estimated (``exposure_rounds=3``) the fitted curve follows
-    the true ``ln`` inverse within 0.05 on codes 20-235 and the offsets come out within 0.03
-    (measured 0.022 and 0.011); plain Debevec & Malik (the default, ``CURVE_EXPOSURE_ROUNDS = 0``)
-    bends by 0.49."""
+    white balance changing, without a mean, trend or bend in ``ln t``: the gauge of
+    ``CURVE_OFFSET_DEGREE`` 2), noise-free. With the exposures re-estimated (``exposure_rounds=3``,
+    the default) the fitted curve follows the true ``ln`` inverse within 0.05 on codes 20-235 and
+    the offsets come out within 0.03; plain Debevec & Malik (``exposure_rounds=0``) bends by 0.49.
+    Offsets beyond ``CURVE_MAX_OFFSET`` are not a camera's gain steps: the guard falls back to
+    the times as given."""
     def s_curve(u):
         y = u ** (1 / 2.2)
         return 0.7 * y + 0.3 * (3 * y ** 2 - 2 * y ** 3)
@@ -195,10 +196,14 @@ def test_unclipped_debevec_recovers_curve_and_exposure_offsets():
     times = 2.0 ** np.arange(n)
     tc = np.log(times) - np.log(times).mean()
     o = rng.uniform(-0.25, 0.25, size=(n, 3))
-    o = o - o.mean(axis=0)
-    o = o - np.outer(tc, tc @ o / (tc @ tc))
-    codes = np.stack([np.rint(255 * s_curve(np.clip(x * times[j] * np.exp(o[j]), 0, 1)))
-                      for j in range(n)]).astype(np.uint8)
+    span = np.stack([tc ** k for k in range(S.CURVE_OFFSET_DEGREE + 1)], axis=1)
+    o = o - span @ np.linalg.lstsq(span, o, rcond=None)[0]       # no component in the gauge
+
+    def render(offsets):
+        return np.stack([np.rint(255 * s_curve(np.clip(x * times[j] * np.exp(offsets[j]), 0, 1)))
+                         for j in range(n)]).astype(np.uint8)
+
+    codes = render(o)
     u = np.linspace(0.0, 1.0, 200001)
     truth = np.log(np.maximum(np.interp(np.arange(256) / 255, s_curve(u), u), 1e-12))
 
@@ -206,13 +211,20 @@ def test_unclipped_debevec_recovers_curve_and_exposure_offsets():
         d = g[20:236] - truth[20:236, None]
         return np.abs(d - d.mean(axis=0)).max()
 
-    fit = S.unclipped_debevec(lambda j, ys, xs: codes[j][ys, xs], n, (h, w), times, exposure_rounds=3)
-    assert fit.params["exposure_rounds"] == 3
+    fit = S.unclipped_debevec(lambda j, ys, xs: codes[j][ys, xs], n, (h, w), times)
+    assert fit.params["exposure_rounds"] == 3 and not fit.params["exposure_offsets_rejected"]
     assert curve_error(fit.log_inverse) < 0.05, curve_error(fit.log_inverse)
     np.testing.assert_allclose(fit.params["exposure_offsets"], o, atol=0.03)
-    plain = S.unclipped_debevec(lambda j, ys, xs: codes[j][ys, xs], n, (h, w), times)
+    plain = S.unclipped_debevec(lambda j, ys, xs: codes[j][ys, xs], n, (h, w), times, exposure_rounds=0)
     assert curve_error(plain.log_inverse) > 0.3
     assert np.all(np.asarray(plain.params["exposure_offsets"]) == 0)
+    # offsets of 3x the bound: rejected, the curve is plain Debevec & Malik's of those codes
+    big = render(o * 3 * S.CURVE_MAX_OFFSET / np.abs(o).max())
+    guarded = S.unclipped_debevec(lambda j, ys, xs: big[j][ys, xs], n, (h, w), times)
+    assert guarded.params["exposure_offsets_rejected"]
+    assert np.all(np.asarray(guarded.params["exposure_offsets"]) == 0)
+    np.testing.assert_array_equal(guarded.log_inverse, S.unclipped_debevec(
+        lambda j, ys, xs: big[j][ys, xs], n, (h, w), times, exposure_rounds=0).log_inverse)
 
 
 def test_merge_of_shifted_stack_close_to_unshifted():
