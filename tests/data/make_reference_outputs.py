@@ -32,8 +32,9 @@ on sim-camera) and ``robertson`` (leave-one-out log-domain update, smooth monoto
 ``probabilistic`` and ``stabilized-probabilistic`` (issue 17 item 4: faster GP calibration, ML search
 tolerance 1e-6 and a 250-point first search, then the compiled ML objective: rounding-level
 changes, up to 1.5e-4 in a variance; changes printed by ``--update``); then ``robertson`` (issue 16:
-the calibration weights the other frames by ``w / g'`` instead of ``w / g'^2``: a different curve,
-up to 36 % relative on sim-camera, 5 % on frobisher).
+the calibration's leave-one-out radiance is the geometric mean of the other frames weighted by
+``w`` instead of the linear mean weighted by ``w / g'^2``: a different curve; changes printed by
+``--update``).
 """
 
 from __future__ import annotations

@@ -28,20 +28,21 @@ simulator brackets). What is computed here (issue 16):
    the variance ``sigma^2 (I(z) g'(z))^2``, so Robertson's ML estimate weights each frame's
    ``I(z_j) / t_j`` by ``w(z_j) / g'(z_j)^2`` (:func:`noise_weights`; ``w`` the Gaussian-like
    weight, zero at black and clipped codes) in the merge
-   (:func:`derender.hdr.classic.merge_robertson`). The calibration's leave-one-out radiance
-   uses ``w / g'`` (:data:`CALIBRATION_SLOPE_POWER` = 1): there the error of ``E_i`` is
-   dominated by how the *other* frames' pipelines differ (auto pipelines draw a gamma in
-   1.8-2.6, a gain and a white balance per frame: at one code, the frames' mean updates
-   differ by up to 2 in ``ln``, measured on ``paper`` and ``camera`` brackets), not by code
-   noise, and ``w / g'^2`` hands ``E_i`` to the one frame whose code is brightest, so the
-   curve inherits that frame's pipeline (issue 16, ``paper`` family: 1.25 dB PSNR L below
-   Debevec). Measured on ``paper`` / ``camera`` (outdoor + indoor x seeds 0-11, 192x128, 7
-   exposures; Debevec 43.34 / 42.48 dB): ``w / g'^2`` 42.09 / 42.88, ``w / g'`` 42.48 /
-   42.82, ``w`` alone (Gaussian) 43.08 / 42.74, the hat 43.31 / 42.77. The exponent 0
-   weights put a wiggle into the curve where the frames' mix changes with the code (R of
-   the simulator's outdoor camera-style bracket, 128x96: steepest step 4.9-5.1x the median
-   between codes 30 and 225, a near-flat run at codes 72-80), which ``w / g'`` does not
-   (3.8x; ``w / g'^2`` 3.7x), so the exponent 1 is kept.
+   (:func:`derender.hdr.classic.merge_robertson`).
+   The calibration's leave-one-out ``E_i`` is something else: the weighted *geometric* mean
+   of the other frames' estimates ``exp(g(z_ik)) / t_k`` with the base weight ``w`` alone.
+   Its error is dominated by how the other frames' pipelines differ (auto pipelines draw a
+   gamma in 1.8-2.6, a gain and a white balance per frame: at one code, single frames' mean
+   updates differ by up to 2 in ``ln`` on ``paper`` / ``camera`` brackets), a multiplicative
+   error, not by code noise; and ``w / g'^2`` hands ``E_i`` to the one frame whose code is
+   brightest, so that the curve inherits that frame's pipeline. Measured on the ``paper`` /
+   ``camera`` families (outdoor + indoor x seeds 0-11, 192x128, 7 exposures, PSNR L;
+   Debevec 43.34 / 42.48 dB): ``w / g'^2``, linear (before) 42.09 / 42.88; ``w / g'`` 42.48 /
+   42.82; ``w`` 43.08 / 42.74; ``w``, log domain (this) 42.94 / 42.75; the hat, log domain
+   42.93 / 42.58. With ``w`` or the hat averaged linearly the curve gets a wiggle where the
+   frames' mix changes with the code (R of the simulator's outdoor camera-style bracket,
+   128x96: steepest step 4.9-5.1x the median between codes 30 and 225, a near-flat run at
+   codes 72-80); the log-domain mean does not (3.5x; ``w / g'^2`` linear 3.7x).
 6. **Colour balance.** The per-channel curves are offset so that neutral colours stay
    neutral (:func:`derender.response.curves.balance_channels`): ``g_G(128) = 0``, R and B
    shifted so that near-neutral, well-exposed sampled pixels come out grey.
@@ -125,11 +126,8 @@ RELATIVE_SLOPE_FLOOR = 0.5
 MIN_LOG_SLOPE = 4e-3
 
 
-def noise_weights(g: np.ndarray, base: np.ndarray, power: float = 2.0) -> np.ndarray:
+def noise_weights(g: np.ndarray, base: np.ndarray) -> np.ndarray:
     """(n_levels, 3) weights of the ML merge: ``base(z) / g'(z)^2``, normalised to a peak of 1 per channel.
-
-    ``power`` replaces the exponent 2 of ``g'`` (the calibration uses
-    :data:`CALIBRATION_SLOPE_POWER`, see the module docstring, point 5).
 
     Robertson's estimator ``E = sum_j w_j t_j I(z_j) / sum_j w_j t_j^2`` is maximum
     likelihood when ``w_j`` is the inverse variance of ``I(z_j)``. With a constant noise
@@ -152,14 +150,9 @@ def noise_weights(g: np.ndarray, base: np.ndarray, power: float = 2.0) -> np.nda
     if core.any():
         s = np.maximum(s, RELATIVE_SLOPE_FLOOR * np.median(s[core], axis=0))
     s = np.maximum(s, MIN_LOG_SLOPE)
-    w = base[:, None] / (s * s if power == 2.0 else s ** float(power))
+    w = base[:, None] / (s * s)
     peak = w.max(axis=0)
     return w / np.where(peak > 0, peak, 1.0)
-
-
-#: Exponent of ``g'`` in the weights of the calibration's leave-one-out radiance, ``base / g'^p``
-#: (the merge keeps ``p = 2``; module docstring, point 5).
-CALIBRATION_SLOPE_POWER = 1.0
 
 
 #: Pixels of the Debevec least-squares solve that starts the iteration.
@@ -191,7 +184,6 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, n_iter: int = 30, t
     times = np.asarray(times, dtype=np.float64)
     z = np.asarray(z).astype(np.int64)
     base = level_weights(weight, n_levels)
-    t = times[:, None, None]
     log_t = np.log(times)[:, None, None]
     flat = (z * 3 + np.arange(3)).ravel()  # level-major index into the (n_levels, 3) table
     card = np.bincount(flat, minlength=3 * n_levels).reshape(n_levels, 3).astype(np.float64)
@@ -200,23 +192,22 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, n_iter: int = 30, t
             raise StackError(f"channel {CHANNELS[c]} has no usable pixel; cannot recover its response")
     mid = n_levels // 2
     g = _start_curve(z, times, n_levels)
+    # the other frames count with the base weight w (not the merge's w / g'^2) and their
+    # estimates average in the log domain: see the module docstring, point 5
+    wz = base[z]  # (N, P, 3)
+    den = wz.sum(axis=0)[None] - wz
+    live_obs = (den > 1e-6 * base.max()).ravel()
+    den = np.where(den > 0, den, 1.0)
     iters = 0
     for iters in range(1, int(n_iter) + 1):
-        wtab = noise_weights(g, base, CALIBRATION_SLOPE_POWER)
-        wz = wtab.ravel()[flat].reshape(z.shape)  # (N, P, 3)
         x = g.ravel()[flat].reshape(z.shape) - log_t  # ln of each frame's radiance estimate
-        wx = wz * np.exp(x)
-        # leave-one-out ML radiance: observation (i, j) is compared with E_i of the *other* frames
-        # (with its own frame in E_i, a code whose weight dominates would confirm any I(m))
-        den = wz.sum(axis=0)[None] - wz
-        num = wx.sum(axis=0)[None] - wx
-        live_obs = (den > 1e-6 * wtab.max()).ravel()
-        e = num / np.where(den > 0, den, 1.0)
-        te = (t * e).ravel()
-        live_obs &= te > 0  # Robertson's update I(m) = mean of t_j E_i over the observations of code m,
-        # taken in the log domain (geometric mean: a leave-one-out E_i from a frame stops away has
+        wx = wz * x
+        # leave-one-out radiance: observation (i, j) is compared with E_i of the *other* frames
+        # (with its own frame in E_i, a code whose weight dominates would confirm any I(m));
+        # Robertson's update I(m) = mean of t_j E_i over the observations of code m, taken in the
+        # log domain (geometric mean: a leave-one-out E_i from a frame stops away has
         # multiplicative errors, and their arithmetic mean is biased upwards at dark codes)
-        te = np.log(np.maximum(te, 1e-300))
+        te = (log_t + (wx.sum(axis=0)[None] - wx) / den).ravel()
         fl = flat[live_obs]
         tot = np.bincount(fl, weights=te[live_obs], minlength=3 * n_levels).reshape(n_levels, 3)
         cnt = np.bincount(fl, minlength=3 * n_levels).reshape(n_levels, 3).astype(np.float64)
@@ -239,7 +230,7 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, n_iter: int = 30, t
         if change < tol:
             break
     params = {"iterations": iters, "max_pixels": int(max_pixels), "lambda": float(lam),
-              "weight": weight if isinstance(weight, str) else "custom", "calibration_weights": f"base / g'^{CALIBRATION_SLOPE_POWER:g}",
+              "weight": weight if isinstance(weight, str) else "custom", "calibration_weights": "base, log domain",
               "merge_weights": "base / g'^2"}
     if balance:
         g, info = balance_channels(g, z)
