@@ -5,7 +5,8 @@ colours staying neutral.
 Two simulator brackets (auto pipeline; outdoor/camera style and indoor/simple style;
 128x96, 6 exposures) are merged once per module, in memory from the camera's codes.
 Measured at this size (PSNR L, dB): debevec 40.13 / 42.93, OpenCV's 35.47 / 38.56;
-robertson 40.39 / 39.31, OpenCV's 33.86 / 32.57. On the 8 brackets of docs/paper1.md
+robertson 40.37 / 40.54 (40.39 / 39.31 before its calibration's log-domain,
+``w``-weighted leave-one-out radiance), OpenCV's 33.86 / 32.57. On the 8 brackets of docs/paper1.md
 (192x128, 7 exposures, JPEG files) robertson and debevec both average 42.4 dB.
 """
 
