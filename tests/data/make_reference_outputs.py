@@ -33,8 +33,8 @@ on sim-camera) and ``robertson`` (leave-one-out log-domain update, smooth monoto
 tolerance 1e-6 and a 250-point first search, then the compiled ML objective: rounding-level
 changes, up to 1.5e-4 in a variance; changes printed by ``--update``); then ``robertson`` (issue 16:
 the calibration's leave-one-out radiance is the geometric mean of the other frames weighted by
-``w`` instead of the linear mean weighted by ``w / g'^2``: a different curve; changes printed by
-``--update``).
+``w`` instead of the linear mean weighted by ``w / g'^2``, and the smoother's data weighted by
+their inverse variance: a different curve; changes printed by ``--update``).
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ colours staying neutral.
 Two simulator brackets (auto pipeline; outdoor/camera style and indoor/simple style;
 128x96, 6 exposures) are merged once per module, in memory from the camera's codes.
 Measured at this size (PSNR L, dB): debevec 40.13 / 42.93, OpenCV's 35.47 / 38.56;
-robertson 40.37 / 40.54 (40.39 / 39.31 before its calibration's log-domain,
-``w``-weighted leave-one-out radiance), OpenCV's 33.86 / 32.57. On the 8 brackets of docs/paper1.md
+robertson 40.55 / 40.45 (40.39 / 39.31 before its calibration's log-domain,
+``w``-weighted leave-one-out radiance and variance-weighted smoothing), OpenCV's 33.86 / 32.57. On the 8 brackets of docs/paper1.md
 (192x128, 7 exposures, JPEG files) robertson and debevec both average 42.4 dB.
 """
 
@@ -166,9 +166,10 @@ def test_robertson_within_1db_of_debevec_on_the_paper_family():
     """Issue 16: on the ``paper`` family (auto pipeline: a gamma, gain and white balance per frame)
     robertson's PSNR L against the simulator's exact radiance, averaged over 12 brackets
     (outdoor + indoor x seeds 0-5, 192x128, 7 exposures), is within 1 dB of debevec's.
-    Measured: -0.41 dB with the calibration's leave-one-out radiance a geometric mean of the
-    other frames weighted by ``w``; -1.11 dB with the merge's ``w / g'^2`` averaged linearly,
-    which hands that radiance to one frame's pipeline."""
+    Measured: -0.28 dB (the calibration's leave-one-out radiance a geometric mean of the
+    other frames weighted by ``w``, the smoother's data weighted by inverse variance); -0.41 dB
+    with the first alone; -1.11 dB with the merge's ``w / g'^2`` averaged linearly, which
+    hands that radiance to one frame's pipeline."""
     from derender.camera import simulate_bracket
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.classic import merge_debevec, merge_robertson
