@@ -34,7 +34,10 @@ tolerance 1e-6 and a 250-point first search, then the compiled ML objective: rou
 changes, up to 1.5e-4 in a variance; changes printed by ``--update``); issue 16 item 4 (third
 session): ``stabilized``, ``stabilized-joint``, ``stabilized-probabilistic`` (the curve model's
 per-frame exposure offsets on by default: sim-camera, a filmic auto-pipeline bracket, moved by up
-to 1.2 relative per pixel; Memorial and Frobisher unchanged; sim-simple within 3.6e-7).
+to 1.2 relative per pixel; Memorial and Frobisher unchanged; sim-simple within 3.6e-7); then ``robertson`` (issue 16:
+the calibration's leave-one-out radiance is the geometric mean of the other frames weighted by
+``w`` instead of the linear mean weighted by ``w / g'^2``, and the smoother's data weighted by
+their inverse variance: a different curve; changes printed by ``--update``).
 """
 
 from __future__ import annotations
