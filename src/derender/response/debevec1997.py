@@ -33,6 +33,8 @@ from derender.response.curves import (
 __all__ = [
     "calibrate_debevec_from_samples",
     "solve_debevec",
+    "debevec_system",
+    "solve_dense",
     "calibrate_debevec",
 ]
 
@@ -93,6 +95,29 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
         raise InputError(f"{b.size} log times for {n_img} images")
     if z.size and (z.min() < 0 or z.max() >= n_levels):
         raise InputError(f"codes must lie in [0, {n_levels - 1}]")
+    schur, m, w2, dinv = debevec_system(z, lam, weights, n_levels)
+    live = dinv > 0
+    b_g = np.bincount(z.ravel(), weights=(w2 * b[:, None]).ravel(), minlength=n_levels)
+    b_e = -(w2 * b[:, None]).sum(axis=0)
+    g = solve_dense(schur, b_g - m @ (dinv * b_e))
+    log_e = np.zeros(p)
+    log_e[live] = ((w2 * (g[z] - b[:, None])).sum(axis=0))[live] * dinv[live]
+    return g, log_e
+
+
+def debevec_system(codes: np.ndarray, lam: float, weights: Any = "hat",
+                   n_levels: int = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Debevec & Malik's normal equations for one channel with the diagonal ``ln E`` block
+    eliminated (:func:`solve_debevec`): ``codes`` (N, P) integer, data rows weighted by
+    ``w(Z)``, ``g(mid) = 0`` with weight 1, smoothness ``lam w(z) g''(z)``. Returns ``(S, M, w2,
+    dinv)``: the Schur complement ``S`` (n_levels, n_levels), the coupling ``M[z, p] = -sum_j
+    w2[j, p] [Z_jp = z]``, the squared weights ``w2`` (N, P) and ``dinv`` (P,), 1 / the ``ln E``
+    block's diagonal (0 for samples with no weight). For log exposures ``b`` the right-hand
+    side is ``b_g - M @ (dinv * b_e)`` with ``b_g[z] = sum w2 b_j [Z = z]``, ``b_e = -w2.T b``:
+    one factorisation serves every ``b`` (:func:`derender.hdr.stabilize.filmic` re-estimates
+    exposures with it)."""
+    z = np.asarray(codes, dtype=np.int64)
+    p = z.shape[1]
     wl = level_weights(weights, n_levels)
     w2 = wl[z] ** 2  # (N, P) squared data-row weights
     d = w2.sum(axis=0)  # diagonal of the ln E block
@@ -106,8 +131,6 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
     for a in range(3):
         for c in range(3):
             a_gg[k - 1 + a, k - 1 + c] += s * stencil[a] * stencil[c]
-    b_g = np.bincount(z.ravel(), weights=(w2 * b[:, None]).ravel(), minlength=n_levels)
-    b_e = -(w2 * b[:, None]).sum(axis=0)
     # g-E coupling: M[z, p] = -sum_j w2[j, p] [z_jp = z]
     m = np.zeros((n_levels, p))
     np.add.at(m, (z, np.broadcast_to(np.arange(p), z.shape)), -w2)
@@ -116,16 +139,20 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
     dinv[live] = 1.0 / d[live]
     with one_blas_thread():      # a 256-square system: threads only wait on a busy machine
         schur = a_gg - (m * dinv) @ m.T
-        rhs = b_g - m @ (dinv * b_e)
+    return schur, m, w2, dinv
+
+
+def solve_dense(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``a x = rhs`` for a small dense system (LU on one BLAS thread; least squares where ``a``
+    is singular or the solution is not finite)."""
+    with one_blas_thread():
         try:
-            g = np.linalg.solve(schur, rhs)
-            if not np.all(np.isfinite(g)):
+            x = np.linalg.solve(a, rhs)
+            if not np.all(np.isfinite(x)):
                 raise np.linalg.LinAlgError
         except np.linalg.LinAlgError:
-            g = np.linalg.lstsq(schur, rhs, rcond=None)[0]
-    log_e = np.zeros(p)
-    log_e[live] = ((w2 * (g[z] - b[:, None])).sum(axis=0))[live] * dinv[live]
-    return g, log_e
+            x = np.linalg.lstsq(a, rhs, rcond=None)[0]
+    return x
 
 
 def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,

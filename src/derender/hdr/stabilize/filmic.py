@@ -175,33 +175,12 @@ def _debevec_affine(codes: np.ndarray, lam: float) -> tuple:
     solution is linear in the log exposures ``b`` (N,), ``g = G @ b``, and
     ``ln E_p = sum_j w_jp^2 (g(Z_jp) - b_j) / sum_j w_jp^2``. Returns ``(G (256, N), w2 (N, P),
     dinv (P,))``: one factorisation, however many times the exposures are re-estimated."""
-    from derender.response.curves import level_weights
+    from derender.response.debevec1997 import debevec_system, solve_dense
 
     z = np.asarray(codes, dtype=np.int64)
-    n, p = z.shape
-    wl = level_weights("hat", 256)
-    w2 = wl[z] ** 2
-    d = w2.sum(axis=0)
-    a_gg = np.diag(np.bincount(z.ravel(), weights=w2.ravel(), minlength=256))
-    a_gg[128, 128] += 1.0
-    k = np.arange(1, 255)
-    sm = (lam * wl[k]) ** 2
-    stencil = np.array([1.0, -2.0, 1.0])
-    for a in range(3):
-        for c in range(3):
-            a_gg[k - 1 + a, k - 1 + c] += sm * stencil[a] * stencil[c]
-    m = np.zeros((256, p))
-    np.add.at(m, (z, np.broadcast_to(np.arange(p), z.shape)), -w2)
-    dinv = np.where(d > 0, 1.0 / np.maximum(d, 1e-300), 0.0)
-    b_g = np.stack([np.bincount(z[j], weights=w2[j], minlength=256) for j in range(n)], axis=1)   # (256, N)
-    rhs = b_g + (m * dinv) @ w2.T                                   # b_e = -w2.T b
-    schur = a_gg - (m * dinv) @ m.T
-    try:
-        gm = np.linalg.solve(schur, rhs)
-        if not np.all(np.isfinite(gm)):
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        gm = np.linalg.lstsq(schur, rhs, rcond=None)[0]
+    schur, m, w2, dinv = debevec_system(z, lam, "hat", 256)
+    b_g = np.stack([np.bincount(z[j], weights=w2[j], minlength=256) for j in range(z.shape[0])], axis=1)  # (256, N)
+    gm = solve_dense(schur, b_g + (m * dinv) @ w2.T)                # b_e = -w2.T b
     return gm, w2, dinv
 
 
