@@ -22,15 +22,16 @@ def tall_bracket(tmp_path_factory):
     return paths, [float(t) for t in b.times]
 
 
-@pytest.mark.parametrize("method", ["debevec", "robertson", "stabilized", "stabilized-joint"])
-def test_ring_writes_the_same_file_without_holding_the_radiance(tall_bracket, tmp_path, monkeypatch, method):
+@pytest.mark.parametrize("method,half", [("debevec", False), ("robertson", False), ("stabilized", False),
+                                         ("stabilized-joint", False), ("stabilized", True)])
+def test_ring_writes_the_same_file_without_holding_the_radiance(tall_bracket, tmp_path, monkeypatch, method, half):
     import derender.engine.run as run_mod
     from derender.hdr.files import merge_files
 
     monkeypatch.setattr(run_mod, "KERNEL_MIN_PIXEL_FRAMES", 0)     # the compiled kernels at test size
     paths, times = tall_bracket
-    held = merge_files(paths, times, method, output=tmp_path / "held.exr")
-    ring = merge_files(paths, times, method, output=tmp_path / "ring.exr", hold_outputs=False)
+    held = merge_files(paths, times, method, output=tmp_path / "held.exr", half=half)
+    ring = merge_files(paths, times, method, output=tmp_path / "ring.exr", hold_outputs=False, half=half)
     assert held.info["outputs_held"] and held.radiance.shape == (700, 400, 3)
     assert not ring.info["outputs_held"] and ring.radiance is None and ring.variance is None
     assert (tmp_path / "held.exr").read_bytes() == (tmp_path / "ring.exr").read_bytes()
