@@ -32,7 +32,7 @@ from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess
 from derender.hdr.probabilistic import as_model
-from derender.hdr.registry import register_method
+from derender.hdr.registry import method_options, register_method
 from derender.hdr.stabilize.method import StabilizedMethod
 
 __all__ = [
@@ -87,8 +87,9 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
 
     def __init__(self, opts: dict):
         self.model = as_model(opts.get("model"))
-        full = dict(reference=opts.get("reference"), align=opts.get("align", "mtb"), seed=opts.get("seed", 0),
-                    **_STABILIZED_DEFAULTS)
+        # the stabilised merge's own defaults, without noise weighting: the model's variances replace it
+        full = method_options("stabilized", dict(reference=opts.get("reference"), align=opts.get("align", "mtb"),
+                                                 seed=opts.get("seed", 0), noise_weighting=False))
         super().__init__("stabilized-probabilistic", full)
 
     def plan(self, access: FrameAccess):
@@ -103,12 +104,6 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
         result.info.update({"model": getattr(self.model, "method", "?"), "noise_weighting": False,
                             "pixel_weights": "inverse relative variance of the model (per colour)"})
         result.info.setdefault("timings", {})["colour_weights_s"] = self.colour_s
-
-
-#: Options of the stabilisation that ``stabilized-probabilistic`` fixes (the stabilised merge's
-#: defaults, without noise weighting: the model's variances replace it).
-_STABILIZED_DEFAULTS = dict(response="auto", gammas=None, use_times=True, path="auto", weight="trapezoid",
-                            noise_weighting=False, block=2, max_blocks=20000, ransac_iter=100)
 
 
 def _stabilized_probabilistic_engine(opts: dict):
