@@ -75,8 +75,8 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "chart": ["PAIRS_FORMAT", "PAIRS_VERSION", "colorchecker_sg_reflectances", "gel_illuminants", "chart_exposures", "ChartPairs", "chart_pairs", "save_pairs", "load_pairs"],
     "dng": ["to_rational", "write_dng"],
-    "spectral": ["WAVELENGTHS", "CameraSpectral", "builtin_camera_names", "load_camera_file", "load_camera", "reflectance_library", "illuminant_spd", "cmfs_xyz", "camera_search_dirs"],
-    "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "load_frame_settings", "bracket_paths", "simulate_to_folder", "camera_names_for_search"],
+    "spectral": ["WAVELENGTHS", "CameraSpectral", "builtin_camera_names", "load_camera_file", "load_camera", "reflectance_library", "illuminant_spd", "cmfs_xyz", "camera_search_dirs", "camera_search_order", "available_cameras"],
+    "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "load_frame_settings", "bracket_paths", "simulate_to_folder"],
     "rendering": ["fit_xyz_to_camera", "white_balance_for", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "camera_rgb_from_mosaic", "render_style", "isp_render", "pipeline_settings"],
     "stages": ["STYLES", "FrameSettings", "frame_matrix", "hue_angle", "hue_saturation_factor", "hue_saturation", "gamut_lut", "apply_lut", "channel_curve", "local_gain_grid", "local_curve", "inverse_local_curve", "upsample_gain", "prepare_frame", "render_frame", "settings_to_dict", "settings_from_dict"],
     "families": ["FAMILIES", "WB_PRESETS", "check_family", "family_settings", "random_gamut"],

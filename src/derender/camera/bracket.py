@@ -15,7 +15,7 @@ import os
 from dataclasses import asdict, dataclass, field
 from fractions import Fraction
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
@@ -29,12 +29,12 @@ from derender.camera.rendering import (
 )
 from derender.camera.scene import SpectralScene, make_scene, scene_camera_rgb
 from derender.camera.sensor import CFA_PATTERN, expose_mosaic, mosaic_signal
-from derender.camera.stages import FrameSettings, prepare_frame, render_frame, settings_from_dict, settings_to_dict
 from derender.camera.spectral import (
     WAVELENGTHS,
     CameraSpectral,
     load_camera,
 )
+from derender.camera.stages import FrameSettings, prepare_frame, render_frame, settings_from_dict, settings_to_dict
 from derender.core.colorimetry import camera_to_linear_srgb_matrix
 from derender.core.errors import InputError
 
@@ -48,7 +48,6 @@ __all__ = [
     "load_frame_settings",
     "bracket_paths",
     "simulate_to_folder",
-    "camera_names_for_search",
 ]
 
 
@@ -302,17 +301,6 @@ def bracket_paths(outdir: str | os.PathLike, kind: str = "jpeg") -> list[Path]:
 def simulate_to_folder(outdir: str | os.PathLike, **kwargs) -> dict:
     """:func:`simulate_bracket` then :func:`write_bracket`."""
     return write_bracket(simulate_bracket(**kwargs), outdir)
-
-
-def camera_names_for_search(extra_dirs: Sequence[str | os.PathLike] = ()) -> list[str]:
-    """Built-in camera names plus rawtoaces JSON names found in ``extra_dirs``."""
-    from derender.camera.spectral import builtin_camera_names
-
-    names = builtin_camera_names()
-    for d in extra_dirs:
-        for f in sorted(Path(d).glob("*.json")):
-            names.append(f.stem)
-    return names
 
 
 _ = WAVELENGTHS  # re-exported for users of the simulator

@@ -34,6 +34,8 @@ __all__ = [
     "illuminant_spd",
     "cmfs_xyz",
     "camera_search_dirs",
+    "camera_search_order",
+    "available_cameras",
 ]
 
 
@@ -129,26 +131,55 @@ def load_camera_file(path: str | os.PathLike) -> CameraSpectral:
     )
 
 
-def load_camera(name_or_path: str | os.PathLike, search_dirs: tuple[str | os.PathLike, ...] = ()) -> CameraSpectral:
+def load_camera(name_or_path: str | os.PathLike,
+                search_dirs: Sequence[str | os.PathLike] | None = None) -> CameraSpectral:
     """A built-in camera by name (see :func:`builtin_camera_names`), a rawtoaces JSON path,
-    or a camera name found as a JSON file in ``search_dirs`` (e.g. ``canon-powershot-s90``)."""
+    or a camera name found as a JSON file in ``search_dirs`` (e.g. ``canon-powershot-s90``).
+
+    ``search_dirs=None`` (the default, and what every command uses) searches
+    :func:`camera_search_dirs`: one search order for the whole tool. An unknown name is an
+    :class:`InputError` that lists the built-in names and every folder looked in."""
     key = str(name_or_path)
     if key in _BUILTIN:
         return _load_builtin(key)
     p = Path(key)
     if p.suffix.lower() == ".json" or p.is_file():
         return load_camera_file(p)
+    dirs = camera_search_dirs() if search_dirs is None else tuple(Path(d) for d in search_dirs)
     slug = _slug(key)
-    for d in search_dirs:
-        d = Path(d)
-        if not d.is_dir():
-            continue
-        for f in sorted(d.glob("*.json")):
-            s = _slug(re.sub(r"_380_780_5$", "", f.stem))
-            if s == slug or s.endswith(slug):
-                return load_camera_file(f)
+    for f in _camera_files(dirs):
+        s = _slug(re.sub(r"_380_780_5$", "", f.stem))
+        if s == slug or s.endswith(slug):
+            return load_camera_file(f)
     known = ", ".join(builtin_camera_names())
-    raise InputError(f"unknown camera {key!r}: use one of {known} or a rawtoaces JSON file (--camera-file)")
+    looked = "; ".join(str(d) for d in camera_search_order()) if search_dirs is None else \
+        "; ".join(str(d) for d in search_dirs) or "no folder"
+    raise InputError(f"unknown camera {key!r}: use one of {known}, a name from 'derender cameras', or a rawtoaces "
+                     f"JSON file (--camera-file); looked for camera JSON files in: {looked}")
+
+
+def _camera_files(dirs: Sequence[str | os.PathLike]) -> list[Path]:
+    out = []
+    for d in dirs:
+        d = Path(d)
+        if d.is_dir():
+            out.extend(sorted(d.glob("*.json")))
+    return out
+
+
+def available_cameras(search_dirs: Sequence[str | os.PathLike] | None = None) -> list[tuple[str, str]]:
+    """Every camera :func:`load_camera` accepts by name: ``(name, source)`` pairs, the built-in
+    cameras first (source ``"built-in (colour-science)"``), then one per rawtoaces JSON file of
+    the search folders (name as accepted, source the file)."""
+    out = [(n, "built-in (colour-science)") for n in builtin_camera_names()]
+    dirs = camera_search_dirs() if search_dirs is None else search_dirs
+    seen = {n for n, _ in out}
+    for f in _camera_files(dirs):
+        name = _slug(re.sub(r"_380_780_5$", "", f.stem))
+        if name not in seen:
+            seen.add(name)
+            out.append((name, str(f)))
+    return out
 
 
 @functools.lru_cache(maxsize=None)
@@ -232,19 +263,37 @@ def cmfs_xyz() -> np.ndarray:
     return _resample(np.asarray(cmfs.wavelengths), np.asarray(cmfs.values))
 
 
-def camera_search_dirs(extra: Sequence[str | os.PathLike] = ()) -> tuple[Path, ...]:
-    """Existing folders of rawtoaces camera JSON files: ``extra``, ``$DERENDER_SHARED_DATA``,
-    then ``../shared/data/rawtoaces-spectral/data/camera`` beside the working directory or
-    any parent of the package (each folder once)."""
+#: Where a camera JSON folder is looked for below a data root (``shared/data`` layout).
+_CAMERA_SUBDIR = Path("rawtoaces-spectral") / "data" / "camera"
+
+
+def camera_search_order(extra: Sequence[str | os.PathLike] = ()) -> tuple[Path, ...]:
+    """Every folder the tool looks in for rawtoaces camera JSON files, in order, whether it
+    exists or not: ``extra``; ``$DERENDER_SHARED_DATA/rawtoaces-spectral/data/camera``; then
+    the same below ``shared/data`` in the working directory, beside it (``../shared/data``),
+    and beside the source checkout the package runs from (``<checkout>/../shared/data``)."""
     here = Path(__file__).resolve()
     cands = [Path(p) for p in extra]
     env = os.environ.get("DERENDER_SHARED_DATA")
     if env:
-        cands.append(Path(env) / "rawtoaces-spectral" / "data" / "camera")
-    for base in (Path.cwd(), *here.parents):
-        cands.append(base.parent / "shared" / "data" / "rawtoaces-spectral" / "data" / "camera")
-    seen, out = set(), []
+        cands.append(Path(env) / _CAMERA_SUBDIR)
+    cwd = Path.cwd()
+    cands += [cwd / "shared" / "data" / _CAMERA_SUBDIR, cwd.parent / "shared" / "data" / _CAMERA_SUBDIR]
+    if len(here.parents) > 3 and here.parents[2].name == "src":      # an editable / source checkout
+        cands.append(here.parents[3].parent / "shared" / "data" / _CAMERA_SUBDIR)
+    out, seen = [], set()
     for c in cands:
+        key = os.path.abspath(c)
+        if key not in seen:
+            seen.add(key)
+            out.append(c)
+    return tuple(out)
+
+
+def camera_search_dirs(extra: Sequence[str | os.PathLike] = ()) -> tuple[Path, ...]:
+    """The folders of :func:`camera_search_order` that exist (each folder once)."""
+    seen, out = set(), []
+    for c in camera_search_order(extra):
         if c.is_dir() and c.resolve() not in seen:
             seen.add(c.resolve())
             out.append(c)

@@ -106,19 +106,12 @@ def check_choice(option: str, value: str, choices: tuple[str, ...]) -> None:
         raise InputError(f"{option} must be one of {', '.join(choices)}, got {value!r}")
 
 
-def shared_camera_dirs() -> tuple[Path, ...]:
-    here = Path.cwd()
-    cands = [here.parent / "shared" / "data" / "rawtoaces-spectral" / "data" / "camera",
-             here / "shared" / "data" / "rawtoaces-spectral" / "data" / "camera"]
-    return tuple(p for p in cands if p.is_dir())
-
-
 def load_camera_cli(camera: str, camera_file: Optional[Path]):
     from derender.camera.spectral import load_camera, load_camera_file
 
     if camera_file is not None:
         return load_camera_file(camera_file)
-    return load_camera(camera, search_dirs=shared_camera_dirs())
+    return load_camera(camera)   # one search order for the whole tool (camera_search_order)
 
 
 def check_times_options(times: Optional[str], times_file: Optional[Path], times_inverse: bool) -> None:
@@ -132,9 +125,11 @@ def check_times_options(times: Optional[str], times_file: Optional[Path], times_
 def read_stack_from_cli(images: List[Path], times: Optional[str], times_file: Optional[Path],
                          times_inverse: bool):
     from derender.io.exif import parse_times
+    from derender.io.files import expand_image_paths
     from derender.io.images import read_stack
 
     check_times_options(times, times_file, times_inverse)
+    images = expand_image_paths(images)
     t = parse_times(times) if times is not None else None
     return read_stack(images, times=t, times_file=times_file, times_file_inverse=times_inverse)
 

@@ -11,12 +11,12 @@ import typer
 
 from derender.cli.app import (
     INVERSE_HELP,
-    check_times_options,
     TIMES_FILE_HELP,
     TIMES_HELP,
     app,
     check_choice,
     check_model_camera,
+    check_times_options,
     console,
     is_float,
     load_camera_cli,
@@ -38,6 +38,21 @@ def _render_help() -> str:
 
 
 RENDER_HELP = _render_help()
+
+
+@app.command("cameras")
+def cameras_cmd() -> None:
+    """List every camera the simulator can use by name (--camera), and where it looked for more.
+
+    Built-in cameras come with colour-science; rawtoaces camera JSON files are found in one
+    search order for the whole tool, the same from any working directory."""
+    from derender.camera.spectral import available_cameras, camera_search_order
+
+    for name, source in available_cameras():
+        typer.echo(f"{name:40s} {source}")
+    typer.echo("searched for camera JSON files (in order; DERENDER_SHARED_DATA sets the data root):", err=True)
+    for d in camera_search_order():
+        typer.echo(f"  {d}{'' if d.is_dir() else '  (absent)'}", err=True)
 
 
 @app.command()
@@ -83,7 +98,7 @@ def simulate(
 
 @app.command("merge")
 def merge_cmd(
-    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them.", metavar="IMAGES..."),
     output: Path = typer.Option(..., "--output", "-o", help="Output radiance map (.exr)."),
     method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
@@ -111,10 +126,11 @@ def merge_cmd(
     from derender.hdr.files import merge_files
     from derender.hdr.registry import get_method
     from derender.io.exif import parse_times
-    from derender.io.files import OutputTransaction
+    from derender.io.files import OutputTransaction, expand_image_paths
     from derender.io.preview import IMAGE8_SUFFIXES, write_png, write_preview
 
     check_times_options(times, times_file, times_inverse)
+    images = expand_image_paths(images)
     fn = get_method(method)
     if variance is not None and not getattr(fn, "gives_variance", False):
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
@@ -195,7 +211,7 @@ def evaluate(
 
 @app.command()
 def diagnose(
-    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF)."),
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them.", metavar="IMAGES..."),
     output: Path = typer.Option(..., "--output", "-o", help="Figure (.png/.pdf/.svg)."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),

@@ -23,13 +23,12 @@ __all__ = [
 
 def stack_files(folder: str | os.PathLike) -> tuple[list[Path], Path | None]:
     """Image files of a stack folder (sorted) and its ``times.txt`` if present."""
-    from derender.io.files import RASTER_SUFFIXES
+    from derender.io.files import folder_images
 
     d = Path(folder)
     if not d.is_dir():
         raise InputError(f"no such stack folder: {d}")
-    src = d / "jpeg" if (d / "jpeg").is_dir() else d
-    files = sorted(p for p in src.iterdir() if p.suffix.lower() in RASTER_SUFFIXES)
+    files = folder_images(d)
     if len(files) < 2:
         raise InputError(f"{d}: a stack folder needs at least two images")
     times = d / "times.txt"

@@ -41,6 +41,8 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 **options: Any) -> HDRResult:
     """Merge image files into a radiance map; optionally write ``output`` (and ``variance_output``), .exr.
 
+    A folder among ``paths`` stands for the images in it
+    (:func:`derender.io.files.expand_image_paths`).
     Times as :func:`derender.io.images.read_stack` (``times`` in the order of ``paths``,
     else ``times_file``, else EXIF). ``options`` are the method's (as
     :func:`derender.hdr.registry.merge` takes them); ``threads``, ``keep_frames`` and
@@ -54,8 +56,10 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     result's ``radiance`` and ``variance`` are then None (``info["outputs_held"]`` False).
     """
     t_start = time.perf_counter()
+    from derender.io.files import expand_image_paths
+
     fn = get_method(method)   # an unknown method is an error before any file is read
-    paths = [Path(p) for p in paths]
+    paths = expand_image_paths(paths)
     t = file_times(paths, times, times_file, times_file_inverse)
     all_inputs = list(paths) + list(inputs) + ([Path(times_file)] if times_file else [])
     for out in (output, variance_output):

@@ -81,9 +81,9 @@ def read_exif(path: str | os.PathLike) -> dict:
         pass
     if "ExposureTime" not in info:
         try:
-            from PIL import Image
+            from derender.io.headers import pillow_image
 
-            with Image.open(path) as im:
+            with pillow_image().open(path) as im:
                 exif = im.getexif()
                 sub = exif.get_ifd(0x8769) if exif else {}
                 for src in (sub, exif):

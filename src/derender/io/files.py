@@ -31,6 +31,8 @@ __all__ = [
     "check_not_input",
     "check_input_file",
     "read_bytes",
+    "folder_images",
+    "expand_image_paths",
 ]
 
 
@@ -38,12 +40,47 @@ __all__ = [
 TEMP_PREFIX = ".derender-"
 
 
-#: Suffixes of rendered images read with OpenCV (8- or 16-bit).
-RASTER_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
+#: Suffixes of rendered images (8- or 16-bit; HEIC/HEIF and AVIF through Pillow).
+RASTER_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif", ".hif", ".avif"}
 
 
 #: Suffixes taken as RAW files (read with rawpy / LibRaw).
 RAW_SUFFIXES = {".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw"}
+
+
+# --------------------------------------------------------------------------- inputs given as folders
+def folder_images(folder: str | os.PathLike) -> list[Path]:
+    """The rendered images directly inside ``folder`` (or in its ``jpeg/`` subfolder, as
+    ``derender simulate`` writes a bracket), by name: files whose suffix is one of
+    :data:`RASTER_SUFFIXES` (any case), hidden files and derender's own temporaries left out.
+    RAW files are not taken (a bracket is merged from its rendered images)."""
+    d = Path(folder)
+    src = d / "jpeg" if (d / "jpeg").is_dir() else d
+    try:
+        entries = sorted(src.iterdir())
+    except OSError as exc:
+        raise InputError(f"cannot list folder {d}: {exc.strerror or exc}") from None
+    return [p for p in entries if p.suffix.lower() in RASTER_SUFFIXES and not p.name.startswith(".")
+            and p.is_file()]
+
+
+def expand_image_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
+    """The image arguments of a command with every folder replaced by its images
+    (:func:`folder_images`); files are kept as given. A folder without images is an error
+    naming it and the suffixes looked for. The merge sorts the frames by exposure time
+    afterwards, so a folder's name order does not matter."""
+    out: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            found = folder_images(p)
+            if not found:
+                raise InputError(f"folder {p} holds no images (looked for "
+                                 f"{', '.join(sorted(RASTER_SUFFIXES))})")
+            out.extend(found)
+        else:
+            out.append(p)
+    return out
 
 
 # --------------------------------------------------------------------------- outputs

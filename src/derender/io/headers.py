@@ -11,8 +11,13 @@ memory is committed to it (issue 15, "budget before work"):
   completeness is checked here, on the bytes.
 * PNG: the IHDR chunk (width, height, bit depth, colour type) and an ``IEND`` chunk at the
   end (a truncated PNG has none; OpenCV refuses it too, but only after allocating it).
-* TIFF and other formats: Pillow's lazy ``Image.open`` (header only), with its own
-  decompression-bomb guard turned into the same error as ours.
+* TIFF, HEIC/HEIF and AVIF: Pillow's lazy ``Image.open`` (header only), with its own
+  decompression-bomb guard turned into the same error as ours. HEIC/HEIF (the iPhone's
+  default format) is opened through the kept ``pillow-heif`` plugin (libheif), registered
+  by :func:`pillow_image`; AVIF by Pillow itself (libavif, Pillow >= 11.3). libheif applies
+  the container's rotation (``irot``/``imir``) when decoding and reports EXIF orientation 1,
+  so a HEIC's size here is already the displayed one; Pillow's AVIF reader keeps the stored
+  orientation in EXIF, which :func:`orient` applies as for a JPEG.
 
 Our own parser for JPEG/PNG rather than Pillow's: Pillow refuses images above
 2 x ``Image.MAX_IMAGE_PIXELS`` (179 MP) itself, a process-wide setting a library should not
@@ -45,7 +50,13 @@ __all__ = [
     "probe_images",
     "orient",
     "jpeg_header",
+    "pillow_image",
+    "PILLOW_DECODED",
 ]
+
+#: Formats (as :class:`ImageInfo` names them) decoded through Pillow rather than OpenCV,
+#: which reads neither: HEIC/HEIF (pillow-heif) and AVIF (Pillow's own plugin).
+PILLOW_DECODED = frozenset({"heif", "avif"})
 
 #: Largest decoded image accepted by default (megapixels): above the 200 MP of today's
 #: largest phone sensors, below a 16000 x 16000 decompression bomb (256 MP).
@@ -154,11 +165,32 @@ def _png_header(buf: bytes) -> tuple[int, int, int, int, bool]:
     return height, width, channels, (8 if colour == 3 else depth), complete
 
 
+_HEIF_REGISTERED = False
+
+
+def pillow_image():
+    """Pillow's ``Image`` module with the HEIC/HEIF opener of ``pillow-heif`` registered
+    (once per process; every Pillow use of derender goes through here, so EXIF times of a
+    HEIC are read as a JPEG's are)."""
+    global _HEIF_REGISTERED
+    from PIL import Image
+
+    if not _HEIF_REGISTERED:
+        try:
+            import pillow_heif
+        except ImportError:  # pragma: no cover - a declared dependency
+            pass
+        else:
+            pillow_heif.register_heif_opener()
+        _HEIF_REGISTERED = True
+    return Image
+
+
 def _pillow_header(path: Path) -> tuple[str, int, int, int, int, int]:
     """(format, height, width, channels, bit depth, orientation) through Pillow's lazy open."""
     import warnings
 
-    from PIL import Image
+    Image = pillow_image()
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)

@@ -1,10 +1,11 @@
-"""Rendered 8-bit/16-bit images (JPEG, PNG, TIFF) and exposure stacks.
+"""Rendered 8-bit/16-bit images (JPEG, PNG, TIFF, HEIC/HEIF, AVIF) and exposure stacks.
 
 * :func:`read_image` -- one image as float32 ``value / (2^bits - 1)`` plus its bit depth.
 * :func:`read_codes` -- the 8-bit codes of an image (uint8), for the streaming merge engine.
 * :func:`decode_image` -- the one decoder both use (header probed first, strict about
   truncation, EXIF orientation applied; libjpeg-turbo through ``imagecodecs`` for 8-bit
-  JPEGs, OpenCV otherwise).
+  JPEGs, Pillow with ``pillow-heif`` for HEIC/HEIF and Pillow for AVIF, which OpenCV does
+  not read, OpenCV otherwise).
 * :func:`read_stack` -- a bracket sorted by exposure time (times from the caller, a times
   file or EXIF, see :mod:`derender.io.exif`).
 """
@@ -21,8 +22,16 @@ from derender.core.errors import InputError
 from derender.core.memory import check_memory, import_cv2
 from derender.core.types import Stack
 from derender.io.exif import file_times, read_exif
-from derender.io.files import read_bytes
-from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, ImageInfo, orient, probe_image, probe_images
+from derender.io.files import expand_image_paths, read_bytes
+from derender.io.headers import (
+    DEFAULT_MAX_MEGAPIXELS,
+    PILLOW_DECODED,
+    ImageInfo,
+    orient,
+    pillow_image,
+    probe_image,
+    probe_images,
+)
 
 __all__ = [
     "read_image",
@@ -34,7 +43,7 @@ __all__ = [
 
 def read_image(path: str | os.PathLike, max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS,
                info: ImageInfo | None = None) -> tuple[np.ndarray, int]:
-    """Read an 8- or 16-bit JPEG/PNG/TIFF as float32 (H, W, 3) RGB in [0, 1], upright.
+    """Read an 8- or 16-bit JPEG/PNG/TIFF/HEIC/AVIF as float32 (H, W, 3) RGB in [0, 1], upright.
 
     Returns ``(image, bit_depth)``. Decoded by :func:`decode_image` (the one decoder every
     reader uses): grey images are replicated to three channels, an alpha channel is dropped
@@ -59,9 +68,10 @@ def read_stack(
     Times come from ``times`` (one per path, in the given order), else ``times_file``
     (matched by file name), else each file's EXIF ``ExposureTime``. Every header is read
     first (:func:`derender.io.headers.probe_images`): sizes, the ``max_megapixels`` limit
-    and the memory the float stack needs are checked before any pixel is decoded.
+    and the memory the float stack needs are checked before any pixel is decoded. A folder
+    among ``paths`` stands for the images in it (:func:`derender.io.files.expand_image_paths`).
     """
-    paths = [Path(p) for p in paths]
+    paths = expand_image_paths(paths)
     t = file_times(paths, times, times_file, times_file_inverse)
     infos = probe_images(paths, max_megapixels)
     check_memory(len(paths) * infos[0].width * infos[0].height * 3 * 4, "the stack as float32")
@@ -117,12 +127,15 @@ def decode_image(path: str | os.PathLike, out: np.ndarray | None = None,
     if info is None:
         info = probe_image(path, max_megapixels)
     check_memory(info.width * info.height * 3 * (2 if info.bit_depth > 8 else 1), f"decoding {path.name}")
-    data = read_bytes(path)
     img = None
-    if info.format == "jpeg" and info.bit_depth == 8:
-        img = _decode_jpeg8(data, out if info.orientation == 1 else None)
-    if img is None:
-        img = _decode_opencv(data, path)
+    if info.format in PILLOW_DECODED:
+        img = _decode_pillow(path)
+    else:
+        data = read_bytes(path)
+        if info.format == "jpeg" and info.bit_depth == 8:
+            img = _decode_jpeg8(data, out if info.orientation == 1 else None)
+        if img is None:
+            img = _decode_opencv(data, path)
     if img.shape[:2] != info.stored_shape:
         raise InputError(f"corrupt image (its header says {info.stored_shape[1]}x{info.stored_shape[0]}, "
                          f"the data {img.shape[1]}x{img.shape[0]}): {path}")
@@ -161,6 +174,27 @@ def _decode_jpeg8(data: np.ndarray, out: np.ndarray | None) -> np.ndarray | None
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     return np.ascontiguousarray(img)
+
+
+def _decode_pillow(path: Path) -> np.ndarray:
+    """HEIC/HEIF (pillow-heif; high-bit-depth HEICs are delivered as 8-bit, as the phone's own
+    viewer shows them) and AVIF through Pillow: (H, W, 3) uint8 as stored (the caller orients)."""
+    import warnings
+
+    Image = pillow_image()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                im.load()
+                if im.mode in ("RGBA", "LA") and im.getchannel("A").getextrema()[0] < 255:
+                    raise InputError(f"{path} has a transparent alpha channel; flatten it first")
+                rgb = im.convert("RGB")
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - libheif/libavif raise assorted types for damaged files
+        raise InputError(f"not a readable image ({str(exc).strip()[:120] or 'corrupt data'}): {path}") from None
+    return np.ascontiguousarray(np.asarray(rgb, dtype=np.uint8))
 
 
 def _decode_opencv(data: np.ndarray, path: Path) -> np.ndarray:
