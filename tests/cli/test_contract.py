@@ -299,3 +299,26 @@ def test_console_entry_leaves_failed_runs_without_finalisation(monkeypatch, caps
     with pytest.raises(SystemExit) as exc:
         cli.console_main()
     assert exc.value.code in (None, 0) and codes == [2]
+
+
+def test_model_with_a_method_that_uses_none_is_refused(tmp_path, capsys):
+    """``-m`` with a method that takes no de-rendering model is refused before any work (it
+    was loaded, warned about and then rejected with the method's internal option list)."""
+    ins = _bracket(tmp_path)
+    code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o.exr", "-m", tmp_path / "none.npz", *TIMES,
+                            "--method", "robertson"], capsys)
+    _assert_error(code, err, "uses no de-rendering model")
+    assert "probabilistic" in err and not (tmp_path / "o.exr").exists()
+
+
+def test_usage_lines_and_methods_read_as_text(capsys):
+    code, out, _ = run_cli(["merge", "--help"], capsys)
+    assert code == 0 and "Usage: derender merge [OPTIONS] IMAGES..." in out and "{" not in out.split("\n\n")[0]
+    code, out, _ = run_cli(["methods"], capsys)
+    assert code == 0 and "``" not in out and ":func:" not in out
+    blocks = [b for b in out.split("\n") if b and not b.startswith(" ")]
+    assert set(blocks) >= {"debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic",
+                           "stabilized-probabilistic"}
+    assert out.count("Output: ") == len(blocks)
+    summaries = [b.strip() for b in out.split("\n") if b.startswith("    ") and not b.startswith("     ")]
+    assert all(s for s in summaries)

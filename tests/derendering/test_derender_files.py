@@ -78,6 +78,7 @@ def test_model_of_another_camera_warns_or_is_refused(model_file, tmp_path, capsy
     assert code == 0, err
     warnings = [ln for ln in err.splitlines() if ln.startswith("warning:")]
     assert len(warnings) == 1 and "NIKON D5100" in warnings[0] and "Canon EOS 5D" in warnings[0]
+    assert "Canon Canon" not in warnings[0] and "NIKON CORPORATION NIKON" not in warnings[0]   # the make once
     code, out, err = run_cli(["derender", other, "-m", model_file, "-o", tmp_path / "s.exr", "--variance",
                               tmp_path / "sv.exr", "--strict-camera"], capsys)
     assert code == 2 and err.startswith("error:") and "--strict-camera" in err

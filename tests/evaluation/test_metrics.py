@@ -212,3 +212,28 @@ def test_evaluate_cli_json_has_the_new_metrics(tmp_path, capsys):
     assert d["rel_p90"] < 1e-5 and d["L"] > 100
     code, out, err = run_cli(["evaluate", tmp_path / "r.exr", tmp_path / "g.exr", "--fit", "nope"], capsys)
     assert code == 2 and "error:" in out + err
+
+
+def test_evaluate_names_the_truth(tmp_path, capsys):
+    """The scores are asymmetric, so the truth is named (``--truth``) and echoed; giving it
+    twice or not at all is an error."""
+    from helpers import run_cli
+
+    from derender.io.exr import write_exr
+
+    g = _hdr_truth(3).astype(np.float32)
+    r = (g * np.array([1.0, 1.1, 0.9], np.float32)).astype(np.float32)
+    write_exr(tmp_path / "g.exr", g)
+    write_exr(tmp_path / "r.exr", r)
+    code, out_opt, err = run_cli(["evaluate", tmp_path / "r.exr", "--truth", tmp_path / "g.exr"], capsys)
+    assert code == 0, err
+    assert out_opt.splitlines()[0] == f"{tmp_path / 'r.exr'} scored against the truth {tmp_path / 'g.exr'}"
+    code, out_pos, err = run_cli(["evaluate", tmp_path / "r.exr", tmp_path / "g.exr"], capsys)
+    assert code == 0 and out_pos == out_opt
+    code, out_swapped, err = run_cli(["evaluate", tmp_path / "g.exr", "--truth", tmp_path / "r.exr"], capsys)
+    assert code == 0 and out_swapped.splitlines()[1:] != out_opt.splitlines()[1:]   # asymmetric, and now visible
+    for args in (["evaluate", tmp_path / "r.exr"],
+                 ["evaluate", tmp_path / "r.exr", tmp_path / "g.exr", "--truth", tmp_path / "g.exr"]):
+        code, out, err = run_cli(args, capsys)
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert code == 2 and len(lines) == 1 and "--truth" in lines[0]

@@ -44,9 +44,21 @@ def command():
         for p in getattr(c, "params", ()):
             if getattr(p, "is_flag", False):
                 p.metavar = ""
+            if getattr(p, "param_type_name", "") == "argument" and hasattr(p, "_usage_display_name"):
+                p._usage_display_name = _usage_name(p)
         c.get_help_option = _flag_help(c.get_help_option)
         stack.extend(getattr(c, "commands", {}).values())
     return cmd
+
+
+def _usage_name(param):
+    def name() -> str:
+        text = (param.metavar or param.name or "").upper()
+        if not param.required:
+            text = f"[{text}]"
+        return text + ("..." if param.nargs != 1 else "")
+
+    return name
 
 
 def _flag_help(get_help_option):

@@ -98,7 +98,7 @@ def simulate(
 
 @app.command("merge")
 def merge_cmd(
-    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them.", metavar="IMAGES..."),
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them."),
     output: Path = typer.Option(..., "--output", "-o", help="Output radiance map (.exr)."),
     method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
@@ -121,6 +121,8 @@ def merge_cmd(
 
     Every output is checked before any work and written as one transaction: on an error or
     an interruption none of them is left behind."""
+    import inspect
+
     import numpy as np
 
     from derender.hdr.files import merge_files
@@ -134,6 +136,13 @@ def merge_cmd(
     fn = get_method(method)
     if variance is not None and not getattr(fn, "gives_variance", False):
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
+    if model is not None and "model" not in inspect.signature(fn).parameters:
+        from derender.hdr.registry import MERGE_METHODS, load_plugins
+
+        load_plugins()
+        users = sorted(n for n, f in MERGE_METHODS.items() if "model" in inspect.signature(f).parameters)
+        raise InputError(f"method {method!r} uses no de-rendering model (drop -m; the methods that use one: "
+                         f"{', '.join(users)})")
     if plot is not None and not getattr(fn, "gives_curves", False):
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     t0 = time.perf_counter()
@@ -176,34 +185,60 @@ def merge_cmd(
 
 @app.command("methods")
 def methods_cmd() -> None:
-    """List the merge methods."""
-    from derender.hdr.registry import MERGE_METHODS, load_plugins
+    """List the merge methods: what each does, what it needs and gives, and its output colour space."""
+    import inspect
+    import textwrap
+
+    from derender.hdr.registry import MERGE_METHODS, load_plugins, method_summary
 
     load_plugins()
     for name, fn in sorted(MERGE_METHODS.items()):
-        doc = (fn.__doc__ or "").strip().splitlines()[0] if fn.__doc__ else ""
-        typer.echo(f"{name:20s} {doc}")
+        typer.echo(name)
+        lines = [method_summary(fn)]
+        params = inspect.signature(fn).parameters
+        if "model" in params and params["model"].default is inspect.Parameter.empty:
+            lines.append("Needs a de-rendering model (-m MODEL.npz, from 'derender calibrate').")
+        gives = ["a variance (--variance)"] if getattr(fn, "gives_variance", False) else []
+        if getattr(fn, "gives_curves", False):
+            gives.append("response curves (--plot)")
+        if gives:
+            lines.append("Also gives " + " and ".join(gives) + ".")
+        lines.append(f"Output: {getattr(fn, 'output_space', 'not stated')}.")
+        for line in lines:
+            typer.echo(textwrap.fill(line, width=96, initial_indent="    ", subsequent_indent="    "))
 
 
 @app.command()
 def evaluate(
     result: Path = typer.Argument(..., help="Radiance map to score (.exr or .hdr)."),
-    truth: Path = typer.Argument(..., help="Ground truth radiance map (.exr or .hdr)."),
+    truth_arg: Optional[Path] = typer.Argument(None, metavar="[TRUTH]",
+                                               help="Ground truth radiance map (.exr or .hdr); or give --truth."),
+    truth_opt: Optional[Path] = typer.Option(None, "--truth", help="Ground truth radiance map (.exr or .hdr)."),
     remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
     fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale' (both fitted by trimmed least squares), or 'none'."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """PSNR on R, G, B and luminance L (scale fitted per plane; docs/paper1.md), per-pixel relative error
-    (median, p90, after a 3x3 fit weighted 1/||g||^2) and log-luminance PSNR."""
+    """Score RESULT against the ground truth: PSNR on R, G, B and luminance L (scale fitted per
+    plane; docs/paper1.md), per-pixel relative error (median, p90, after a 3x3 'matrix' or one
+    'scale' fitted to RESULT by trimmed least squares on relative errors) and log-luminance PSNR.
+
+    The scores are not symmetric (the fit maps RESULT onto the truth, PSNR's peak is the
+    truth's): the first line printed names which file was taken as the truth."""
     from derender.evaluation.metrics import hdr_scores
     from derender.io.rgbe import read_radiance
 
+    if (truth_arg is None) == (truth_opt is None):
+        raise InputError("give the ground truth once: 'derender evaluate RESULT --truth TRUTH' "
+                         "(or RESULT TRUTH)")
+    truth = truth_arg if truth_arg is not None else truth_opt
     check_choice("--remap", remap, ("lstsq", "minmax"))
     check_choice("--fit", fit, ("matrix", "scale", "none"))
     scores = hdr_scores(read_radiance(result), read_radiance(truth), remap=remap, fit=fit)
     if as_json:
+        scores = {"result": str(result), "truth": str(truth), **scores}
         typer.echo(json.dumps({k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}))
     else:
+        typer.echo(f"{result} scored against the truth {truth}")
         typer.echo("  ".join(f"{k} {scores[k]:.2f} dB" for k in "RGBL"))
         typer.echo(f"relative error ({fit} fit): median {scores['rel_median']:.4f}, p90 {scores['rel_p90']:.4f};  "
                    f"log-luminance PSNR {scores['log_psnr_L']:.2f} dB")
@@ -211,7 +246,7 @@ def evaluate(
 
 @app.command()
 def diagnose(
-    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them.", metavar="IMAGES..."),
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them."),
     output: Path = typer.Option(..., "--output", "-o", help="Figure (.png/.pdf/.svg)."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),

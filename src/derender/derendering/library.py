@@ -41,8 +41,20 @@ def camera_mismatch(model, image_path: str | os.PathLike) -> str | None:
     exif = read_exif(image_path)
     if not cam or not cam.get("model") or not exif.get("Model") or _camera_matches(cam, exif):
         return None
-    return (f"the model was calibrated for {cam.get('make', '')} {cam.get('model', '')}".replace("  ", " ")
-            + f" but {Path(image_path).name} comes from {exif.get('Make', '')} {exif.get('Model', '')}".rstrip())
+    return (f"the model was calibrated for {camera_label(cam.get('make'), cam.get('model'))}"
+            f" but {Path(image_path).name} comes from {camera_label(exif.get('Make'), exif.get('Model'))}")
+
+
+def camera_label(make: str | None, model: str | None) -> str:
+    """``make model`` as people write it: the make once (EXIF often repeats it in the model,
+    "Canon" + "Canon PowerShot S90"; rawtoaces names say "NIKON CORPORATION" + "NIKON D5100")."""
+    make, model = (make or "").strip(), (model or "").strip()
+    if not make:
+        return model or "an unnamed camera"
+    first = make.split()[0].lower()
+    if model.lower().startswith(first):
+        return model
+    return f"{make} {model}".strip()
 
 
 def resolve_model(model_path: str | os.PathLike, image_path: str | os.PathLike | None = None):
@@ -71,7 +83,7 @@ def resolve_model(model_path: str | os.PathLike, image_path: str | os.PathLike |
         cam = m.metadata.get("camera", {}) if isinstance(m.metadata, dict) else {}
         candidates.append((f, m, cam))
         if _camera_matches(cam, exif):
-            return m, f"{f.name} (camera {cam.get('make', '')} {cam.get('model', '')} matches the image EXIF)"
+            return m, f"{f.name} (camera {camera_label(cam.get('make'), cam.get('model'))} matches the image EXIF)"
     known = ", ".join(f"{f.name}: {c.get('model', '?')}" for f, _, c in candidates) or "none"
     who = f"{exif.get('Make', '?')} {exif.get('Model', '?')}" if exif else "unknown (no EXIF)"
     raise InputError(f"no model in {p} for camera {who}; models: {known}")

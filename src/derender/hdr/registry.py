@@ -19,6 +19,8 @@ from derender.core.types import HDRResult, Stack
 
 __all__ = [
     "MERGE_METHODS",
+    "OUTPUT_SPACES",
+    "method_summary",
     "register_method",
     "BUILTIN_METHODS",
     "load_plugins",
@@ -45,17 +47,35 @@ BUILTIN_METHODS = {
 }
 
 
+_RENDERED = ("linear RGB of the images' own rendering (their primaries and white balance; linear sRGB for "
+             "in-camera JPEGs), relative units")
+#: The colour space of each built-in method's radiance (``derender methods`` prints it).
+OUTPUT_SPACES = {
+    "debevec": _RENDERED,
+    "robertson": _RENDERED,
+    "stabilized": _RENDERED + ", in the reference frame's white balance",
+    "stabilized-joint": _RENDERED + ", in the bracket's average rendering",
+    "probabilistic": ("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix "
+                      "(option colour_space='camera_rgb' keeps camera RGB); scaled to exposure time 1 s"),
+    "stabilized-probabilistic": _RENDERED + ", in the reference frame's white balance",
+}
+
+
 def register_method(name: str, gives_variance: bool = False, engine: Callable[[dict], Any] | None = None,
-                    gives_curves: bool = False) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
+                    gives_curves: bool = False,
+                    output_space: str | None = None) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
     """Decorator registering ``fn(stack, **options) -> HDRResult`` under ``name``.
 
     ``gives_variance``: its results carry a per-pixel variance; ``gives_curves``: response
     curves (``result.info["curves"]``, what ``derender merge --plot`` draws). ``engine(options)``, if
     given, makes the method's :class:`~derender.engine.plans.EngineMethod` from its
     options (all of ``fn``'s keywords, defaults filled in): image files then run on the
-    engine (:func:`derender.hdr.files.merge_files`) instead of being read into memory."""
+    engine (:func:`derender.hdr.files.merge_files`) instead of being read into memory.
+    ``output_space`` says in words which colour space the radiance is in (built-in methods:
+    :data:`OUTPUT_SPACES`)."""
 
     def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
+        fn.output_space = output_space or OUTPUT_SPACES.get(name, "not stated")
         fn.gives_variance = bool(gives_variance)
         fn.gives_curves = bool(gives_curves)
         fn.engine_method = engine
@@ -63,6 +83,18 @@ def register_method(name: str, gives_variance: bool = False, engine: Callable[[d
         return fn
 
     return deco
+
+
+def method_summary(fn: Callable[..., HDRResult]) -> str:
+    """The first sentence of a merge function's docstring, as plain text (no reST markup)."""
+    import re
+
+    doc = inspect.getdoc(fn) or ""
+    para = " ".join(doc.split("\n\n", 1)[0].split())
+    m = re.search(r"(?<=[.;])\s+(?=[A-Z(`])", para)
+    first = para[:m.start()] if m else para
+    first = re.sub(r":\w+:`~?([^`]+)`", lambda g: g.group(1).rsplit(".", 1)[-1], first)
+    return first.replace("``", "")
 
 
 def load_plugins() -> None:
