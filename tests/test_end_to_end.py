@@ -98,7 +98,14 @@ def test_demo_runs_and_scores(tmp_path, capsys):
     assert code == 0, e
     rows = json.loads((tmp_path / "demo" / "scores.json").read_text())
     names = [r["method"] for r in rows]
-    assert "debevec" in names and "raw-groundtruth (DNG)" in names
+    from derender.hdr.registry import BUILTIN_METHODS
+
+    assert names == ["raw-groundtruth (DNG)", "debevec", "robertson", "stabilized", "stabilized-joint",
+                     "probabilistic", "stabilized-probabilistic"]
+    assert set(names[1:]) == set(BUILTIN_METHODS)              # "every method" is every method
     for r in rows:
         assert all(np.isfinite(r[p]) for p in "RGBL")
+        assert r["L"] > 30.0, r                                # against the simulator's exact radiance
+    assert rows[5]["calibration_seconds"] > 0 and (tmp_path / "demo" / "model-gp.npz").is_file()
+    assert "calibrated" in e
     assert (tmp_path / "demo" / "merge-debevec.exr").is_file()

@@ -379,8 +379,13 @@ def demo(
     seed: int = typer.Option(0, "--seed", help="Random seed."),
     pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto."),
     render: str = typer.Option("camera", "--render", help="simple | camera."),
+    no_model: bool = typer.Option(False, "--no-model",
+                                  help="Skip paper 2's two methods and the GP calibration they need."),
 ) -> None:
-    """Simulate an auto-pipeline bracket, merge it with every method, score each against the truth."""
+    """Simulate an auto-pipeline bracket, merge it with every method, score each against the truth.
+
+    Paper 2's two methods (probabilistic, stabilized-probabilistic) need a de-rendering model:
+    the demo calibrates a GP on the simulated chart session of the same camera first."""
     from rich.console import Console
     from rich.table import Table
 
@@ -394,13 +399,24 @@ def demo(
                 tasks[stage] = prog.add_task(stage, total=total)
             prog.update(tasks[stage], completed=done, total=total)
 
-        rows = run_demo(outdir, parse_size(size), seed=seed, pipeline=pipeline, render=render, progress=report)
+        rows = run_demo(outdir, parse_size(size), seed=seed, pipeline=pipeline, render=render, progress=report,
+                        with_model=not no_model)
     table = Table(title=f"derender demo: {pipeline} pipeline, {render} rendering, PSNR (dB) vs truth.exr")
     for col in ("method", "R", "G", "B", "L", "seconds"):
         table.add_column(col, justify="left" if col == "method" else "right")
     for r in rows:
         table.add_row(r["method"], *(f"{r[c]:.2f}" for c in ("R", "G", "B", "L")), f"{r['seconds']:.2f}")
     Console().print(table)
+    cal = [r["calibration_seconds"] for r in rows if "calibration_seconds" in r]
+    if cal:
+        console().print(f"probabilistic and stabilized-probabilistic use a GP calibrated in {cal[0]:.1f} s on the "
+                        f"simulated chart session of the same camera ({outdir}/model-gp.npz; not in their seconds). "
+                        "That session keeps one white balance, as paper 2 assumes; "
+                        + ("this bracket changes white balance and gain between frames, which the model does not "
+                           "describe." if pipeline == "auto" else "so does this bracket."))
+    else:
+        console().print("probabilistic and stabilized-probabilistic skipped (--no-model): they need a de-rendering "
+                        "model ('derender calibrate')")
     console().print(f"outputs in {outdir}/ (EXR radiance maps, PNG previews, scene.json, scores.json)")
 
 
