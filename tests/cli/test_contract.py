@@ -322,3 +322,34 @@ def test_usage_lines_and_methods_read_as_text(capsys):
     assert out.count("Output: ") == len(blocks)
     summaries = [b.strip() for b in out.split("\n") if b.startswith("    ") and not b.startswith("     ")]
     assert all(s for s in summaries)
+
+
+def test_method_options_reach_the_method(tmp_path, capsys):
+    """``--option NAME=VALUE`` is typed from the method's signature and reaches it: the CLI's
+    output equals the library call with the same keyword, and differs from the default."""
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
+    from derender.hdr.files import merge_files
+    from derender.io.exr import read_exr
+
+    write_bracket(simulate_bracket(size=(96, 64), exposures=5, pipeline="auto", seed=4), tmp_path / "b")
+    ins = bracket_paths(tmp_path / "b", "jpeg")
+    code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o4.exr", "--method", "stabilized",
+                            "--option", "block=4", "-O", "use_times=false"], capsys)
+    assert code == 0, err
+    lib = merge_files(ins, method="stabilized", block=4, use_times=False)
+    np.testing.assert_array_equal(read_exr(tmp_path / "o4.exr"), lib.radiance)
+    default = merge_files(ins, method="stabilized")
+    assert not np.array_equal(default.radiance, lib.radiance)
+
+
+def test_misspelt_method_option_lists_the_valid_ones(tmp_path, capsys):
+    ins = _bracket(tmp_path)
+    code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o.exr", *TIMES, "--method", "stabilized",
+                            "--option", "blok=4"], capsys)
+    _assert_error(code, err, "has no option 'blok'")
+    assert "block (int, default 2)" in err and "exposure_rounds" in err
+    for bad, needle in (("block=x", "takes int"), ("block", "NAME=VALUE"), ("use_times=maybe", "takes bool")):
+        code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o.exr", *TIMES, "--method", "stabilized",
+                                "--option", bad], capsys)
+        _assert_error(code, err, needle)
+    assert not (tmp_path / "o.exr").exists()

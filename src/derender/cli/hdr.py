@@ -116,6 +116,9 @@ def merge_cmd(
     strict_camera: bool = typer.Option(False, "--strict-camera",
                                        help="Refuse a -m model calibrated for another camera than the images' EXIF "
                                             "names (default: a warning)."),
+    option: List[str] = typer.Option([], "--option", "-O",
+                                     help="A method option as NAME=VALUE (repeat; 'derender methods' lists them), "
+                                          "e.g. --option exposure_rounds=0 or --option colour_space=camera_rgb."),
 ) -> None:
     """Merge a bracket into a linear HDR radiance map (OpenEXR).
 
@@ -126,7 +129,7 @@ def merge_cmd(
     import numpy as np
 
     from derender.hdr.files import merge_files
-    from derender.hdr.registry import get_method
+    from derender.hdr.registry import get_method, parse_options
     from derender.io.exif import parse_times
     from derender.io.files import OutputTransaction, expand_image_paths
     from derender.io.preview import IMAGE8_SUFFIXES, write_png, write_preview
@@ -134,6 +137,7 @@ def merge_cmd(
     check_times_options(times, times_file, times_inverse)
     images = expand_image_paths(images)
     fn = get_method(method)
+    method_opts = parse_options(method, option)
     if variance is not None and not getattr(fn, "gives_variance", False):
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
     if model is not None and "model" not in inspect.signature(fn).parameters:
@@ -153,7 +157,7 @@ def merge_cmd(
         preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
         mask_tmp = tx.add(mask, "--mask", (".png", ".tif", ".tiff"))
         plot_tmp = tx.add(plot, "--plot", (".png", ".pdf", ".svg"))
-        extra = {}
+        extra = dict(method_opts)
         if model is not None:
             from derender.derendering.library import resolve_model
 
@@ -189,7 +193,7 @@ def methods_cmd() -> None:
     import inspect
     import textwrap
 
-    from derender.hdr.registry import MERGE_METHODS, load_plugins, method_summary
+    from derender.hdr.registry import MERGE_METHODS, load_plugins, method_summary, settable_options
 
     load_plugins()
     for name, fn in sorted(MERGE_METHODS.items()):
@@ -204,6 +208,10 @@ def methods_cmd() -> None:
         if gives:
             lines.append("Also gives " + " and ".join(gives) + ".")
         lines.append(f"Output: {getattr(fn, 'output_space', 'not stated')}.")
+        opts = settable_options(name)
+        if opts:
+            lines.append("Options (--option NAME=VALUE): " + "; ".join(
+                f"{k} = {'none' if d is None else d}" for k, (_t, d) in opts.items()) + ".")
         for line in lines:
             typer.echo(textwrap.fill(line, width=96, initial_indent="    ", subsequent_indent="    "))
 

@@ -28,7 +28,13 @@ __all__ = [
     "method_options",
     "merge",
     "merge_seeded",
+    "settable_options",
+    "parse_options",
 ]
+
+#: Keywords of merge functions that are not user options: set by their own CLI flags
+#: (``model``: ``-m``; ``seed``: ``--seed``), arrays (``curves``), or the engine choice.
+_NOT_SETTABLE = ("model", "seed", "curves", "engine")
 
 
 # --------------------------------------------------------------------------- registry
@@ -169,3 +175,75 @@ def merge_seeded(stack: Stack, method: str, seed: int = 0, **options: Any) -> HD
     if "seed" in inspect.signature(fn).parameters:
         options["seed"] = seed
     return merge(stack, method=method, **options)
+
+
+# --------------------------------------------------------------------------- options from text
+def settable_options(method: str) -> dict[str, tuple[Any, Any]]:
+    """The options of ``method`` a user can set as text (``derender merge --option NAME=VALUE``):
+    ``{name: (type, default)}``, the type from the merge function's annotation."""
+    import typing
+
+    fn = get_method(method)
+    hints = typing.get_type_hints(fn)
+    params = list(inspect.signature(fn).parameters.items())[1:]
+    return {k: (hints[k], p.default) for k, p in params if k not in _NOT_SETTABLE and k in hints}
+
+
+def _type_name(tp: Any) -> str:
+    import typing
+
+    args = [a for a in typing.get_args(tp) if a is not type(None)]
+    if typing.get_origin(tp) in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
+        return " or ".join(_type_name(a) for a in args) + " or none"
+    if typing.get_origin(tp) is not None and args:
+        return f"list of {_type_name(args[0])}"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _parse_value(text: str, tp: Any, name: str, method: str) -> Any:
+    import collections.abc
+    import typing
+
+    args = [a for a in typing.get_args(tp) if a is not type(None)]
+    optional = type(None) in typing.get_args(tp)
+    if optional and text.strip().lower() in ("none", ""):
+        return None
+    if optional and len(args) == 1:
+        tp = args[0]
+    origin = typing.get_origin(tp)
+    if origin in (list, tuple, collections.abc.Sequence):
+        inner = typing.get_args(tp)[0] if typing.get_args(tp) else str
+        return [_parse_value(part, inner, name, method) for part in text.split(",") if part.strip()]
+    try:
+        if tp is bool:
+            low = text.strip().lower()
+            if low in ("1", "true", "yes", "on"):
+                return True
+            if low in ("0", "false", "no", "off"):
+                return False
+            raise ValueError
+        if tp in (int, float, str):
+            return tp(text.strip())
+    except ValueError:
+        raise InputError(f"option {name} of method {method!r} takes {_type_name(tp)}, got {text!r}") from None
+    raise InputError(f"option {name} of method {method!r} cannot be given as text")
+
+
+def parse_options(method: str, items: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``["NAME=VALUE", ...]`` as the keyword options of ``method``, each value converted to
+    the option's type (``true``/``false`` for flags, ``none`` for an optional value, commas for
+    lists). A misspelt or unknown name is an :class:`InputError` listing the valid ones."""
+    valid = settable_options(method)
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or not name:
+            raise InputError(f"--option takes NAME=VALUE, got {item!r}")
+        if name not in valid:
+            listing = ", ".join(f"{k} ({_type_name(t)}, default {d!r})" for k, (t, d) in valid.items()) or "none"
+            raise InputError(f"method {method!r} has no option {name!r}; its options: {listing}")
+        if name in out:
+            raise InputError(f"option {name} given twice")
+        out[name] = _parse_value(value, valid[name][0], name, method)
+    return out
