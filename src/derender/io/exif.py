@@ -26,6 +26,7 @@ __all__ = [
     "parse_times",
     "read_times_file",
     "file_times",
+    "exposure_factors",
 ]
 
 
@@ -92,6 +93,12 @@ def read_exif(path: str | os.PathLike) -> dict:
                         if v is not None and np.isfinite(v) and v > 0:
                             info["ExposureTime"] = v
                             break
+                for tag, name in ((0x829D, "FNumber"), (0x8827, "ISO")):
+                    if name not in info and sub and tag in sub:
+                        raw = sub[tag][0] if isinstance(sub[tag], tuple) else sub[tag]
+                        v = _ratio_to_float(raw)
+                        if v is not None and np.isfinite(v) and v > 0:
+                            info[name] = v
                 if exif:
                     info.setdefault("Make", str(exif.get(0x010F, "")).strip("\x00 ") or None)
                     info.setdefault("Model", str(exif.get(0x0110, "")).strip("\x00 ") or None)
@@ -195,9 +202,10 @@ def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None
             raise InputError(f"times file {times_file} has no entry for: {', '.join(missing)}")
         t = [table[p.name] for p in paths]
     else:
-        t, missing = [], []
+        t, missing, exifs = [], [], []
         for p in paths:
             exif = read_exif(p)
+            exifs.append(exif)
             v = exif.get("ExposureTime")
             if v is None and "ExposureTimeInvalid" in exif:
                 raise InputError(f"{p.name}: EXIF ExposureTime is {exif['ExposureTimeInvalid']}, not a valid "
@@ -207,4 +215,24 @@ def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None
             t.append(v if v is not None else 0.0)
         if missing:
             raise InputError(f"no EXIF ExposureTime in {', '.join(missing)}; give --times or --times-file")
+        t = [ti * f for ti, f in zip(t, exposure_factors(paths, exifs))]
     return validate_times(t, len(paths))
+
+
+def exposure_factors(paths: Sequence[str | os.PathLike], exifs: Sequence[dict]) -> list[float]:
+    """Per frame ``(S_j / S_1) (N_1 / N_j)^2`` from EXIF ISO ``S`` and f-number ``N`` (1 for
+    a quantity that does not vary; a quantity that varies must be in every frame's EXIF, else
+    an :class:`InputError` names the frames without it)."""
+    factors = [1.0] * len(exifs)
+    for key, power, what in (("ISO", 1.0, "ISO speed"), ("FNumber", -2.0, "f-number")):
+        values = [e.get(key) for e in exifs]
+        present = [v for v in values if v is not None]
+        if len(set(present)) <= 1:
+            continue
+        lacking = [Path(p).name for p, v in zip(paths, values) if v is None]
+        if lacking:
+            raise InputError(f"the frames' {what} varies but {', '.join(lacking)} has none in its EXIF; "
+                             "give the exposures with --times (t S / N^2, relative)")
+        for j, v in enumerate(values):
+            factors[j] *= (v / values[0]) ** power
+    return factors
