@@ -224,6 +224,11 @@ def evaluate(
     truth_opt: Optional[Path] = typer.Option(None, "--truth", help="Ground truth radiance map (.exr or .hdr)."),
     remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
     fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale' (both fitted by trimmed least squares), or 'none'."),
+    variance: Optional[Path] = typer.Option(None, "--variance",
+                                            help="RESULT's per-pixel variance (.exr): also print the coverage of its "
+                                                 "50/80/95/99 % intervals and the median |z|."),
+    merge_mask: Optional[Path] = typer.Option(None, "--mask", help="The merge's --mask PNG: with --variance, pixels "
+                                              "over-exposed in every frame are scored on their own."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """Score RESULT against the ground truth: PSNR on R, G, B and luminance L (scale fitted per
@@ -241,15 +246,47 @@ def evaluate(
     truth = truth_arg if truth_arg is not None else truth_opt
     check_choice("--remap", remap, ("lstsq", "minmax"))
     check_choice("--fit", fit, ("matrix", "scale", "none"))
-    scores = hdr_scores(read_radiance(result), read_radiance(truth), remap=remap, fit=fit)
+    if merge_mask is not None and variance is None:
+        raise InputError("--mask applies to the coverage of a --variance; give one")
+    res_map, truth_map = read_radiance(result), read_radiance(truth)
+    scores = hdr_scores(res_map, truth_map, remap=remap, fit=fit)
+    cover = None
+    if variance is not None:
+        from derender.evaluation.uncertainty import coverage_table
+
+        mask_codes = None
+        if merge_mask is not None:
+            from derender.io.images import read_codes
+
+            codes = read_codes(merge_mask, max_megapixels=None)
+            if codes is None or codes.shape[:2] != res_map.shape[:2]:
+                raise InputError(f"--mask {merge_mask} is not an 8-bit mask of the result's size")
+            mask_codes = codes[..., 0]
+        var_map = read_radiance(variance)
+        if var_map.shape != res_map.shape:
+            raise InputError(f"--variance {variance} is {var_map.shape[1]}x{var_map.shape[0]}, the result "
+                             f"{res_map.shape[1]}x{res_map.shape[0]}")
+        cover = coverage_table(res_map, var_map, truth_map, fit=fit, merge_mask=mask_codes)
     if as_json:
         scores = {"result": str(result), "truth": str(truth), **scores}
-        typer.echo(json.dumps({k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}))
+        out = {k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}
+        if cover is not None:
+            out["coverage"] = {part: {"coverage": {str(p): round(c, 6) for p, c in d["coverage"].items()},
+                                      "median_abs_z": round(d["median_abs_z"], 6), "n": d["n"],
+                                      "n_unscored": d["n_unscored"]} for part, d in cover.items()}
+        typer.echo(json.dumps(out))
     else:
         typer.echo(f"{result} scored against the truth {truth}")
         typer.echo("  ".join(f"{k} {scores[k]:.2f} dB" for k in "RGBL"))
         typer.echo(f"relative error ({fit} fit): median {scores['rel_median']:.4f}, p90 {scores['rel_p90']:.4f};  "
                    f"log-luminance PSNR {scores['log_psnr_L']:.2f} dB")
+        if cover is not None:
+            typer.echo("variance: coverage of the central 50 / 80 / 95 / 99 % intervals (ideal 0.50 / 0.80 / 0.95 / "
+                       "0.99), median |z| (ideal 0.67), pixel-channels scored")
+            for part, d in cover.items():
+                typer.echo(f"  {part:9s} " + " / ".join(f"{c:.3f}" for c in d["coverage"].values())
+                           + f"   median |z| {d['median_abs_z']:.2f}   n {d['n']}"
+                           + (f" ({d['n_unscored']} without a usable variance)" if d["n_unscored"] else ""))
 
 
 @app.command()

@@ -3,7 +3,8 @@
 Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`,
 :mod:`derender.evaluation.derendering_families` (paper 2's de-rendering models on every camera-pipeline family),
 :mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
-inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`.
+inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`, :mod:`derender.evaluation.uncertainty`
+(coverage of a variance against the truth).
 """
 
 from derender.core.lazy import attach
@@ -15,7 +16,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
     "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage", "fit_and_predict"],
     "derendering_families": ["HELDOUT_ILLUMINANTS", "SPLITS", "derender_families"],
-    "demo": ["run_demo"],
+    "demo": ["run_demo", "MODEL_METHODS", "DEMO_TRAIN_PAIRS"],
+    "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })

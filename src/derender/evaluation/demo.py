@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["run_demo"]
+__all__ = ["run_demo", "MODEL_METHODS", "DEMO_TRAIN_PAIRS"]
 
 
 #: Methods of paper 2 the demo runs with the model it calibrates (the others need no model).

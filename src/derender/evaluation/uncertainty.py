@@ -1,0 +1,98 @@
+"""Is a variance honest? Coverage of central intervals and standardised errors against the truth.
+
+A method that reports a per-pixel variance ``s_i^2`` for its radiance ``r_i`` promises that
+the error ``r_i - g_i`` behaves like a draw of ``N(0, s_i^2)``. The radiance is known only up
+to a colour transform, so the result is first mapped onto the truth by the same trimmed 3x3
+fit as the relative error of :func:`derender.evaluation.metrics.relative_errors` (``fit``:
+``"matrix"``, ``"scale"`` or ``"none"``), and the variance is carried through that map,
+``Var[(M r)_c] = sum_k M_ck^2 s_k^2`` (channels taken as independent, as every method of
+derender reports them). Per pixel-channel
+
+    z = ((M r)_c - g_c) / sqrt(Var[(M r)_c]),
+
+and the central ``p`` interval covers the truth when ``|z| <= Phi^-1((1 + p) / 2)``. A
+calibrated variance gives coverage ``p`` at every level and a median ``|z|`` of
+``Phi^-1(0.75) = 0.674``; a variance too small by a factor ``c^2`` gives a median ``|z|``
+``c`` times larger (the reliability diagram of the docs plots coverage against ``p``).
+
+Pixel-channels whose variance is zero or not finite cannot be scored; they are counted
+(``n_unscored``). With a merge mask (``derender merge --mask``), pixels over-exposed even in
+the shortest frame are reported on their own: their value is a bound, not a measurement.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from derender.core.errors import InputError
+
+__all__ = [
+    "COVERAGE_LEVELS",
+    "coverage_scores",
+    "coverage_table",
+]
+
+#: Central-interval probabilities reported by ``derender evaluate --variance``.
+COVERAGE_LEVELS = (0.5, 0.8, 0.95, 0.99)
+
+
+def _half_widths(levels) -> np.ndarray:
+    from scipy.stats import norm
+
+    return norm.ppf(0.5 + 0.5 * np.asarray(levels, dtype=np.float64))
+
+
+def coverage_scores(result: Any, variance: Any, truth: Any, fit: str = "matrix",
+                    mask: np.ndarray | None = None, levels=COVERAGE_LEVELS) -> dict[str, Any]:
+    """Coverage of the central ``levels`` intervals and the median ``|z|`` (module docstring).
+
+    ``result``, ``variance``, ``truth``: (H, W, 3) arrays of one shape (linear radiance, its
+    per-channel variance, the true radiance); ``mask`` (H, W) bool selects the pixels to
+    score (all by default). Returns ``{"coverage": {p: share}, "coverage_rgb": {p: [R, G, B]},
+    "median_abs_z", "n", "n_unscored", "matrix", "fit"}``; shares are over scored
+    pixel-channels."""
+    from derender.evaluation.metrics import relative_errors
+
+    r = np.asarray(result, dtype=np.float64)
+    v = np.asarray(variance, dtype=np.float64)
+    g = np.asarray(truth, dtype=np.float64)
+    if not (r.shape == v.shape == g.shape) or r.ndim != 3 or r.shape[-1] != 3:
+        raise InputError(f"result {r.shape}, variance {v.shape} and truth {g.shape} must be (H, W, 3) images "
+                         "of one size")
+    m = np.asarray(relative_errors(r, g, fit=fit)["matrix"], dtype=np.float64)   # fitted on every pixel
+    sel = np.ones(r.shape[:2], bool) if mask is None else np.asarray(mask, dtype=bool)
+    if sel.shape != r.shape[:2]:
+        raise InputError(f"mask shape {sel.shape} differs from image shape {r.shape[:2]}")
+    rr, vv, gg = r[sel], v[sel], g[sel]
+    mapped = rr @ m.T
+    var_mapped = vv @ (m * m).T
+    ok = np.isfinite(var_mapped) & (var_mapped > 0) & np.isfinite(mapped) & np.isfinite(gg)
+    z = np.full(mapped.shape, np.nan)
+    z[ok] = (mapped[ok] - gg[ok]) / np.sqrt(var_mapped[ok])
+    az = np.abs(z)
+    widths = _half_widths(levels)
+    n = int(ok.sum())
+    cov = {float(p): (float(np.sum(az[ok] <= w)) / n if n else float("nan")) for p, w in zip(levels, widths)}
+    cov_rgb = {float(p): [float(np.sum(az[:, c][ok[:, c]] <= w)) / max(int(ok[:, c].sum()), 1) for c in range(3)]
+               for p, w in zip(levels, widths)}
+    return {"coverage": cov, "coverage_rgb": cov_rgb,
+            "median_abs_z": float(np.median(az[ok])) if n else float("nan"),
+            "n": n, "n_unscored": int(ok.size - n), "matrix": m.tolist(), "fit": fit}
+
+
+def coverage_table(result: Any, variance: Any, truth: Any, fit: str = "matrix",
+                   merge_mask: np.ndarray | None = None) -> dict[str, dict[str, Any]]:
+    """:func:`coverage_scores` over all pixels, and with a merge mask (``HDRResult.mask``
+    codes, or the 0/128/255 PNG of ``derender merge --mask``) split into pixels measured by
+    some frame (``"measured"``) and pixels over-exposed in every frame (``"clipped"``), when
+    the mask has both."""
+    out = {"all": coverage_scores(result, variance, truth, fit=fit)}
+    if merge_mask is not None:
+        mm = np.asarray(merge_mask)
+        clipped = (mm == 128) | (mm == 1)
+        if clipped.any() and (~clipped).any():
+            out["measured"] = coverage_scores(result, variance, truth, fit=fit, mask=~clipped)
+            out["clipped"] = coverage_scores(result, variance, truth, fit=fit, mask=clipped)
+    return out
