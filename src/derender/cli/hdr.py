@@ -99,8 +99,12 @@ def simulate(
 @app.command("merge")
 def merge_cmd(
     images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them."),
-    output: Path = typer.Option(..., "--output", "-o", help="Output radiance map (.exr)."),
+    output: Path = typer.Option(..., "--output", "-o",
+                                help="Output radiance map: OpenEXR (.exr) or Radiance RGBE (.hdr, with FORMAT, "
+                                     "EXPOSURE, PRIMARIES and --view in its header)."),
     method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
+    view: Optional[str] = typer.Option(None, "--view", help="Radiance view of a .hdr output, e.g. "
+                                       "'-vta -vh 180 -vv 180' (equidistant 180-degree fisheye), for evalglare."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
     variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
@@ -152,7 +156,14 @@ def merge_cmd(
     t0 = time.perf_counter()
     inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
     with OutputTransaction(inputs) as tx:
-        out_tmp = tx.add(output, "--output", (".exr",))
+        out_tmp = tx.add(output, "--output", (".exr", ".hdr"))
+        as_hdr = output.suffix.lower() == ".hdr"
+        if view is not None:
+            if not as_hdr:
+                raise InputError("--view is written into a Radiance .hdr output; give -o MAP.hdr")
+            from derender.io.rgbe import _check_view
+
+            view = _check_view(view)
         var_tmp = tx.add(variance, "--variance", (".exr",))
         preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
         mask_tmp = tx.add(mask, "--mask", (".png", ".tif", ".tiff"))
@@ -167,9 +178,15 @@ def merge_cmd(
             extra["model"] = model_obj
         # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
         result = merge_files(images, parse_times(times) if times is not None else None, method,
-                             times_file=times_file, times_file_inverse=times_inverse, output=out_tmp,
-                             variance_output=var_tmp, half=half, inputs=inputs, seed=seed,
-                             max_megapixels=max_megapixels, hold_outputs=preview_tmp is not None, **extra)
+                             times_file=times_file, times_file_inverse=times_inverse,
+                             output=None if as_hdr else out_tmp, variance_output=var_tmp, half=half, inputs=inputs,
+                             seed=seed, max_megapixels=max_megapixels,
+                             hold_outputs=preview_tmp is not None or as_hdr, **extra)
+        if as_hdr:
+            from derender.io.rgbe import write_hdr
+
+            write_hdr(out_tmp, result.radiance, view=view, software=f"derender merge --method {method}",
+                      inputs=inputs)
         if preview_tmp is not None:
             write_preview(preview_tmp, result.radiance, inputs=inputs)
         if mask_tmp is not None:

@@ -1,9 +1,19 @@
-"""Radiance RGBE (``.hdr``) files, read by our own parser.
+"""Radiance RGBE (``.hdr``) files: read by our own parser, written with Radiance's header conventions.
 
-Why our own: Debevec's own ``memorial.hdr`` starts with a ``VIEW=`` line before
+Reading, why our own: Debevec's own ``memorial.hdr`` starts with a ``VIEW=`` line before
 ``#?RADIANCE``, which OpenCV's and imageio's strict readers refuse; the parser accepts
 the header lines in any order, flat and run-length-encoded scanlines and the ``-Y +X``
 orientation. :func:`read_radiance` reads either format by suffix.
+
+Writing (:func:`write_hdr`): the pixels are encoded by OpenCV's RGBE writer (new-style
+run-length scanlines, as Radiance writes them); only the header is ours, because OpenCV's
+is fixed and carries none of the lines Radiance's programs read: ``FORMAT=32-bit_rle_rgbe``,
+``EXPOSURE=`` (the factor the stored values were multiplied by, so that ``value / EXPOSURE``
+is the radiance; Radiance's ``pvalue -o`` undoes it), ``PRIMARIES=`` (the chromaticities of
+R, G, B and white: Rec. 709 / sRGB for derender's linear sRGB maps) and an optional
+``VIEW=`` (the lens projection that ``evalglare`` and ``getinfo`` read, e.g.
+``-vta -vh 180 -vv 180`` for an equidistant 180-degree fisheye). Files are checked against
+Radiance's own ``getinfo`` and ``pvalue`` in the tests.
 """
 
 from __future__ import annotations
@@ -20,11 +30,80 @@ from derender.io.exr import read_exr
 __all__ = [
     "read_hdr",
     "read_radiance",
+    "write_hdr",
+    "SRGB_PRIMARIES",
 ]
+
+#: Rec. 709 / sRGB primaries and D65 white (x, y of R, G, B, W), as ``PRIMARIES=`` writes them.
+SRGB_PRIMARIES = (0.640, 0.330, 0.300, 0.600, 0.150, 0.060, 0.3127, 0.3290)
+
+
+def write_hdr(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 1.0, view: str | None = None,
+              primaries: tuple[float, ...] | None = SRGB_PRIMARIES, software: str = "derender",
+              inputs=()) -> Path:
+    """Write a linear (H, W, 3) RGB image as a Radiance RGBE file (module docstring).
+
+    Stored values are ``image * exposure`` and the header says ``EXPOSURE=exposure``;
+    ``view`` is written as ``VIEW= <view>`` after a check that it only holds Radiance view
+    options (``-vt?``, ``-vp``, ``-vd``, ``-vu``, ``-vh``, ``-vv``, ``-vo``, ``-va``,
+    ``-vs``, ``-vl`` and numbers). Negative or non-finite values are refused: a radiance map
+    has neither. Written atomically (:func:`derender.io.files.atomic_output`)."""
+    from derender.core.memory import import_cv2
+    from derender.io.files import atomic_output
+
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"write_hdr needs an (H, W, 3) image, got shape {img.shape}")
+    if not np.all(np.isfinite(img)) or float(img.min(initial=0.0)) < 0.0:
+        raise InputError("a Radiance file holds finite non-negative values; the image has others")
+    if not (np.isfinite(exposure) and exposure > 0):
+        raise InputError(f"EXPOSURE must be a positive number, got {exposure!r}")
+    lines = ["#?RADIANCE", f"SOFTWARE= {software}", "FORMAT=32-bit_rle_rgbe", f"EXPOSURE={exposure:.9g}"]
+    if primaries is not None:
+        if len(primaries) != 8:
+            raise InputError("PRIMARIES needs 8 numbers: x y of R, G, B and white")
+        lines.append("PRIMARIES= " + " ".join(f"{v:.4f}" for v in primaries))
+    if view is not None:
+        lines.append("VIEW= " + _check_view(view))
+    cv2 = import_cv2()
+    scaled = img * np.float32(exposure) if exposure != 1.0 else img
+    ok, buf = cv2.imencode(".hdr", np.ascontiguousarray(scaled[:, :, ::-1]))
+    if not ok:  # pragma: no cover - OpenCV's RGBE encoder does not fail on finite float32
+        raise InputError("OpenCV could not encode the RGBE data")
+    data = buf.tobytes()
+    end = data.find(b"\n\n")
+    if end < 0 or not data[end + 2:].startswith(b"-Y "):
+        raise InputError("unexpected RGBE stream from OpenCV (no header end before -Y)")  # pragma: no cover
+    header = ("\n".join(lines) + "\n\n").encode("ascii")
+    with atomic_output(path, inputs) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(header)
+            fh.write(data[end + 2:])
+    return Path(path)
+
+
+_VIEW_WORDS = {"-vtv", "-vtl", "-vta", "-vth", "-vts", "-vtc", "-vp", "-vd", "-vu", "-vh", "-vv", "-vo", "-va",
+               "-vs", "-vl"}
+
+
+def _check_view(view: str) -> str:
+    words = view.split()
+    for w in words:
+        if w in _VIEW_WORDS:
+            continue
+        try:
+            float(w)
+        except ValueError:
+            raise InputError(f"--view {view!r}: {w!r} is not a Radiance view option (e.g. '-vta -vh 180 -vv 180')") \
+                from None
+    if not words:
+        raise InputError("--view is empty")
+    return " ".join(words)
 
 
 def read_hdr(path: str | os.PathLike) -> np.ndarray:
-    """Read a Radiance RGBE ``.hdr`` file tolerantly as float32 (H, W, 3).
+    """Read a Radiance RGBE ``.hdr`` file tolerantly as float32 (H, W, 3), decoded as
+    Radiance decodes it (``pvalue -o``: mantissa + 0.5, divided by ``EXPOSURE``).
 
     Accepts header lines before ``#?RADIANCE`` (Debevec's ``memorial.hdr`` starts
     with ``VIEW=``), flat and new-style run-length encoded scanlines, and the
@@ -108,7 +187,10 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"{path}: file truncated") from None
     e = rgbe[:, :, 3].astype(np.int32)
     scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0).astype(np.float32)
-    img = rgbe[:, :, :3].astype(np.float32) * scale[:, :, None]
+    # Radiance's own decoding (colr_color): the mantissa's centre, (m + 0.5) 2^(e - 136); a
+    # zero exponent is black. OpenCV and imageio drop the 0.5 (0.2-0.4 % low on the largest
+    # channel); pvalue is the format's definition.
+    img = (rgbe[:, :, :3].astype(np.float32) + np.float32(0.5)) * scale[:, :, None]
     # orientation to -Y +X (top row first, left to right)
     if dims["Y"][0] == "+":
         img = img[::-1]
