@@ -1,7 +1,7 @@
 """The package's layering contract (docs/architecture.md), checked as CI checks it.
 
 * ``lint-imports`` (import-linter, contract in ``pyproject.toml``): stages import downwards only,
-  ``cli -> evaluation -> applications -> hdr -> derendering -> response -> engine | camera | raw
+  ``cli -> evaluation -> applications -> hdr -> derendering -> photometry -> response -> engine | camera | raw
   -> io -> core``. ``.ci/run`` runs it; here a copy of the package with one upward import added
   must make it fail, so the contract cannot pass vacuously.
 * No module imports a private name (``_x``) of another module.

@@ -4,7 +4,8 @@ Every user mistake raises :class:`~derender.core.errors.DerenderError`; :func:`m
 it as one line ``error: ...`` on stderr and exits with code 2 (click usage errors too).
 The commands live with their stage: :mod:`derender.cli.hdr` (simulate, merge, evaluate,
 ground truth, benchmark, demo), :mod:`derender.cli.derendering` (chart pairs, calibrate,
-derender, stereo) and :mod:`derender.cli.experiments` (``derender experiment ...``).
+derender, stereo), :mod:`derender.cli.photometry` (illuminance) and :mod:`derender.cli.experiments`
+(``derender experiment ...``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 
 import typer
 
-from derender.cli import derendering, experiments, hdr  # noqa: F401  (they register their commands)
+from derender.cli import derendering, experiments, hdr, photometry  # noqa: F401  (they register their commands)
 from derender.cli.app import app, click_exception_types, command, fast_exit_gc
 from derender.core.errors import DerenderError, Interrupted, interrupt_handler
 

@@ -161,9 +161,9 @@ def merge_cmd(
         if view is not None:
             if not as_hdr:
                 raise InputError("--view is written into a Radiance .hdr output; give -o MAP.hdr")
-            from derender.io.rgbe import _check_view
+            from derender.io.rgbe import check_view
 
-            view = _check_view(view)
+            view = check_view(view)
         var_tmp = tx.add(variance, "--variance", (".exr",))
         preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
         mask_tmp = tx.add(mask, "--mask", (".png", ".tif", ".tiff"))

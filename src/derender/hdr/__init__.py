@@ -12,6 +12,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
     "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
-    "registry": ["MERGE_METHODS", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded"],
+    "registry": ["MERGE_METHODS", "OUTPUT_SPACES", "method_summary", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options"],
     "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
 })

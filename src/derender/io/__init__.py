@@ -15,5 +15,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "images": ["read_image", "read_stack", "read_codes"],
     "preview": ["IMAGE8_SUFFIXES", "write_png", "write_preview", "reinhard_photographic", "encode_srgb"],
     "raw": ["read_raw", "read_raw_stack"],
-    "rgbe": ["read_hdr", "read_radiance", "write_hdr", "SRGB_PRIMARIES"],
+    "rgbe": ["read_hdr", "read_radiance", "write_hdr", "read_hdr_header", "check_view", "SRGB_PRIMARIES"],
 })

@@ -31,6 +31,8 @@ __all__ = [
     "read_hdr",
     "read_radiance",
     "write_hdr",
+    "read_hdr_header",
+    "check_view",
     "SRGB_PRIMARIES",
 ]
 
@@ -64,7 +66,7 @@ def write_hdr(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 1
             raise InputError("PRIMARIES needs 8 numbers: x y of R, G, B and white")
         lines.append("PRIMARIES= " + " ".join(f"{v:.4f}" for v in primaries))
     if view is not None:
-        lines.append("VIEW= " + _check_view(view))
+        lines.append("VIEW= " + check_view(view))
     cv2 = import_cv2()
     scaled = img * np.float32(exposure) if exposure != 1.0 else img
     ok, buf = cv2.imencode(".hdr", np.ascontiguousarray(scaled[:, :, ::-1]))
@@ -86,7 +88,9 @@ _VIEW_WORDS = {"-vtv", "-vtl", "-vta", "-vth", "-vts", "-vtc", "-vp", "-vd", "-v
                "-vs", "-vl"}
 
 
-def _check_view(view: str) -> str:
+def check_view(view: str) -> str:
+    """``view`` with its words re-joined, after a check that it holds only Radiance view
+    options and numbers (what may follow ``VIEW=`` in a header; an :class:`InputError` otherwise)."""
     words = view.split()
     for w in words:
         if w in _VIEW_WORDS:
@@ -200,6 +204,34 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
         img = np.transpose(img, (1, 0, 2))
     img /= np.float32(exposure)
     return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def read_hdr_header(path: str | os.PathLike) -> dict[str, str]:
+    """The ``NAME=value`` lines of a Radiance file's header (``VIEW``, ``EXPOSURE``,
+    ``PRIMARIES``, ``FORMAT``, ...), values stripped; a repeated ``EXPOSURE`` is multiplied
+    out as Radiance does, a repeated ``VIEW`` appended. Lines before ``#?RADIANCE`` count
+    (Debevec's ``memorial.hdr``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    out: dict[str, str] = {}
+    with open(path, "rb") as fh:
+        for _ in range(1000):
+            line = fh.readline()
+            if not line or not line.strip():
+                break
+            text = line.decode("latin-1").strip()
+            name, sep, value = text.partition("=")
+            if not sep or " " in name or name.startswith("#"):
+                continue
+            value = value.strip()
+            if name == "EXPOSURE" and "EXPOSURE" in out:
+                with contextlib.suppress(ValueError):
+                    value = f"{float(out['EXPOSURE']) * float(value):.9g}"
+            elif name == "VIEW" and "VIEW" in out:
+                value = out["VIEW"] + " " + value
+            out[name] = value
+    return out
 
 
 def read_radiance(path: str | os.PathLike) -> np.ndarray:

@@ -1,0 +1,57 @@
+"""Commands of the photometry stage: ``derender illuminance``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from derender.cli.app import app
+from derender.core.errors import InputError
+
+
+@app.command()
+def illuminance(
+    radiance_map: Path = typer.Argument(..., metavar="MAP", help="Radiance map (.hdr with a VIEW= line, or .exr)."),
+    view: Optional[str] = typer.Option(None, "--view", help="Radiance view, e.g. '-vta -vh 180 -vv 180' "
+                                       "(default: the .hdr's VIEW= line)."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr): Ev's standard "
+                                            "deviation, pixels taken as independent."),
+    mask: Optional[Path] = typer.Option(None, "--mask", help="The merge's --mask PNG: the share of Ev carried by "
+                                        "pixels over-exposed in every frame (a lower bound there)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Vertical illuminance Ev (lx) at the lens, as Radiance's 'evalglare -V' computes it:
+    sum of L cos(theta) Omega over the view, L = 179 (w . RGB) cd/m2 (docs: luminance maps)."""
+    from derender.io.rgbe import read_hdr_header, read_radiance
+    from derender.photometry.illuminance import vertical_illuminance
+    from derender.photometry.projection import parse_view
+
+    header = read_hdr_header(radiance_map) if radiance_map.suffix.lower() in (".hdr", ".pic") else {}
+    text = view if view is not None else header.get("VIEW")
+    if text is None:
+        raise InputError(f"{radiance_map} states no view; give --view (e.g. '-vta -vh 180 -vv 180')")
+    v = parse_view(text)
+    rad = read_radiance(radiance_map)
+    var = read_radiance(variance) if variance is not None else None
+    flagged = None
+    if mask is not None:
+        from derender.io.images import read_codes
+
+        codes = read_codes(mask, max_megapixels=None)
+        if codes is None or codes.shape[:2] != rad.shape[:2]:
+            raise InputError(f"--mask {mask} is not an 8-bit mask of the map's size")
+        flagged = codes[..., 0] == 128
+    primaries = header.get("PRIMARIES") if radiance_map.suffix.lower() in (".hdr", ".pic") else \
+        "0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290"
+    res = vertical_illuminance(rad, v, primaries=primaries, variance=var, flagged=flagged)
+    if as_json:
+        typer.echo(json.dumps({"ev_lx": res.ev, "ev_sd_lx": res.ev_sd, "solid_angle_sr": res.solid_angle,
+                               "clipped_share": res.flagged_share, "view": v.header()}))
+        return
+    sd = f" +- {res.ev_sd:.4g}" if res.ev_sd is not None else ""
+    typer.echo(f"Ev {res.ev:.6g}{sd} lx over {res.solid_angle:.4f} sr ({v.header()})")
+    if res.flagged_share is not None:
+        typer.echo(f"{100 * res.flagged_share:.2f} % of Ev from pixels over-exposed in every frame (a lower bound)")
