@@ -105,6 +105,9 @@ def merge_cmd(
     method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
     view: Optional[str] = typer.Option(None, "--view", help="Radiance view of a .hdr output, e.g. "
                                        "'-vta -vh 180 -vv 180' (equidistant 180-degree fisheye), for evalglare."),
+    spot: Optional[str] = typer.Option(None, "--spot", help="X,Y,W,H=NITS: a luminance-meter reading (cd/m2) over "
+                                       "that rectangle of the output; the map (and variance) are scaled to absolute "
+                                       "units, luminance 179 (w . RGB) cd/m2 as Radiance reads it."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
     variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
@@ -142,6 +145,11 @@ def merge_cmd(
     images = expand_image_paths(images)
     fn = get_method(method)
     method_opts = parse_options(method, option)
+    spot_reading = None
+    if spot is not None:
+        from derender.photometry.calibration import parse_spot
+
+        spot_reading = parse_spot(spot)
     if variance is not None and not getattr(fn, "gives_variance", False):
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
     if model is not None and "model" not in inspect.signature(fn).parameters:
@@ -177,11 +185,31 @@ def merge_cmd(
             typer.echo(f"de-rendering model: {used}", err=True)
             extra["model"] = model_obj
         # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
+        direct = not as_hdr and spot_reading is None     # the engine writes the EXR (band by band if it can)
         result = merge_files(images, parse_times(times) if times is not None else None, method,
                              times_file=times_file, times_file_inverse=times_inverse,
-                             output=None if as_hdr else out_tmp, variance_output=var_tmp, half=half, inputs=inputs,
-                             seed=seed, max_megapixels=max_megapixels,
-                             hold_outputs=preview_tmp is not None or as_hdr, **extra)
+                             output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
+                             half=half, inputs=inputs, seed=seed, max_megapixels=max_megapixels,
+                             hold_outputs=preview_tmp is not None or not direct, **extra)
+        if spot_reading is not None:
+            from derender.io.rgbe import SRGB_PRIMARIES
+            from derender.photometry.calibration import spot_factor
+
+            cal = spot_factor(result.radiance, spot_reading, primaries=SRGB_PRIMARIES, mask=result.mask)
+            result.radiance *= np.float32(cal.factor)
+            if result.variance is not None:
+                result.variance *= np.float32(cal.factor ** 2)
+            result.info["photometric_factor"] = cal.factor
+            typer.echo(f"photometric factor {cal.factor:.6g} from the spot ({spot_reading.nits:g} cd/m2; luminance "
+                       f"spread in it {100 * cal.spread:.1f} %)", err=True)
+        if not direct and not as_hdr:
+            from derender.engine.run import write_outputs
+
+            write_outputs(result, out_tmp, var_tmp, half=half, inputs=inputs, name=method)
+        elif not direct:
+            from derender.engine.run import write_outputs
+
+            write_outputs(result, None, var_tmp, half=half, inputs=inputs, name=method)
         if as_hdr:
             from derender.io.rgbe import write_hdr
 
