@@ -9,7 +9,8 @@ value of the pixel), which is the float32 rounding of a reordered sum. The model
 outputs (the GP's predictions and the probabilistic merges) are allowed 1e-4: the model is
 refitted here, and its optimiser's result moves by 1e-6 to 3e-5 with the BLAS/SciPy build
 (measured on a fresh machine with NumPy 2.4.6 / SciPy 1.17.1: 1.0e-6 on the predicted means,
-2.4e-5 on the predicted variances, 4.4e-6 on a probabilistic merge).
+2.4e-5 on the predicted variances, 4.4e-6 on a probabilistic merge); the probabilistic merges'
+variances 1e-3 (:data:`RTOL_MODEL_VARIANCE`, measured 2.1e-4 across machines).
 """
 
 from __future__ import annotations
@@ -23,6 +24,10 @@ from conftest import require_shared
 DATA = Path(__file__).resolve().parent / "data" / "reference_outputs.npz"
 RTOL = 1e-6
 RTOL_MODEL = 1e-4
+#: A merged variance (second moments of the product of log-normals) moves more with the refitted
+#: model: 1.7e-4 (sim-camera) and 2.1e-4 (sim-simple) on an AMD EPYC machine for arrays recorded
+#: on the previous session's machine, the radiance within 1e-4 there.
+RTOL_MODEL_VARIANCE = 1e-3
 METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
 MODEL_METHODS = ("probabilistic", "stabilized-probabilistic")
 STEP = {"sim-camera": 1, "sim-simple": 1, "memorial": 8, "frobisher": 8}
@@ -107,7 +112,8 @@ def test_merged_radiance_unchanged(case, reference, model, tmp_path):
                 want = reference[key]
                 if want.dtype.kind == "U":       # recorded once: the in-memory result equalled the files' one
                     want = reference[f"{case}/{method}/files/{what}"]
-                _compare(np.ascontiguousarray(arr[::s, ::s]), want, key,
-                         RTOL_MODEL if method in MODEL_METHODS else RTOL)
+                tol = RTOL if method not in MODEL_METHODS else (RTOL_MODEL_VARIANCE if what == "variance"
+                                                                 else RTOL_MODEL)
+                _compare(np.ascontiguousarray(arr[::s, ::s]), want, key, tol)
                 checked += 1
     assert checked >= 2 * len(methods)
