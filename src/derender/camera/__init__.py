@@ -66,7 +66,7 @@ Modules: :mod:`derender.camera.spectral` (spectral data, cameras), :mod:`derende
 :mod:`derender.camera.sensor` (mosaic, noise), :mod:`derender.camera.rendering` (in-camera pipeline),
 :mod:`derender.camera.stages` (per-frame settings and stages), :mod:`derender.camera.families` (pipeline
 families), :mod:`derender.camera.oracle` (their exact inverse),
-:mod:`derender.camera.bracket` (brackets and files), :mod:`derender.camera.dng` (DNG writer),
+:mod:`derender.camera.bracket` (brackets and files), :mod:`derender.camera.motion` (moving objects, camera shake), :mod:`derender.camera.dng` (DNG writer),
 :mod:`derender.camera.chart` (calibration charts).
 """
 
@@ -79,6 +79,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "bracket": ["SimulatedBracket", "bracket_times", "simulate_bracket", "write_jpeg", "write_bracket", "load_scene_json", "load_frame_settings", "bracket_paths", "simulate_to_folder"],
     "rendering": ["fit_xyz_to_camera", "white_balance_for", "RenderSettings", "encode_gamma_with_toe", "saturation_matrix", "filmic_curve", "s_curve", "gamut_compress", "demosaic_bilinear", "chroma_denoise", "camera_rgb_from_mosaic", "render_style", "isp_render", "pipeline_settings"],
     "stages": ["STYLES", "FrameSettings", "frame_matrix", "hue_angle", "hue_saturation_factor", "hue_saturation", "gamut_lut", "apply_lut", "channel_curve", "local_gain_grid", "local_curve", "inverse_local_curve", "upsample_gain", "prepare_frame", "render_frame", "settings_to_dict", "settings_from_dict"],
+    "motion": ["MotionSpec", "MotionPlan", "plan_motion", "compose_frames", "motion_zones", "ZONE_STATIC", "ZONE_SWEPT", "ZONE_OBJECT", "ZONE_NAMES"],
     "families": ["FAMILIES", "WB_PRESETS", "check_family", "family_settings", "random_gamut"],
     "oracle": ["invert_frame_codes", "invert_frame_values", "invert_curve"],
     "scene": ["SCENE_KINDS", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz"],

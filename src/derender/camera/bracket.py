@@ -70,6 +70,7 @@ class SimulatedBracket:
     params: dict
     frames: list[FrameSettings] = field(default_factory=list)   # every parameter of every frame
     family: str | None = None          # pipeline family (derender.camera.families) or None
+    motion_zones: np.ndarray | None = None   # (H, W) uint8 static/swept/object (derender.camera.motion)
 
 
 def _exif_time(t: float) -> float:
@@ -122,6 +123,7 @@ def simulate_bracket(
     progress: Callable[[int, int], None] | None = None,
     peak_percentile: float = 99.9,
     family: str | None = None,
+    motion=None,
 ) -> SimulatedBracket:
     """Simulate a bracket: spectral scene -> noisy RAW mosaics -> in-camera 8-bit renderings.
 
@@ -135,6 +137,12 @@ def simulate_bracket(
     ``style`` and ``tone_curve``: ``"paper"`` and ``"camera"`` give byte for byte the codes of
     ``style="simple"`` / ``style="camera"`` with ``pipeline="auto"``. Every frame's parameters
     are in ``frames`` (and ``scene.json``'s ``"frames"``).
+
+    ``motion`` (a :class:`derender.camera.motion.MotionSpec`): objects move and the camera
+    shakes between the exposures; the truth is the reference frame's instant on its pixel
+    grid, ``motion_zones`` (H, W) labels its pixels static / swept / object and
+    ``params["motion"]`` records the shifts and paths (:mod:`derender.camera.motion`). The
+    scene is then rendered on a canvas larger by the motion's margin on every side.
     """
     if family is not None:
         from derender.camera.families import check_family
@@ -146,9 +154,22 @@ def simulate_bracket(
         camera = load_camera(camera)
     ss = np.random.SeedSequence(int(seed))
     rng_pipe, rng_noise = (np.random.default_rng(s) for s in ss.spawn(2))
-    if scene is None:
-        scene = make_scene(kind, size, seed)
-    cam_unit = scene_camera_rgb(scene, camera)
+    plan = frames_unit = None
+    if motion is not None:
+        from derender.camera.motion import compose_frames, plan_motion
+
+        plan = plan_motion(motion, exposures, size, seed)
+        canvas_size = (int(size[0]) + 2 * plan.margin, int(size[1]) + 2 * plan.margin)
+        if scene is None:
+            scene = make_scene(kind, canvas_size, seed)
+        elif scene.shape != (canvas_size[1], canvas_size[0]):
+            raise InputError(f"a scene for a moving bracket must be {canvas_size[0]}x{canvas_size[1]} (the margin)")
+        frames_unit = compose_frames(scene_camera_rgb(scene, camera), plan)
+        cam_unit = frames_unit[plan.reference]
+    else:
+        if scene is None:
+            scene = make_scene(kind, size, seed)
+        cam_unit = scene_camera_rgb(scene, camera)
     times, scale = bracket_times(cam_unit, exposures, stops=stops, peak_percentile=peak_percentile)
     cam_per_s = cam_unit * scale
     xyz_to_camera = fit_xyz_to_camera(camera)
@@ -166,15 +187,16 @@ def simulate_bracket(
         pipeline = "auto" if family in ("paper", "camera") else family
         style = frames[0].style
         tone_curve = False
-    signal = mosaic_signal(cam_per_s)
-    h, w = scene.shape
+    signal = mosaic_signal(cam_per_s) if frames_unit is None else None
+    h, w = cam_unit.shape[:2]
     mosaics = np.empty((exposures, h, w), dtype=np.uint16)
     codes = np.empty((exposures, h, w, 3), dtype=np.uint8)
     noise_rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(rng_noise.integers(2**63)).spawn(exposures)]
     if family is not None:
         settings = [f.render_settings() if f.style in ("simple", "camera") else f for f in frames]
     for j, t in enumerate(times):
-        mosaics[j] = expose_mosaic(signal, camera, float(t), noise_rngs[j] if noise else None)
+        sig = signal if frames_unit is None else mosaic_signal(frames_unit[j] * scale)
+        mosaics[j] = expose_mosaic(sig, camera, float(t), noise_rngs[j] if noise else None)
         if family is None:
             codes[j] = isp_render(mosaics[j], camera, camera_to_srgb, settings[j])
         else:
@@ -212,10 +234,22 @@ def simulate_bracket(
         "truth": "linear sRGB (Rec. 709, D65) per second: camera_to_linear_srgb @ (wb_as_shot * camera_rgb), "
                  "noise-free, unclipped",
     }
+    zones = None
+    if plan is not None:
+        from derender.camera.motion import motion_zones
+
+        zones = motion_zones(plan)
+        params["motion"] = {"objects": int(motion.objects), "radius_px": plan.radius, "travel": float(motion.travel),
+                            "shake_px": int(motion.shake), "canvas_margin": plan.margin,
+                            "reference": plan.reference, "shifts_dy_dx": plan.shifts.tolist(),
+                            "object_paths_yx": plan.paths.tolist(),
+                            "truth": "the reference frame's instant, on its pixel grid; scene regions are in "
+                                     "canvas coordinates (frame = canvas shifted by margin + shift)"}
     return SimulatedBracket(camera=camera, scene=scene, times=times, mosaics=mosaics, jpeg_codes=codes,
                             settings=settings, truth_linear_srgb=truth.astype(np.float32),
                             camera_rgb_per_s=cam_per_s, xyz_to_camera=xyz_to_camera, wb_true=wb_true,
-                            camera_to_srgb=camera_to_srgb, params=params, frames=frames, family=family)
+                            camera_to_srgb=camera_to_srgb, params=params, frames=frames, family=family,
+                            motion_zones=zones)
 
 
 # --------------------------------------------------------------------------- files

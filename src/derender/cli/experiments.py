@@ -183,3 +183,44 @@ def exp_families(
                                       ("rel_to_oracle", "median / oracle", ".2f"), ("log_psnr_L", "log PSNR L", ".2f"),
                                       ("L_smooth", "smooth: PSNR L", ".2f"),
                                       ("rel_median_smooth", "smooth: rel. median", ".3f")]))
+
+
+@experiment_app.command("ghosts")
+def exp_ghosts(
+    families: Optional[str] = typer.Option("paper,camera,dslr-lut,phone-local,drift", "--families",
+                                           help="Pipeline families, comma separated (paper and camera are the "
+                                                "tuning families, the others held out)."),
+    settings: str = typer.Option("tripod,handheld", "--settings", help="tripod (objects move) and/or handheld "
+                                 "(objects move and the camera shakes)."),
+    methods: str = typer.Option("debevec,robertson,stabilized,stabilized-joint", "--methods", help="Merge methods."),
+    seeds: str = typer.Option("0", "--seeds", help="Seeds, comma separated."),
+    size: str = typer.Option("192x128", "--size", help="Image size WxH."),
+    exposures: int = typer.Option(7, "--exposures", help="Exposures per bracket."),
+    objects: int = typer.Option(3, "--objects", help="Moving objects."),
+    shake: Optional[int] = typer.Option(None, "--shake", help="Camera shake in pixels (default 2 % of the width)."),
+    output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
+) -> None:
+    """Issue 23: every method on brackets where objects move (and the camera shakes), median
+    relative error per zone (static / swept / object) against the still twin's."""
+    from derender.evaluation.experiments import format_table
+    from derender.evaluation.ghosts import ghost_comparison, summarise_ghosts
+
+    try:
+        seed_list = [int(s) for s in seeds.split(",") if s.strip()]
+    except ValueError:
+        raise InputError(f"--seeds must be integers, got {seeds!r}") from None
+    rows = ghost_comparison(families=[f.strip() for f in (families or "").split(",") if f.strip()],
+                            settings=[s.strip() for s in settings.split(",") if s.strip()],
+                            seeds=seed_list, size=parse_size(size), exposures=exposures, objects=objects,
+                            shake=shake, methods=[m.strip() for m in methods.split(",") if m.strip()],
+                            progress=lambda msg: console().print(msg))
+    summary = summarise_ghosts(rows)
+    for r in summary:
+        r["family"] = f"{r['family']} ({'held out' if r['held_out'] else 'tuning'})"
+    cols = [("family", "family", ""), ("setting", "setting", ""), ("method", "method", "")]
+    for zone in ("static", "swept", "object"):
+        cols += [(f"{zone}_moving", f"{zone} moving", ".3f"), (f"{zone}_still", "still", ".3f"),
+                 (f"{zone}_ratio", "ratio", ".2f")]
+    typer.echo(format_table(summary, cols))
+    if output is not None:
+        output.write_text(json.dumps(rows, indent=2, default=float))

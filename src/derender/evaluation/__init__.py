@@ -4,7 +4,7 @@ Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluati
 :mod:`derender.evaluation.derendering_families` (paper 2's de-rendering models on every camera-pipeline family),
 :mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`, :mod:`derender.evaluation.uncertainty`
-(coverage of a variance against the truth).
+(coverage of a variance against the truth), :mod:`derender.evaluation.ghosts` (moving brackets by zone).
 """
 
 from derender.core.lazy import attach
@@ -17,6 +17,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage", "fit_and_predict"],
     "derendering_families": ["HELDOUT_ILLUMINANTS", "SPLITS", "derender_families"],
     "demo": ["run_demo", "MODEL_METHODS", "DEMO_TRAIN_PAIRS"],
+    "ghosts": ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"],
     "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
