@@ -1,4 +1,4 @@
-"""Commands of the photometry stage: ``derender illuminance``."""
+"""Commands of the photometry stage: ``derender illuminance``, ``derender falsecolor``."""
 
 from __future__ import annotations
 
@@ -55,3 +55,31 @@ def illuminance(
     typer.echo(f"Ev {res.ev:.6g}{sd} lx over {res.solid_angle:.4f} sr ({v.header()})")
     if res.flagged_share is not None:
         typer.echo(f"{100 * res.flagged_share:.2f} % of Ev from pixels over-exposed in every frame (a lower bound)")
+
+
+@app.command()
+def falsecolor(
+    radiance_map: Path = typer.Argument(..., metavar="MAP", help="Radiance map (.hdr or .exr)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Figure (.png/.pdf/.svg)."),
+    log: float = typer.Option(4.0, "--log", help="Decades shown below the top of the scale (0: linear scale)."),
+    top: Optional[float] = typer.Option(None, "--max", help="Top of the scale (cd/m2; default: the 99.9th "
+                                        "percentile rounded up to 1, 2 or 5 x 10^n)."),
+    relative: bool = typer.Option(False, "--relative", help="Label the scale as relative luminance (a map "
+                                  "without a --spot calibration)."),
+) -> None:
+    """Falsecolor luminance map with a legend in cd/m2 (179 (w . RGB), as Radiance's falsecolor)."""
+    from derender.io.files import OutputTransaction
+    from derender.io.rgbe import read_hdr_header, read_radiance
+    from derender.photometry.falsecolor import falsecolor_figure
+
+    if log < 0:
+        raise InputError(f"--log takes a number of decades >= 0, got {log}")
+    header = read_hdr_header(radiance_map) if radiance_map.suffix.lower() in (".hdr", ".pic") else {}
+    primaries = header.get("PRIMARIES") if header else "0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290"
+    rad = read_radiance(radiance_map)
+    with OutputTransaction([radiance_map]) as tx:
+        tmp = tx.add(output, "--output", (".png", ".pdf", ".svg"))
+        scale = falsecolor_figure(rad, tmp, primaries=primaries, top=top, decades=log if log > 0 else None,
+                                  absolute=not relative, title=radiance_map.name, inputs=[radiance_map])
+    typer.echo(f"falsecolor {'log' if scale['log'] else 'linear'} scale {scale['bottom']:.4g}..{scale['top']:.4g} "
+               f"{scale['units']} -> {output}")
