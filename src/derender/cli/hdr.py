@@ -107,7 +107,7 @@ def merge_cmd(
                                        "'-vta -vh 180 -vv 180' (equidistant 180-degree fisheye), for evalglare."),
     spot: Optional[str] = typer.Option(None, "--spot", help="X,Y,W,H=NITS: a luminance-meter reading (cd/m2) over "
                                        "that rectangle of the output; the map (and variance) are scaled to absolute "
-                                       "units, luminance 179 (w . RGB) cd/m2 as Radiance reads it."),
+                                       "units, luminance 179 (w·RGB) cd/m2 as Radiance reads it."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
     variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),

@@ -24,7 +24,7 @@ def illuminance(
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """Vertical illuminance Ev (lx) at the lens, as Radiance's 'evalglare -V' computes it:
-    sum of L cos(theta) Omega over the view, L = 179 (w . RGB) cd/m2 (docs: luminance maps)."""
+    sum of L cos(theta) Omega over the view, L = 179 (w·RGB) cd/m2 (docs: luminance maps)."""
     from derender.io.rgbe import read_hdr_header, read_radiance
     from derender.photometry.illuminance import vertical_illuminance
     from derender.photometry.projection import parse_view
@@ -67,7 +67,7 @@ def falsecolor(
     relative: bool = typer.Option(False, "--relative", help="Label the scale as relative luminance (a map "
                                   "without a --spot calibration)."),
 ) -> None:
-    """Falsecolor luminance map with a legend in cd/m2 (179 (w . RGB), as Radiance's falsecolor)."""
+    """Falsecolor luminance map with a legend in cd/m2 (179 (w·RGB), as Radiance's falsecolor)."""
     from derender.io.files import OutputTransaction
     from derender.io.rgbe import read_hdr_header, read_radiance
     from derender.photometry.falsecolor import falsecolor_figure

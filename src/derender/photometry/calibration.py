@@ -3,9 +3,9 @@
 A merged map is linear in the scene's radiance but in relative units. A spot reading of a
 luminance meter over a region of the scene (a grey card, a wall; ``L_meter`` in cd/m2) fixes
 the one factor ``k`` that makes the map's luminance (:mod:`derender.photometry.illuminance`,
-``179 w . RGB``) there equal the reading:
+``179 w·RGB``) there equal the reading:
 
-    k = L_meter / mean_{region}(179 w . RGB),
+    k = L_meter / mean_{region}(179 w·RGB),
 
 and the calibrated map is ``k`` times the merged one (its variance ``k^2`` times), the
 procedure of the luminance-map literature (Inanici 2006; Pierson et al., LEUKOS 2021),

@@ -6,7 +6,7 @@ studies read glare sources and contrast from it. Here the scale is logarithmic b
 luminance rounded up to 1, 2 or 5 times a power of ten, :func:`scale_top`) or linear from 0
 to the top, in matplotlib's perceptually uniform ``viridis`` unless ``cmap`` says otherwise
 (a map whose colours grow monotonically in lightness reads in grey print too). Luminance is that of :func:`derender.photometry.illuminance.luminance_cd_m2`
-(``179 w . RGB``: cd/m2 for a map in Radiance units, e.g. after ``derender merge --spot``;
+(``179 w·RGB``: cd/m2 for a map in Radiance units, e.g. after ``derender merge --spot``;
 relative units otherwise, and the legend says so). Pixels above the scale are drawn in the
 top colour, pixels at or below zero in the bottom one.
 """

@@ -46,7 +46,7 @@ RADIANCE_LUMINANCE_WEIGHTS = (0.265, 0.670, 0.065)
 
 
 def luminance_weights(primaries: str | tuple[float, ...] | None) -> np.ndarray:
-    """Weights ``w`` with ``Y = w . RGB`` for a ``PRIMARIES`` header (8 numbers: x y of R, G,
+    """Weights ``w`` with ``Y = w·RGB`` for a ``PRIMARIES`` header (8 numbers: x y of R, G,
     B, white, as text or a tuple); Radiance's standard weights when ``None``."""
     if primaries is None:
         return np.asarray(RADIANCE_LUMINANCE_WEIGHTS, dtype=np.float64)
@@ -61,7 +61,7 @@ def luminance_weights(primaries: str | tuple[float, ...] | None) -> np.ndarray:
 
 
 def luminance_cd_m2(radiance: np.ndarray, primaries=None) -> np.ndarray:
-    """Per-pixel luminance ``179 w . RGB`` (cd/m2 for a map in Radiance units)."""
+    """Per-pixel luminance ``179 w·RGB`` (cd/m2 for a map in Radiance units)."""
     w = luminance_weights(primaries)
     rad = np.asarray(radiance, dtype=np.float64)
     return RADIANCE_EFFICACY * (rad @ w)
