@@ -9,9 +9,9 @@ from typing import List, Optional
 import typer
 
 from derender.cli.app import (
-    check_model_camera,
     app,
     check_choice,
+    check_model_camera,
     load_camera_cli,
     progress,
 )

@@ -105,6 +105,8 @@ def merge_cmd(
     method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
     view: Optional[str] = typer.Option(None, "--view", help="Radiance view of a .hdr output, e.g. "
                                        "'-vta -vh 180 -vv 180' (equidistant 180-degree fisheye), for evalglare."),
+    vignetting: Optional[Path] = typer.Option(None, "--vignetting", help="Vignetting profile ('derender "
+                                              "vignetting'): its radial falloff is divided out of the map."),
     spot: Optional[str] = typer.Option(None, "--spot", help="X,Y,W,H=NITS: a luminance-meter reading (cd/m2) over "
                                        "that rectangle of the output; the map (and variance) are scaled to absolute "
                                        "units, luminance 179 (w·RGB) cd/m2 as Radiance reads it."),
@@ -145,6 +147,11 @@ def merge_cmd(
     images = expand_image_paths(images)
     fn = get_method(method)
     method_opts = parse_options(method, option)
+    vig = None
+    if vignetting is not None:
+        from derender.photometry.vignetting import load_vignetting
+
+        vig = load_vignetting(vignetting)
     spot_reading = None
     if spot is not None:
         from derender.photometry.calibration import parse_spot
@@ -162,7 +169,8 @@ def merge_cmd(
     if plot is not None and not getattr(fn, "gives_curves", False):
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     t0 = time.perf_counter()
-    inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else [])
+    inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else []) + \
+        ([vignetting] if vignetting else [])
     with OutputTransaction(inputs) as tx:
         out_tmp = tx.add(output, "--output", (".exr", ".hdr"))
         as_hdr = output.suffix.lower() == ".hdr"
@@ -185,12 +193,16 @@ def merge_cmd(
             typer.echo(f"de-rendering model: {used}", err=True)
             extra["model"] = model_obj
         # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
-        direct = not as_hdr and spot_reading is None     # the engine writes the EXR (band by band if it can)
+        direct = not as_hdr and spot_reading is None and vig is None   # the engine writes the EXR (band by band)
         result = merge_files(images, parse_times(times) if times is not None else None, method,
                              times_file=times_file, times_file_inverse=times_inverse,
                              output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
                              half=half, inputs=inputs, seed=seed, max_megapixels=max_megapixels,
                              hold_outputs=preview_tmp is not None or not direct, **extra)
+        if vig is not None:
+            from derender.photometry.vignetting import correct_vignetting
+
+            result.radiance, result.variance = correct_vignetting(result.radiance, vig, result.variance)
         if spot_reading is not None:
             from derender.io.rgbe import SRGB_PRIMARIES
             from derender.photometry.calibration import spot_factor

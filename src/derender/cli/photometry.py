@@ -1,14 +1,14 @@
-"""Commands of the photometry stage: ``derender illuminance``, ``derender falsecolor``."""
+"""Commands of the photometry stage: ``derender illuminance``, ``derender falsecolor``, ``derender vignetting``."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
-from derender.cli.app import app
+from derender.cli.app import INVERSE_HELP, TIMES_FILE_HELP, TIMES_HELP, app, check_times_options
 from derender.core.errors import InputError
 
 
@@ -83,3 +83,37 @@ def falsecolor(
                                   absolute=not relative, title=radiance_map.name, inputs=[radiance_map])
     typer.echo(f"falsecolor {'log' if scale['log'] else 'linear'} scale {scale['bottom']:.4g}..{scale['top']:.4g} "
                f"{scale['units']} -> {output}")
+
+
+@app.command()
+def vignetting(
+    images: List[Path] = typer.Argument(..., help="A bracket of a flat field: a uniform, evenly lit surface "
+                                        "filling the frame (or a folder of it)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Vignetting profile to write (.json)."),
+    method: str = typer.Option("debevec", "--method", help="Merge method for the flat field."),
+    times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
+    times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
+    times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
+    max_residual: float = typer.Option(0.05, "--max-residual", help="Largest rms deviation (relative) of the flat "
+                                       "field from the radial model."),
+) -> None:
+    """Fit the lens's radial falloff V(r) = 1 + a1 r^2 + a2 r^4 + a3 r^6 on a merged flat field;
+    'derender merge --vignetting V' divides it out."""
+    from derender.hdr.files import merge_files
+    from derender.io.exif import parse_times
+    from derender.io.files import OutputTransaction, expand_image_paths
+    from derender.photometry.vignetting import fit_vignetting, save_vignetting
+
+    check_times_options(times, times_file, times_inverse)
+    images = expand_image_paths(images)
+    inputs = list(images) + ([times_file] if times_file else [])
+    with OutputTransaction(inputs) as tx:
+        tmp = tx.add(output, "--output", (".json",))
+        res = merge_files(images, parse_times(times) if times is not None else None, method, times_file=times_file,
+                          times_file_inverse=times_inverse, inputs=inputs)
+        vig = fit_vignetting(res.radiance, max_residual=max_residual, usable=res.mask == 0)
+        save_vignetting(vig, tmp, inputs=inputs)
+    corner = float(vig.gain()[0, 0])
+    typer.echo(f"vignetting: V = 1 {vig.coefficients[0]:+.4f} r^2 {vig.coefficients[1]:+.4f} r^4 "
+               f"{vig.coefficients[2]:+.4f} r^6 (corner {corner:.3f}, rms residual {100 * vig.rms_residual:.2f} %) "
+               f"-> {output}")

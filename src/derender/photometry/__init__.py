@@ -4,13 +4,16 @@ Modules: :mod:`derender.photometry.projection` (Radiance views: each pixel's dir
 solid angle), :mod:`derender.photometry.illuminance` (luminance of a map, vertical
 illuminance Ev as Radiance's ``evalglare -V`` computes it), :mod:`derender.photometry.calibration`
 (the photometric factor from a luminance-meter spot reading), :mod:`derender.photometry.falsecolor`
-(falsecolor luminance with a legend).
+(falsecolor luminance with a legend), :mod:`derender.photometry.vignetting` (radial falloff
+from a flat field).
 """
 
 from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "projection": ["View", "parse_view", "pixel_directions", "pixel_solid_angles"],
+    "vignetting": ["VIGNETTING_FORMAT", "Vignetting", "fit_vignetting", "correct_vignetting", "save_vignetting",
+                   "load_vignetting"],
     "falsecolor": ["falsecolor_figure", "scale_top"],
     "calibration": ["Spot", "parse_spot", "SpotCalibration", "spot_factor"],
     "illuminance": ["RADIANCE_EFFICACY", "RADIANCE_LUMINANCE_WEIGHTS", "luminance_weights", "luminance_cd_m2",
