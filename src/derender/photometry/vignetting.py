@@ -6,7 +6,7 @@ radius ``r`` is the scene's radiance times ``V(r)``. The model is the even polyn
 normalised radius that camera-calibration tools use (e.g. Adobe's lens profiles, Hugin's
 ``Vb, Vc, Vd``):
 
-    V(r) = 1 + a_1 r^2 + a_2 r^4 + a_3 r^6,    r = |p - c| / (half the image diagonal),
+    V(r) = 1 + a_1 r^2 + a_2 r^4 + a_3 r^6,    r = dist(p, c) / (half the image diagonal),
 
 with ``c`` the optical centre (default the image centre). It is fitted by linear least
 squares on the luminance of a merged *flat field* (a bracket of a uniform, evenly lit
