@@ -305,13 +305,25 @@ def saturation_mask(shortest: np.ndarray, longest: np.ndarray) -> np.ndarray:
 
 
 def finite_outputs(mean0: np.ndarray, var0: np.ndarray, a: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Camera RGB moments -> float32 radiance and variance (through ``a``, camera -> linear
-    sRGB, when given; variance by the diagonal of ``A S A^T``), finite by construction."""
+    """Camera RGB moments -> float32 radiance and variance, finite and non-negative by construction.
+
+    Through ``a`` (camera -> linear sRGB) when given, variance by the diagonal of ``A S A^T``.
+    The mean is then projected onto the non-negative orthant, ``max(A m, 0)``, the nearest
+    radiance that can exist (issue 27: a saturated colour's weak channel, or a colour outside
+    the sRGB gamut, comes out below 0 through the matrix's negative off-diagonals, as in the
+    stabilised merges' kernel, :func:`~derender.engine.kernels.stabilized_merge_rows`); a
+    projected channel's variance is the posterior's mean squared deviation about the value
+    output, ``v + (A m)_c^2``. The compiled :func:`~derender.engine.kernels.gaussian_moments_band`
+    computes the same."""
     if a is not None:
         mean0 = mean0 @ a.T
         var0 = var0 @ (a * a).T
+    with np.errstate(invalid="ignore", over="ignore"):
+        short = np.minimum(mean0, 0.0)                 # below the orthant (NaN stays NaN)
+        var0 = var0 + short * short
+        mean0 = np.maximum(mean0, 0.0)
     big = np.finfo(np.float32).max / 4
-    radiance = np.nan_to_num(np.clip(mean0, -big, big), nan=0.0, posinf=big, neginf=-big).astype(np.float32)
+    radiance = np.nan_to_num(np.clip(mean0, 0.0, big), nan=0.0, posinf=big).astype(np.float32)
     variance = np.nan_to_num(np.clip(var0, 0, big), nan=big, posinf=big).astype(np.float32)
     return radiance, variance
 
