@@ -434,7 +434,8 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
     ``m = acc v`` (``inf``, 0 where ``prec`` is 0); with ``censor`` the truncated-normal
     moments below ``bound`` (``_truncate_below_log``); ``m`` clipped to ``+-max_log``, ``v`` to
     ``[0, max_v]``; raw moments ``e = exp(m + v/2)``, ``expm1(v) e^2``; through ``a`` (3x3,
-    camera -> output, variance by ``a * a``) if ``use_a``; clipped to ``+-f32max/4`` and written
+    camera -> output, variance by ``a * a``) if ``use_a``; the mean projected onto ``>= 0`` (a
+    projected channel's variance plus its squared distance, as ``finite_outputs``); clipped to ``f32max/4`` and written
     as float32 into ``radiance`` and ``variance`` (rows, W, 3), row ``y`` at index ``y - row0``
     (the whole image: ``row0`` 0; band buffers: the band's first row). Releases the GIL."""
     n = frames.shape[0]
@@ -510,7 +511,10 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
                     vo = var0[c]
                 if np.isnan(mo):
                     mo = 0.0
-                radiance[y - row0, x, c] = np.float32(min(max(mo, -big), big))
+                if mo < 0.0:          # projected onto the non-negative orthant (finite_outputs)
+                    vo = vo + mo * mo
+                    mo = 0.0
+                radiance[y - row0, x, c] = np.float32(min(mo, big))
                 if np.isnan(vo):
                     vo = big
                 variance[y - row0, x, c] = np.float32(min(max(vo, 0.0), big))
