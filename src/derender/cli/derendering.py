@@ -94,6 +94,14 @@ def calibrate(
     else:
         jp, rw, meta = pairs_from_images(raw, jpeg)
         inputs = list(raw) + list(jpeg)
+    if method == "auto":   # bad pairs or folds: one error line before any progress output
+        from derender.derendering.base import check_pairs
+        from derender.derendering.model_selection import MIN_FOLD_TRAIN, cv_folds
+
+        if cv_train < MIN_FOLD_TRAIN:
+            raise InputError(f"--cv-train must be at least {MIN_FOLD_TRAIN}")
+        check_pairs(jp, rw)
+        cv_folds(jp.shape[0], groups=groups, n_folds=folds, seed=seed)
     t0 = time.perf_counter()
     selection = None
     with OutputTransaction(inputs) as tx:
