@@ -144,7 +144,7 @@ def test_fit_auto_stores_the_table_which_survives_save_and_load(tmp_path):
     table = back.metadata["model_selection"]
     assert table == sel.as_metadata() and table["chosen"] == back.method
     assert table["folds"] == {"scheme": "random", "n_folds": 4, "n_groups": 0, "n_pairs": 1500, "cv_train": 500,
-                              "seed": 5}
+                              "seed": 5, "truth_floor": 0.0}
     assert {r["method"] for r in table["rows"]} == {"gp", "poly", "rbf"}
     assert all(r["rel_rmse_oog"] is not None and r["rel_rmse_oog"] > 0 for r in table["rows"])
     # the winner is exactly the model a direct fit of that method gives (same subset and seed)
@@ -155,3 +155,20 @@ def test_fit_auto_stores_the_table_which_survives_save_and_load(tmp_path):
     # deterministic with the seed
     _, sel2 = fit_auto(jpeg, raw, n_train=1000, cv_train=500, seed=5, out_of_gamut=oog, options=SMALL)
     assert [r["rel_rmse_all"] for r in sel2.rows] == [r["rel_rmse_all"] for r in sel.rows]
+
+
+def test_the_truth_floor_leaves_near_black_pairs_out_of_the_score():
+    """One-pixel RAW truths near 0 (sensor noise) would dominate the relative RMSE: with the floor
+    they do not count, and every scored pair is above it."""
+    jpeg, raw = _poly_family_pairs(2000)
+    raw = raw.copy()
+    raw[:40] = 1e-9                                             # 2 %: black pixels whose RAW is noise
+    jpeg = jpeg.copy()
+    jpeg[:40] = 3
+    plain = select_model(jpeg, raw, methods=["poly"], seed=0)
+    floored = select_model(jpeg, raw, methods=["poly"], seed=0, truth_floor=1e-3)
+    assert plain.rows[0]["rel_rmse_all"] > 1e3                   # the 40 pixels make it meaningless
+    assert floored.rows[0]["rel_rmse_all"] < 0.05 and floored.truth_floor == 1e-3
+    assert plain.rows[0]["n_scored"] == 2000 and floored.rows[0]["n_scored"] == 1960
+    with pytest.raises(InputError, match="truth_floor"):
+        select_model(jpeg, raw, methods=["poly"], truth_floor=-1)

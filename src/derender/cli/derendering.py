@@ -83,6 +83,7 @@ def calibrate(
     if n_train < 10:
         raise InputError("--n-train must be at least 10")
     groups = oog = None
+    truth_floor = 0.0
     if pairs is not None:
         from derender.camera.chart import load_pairs
         from derender.derendering.base import model_metadata
@@ -92,8 +93,11 @@ def calibrate(
         groups, oog = pr.illuminant, pr.out_of_gamut
         inputs = [pairs]
     else:
+        from derender.derendering.model_selection import IMAGE_TRUTH_FLOOR
+
         jp, rw, meta = pairs_from_images(raw, jpeg)
         inputs = list(raw) + list(jpeg)
+        truth_floor = IMAGE_TRUTH_FLOOR     # one noisy RAW pixel per pair: leave the near-black out of the score
     if method == "auto":   # bad pairs or folds: one error line before any progress output
         from derender.derendering.base import check_pairs
         from derender.derendering.model_selection import MIN_FOLD_TRAIN, cv_folds
@@ -114,7 +118,8 @@ def calibrate(
                     prog.update(task, completed=done, total=total, description=f"auto: {label}")
 
                 model, selection = fit_auto(jp, rw, n_train=n_train, seed=seed, groups=groups, out_of_gamut=oog,
-                                            n_folds=folds, cv_train=cv_train, progress=report)
+                                            n_folds=folds, cv_train=cv_train, truth_floor=truth_floor,
+                                            progress=report)
         else:
             model = fit_calibration(method, jp, rw, n_train=n_train, seed=seed)
         model.metadata.update(meta)
@@ -133,8 +138,10 @@ def _print_selection(sel) -> None:
     def f(v, fmt="{:.4f}"):
         return "-" if v is None else fmt.format(v)
 
-    table = Table(title=f"calibrate --method auto: {sel.describe_folds()}, {sel.n_pairs} pairs, "
-                        f"fits on {sel.cv_train} pairs per fold")
+    scored = sel.rows[0]["n_scored"]
+    floor = f" (||x|| >= {sel.truth_floor:g} x raw white)" if sel.truth_floor > 0 else ""
+    table = Table(title=f"calibrate --method auto: {sel.describe_folds()}, {sel.n_pairs} pairs, fits on "
+                        f"{sel.cv_train} pairs per fold, scored on {scored} held-out pairs{floor}")
     for col in ("method", "rel RMSE all", "rel RMSE out-of-gamut", "coverage 95 % (R G B)", "fit s", "chosen"):
         table.add_column(col, justify="left" if col in ("method", "chosen") else "right")
     for r in sel.rows:
