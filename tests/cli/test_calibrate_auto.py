@@ -1,5 +1,6 @@
 """``derender calibrate`` defaults to ``--method auto`` (issue 27): the cross-validation table is
-printed and stored in the model file, and the model it writes is used like any other."""
+printed and stored in the model file, and the model it writes is used like any other
+(``derender derender -m`` and ``derender merge -m`` give what the directly fitted model gives)."""
 
 from __future__ import annotations
 
@@ -50,6 +51,17 @@ def test_calibrate_defaults_to_auto_prints_and_stores_the_table(pairs_file, tmp_
         code, _, err = run_cli(["derender", img, "-m", m, "-o", m.with_suffix(".exr")], capsys)
         assert code == 0, err
     np.testing.assert_array_equal(read_exr(out.with_suffix(".exr")), read_exr(direct.with_suffix(".exr")))
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
+
+    b = simulate_bracket(size=(48, 32), exposures=3, pipeline="fixed", wb_preset="D65", seed=2)
+    write_bracket(b, tmp_path / "br")
+    jpgs = bracket_paths(tmp_path / "br", "jpeg")
+    for m in (out, direct):
+        code, _, err = run_cli(["merge", *jpgs, "--method", "probabilistic", "-m", m, "-o", m.with_suffix(".hdr.exr"),
+                                "--variance", m.with_suffix(".var.exr")], capsys)
+        assert code == 0, err
+    for suffix in (".hdr.exr", ".var.exr"):
+        np.testing.assert_array_equal(read_exr(out.with_suffix(suffix)), read_exr(direct.with_suffix(suffix)))
 
 
 def test_pairs_without_illuminants_use_random_folds(tmp_path, capsys):

@@ -24,14 +24,14 @@ Score, per candidate, pooled over the held-out folds (paper 2 Table 1, the measu
   ``||x|| >= truth_floor * raw_white`` (``raw_white`` the typical raw value of bright
   colours, :func:`~derender.derendering.base.estimate_raw_white`). ``derender calibrate``
   sets it to :data:`IMAGE_TRUTH_FLOOR` for ``--raw/--jpeg`` pairs, whose truth is one noisy
-  RAW pixel: there a few dark pixels with ``||x||`` near 0 (measured: 1e-7 of white) make
-  the relative RMSE 4e5 and the choice a draw of the sensor noise; chart pairs (averaged
+  RAW pixel: there dark pixels whose RAW is sensor noise around 0 made the relative RMSE
+  4e5 (a simulated 5-frame bracket) and the choice a draw of that noise; chart pairs (averaged
   patches, exact truth) are scored on every pair, as paper 2 does;
 * the 95 % coverage of the predictive Gaussian ``mean +- 1.96 sqrt(var)`` per channel
   (:func:`interval_coverage`), reported, not used by the choice.
 
 Rule: the candidate with the lowest pooled relative RMSE (all colours) wins; scores are
-compared as printed, at 3 significant digits, and a tie goes to the candidate listed
+compared at 3 significant digits, and a tie goes to the candidate listed
 first in ``methods`` (default order gp, poly, rbf: the GP is the one whose variance is
 fitted per colour). A candidate whose fit fails on a fold (:class:`InputError`) is shown
 as failed and never chosen.
@@ -40,7 +40,7 @@ Cost. Each candidate is fitted k times, on a seeded subsample of ``cv_train`` pa
 the other folds (default 2000), and scored on up to ``max_test`` pairs of its held-out
 fold. Measured on a ``derender chart-pairs`` session (nikon-d5100, 49,280 pairs, camera
 family) the choice and the ranking are the same with 2000 as with the 5000 pairs of the
-final fit, in about a third of the time (docs/paper2.md, "choosing the model").
+final fit, in about half the time (docs/paper2.md, "choosing the model").
 """
 
 from __future__ import annotations
@@ -169,10 +169,10 @@ def cv_folds(n_pairs: int, *, groups=None, n_folds: int = DEFAULT_FOLDS, seed: i
 class ModelSelection:
     """Result of :func:`select_model`: one row per candidate, the chosen method and the folds.
 
-    ``rows``: dicts with ``method``, ``n_scored`` (held-out pairs in the score), ``rel_rmse_all``, ``rel_rmse_oog`` (None without
-    out-of-gamut labels or colours), ``rel_rmse_folds`` (per fold), ``coverage95`` (R, G, B),
-    ``coverage95_mean``, ``fit_seconds`` (sum over folds), ``error`` (None, or
-    why a fit failed) and ``chosen``.
+    ``rows``: dicts with ``method``, ``n_scored`` (held-out pairs in the score),
+    ``rel_rmse_all``, ``rel_rmse_oog`` (None without out-of-gamut labels or colours),
+    ``rel_rmse_folds`` (per fold), ``coverage95`` (R, G, B), ``coverage95_mean``,
+    ``fit_seconds`` (sum over folds), ``error`` (None, or why a fit failed) and ``chosen``.
     """
 
     chosen: str
@@ -339,8 +339,21 @@ def fit_auto(jpeg, raw, *, n_train: int = 5000, seed: int = 0, groups=None, out_
     winner on all pairs; returns ``(model, selection)``, the table in
     ``model.metadata["model_selection"]``. The model is the one ``--method <winner>`` fits
     (same subset, same seed). The cross-validation fits use ``min(cv_train, n_train)`` pairs."""
+    last = [0]
+
+    def fold_progress(done: int, total: int, label: str) -> None:   # one step more: the final fit
+        last[0] = total
+        if progress is not None:
+            progress(done, total + 1, label)
+
     sel = select_model(jpeg, raw, groups=groups, out_of_gamut=out_of_gamut, methods=methods, n_folds=n_folds,
-                       cv_train=min(int(cv_train), int(n_train)), seed=seed, truth_floor=truth_floor, options=options, progress=progress)
-    model = fit_calibration(sel.chosen, jpeg, raw, n_train=n_train, seed=seed, **dict((options or {}).get(sel.chosen, {})))
+                       cv_train=min(int(cv_train), int(n_train)), seed=seed, truth_floor=truth_floor, options=options,
+                       progress=fold_progress)
+    if progress is not None:
+        progress(last[0], last[0] + 1, f"{sel.chosen} on all pairs")
+    model = fit_calibration(sel.chosen, jpeg, raw, n_train=n_train, seed=seed,
+                            **dict((options or {}).get(sel.chosen, {})))
     model.metadata["model_selection"] = sel.as_metadata()
+    if progress is not None:
+        progress(last[0] + 1, last[0] + 1, f"{sel.chosen} fitted")
     return model, sel
