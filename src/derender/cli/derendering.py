@@ -53,15 +53,26 @@ def calibrate(
     pairs: Optional[Path] = typer.Option(None, "--pairs", help="Pairs file from 'derender chart-pairs' (.npz)."),
     raw: List[Path] = typer.Option([], "--raw", help="RAW/DNG file(s) registered with --jpeg (repeat)."),
     jpeg: List[Path] = typer.Option([], "--jpeg", help="JPEG file(s) registered with --raw (repeat)."),
-    method: str = typer.Option("gp", "--method", help="gp | poly | rbf."),
-    n_train: int = typer.Option(5000, "--n-train", help="Training pairs (random subset)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (subset, k-means)."),
+    method: str = typer.Option("auto", "--method",
+                               help="auto (cross-validate gp, poly and rbf on the pairs, keep the best) | gp | poly | rbf."),
+    n_train: int = typer.Option(5000, "--n-train", help="Training pairs of the model (random subset)."),
+    folds: int = typer.Option(4, "--folds", help="auto: cross-validation folds (whole illuminants when the pairs "
+                                                 "record them, else random)."),
+    cv_train: int = typer.Option(2000, "--cv-train", help="auto: training pairs per fold fit (seeded subsample; "
+                                                          "bounds the time; capped at --n-train)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (subset, folds, k-means)."),
 ) -> None:
-    """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs."""
-    from derender.derendering.base import fit_model
+    """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs.
+
+    With --method auto (the default) each of gp, poly and rbf is scored on the pairs by
+    cross-validation (relative RMSE of held-out pairs, paper 2's protocol); the table is
+    printed and stored in the model file, and the best is fitted on all pairs.
+    """
     from derender.derendering.calibration import pairs_from_images
+    from derender.derendering.model_selection import SELECTION_METHODS, fit_auto, fit_calibration
     from derender.io.files import OutputTransaction, check_output
 
+    check_choice("--method", method, ("auto", *SELECTION_METHODS))
     check_output(output, list(raw) + list(jpeg) + ([pairs] if pairs else []))
     if output.suffix.lower() != ".npz":
         raise InputError(f"--output must end in .npz, got {output.name}")
@@ -69,30 +80,78 @@ def calibrate(
         raise InputError("give --pairs PAIRS.npz or --raw ... --jpeg ... image pairs")
     if pairs is not None and raw:
         raise InputError("give either --pairs or --raw/--jpeg, not both")
+    if n_train < 10:
+        raise InputError("--n-train must be at least 10")
+    groups = oog = None
+    truth_floor = 0.0
     if pairs is not None:
         from derender.camera.chart import load_pairs
         from derender.derendering.base import model_metadata
 
         pr = load_pairs(pairs)
         jp, rw, meta = pr.jpeg, pr.raw, model_metadata(pr)
+        groups, oog = pr.illuminant, pr.out_of_gamut
         inputs = [pairs]
     else:
+        from derender.derendering.model_selection import IMAGE_TRUTH_FLOOR
+
         jp, rw, meta = pairs_from_images(raw, jpeg)
         inputs = list(raw) + list(jpeg)
-    if n_train < 10:
-        raise InputError("--n-train must be at least 10")
-    rng = __import__("numpy").random.default_rng(seed)
-    if jp.shape[0] > n_train:
-        sel = rng.choice(jp.shape[0], size=n_train, replace=False)
-        jp, rw = jp[sel], rw[sel]
-    kw = {} if method != "gp" else {"n_train": n_train}
+        truth_floor = IMAGE_TRUTH_FLOOR     # one noisy RAW pixel per pair: leave the near-black out of the score
+    if method == "auto":   # bad pairs or folds: one error line before any progress output
+        from derender.derendering.base import check_pairs
+        from derender.derendering.model_selection import MIN_FOLD_TRAIN, cv_folds
+
+        if cv_train < MIN_FOLD_TRAIN:
+            raise InputError(f"--cv-train must be at least {MIN_FOLD_TRAIN}")
+        check_pairs(jp, rw)
+        cv_folds(jp.shape[0], groups=groups, n_folds=folds, seed=seed)
     t0 = time.perf_counter()
+    selection = None
     with OutputTransaction(inputs) as tx:
         out_tmp = tx.add(output, "--output", (".npz",))
-        model = fit_model(method, jp, rw, seed=seed, **kw)
+        if method == "auto":
+            with progress() as prog:
+                task = prog.add_task("auto: cross-validation fits", total=None)
+
+                def report(done: int, total: int, label: str) -> None:
+                    prog.update(task, completed=done, total=total, description=f"auto: {label}")
+
+                model, selection = fit_auto(jp, rw, n_train=n_train, seed=seed, groups=groups, out_of_gamut=oog,
+                                            n_folds=folds, cv_train=cv_train, truth_floor=truth_floor,
+                                            progress=report)
+        else:
+            model = fit_calibration(method, jp, rw, n_train=n_train, seed=seed)
         model.metadata.update(meta)
         model.save(out_tmp)
-    typer.echo(f"{method} model from {jp.shape[0]} pairs in {time.perf_counter() - t0:.1f} s -> {output}")
+    if selection is not None:
+        _print_selection(selection)
+    n_fit = model.metadata.get("training", {}).get("n_pairs", min(jp.shape[0], n_train))
+    typer.echo(f"{model.method} model from {n_fit} pairs in {time.perf_counter() - t0:.1f} s -> {output}")
+
+
+def _print_selection(sel) -> None:
+    """The cross-validation table of ``--method auto`` (stdout) and the line naming the choice."""
+    from rich.console import Console
+    from rich.table import Table
+
+    def f(v, fmt="{:.4f}"):
+        return "-" if v is None else fmt.format(v)
+
+    scored = sel.rows[0]["n_scored"]
+    floor = f" (||x|| >= {sel.truth_floor:g} x raw white)" if sel.truth_floor > 0 else ""
+    table = Table(title=f"calibrate --method auto: {sel.describe_folds()}, {sel.n_pairs} pairs, fits on "
+                        f"{sel.cv_train} pairs per fold, scored on {scored} held-out pairs{floor}")
+    for col in ("method", "rel RMSE all", "rel RMSE out-of-gamut", "coverage 95 % (R G B)", "fit s", "chosen"):
+        table.add_column(col, justify="left" if col in ("method", "chosen") else "right")
+    for r in sel.rows:
+        cov = "-" if r["coverage95"] is None else " ".join(f"{c:.2f}" for c in r["coverage95"])
+        table.add_row(r["method"], f(r["rel_rmse_all"]), f(r["rel_rmse_oog"]), cov, f(r["fit_seconds"], "{:.1f}"),
+                      "yes" if r["chosen"] else (f"failed: {r['error']}" if r["error"] else ""))
+    Console(width=max(100, Console().width)).print(table)
+    best = next(r for r in sel.rows if r["chosen"])
+    typer.echo(f"auto chose {sel.chosen}: lowest held-out relative RMSE {best['rel_rmse_all']:.4f} "
+               f"({sel.describe_folds()})")
 
 
 @app.command("derender")

@@ -64,6 +64,7 @@ __all__ = [
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
     "MAX_LOG_VAR",
+    "check_pairs",
     "as_colour_array",
     "srgb_decode64",
     "estimate_raw_white",
@@ -136,6 +137,12 @@ def _check_pairs(jpeg, raw) -> tuple[np.ndarray, np.ndarray]:
     if not np.any(rf > 0):
         raise InputError("raw colours are all <= 0")
     return jf, rf
+
+
+def check_pairs(jpeg, raw) -> tuple[np.ndarray, np.ndarray]:
+    """Validated float64 copies of training pairs (what :meth:`DerenderModel.fit` accepts):
+    ``jpeg`` (N,3) 8-bit codes, ``raw`` (N,3) finite, N >= 20; else :class:`InputError`."""
+    return _check_pairs(jpeg, raw)
 
 
 def as_colour_array(x) -> tuple[np.ndarray, bool]:

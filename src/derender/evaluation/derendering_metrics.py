@@ -1,11 +1,16 @@
 """Error measures of de-rendering predictions against true raw colours (paper 2, Table 1).
 
-* :func:`relative_rmse` -- ``sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2)``, the measure of
+* :func:`~derender.derendering.model_selection.relative_rmse` -- ``sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2)``, the measure of
   paper 2 Table 1; :func:`rmse` and :func:`median_relative_error` alongside.
 * :func:`code_floor_errors` -- the lower bound on the relative RMSE of *any* function of
   the 8-bit code (the ``floor`` row of ``derender experiment derender-table``).
-* :func:`interval_coverage` -- calibration of the predictive variance: the fraction of
-  truths inside the central Gaussian interval ``mean +- z sqrt(var)``.
+* :func:`~derender.derendering.model_selection.interval_coverage` -- calibration of the
+  predictive variance: the fraction of truths inside the central Gaussian interval
+  ``mean +- z sqrt(var)``.
+
+:func:`~derender.derendering.model_selection.relative_rmse` and ``interval_coverage`` live in
+:mod:`derender.derendering.model_selection` (``derender calibrate --method auto`` scores with
+them, and ``derendering`` may not import ``evaluation``); they are re-exported here.
 """
 
 from __future__ import annotations
@@ -13,13 +18,12 @@ from __future__ import annotations
 import numpy as np
 
 from derender.core.errors import InputError
+from derender.derendering.model_selection import interval_coverage, relative_rmse  # noqa: F401 (re-exported)
 
 __all__ = [
-    "relative_rmse",
     "rmse",
     "median_relative_error",
     "code_floor_errors",
-    "interval_coverage",
     "fit_and_predict",
 ]
 
@@ -30,14 +34,6 @@ def _pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
     if p.shape != t.shape:
         raise InputError(f"prediction and truth shapes differ: {np.shape(pred)} vs {np.shape(truth)}")
     return p, t
-
-
-def relative_rmse(pred, truth) -> float:
-    """sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2) over colours with ||x_i|| > 0 (paper 2, Table 1)."""
-    p, t = _pair_arrays(pred, truth)
-    n2 = (t * t).sum(1)
-    ok = n2 > 0
-    return float(np.sqrt(np.mean(((p[ok] - t[ok]) ** 2).sum(1) / n2[ok])))
 
 
 def rmse(pred, truth) -> float:
@@ -81,20 +77,6 @@ def code_floor_errors(codes, truth) -> np.ndarray:
     wsum = np.bincount(inv, w, k)
     v = np.stack([np.bincount(inv, t[:, ch] * w, k) for ch in range(3)], axis=1) / wsum[:, None]
     return ((v[inv] - t) ** 2).sum(1) * w
-
-
-def interval_coverage(mean, var, truth, level: float = 0.95) -> np.ndarray:
-    """Per-channel fraction of truths inside the central Gaussian interval mean +- z sqrt(var)."""
-    if not 0 < level < 1:
-        raise InputError("level must be in (0, 1)")
-    m, t = _pair_arrays(mean, truth)
-    v = np.asarray(var, dtype=np.float64).reshape(-1, 3)
-    if v.shape != m.shape:
-        raise InputError("variance shape differs from mean shape")
-    from scipy.special import ndtri
-
-    z = float(ndtri(0.5 + level / 2))
-    return np.mean(np.abs(t - m) <= z * np.sqrt(np.maximum(v, 0.0)), axis=0)
 
 
 def fit_and_predict(method: str, jpeg_train: np.ndarray, raw_train: np.ndarray, jpeg_test: np.ndarray,
