@@ -29,7 +29,12 @@ def pairs_from_images(raw_paths: Sequence[str | os.PathLike], jpeg_paths: Sequen
     Each RAW is demosaiced (Malvar) without white balance or colour matrix, normalised by
     its black and white level (sensor units, not divided by the exposure time); pixels with
     a RAW channel above ``saturation`` are left out (one shot cannot extrapolate them);
-    the JPEG must have the RAW's visible size. Metadata (make/model) comes from the RAW.
+    the JPEG must have the RAW's visible size. Metadata comes from the first RAW: make and
+    model, and, when it has a colour matrix (DNG ColorMatrix), ``camera_to_srgb`` (for
+    white-balanced camera RGB, as :func:`derender.raw.groundtruth.raw_ground_truth` develops it)
+    and its as-shot white balance ``wb``, so that a model of a real camera maps its camera RGB to
+    linear sRGB as a chart-session model does (``derender derender --srgb``, the probabilistic
+    merge's default output).
     """
     from derender.io.raw import read_raw
     from derender.raw.groundtruth import raw_to_camera_rgb
@@ -37,11 +42,17 @@ def pairs_from_images(raw_paths: Sequence[str | os.PathLike], jpeg_paths: Sequen
     if len(raw_paths) != len(jpeg_paths) or not raw_paths:
         raise InputError(f"give one --jpeg per --raw ({len(raw_paths)} RAW, {len(jpeg_paths)} JPEG)")
     rng = np.random.default_rng(seed)
+    from derender.core.colorimetry import camera_to_linear_srgb_matrix
+
     jp_all, rw_all = [], []
     make = model = ""
+    colour: dict = {}
     for rp, jpth in zip(raw_paths, jpeg_paths):
         frame = read_raw(rp)
         make, model = make or frame.make, model or frame.model
+        if not colour and frame.xyz_to_camera is not None:
+            colour = {"camera_to_srgb": camera_to_linear_srgb_matrix(frame.xyz_to_camera).tolist(),
+                      "wb": np.asarray(frame.as_shot_wb, dtype=np.float64).reshape(3).tolist()}
         frame.exposure_time = None
         cam = raw_to_camera_rgb([frame], clip_negative=True).radiance
         codes = check_8bit_rgb(jpth)
@@ -58,4 +69,4 @@ def pairs_from_images(raw_paths: Sequence[str | os.PathLike], jpeg_paths: Sequen
     rw = np.concatenate(rw_all)
     if jp.shape[0] < 10:
         raise InputError("fewer than 10 usable (unsaturated) pixel pairs in the given images")
-    return jp, rw, {"camera": {"name": "", "make": make, "model": model}}
+    return jp, rw, {"camera": {"name": "", "make": make, "model": model}, **colour}
