@@ -7,7 +7,6 @@ import shlex
 from pathlib import Path
 
 import pytest
-
 from helpers import run_cli
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "calibrate.md"

@@ -339,8 +339,12 @@ def test_fused_gaussian_pass_matches_the_numpy_moments(model_file):
 def test_stabilized_probabilistic_engine_equals_the_per_pixel_reference(model_file):
     """Issue 17: ``stabilized-probabilistic`` on the engine (frames held as codes, one per-colour weight
     table) gives the float reference engine's per-pixel-weighted merge, registration shifts included."""
-    from derender.hdr.stabilized_probabilistic import (colour_reliability, colour_weight_table,
-                                                       merge_stabilized_probabilistic, stabilized_probabilistic_stack)
+    from derender.hdr.stabilized_probabilistic import (
+        colour_reliability,
+        colour_weight_table,
+        merge_stabilized_probabilistic,
+        stabilized_probabilistic_stack,
+    )
 
     model = load_model(model_file)
     b = simulate_bracket(size=(96, 64), exposures=5, pipeline="auto", style="simple", seed=2)
