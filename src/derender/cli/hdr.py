@@ -118,6 +118,8 @@ def merge_cmd(
     preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview (Reinhard 2002)."),
     mask: Optional[Path] = typer.Option(None, "--mask", help="PNG mask: 0 ok, 128 over-exposed everywhere, 255 under-exposed."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Figure of the recovered response curves (if any)."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Self-contained HTML report of the merge (tone "
+                                          "mapping, falsecolor, uncertainty, masks, curves, cursor readout)."),
     half: bool = typer.Option(False, "--half", help="Write half-float EXR."),
     seed: int = typer.Option(0, "--seed", help="Seed for sampling / RANSAC."),
     max_megapixels: float = typer.Option(DEFAULT_MAX_MEGAPIXELS, "--max-megapixels",
@@ -184,6 +186,7 @@ def merge_cmd(
         preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
         mask_tmp = tx.add(mask, "--mask", (".png", ".tif", ".tiff"))
         plot_tmp = tx.add(plot, "--plot", (".png", ".pdf", ".svg"))
+        report_tmp = tx.add(report, "--report", (".html", ".htm"))
         extra = dict(method_opts)
         if model is not None:
             from derender.derendering.library import resolve_model
@@ -198,7 +201,8 @@ def merge_cmd(
                              times_file=times_file, times_file_inverse=times_inverse,
                              output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
                              half=half, inputs=inputs, seed=seed, max_megapixels=max_megapixels,
-                             hold_outputs=preview_tmp is not None or not direct, **extra)
+                             hold_outputs=preview_tmp is not None or report_tmp is not None or not direct,
+                             **extra)
         if vig is not None:
             from derender.photometry.vignetting import correct_vignetting
 
@@ -238,10 +242,31 @@ def merge_cmd(
             from derender.response.curves import plot_response
 
             plot_response(result.info["curves"], plot_tmp, inputs=inputs)
+        if report_tmp is not None:
+            _merge_report(report_tmp, result, images, method, spot_reading is not None, view, inputs,
+                          times=(parse_times(times) if times is not None else None, times_file, times_inverse))
     n_bright = int((result.mask == 1).sum())
     n_dark = int((result.mask == 2).sum())
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
                f"({time.perf_counter() - t0:.2f} s; {n_bright} px over-exposed everywhere, {n_dark} px under-exposed)")
+
+
+def _merge_report(path, result, images, method: str, absolute: bool, view: str | None, inputs, times) -> None:
+    from derender.applications.report import merge_summary, write_report
+    from derender.io.exif import file_times, read_exif
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.projection import parse_view
+
+    exifs = [read_exif(p) for p in images]
+    exposures = file_times(images, times[0], times[1], times[2])      # as the merge took them
+    order = sorted(range(len(images)), key=lambda j: exposures[j])
+    frames = [{"name": images[j].name, "time": float(exposures[j]), "FNumber": exifs[j].get("FNumber"),
+               "ISO": exifs[j].get("ISO")} for j in order]
+    curves = result.info.get("curves")
+    write_report(path, result.radiance, variance=result.variance, mask=result.mask,
+                 absolute=absolute, primaries=SRGB_PRIMARIES, summary=merge_summary(result.info, frames),
+                 curves=getattr(curves, "log_inverse", None), view=parse_view(view) if view else None,
+                 title=f"derender merge --method {method}", inputs=inputs)
 
 
 @app.command("methods")

@@ -1,4 +1,5 @@
-"""Commands of the photometry stage: ``derender illuminance``, ``derender falsecolor``, ``derender vignetting``."""
+"""Commands of the photometry stage and the report: ``derender illuminance``, ``derender falsecolor``,
+``derender vignetting``, ``derender report``."""
 
 from __future__ import annotations
 
@@ -117,3 +118,65 @@ def vignetting(
     typer.echo(f"vignetting: V = 1 {vig.coefficients[0]:+.4f} r^2 {vig.coefficients[1]:+.4f} r^4 "
                f"{vig.coefficients[2]:+.4f} r^6 (corner {corner:.3f}, rms residual {100 * vig.rms_residual:.2f} %) "
                f"-> {output}")
+
+
+@app.command()
+def report(
+    radiance_map: Path = typer.Argument(..., metavar="MAP", help="Radiance map (.exr or .hdr)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Report to write (.html, one self-contained file)."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr): sigma/mu view and "
+                                            "the readout's standard deviation."),
+    mask: Optional[Path] = typer.Option(None, "--mask", help="The merge's --mask PNG (over-/under-exposed overlays)."),
+    ghost_mask: Optional[Path] = typer.Option(None, "--ghost-mask", help="PNG, nonzero where frames were rejected."),
+    view: Optional[str] = typer.Option(None, "--view", help="Radiance view for the illuminance in the summary "
+                                       "(default: the .hdr's VIEW= line)."),
+    absolute: bool = typer.Option(False, "--absolute", help="The map is in absolute units (after --spot): legends "
+                                  "and readout in cd/m2."),
+    max_pixels: int = typer.Option(2_000_000, "--max-pixels", help="Largest page image (the map is reduced by an "
+                                   "integer factor)."),
+) -> None:
+    """A self-contained HTML report of a radiance map: tone mapping with exposure, falsecolor,
+    uncertainty, mask overlays, summary and a readout under the cursor (works offline)."""
+    from derender.applications.report import write_report
+    from derender.io.files import OutputTransaction
+
+    rad, extras, header = _report_inputs(radiance_map, variance, mask, ghost_mask)
+    v = _report_view(view, header)
+    inputs = [p for p in (radiance_map, variance, mask, ghost_mask) if p is not None]
+    summary = {"map": str(radiance_map), "size": f"{rad.shape[1]}x{rad.shape[0]}"}
+    if "SOFTWARE" in header:
+        summary["software"] = header["SOFTWARE"]
+    with OutputTransaction(inputs) as tx:
+        tmp = tx.add(output, "--output", (".html", ".htm"))
+        info = write_report(tmp, rad, **extras, absolute=absolute, primaries=header.get("PRIMARIES"),
+                            summary=summary, view=v, title=f"derender report: {radiance_map.name}",
+                            max_pixels=max_pixels, inputs=inputs)
+    typer.echo(f"report {info['width']}x{info['height']} (reduced {info['factor']}x), {info['bytes'] / 1e6:.2f} MB "
+               f"-> {output}")
+
+
+def _report_inputs(radiance_map: Path, variance, mask, ghost_mask):
+    from derender.io.images import read_codes
+    from derender.io.rgbe import read_hdr_header, read_radiance
+
+    header = read_hdr_header(radiance_map) if radiance_map.suffix.lower() in (".hdr", ".pic") else {}
+    if not header:
+        header = {"PRIMARIES": "0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290"}
+    rad = read_radiance(radiance_map)
+    extras: dict = {}
+    if variance is not None:
+        extras["variance"] = read_radiance(variance)
+    for key, p in (("mask", mask), ("ghost_mask", ghost_mask)):
+        if p is not None:
+            codes = read_codes(p, max_megapixels=None)
+            if codes is None:
+                raise InputError(f"{p} is not an 8-bit mask")
+            extras[key] = codes[..., 0]
+    return rad, extras, header
+
+
+def _report_view(view, header):
+    from derender.photometry.projection import parse_view
+
+    text = view if view is not None else header.get("VIEW")
+    return parse_view(text) if text else None
