@@ -70,7 +70,7 @@ def reduce_map(image: np.ndarray, max_pixels: int = REPORT_MAX_PIXELS) -> tuple[
 
 def pack_half(values: np.ndarray, mantissa_bits: int = 10) -> str:
     """float16 values rounded to ``mantissa_bits`` of their 10 mantissa bits (relative error
-    <= 2^-(bits+1)), low and high bytes in separate planes, gzip (level 9), base64."""
+    <= 2^-(bits+1)), low and high bytes in separate planes, gzip (level 6: level 9 took 2.2x the time for 0.8 % less), base64."""
     if not 1 <= mantissa_bits <= 10:
         raise InputError(f"mantissa_bits must be 1..10, got {mantissa_bits}")
     u = np.ascontiguousarray(np.asarray(values, dtype=np.float16)).view(np.uint16).reshape(-1)
@@ -83,11 +83,11 @@ def pack_half(values: np.ndarray, mantissa_bits: int = 10) -> str:
         u = np.where(finite & ((rounded & 0x7C00) != 0x7C00), rounded, u)
     h16 = u.view(np.uint8).reshape(-1, 2)
     planes = np.concatenate([h16[:, 0], h16[:, 1]]).tobytes()
-    return base64.b64encode(gzip.compress(planes, compresslevel=9, mtime=0)).decode("ascii")
+    return base64.b64encode(gzip.compress(planes, compresslevel=6, mtime=0)).decode("ascii")
 
 
 def _pack_bytes(values: np.ndarray) -> str:
-    return base64.b64encode(gzip.compress(np.ascontiguousarray(values, dtype=np.uint8).tobytes(), 9,
+    return base64.b64encode(gzip.compress(np.ascontiguousarray(values, dtype=np.uint8).tobytes(), 6,
                                           mtime=0)).decode("ascii")
 
 
