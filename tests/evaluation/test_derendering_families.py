@@ -42,3 +42,5 @@ def test_derender_families_rows_are_finite():
         assert r["n_train"] == 600
         assert np.isfinite(r["rel_rmse_all"]) and np.isfinite(r["rel_rmse_clipped"])
         assert np.all(np.isfinite(r["coverage95"]))
+        assert 0 < r["max_colour_share"] <= 1 and 0 < r["max_colour_share_mean"] <= 1
+        assert np.isfinite(r["rel_rmse_mean"])

@@ -435,7 +435,11 @@ class DerenderModel:
         for clipped colours); ``point="map"`` returns the mode of the predictive
         distribution (the MAP estimate paper 2 Sec. 4.1 names; for the GP's log-normal
         ``exp(mu - s2) - eps``) and the mean squared deviation about it. Deterministic
-        models ignore ``point``.
+        models ignore ``point``. ``"mean"`` stays the exact mean of the log-normal, so it grows
+        as ``exp(s2/2)`` with the spread: the GP bounds ``s2`` where it extrapolates (its latent
+        variance is capped at its cluster's target variance, :mod:`~derender.derendering.local_gp`),
+        and the tables score ``"map"`` (issue 27: mean / median / MAP relative RMSE 0.45 / 0.34 /
+        0.27 on the simulated camera family).
         """
         if point not in ("mean", "median", "map"):
             raise InputError(f"point must be 'mean', 'median' or 'map', got {point!r}")

@@ -14,7 +14,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "experiments": ["JPEG_INTERVALS", "METHODS", "default_experiment_cameras", "derender_table", "format_table", "threshold_sweep", "plot_threshold_sweep", "photometric_stereo_experiment"],
     "metrics": ["PSNR_CAP", "fit_scale", "remap_minmax", "psnr", "psnr_rgbl", "fit_colour_matrix", "relative_errors", "log_psnr", "hdr_scores"],
     "table1": ["DEFAULT_DATASET_CAMERAS", "PLANES", "default_methods", "resolve_cameras", "simulate_dataset", "list_scenes", "evaluate_scene", "BenchmarkResult", "run_benchmark", "write_benchmark_outputs", "fusion_gain"],
-    "derendering_metrics": ["relative_rmse", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage", "fit_and_predict"],
+    "derendering_metrics": ["relative_rmse", "max_colour_share", "rmse", "median_relative_error", "code_floor_errors", "interval_coverage", "fit_and_predict"],
     "derendering_families": ["HELDOUT_ILLUMINANTS", "SPLITS", "derender_families"],
     "demo": ["run_demo", "MODEL_METHODS", "DEMO_TRAIN_PAIRS"],
     "ghosts": ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"],

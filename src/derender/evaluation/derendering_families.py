@@ -13,7 +13,9 @@ models on it, under two splits:
 Per (family, split, method): relative RMSE (MAP point estimate, as in
 :func:`derender.evaluation.experiments.derender_table`) over all test colours, over those with a
 channel clipped at 255 and over those outside the sRGB gamut, and the 95 % interval coverage
-per channel (predictive mean and variance). A ``floor`` row per (family, split) gives the
+per channel (predictive mean and variance), the relative RMSE of the predictive *mean* as a
+point estimate, and for both points the largest share one test colour has of the squared
+relative error (:func:`~derender.evaluation.derendering_metrics.max_colour_share`; issue 27). A ``floor`` row per (family, split) gives the
 smallest relative RMSE *any* function of the JPEG code can reach on the same test colours
 (:func:`derender.evaluation.derendering_metrics.code_floor_errors`): where it rises with the
 family, the rendering itself has become one-to-many, not the model worse. The RAW side (the truth) of every family is the
@@ -69,14 +71,17 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
     Keys: ``camera``, ``family``, ``role`` (``"tuning"`` or ``"held out"``), ``split``,
     ``method``, ``n_train``, ``n_test``, ``rel_rmse_all``, ``rel_rmse_clipped``,
     ``rel_rmse_oog`` (NaN when no test colour is clipped / out of gamut), ``coverage95``
-    (R, G, B), ``coverage95_mean``, ``share_clipped``, ``share_oog``, ``fit_seconds``.
+    (R, G, B), ``coverage95_mean``, ``rel_rmse_mean`` (the predictive mean as point),
+    ``max_colour_share`` and ``max_colour_share_mean`` (largest one-colour share of the squared
+    relative error, MAP and mean), ``share_clipped``, ``share_oog``, ``fit_seconds``.
     ``floor`` rows (when ``floor``) carry the three relative RMSEs, ``n_train`` 0 and no coverage.
     Defaults: every family, nikon-d5100, 5000 training pairs.
     """
     from derender.camera.chart import chart_pairs
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.spectral import camera_search_dirs, load_camera
-    from derender.evaluation.derendering_metrics import code_floor_errors, fit_and_predict, relative_rmse
+    from derender.evaluation.derendering_metrics import (code_floor_errors, fit_and_predict,
+                                                               max_colour_share, relative_rmse)
     from derender.evaluation.families import TUNING_FAMILIES
 
     families = list(families) if families else list(FAMILIES)
@@ -105,6 +110,9 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
                         "rel_rmse_clipped": relative_rmse(point[clipped], x[clipped]) if clipped.any() else float("nan"),
                         "rel_rmse_oog": relative_rmse(point[oog], x[oog]) if oog.any() else float("nan"),
                         "coverage95": [float(c) for c in cov], "coverage95_mean": float(np.mean(cov)),
+                        "rel_rmse_mean": relative_rmse(fp["mean"], x),
+                        "max_colour_share": max_colour_share(point, x),
+                        "max_colour_share_mean": max_colour_share(fp["mean"], x),
                         "share_clipped": float(clipped.mean()), "share_oog": float(oog.mean()),
                         "fit_seconds": fit_s,
                     })
@@ -112,7 +120,9 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
                         r = rows[-1]
                         progress(f"{cam.name} {fam} {split} {m}: rel RMSE {r['rel_rmse_all']:.3f} "
                                  f"(clipped {r['rel_rmse_clipped']:.3f}, oog {r['rel_rmse_oog']:.3f}), "
-                                 f"coverage {r['coverage95_mean']:.3f}, {fit_s:.1f} s fit")
+                                 f"coverage {r['coverage95_mean']:.3f}, largest one-colour share "
+                                 f"{r['max_colour_share']:.4f} (mean as point: rel RMSE {r['rel_rmse_mean']:.3f}, "
+                                 f"share {r['max_colour_share_mean']:.4f}), {fit_s:.1f} s fit")
                 if floor:
                     jt = pairs.jpeg[te]
 
