@@ -68,6 +68,7 @@ _HASH = ("const c = document.getElementById('img'); const d = c.getContext('2d')
 
 
 def test_report_in_a_real_browser(tmp_path, capsys):
+    from helpers import write_png_codes
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
@@ -76,14 +77,21 @@ def test_report_in_a_real_browser(tmp_path, capsys):
     from derender.camera import bracket_paths, simulate_bracket, write_bracket
     from derender.io.exr import read_exr, write_exr
 
-    write_bracket(simulate_bracket(size=(160, 112), exposures=5, seed=9), tmp_path / "b")
-    code, _, err = run_cli(["merge", *bracket_paths(tmp_path / "b", "jpeg"), "-o", tmp_path / "m.exr",
-                            "--mask", tmp_path / "mask.png"], capsys)
+    write_bracket(simulate_bracket(size=(320, 224), exposures=5, seed=9), tmp_path / "b")
+    code, _, err = run_cli(["merge", *bracket_paths(tmp_path / "b", "jpeg"), "-o", tmp_path / "m.exr"], capsys)
     assert code == 0, err
     rad = read_exr(tmp_path / "m.exr")
     write_exr(tmp_path / "v.exr", ((0.05 * rad) ** 2).astype(np.float32))      # a known 5 % sd
+    mask = np.zeros((224, 320, 3), np.uint8)
+    mask[:20, :30] = 128                                                          # "over-exposed everywhere"
+    mask[-20:, -30:] = 255                                                        # "under-exposed everywhere"
+    ghosts = np.zeros_like(mask)
+    ghosts[80:140, 120:200] = 255
+    write_png_codes(tmp_path / "mask.png", mask)
+    write_png_codes(tmp_path / "ghosts.png", ghosts)
     code, out, err = run_cli(["report", tmp_path / "m.exr", "--variance", tmp_path / "v.exr", "--mask",
-                              tmp_path / "mask.png", "-o", tmp_path / "r.html", "--max-pixels", "5000"], capsys)
+                              tmp_path / "mask.png", "--ghost-mask", tmp_path / "ghosts.png",
+                              "-o", tmp_path / "r.html", "--max-pixels", "20000"], capsys)
     assert code == 0, err and "reduced 2x" in out
     html_text = (tmp_path / "r.html").read_text()
     assert "http://" not in html_text and "https://" not in html_text        # offline: nothing fetched
@@ -100,25 +108,25 @@ def test_report_in_a_real_browser(tmp_path, capsys):
         canvas = driver.find_element(By.ID, "img")
         size = canvas.size
         w, h = driver.execute_script("return [document.getElementById('img').width, document.getElementById('img').height]")
-        assert (w, h) == (80, 56)
-        x, y = 30, 20
-        ActionChains(driver).move_to_element_with_offset(
-            canvas, int((x + 0.5) * size["width"] / w - size["width"] / 2),
-            int((y + 0.5) * size["height"] / h - size["height"] / 2)).perform()
+        assert (w, h) == (160, 112)
         import re
 
-        text = driver.find_element(By.ID, "readout").text
-        px, py = (int(v) // 2 for v in re.search(r"pixel x (\d+)\.\.\d+, y (\d+)", text).groups())
-        assert abs(px - x) <= 1 and abs(py - y) <= 1, text          # the pixel under the pointer (+-1 rounding)
-        shown = float(driver.find_element(By.ID, "lum").text)
-        block = rad[2 * py:2 * py + 2, 2 * px:2 * px + 2].reshape(-1, 3).mean(0)
-        want = 179.0 * float(block @ np.array([0.2126, 0.7152, 0.0722]))
-        assert shown == pytest.approx(want, rel=0.01)
-        sd_shown = float(driver.find_element(By.ID, "lumsd").text)
-        # the variance is (0.05 r)^2 per pixel; the block mean of 4 independent pixels has sd / 2
         w_lum = np.array([0.2126, 0.7152, 0.0722])
-        var_blk = ((0.05 * rad[2 * py:2 * py + 2, 2 * px:2 * px + 2].reshape(-1, 3)) ** 2).mean(0) / 4
-        assert sd_shown == pytest.approx(179.0 * np.sqrt(var_blk @ w_lum ** 2), rel=0.01)
+        rng = np.random.default_rng(0)
+        for x, y in zip(rng.integers(1, w - 1, 20), rng.integers(1, h - 1, 20)):      # 20 random pixels
+            ActionChains(driver).move_to_element_with_offset(
+                canvas, int((x + 0.5) * size["width"] / w - size["width"] / 2),
+                int((y + 0.5) * size["height"] / h - size["height"] / 2)).perform()
+            text = driver.find_element(By.ID, "readout").text
+            px, py = (int(v) // 2 for v in re.search(r"pixel x (\d+)\.\.\d+, y (\d+)", text).groups())
+            assert abs(px - x) <= 1 and abs(py - y) <= 1, text      # the pixel under the pointer (+-1 rounding)
+            shown = float(driver.find_element(By.ID, "lum").text)
+            block = rad[2 * py:2 * py + 2, 2 * px:2 * px + 2].reshape(-1, 3)
+            assert shown == pytest.approx(179.0 * float(block.mean(0) @ w_lum), rel=0.01)
+            # the variance is (0.05 r)^2 per pixel; the block mean of 4 independent pixels: / 4
+            var_blk = ((0.05 * block) ** 2).mean(0) / 4
+            sd_shown = float(driver.find_element(By.ID, "lumsd").text)
+            assert sd_shown == pytest.approx(179.0 * np.sqrt(var_blk @ w_lum ** 2), rel=0.01)
         # keyboard readout: the focused image moves its cursor with the arrow keys
         canvas.send_keys(Keys.ARROW_RIGHT)
         assert f"x {2 * (px + 1)}.." in driver.find_element(By.ID, "readout").text
@@ -129,6 +137,25 @@ def test_report_in_a_real_browser(tmp_path, capsys):
                                       ".filter((v, i) => i % 4 === 3 && v > 0).length")
         assert drawn > 2000                                         # the colour bar and its labels
         driver.find_element(By.CSS_SELECTOR, "input[value='unc']").click()
+        shown_hashes = {driver.execute_script(_HASH)}
+        for box in ("ovClip", "ovGhost", "ovDark"):                 # each overlay changes the picture
+            driver.find_element(By.ID, box).click()
+            shown_hashes.add(driver.execute_script(_HASH))
+        assert len(shown_hashes) == 4
+        for box in ("ovClip", "ovGhost", "ovDark"):
+            driver.find_element(By.ID, box).click()
+        driver.find_element(By.CSS_SELECTOR, "input[value='tone']").click()
+        png = driver.get_screenshot_as_png()
+        import cv2
+
+        shot = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        assert shot is not None and shot.std() > 20 and len(np.unique(shot.reshape(-1, 3), axis=0)) > 500
+        if os.environ.get("DERENDER_WRITE_SCREENSHOT") == "1":      # docs/images/report.png, made by this test
+            from pathlib import Path
+
+            out = Path(__file__).resolve().parents[2] / "docs" / "images" / "report.png"
+            out.parent.mkdir(exist_ok=True)
+            out.write_bytes(png)
         errors = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
         assert not errors, errors
     finally:

@@ -17,7 +17,9 @@ that works offline (no server, no CDN: data and script are embedded) and shows
   luminance and its standard deviation at that pixel.
 
 Size: the map is reduced by an integer factor to at most ``max_pixels`` (area average, as
-the readout says), stored as half floats rounded to :data:`RGB_MANTISSA_BITS` mantissa bits,
+the readout says), scaled by a power of two that puts its brightest value near 2^14 (so no
+value falls into the half floats' subnormal range unless it is 2^-28 below the top), stored
+as half floats rounded to :data:`RGB_MANTISSA_BITS` mantissa bits,
 their two bytes split into planes (the exponent bytes of a smooth image compress several
 times better apart) and gzip-compressed,
 then base64-encoded into the page; the browser inflates it with its own
@@ -48,8 +50,9 @@ REPORT_MAX_PIXELS = 2_000_000
 #: 1 % promise), 22 % smaller pages than all 10 bits (the iPhone bracket's 2 MP: 8.9 -> 7.0 MB).
 RGB_MANTISSA_BITS = 8
 
-#: Mantissa bits kept of the variance: relative error <= 0.8 % (0.4 % on the standard deviation).
-VAR_MANTISSA_BITS = 6
+#: Mantissa bits kept of the luminance's standard deviation (stored instead of the variance: a
+#: variance spans twice the decades, and dark pixels fell into the half floats' subnormals).
+VAR_MANTISSA_BITS = 8
 
 
 def reduce_map(image: np.ndarray, max_pixels: int = REPORT_MAX_PIXELS) -> tuple[np.ndarray, int]:
@@ -142,15 +145,23 @@ def write_report(path: str | os.PathLike, radiance: np.ndarray, *, variance: np.
             raise InputError(f"the {name} is {np.asarray(arr).shape[1]}x{np.asarray(arr).shape[0]}, the map {w}x{h}")
     small, f = reduce_map(rad, max_pixels)
     sh, sw = small.shape[:2]
+    # a power of two that puts the brightest value near 2^14: half floats then keep their relative
+    # precision down to 2^-14 of it (normal range), whatever the map's units
+    top = float(np.max(small)) if small.size else 0.0
+    pscale = float(2.0 ** np.floor(np.log2(16384.0 / top))) if top > 0 else 1.0
     data: dict[str, Any] = {"width": sw, "height": sh, "factor": f, "full": [w, h], "absolute": bool(absolute),
                             "weights": [float(v) for v in luminance_weights(primaries)],
-                            "rgb": pack_half(np.clip(small, 0, 65000), RGB_MANTISSA_BITS)}
+                            "scale": pscale, "rgb": pack_half(np.clip(small * pscale, 0, 65000), RGB_MANTISSA_BITS)}
     if variance is not None:
         # the variance of Y = w . RGB (channels independent), of the block mean (pixels independent: / f^2)
         wts = luminance_weights(primaries)
         var_y = np.clip(np.asarray(variance, dtype=np.float32), 0, None) @ (wts * wts).astype(np.float32)
         v_small, _ = reduce_map(var_y, max_pixels)
-        data["var"] = pack_half(np.clip(v_small / (f * f), 0, 65000), VAR_MANTISSA_BITS)
+        sd_small = np.sqrt(v_small / (f * f))        # stored as a standard deviation: half the decades of a variance
+        vtop = float(np.max(sd_small)) if sd_small.size else 0.0
+        vscale = float(2.0 ** np.floor(np.log2(16384.0 / vtop))) if vtop > 0 else 1.0
+        data["varscale"] = vscale
+        data["var"] = pack_half(np.clip(sd_small * vscale, 0, 65000), VAR_MANTISSA_BITS)
     overlays = np.zeros((sh, sw), np.uint8)
     if mask is not None:
         m = np.asarray(mask)
@@ -341,8 +352,8 @@ function fillSummary(){
   tr.insertCell().textContent = `${W}x${H} (reduced ${D.factor}x from ${D.full[0]}x${D.full[1]}), half floats`;
 }
 (async () => {
-  RGB = await halves(D.rgb);
-  if (D["var"]) VAR = await halves(D["var"]); else { document.getElementById("uncLabel").style.display = "none"; }
+  RGB = await halves(D.rgb); for (let i = 0; i < RGB.length; i++) RGB[i] /= D.scale;
+  if (D["var"]){ VAR = await halves(D["var"]); for (let i = 0; i < VAR.length; i++){ const sd = VAR[i] / D.varscale; VAR[i] = sd * sd; } } else { document.getElementById("uncLabel").style.display = "none"; }
   OV = await inflate(D.overlays);
   const ls = []; for (let i = 0; i < W * H; i += Math.max(1, Math.floor(W * H / 200000))) { const L = lumAt(RGB, i); if (L > 0) ls.push(L); }
   ls.sort((a, b) => a - b);
