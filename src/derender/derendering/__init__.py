@@ -11,7 +11,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "calibration": ["pairs_from_images"],
     "library": ["resolve_model"],
     "local_gp": ["LocalGPModel"],
-    "model_selection": ["relative_rmse", "interval_coverage", "SELECTION_METHODS", "DEFAULT_FOLDS", "DEFAULT_CV_TRAIN", "MIN_FOLD_TEST", "MIN_FOLD_TRAIN", "IMAGE_TRUTH_FLOOR", "SELECTION_RULE", "cv_folds", "ModelSelection", "select_model", "fit_calibration", "fit_auto"],
+    "model_selection": ["pair_arrays", "relative_rmse", "interval_coverage", "SELECTION_METHODS", "DEFAULT_FOLDS", "DEFAULT_CV_TRAIN", "MIN_FOLD_TEST", "MIN_FOLD_TRAIN", "IMAGE_TRUTH_FLOOR", "SELECTION_RULE", "cv_folds", "ModelSelection", "select_model", "fit_calibration", "fit_auto"],
     "polynomial": ["PolynomialModel"],
     "rbf": ["RBFModel"],
 })

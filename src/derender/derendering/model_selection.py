@@ -54,6 +54,7 @@ import numpy as np
 from derender.core.errors import InputError
 
 __all__ = [
+    "pair_arrays",
     "relative_rmse",
     "interval_coverage",
     "SELECTION_METHODS",
@@ -89,7 +90,8 @@ SELECTION_RULE = ("lowest pooled held-out relative RMSE of the point estimate (a
 
 
 # ============================================================================ metrics (paper 2, Table 1)
-def _pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
+def pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted and true colours as (N, 3) float64 arrays of one shape (an :class:`InputError` otherwise)."""
     p = np.asarray(pred, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
     if p.shape != t.shape:
@@ -99,7 +101,7 @@ def _pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
 
 def relative_rmse(pred, truth) -> float:
     """sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2) over colours with ||x_i|| > 0 (paper 2, Table 1)."""
-    p, t = _pair_arrays(pred, truth)
+    p, t = pair_arrays(pred, truth)
     n2 = (t * t).sum(1)
     ok = n2 > 0
     return float(np.sqrt(np.mean(((p[ok] - t[ok]) ** 2).sum(1) / n2[ok])))
@@ -109,7 +111,7 @@ def interval_coverage(mean, var, truth, level: float = 0.95) -> np.ndarray:
     """Per-channel fraction of truths inside the central Gaussian interval mean +- z sqrt(var)."""
     if not 0 < level < 1:
         raise InputError("level must be in (0, 1)")
-    m, t = _pair_arrays(mean, truth)
+    m, t = pair_arrays(mean, truth)
     v = np.asarray(var, dtype=np.float64).reshape(-1, 3)
     if v.shape != m.shape:
         raise InputError("variance shape differs from mean shape")

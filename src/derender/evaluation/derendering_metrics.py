@@ -19,7 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.derendering.model_selection import interval_coverage, relative_rmse  # noqa: F401 (re-exported)
+from derender.derendering.model_selection import (  # noqa: F401 (relative_rmse, interval_coverage re-exported)
+    interval_coverage,
+    pair_arrays,
+    relative_rmse,
+)
 
 __all__ = [
     "max_colour_share",
@@ -30,20 +34,12 @@ __all__ = [
 ]
 
 
-def _pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
-    p = np.asarray(pred, dtype=np.float64).reshape(-1, 3)
-    t = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
-    if p.shape != t.shape:
-        raise InputError(f"prediction and truth shapes differ: {np.shape(pred)} vs {np.shape(truth)}")
-    return p, t
-
-
 def max_colour_share(pred, truth) -> float:
     """Largest share one colour has of the squared relative error ``sum_i ||x_hat_i - x_i||^2 / ||x_i||^2``
     (colours with ``||x_i|| > 0``; 0 when the error is 0). A share near 1 means one colour decides
     :func:`~derender.derendering.model_selection.relative_rmse` (issue 27: one extrapolated colour whose predictive mean was 36x its truth
     held 11.9 % of a family's squared error)."""
-    p, t = _pair_arrays(pred, truth)
+    p, t = pair_arrays(pred, truth)
     n2 = (t * t).sum(1)
     ok = n2 > 0
     e = ((p[ok] - t[ok]) ** 2).sum(1) / n2[ok]
@@ -53,13 +49,13 @@ def max_colour_share(pred, truth) -> float:
 
 def rmse(pred, truth) -> float:
     """sqrt(mean_i ||x_hat_i - x_i||^2): RMS Euclidean error per colour vector."""
-    p, t = _pair_arrays(pred, truth)
+    p, t = pair_arrays(pred, truth)
     return float(np.sqrt(np.mean(((p - t) ** 2).sum(1))))
 
 
 def median_relative_error(pred, truth) -> float:
     """median_i ||x_hat_i - x_i|| / ||x_i|| over colours with ||x_i|| > 0."""
-    p, t = _pair_arrays(pred, truth)
+    p, t = pair_arrays(pred, truth)
     n = np.sqrt((t * t).sum(1))
     ok = n > 0
     return float(np.median(np.sqrt(((p[ok] - t[ok]) ** 2).sum(1)) / n[ok]))
