@@ -116,7 +116,7 @@ def merge_cmd(
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
     preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview (Reinhard 2002)."),
-    mask: Optional[Path] = typer.Option(None, "--mask", help="PNG mask: 0 ok, 128 over-exposed everywhere, 255 under-exposed."),
+    mask: Optional[Path] = typer.Option(None, "--mask", help="PNG mask of this method's saturation policy: 0 merged, 128 taken from the shortest exposure (no frame usable by the method's weights), 255 from the longest."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Figure of the recovered response curves (if any)."),
     report: Optional[Path] = typer.Option(None, "--report", help="Self-contained HTML report of the merge (tone "
                                           "mapping, falsecolor, uncertainty, masks, curves, cursor readout)."),
@@ -247,8 +247,11 @@ def merge_cmd(
                           times=(parse_times(times) if times is not None else None, times_file, times_inverse))
     n_bright = int((result.mask == 1).sum())
     n_dark = int((result.mask == 2).sum())
+    n_clipped = result.info.get("n_clipped")
+    clipped = f"{n_clipped} px clipped even in the shortest exposure; " if n_clipped is not None else ""
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
-               f"({time.perf_counter() - t0:.2f} s; {n_bright} px over-exposed everywhere, {n_dark} px under-exposed)")
+               f"({time.perf_counter() - t0:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
+               f"{n_dark} px from the longest (mask))")
 
 
 def _merge_report(path, result, images, method: str, absolute: bool, view: str | None, inputs, times) -> None:

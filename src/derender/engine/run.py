@@ -46,7 +46,7 @@ from derender.io.exr import write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
-__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "ENGINES"]
+__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "ENGINES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
 ENGINES = ("auto", "table", "reference")
@@ -144,6 +144,15 @@ class ArrayFrames:
 def _size_error(source, shape: tuple, j: int, got: tuple) -> InputError:
     return InputError(f"images differ in size: {source.name(0)} is {shape[1]}x{shape[0]}, "
                       f"{source.name(j)} is {got[1]}x{got[0]}")
+
+
+def clipped_pixels(codes: np.ndarray) -> int:
+    """Pixels of an (H, W, 3) uint8 frame with a channel at 255: in the shortest exposure, the
+    pixels over-exposed in every frame. The engine counts them once, the same way for every
+    method (``info["n_clipped"]``), whatever each method's weights make of them (its mask marks
+    where *its* weights left no frame: ``info["n_bright"]``)."""
+    full = np.uint8(255)
+    return int(np.count_nonzero((codes[..., 0] == full) | (codes[..., 1] == full) | (codes[..., 2] == full)))
 
 
 def _brightness(codes: np.ndarray) -> float:
@@ -285,6 +294,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
         _warm_up_kernel("table")
     frames, _ = source.read_all(threads)
     h, w = frames.shape[1:3]
+    n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:
         check_brightness_order(t, [_brightness(f) for f in frames], [source.name(j) for j in range(n)], order_hint)
     samples = None
@@ -316,7 +326,8 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     res.info.setdefault("timings", {}).update({"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2,
                                                "finish_s": 0.0})
     res.info.update({"merge_seconds": t3 - t2,
-                     "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}})
+                     "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0},
+                     "n_clipped": n_clipped})
     method.finish(res, access)
     return res
 
@@ -371,6 +382,8 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
             raise _size_error(source, shape, j, codes.shape)
         if samples is not None:
             samples[j] = codes[ys, xs]
+        if j == 0:
+            n_clipped = clipped_pixels(codes)
         if order_hint is not None:
             brightness[j] = _brightness(codes)
         if hists is not None:
@@ -423,6 +436,7 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
         "merge_seconds": t4 - t2,
         "timings": {"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2, "finish_s": t4 - t3},
         "streaming": {"frames_kept": keep, "decodes": n + n - keep},
+        "n_clipped": n_clipped,
     })
     method.finish(res, access)
     return res
@@ -444,6 +458,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     if getattr(method, "warm_up", None) == "gaussian":
         _warm_up_kernel("gaussian")
     frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
+    n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:
         check_brightness_order(source.times, [_brightness(f) for f in frames],
                                [source.name(j) for j in range(source.n)], order_hint)
@@ -498,6 +513,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     t3 = time.perf_counter()
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "plan_s": t2 - t1, "merge_s": t3 - t2})
     res.info["streaming"] = {"frames_kept": source.n, "decodes": source.n if isinstance(source, FileFrames) else 0}
+    res.info["n_clipped"] = n_clipped
     method.finish(res, access)
     return res
 

@@ -98,6 +98,8 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         check_brightness_order(stack.times, [255.0 * float(im[::8, ::8].mean()) for im in stack.images],
                                names, hint)
         res = merge_seeded(stack, method, seed, **options)
+        shortest = stack.images[int(np.argmin(stack.times))]
+        res.info["n_clipped"] = int(np.count_nonzero(np.any(shortest >= 1.0, axis=-1)))   # as the engine counts
         res.info.setdefault("engine", "stack")
         res.info["engine_path"] = "stack"
         write_outputs(res, output, variance_output, half=half, compression=compression, inputs=all_inputs,
