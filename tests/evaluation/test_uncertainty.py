@@ -69,3 +69,15 @@ def test_evaluate_cli_prints_coverage_and_splits_clipped_pixels(tmp_path, capsys
     code, out, err = run_cli(["evaluate", tmp_path / "r.exr", "--truth", tmp_path / "g.exr", "--mask",
                               tmp_path / "m.png"], capsys)
     assert code == 2 and err.startswith("error:") and "--variance" in err
+
+
+def test_uncertainty_experiment_rows():
+    from derender.evaluation.uncertainty import uncertainty_experiment
+
+    rows = uncertainty_experiment(families=("camera",), size=(96, 64), exposures=4,
+                                  methods=("debevec", "probabilistic"), n_train=800)
+    by = {r["method"]: r for r in rows}
+    assert not by["debevec"]["gives_variance"] and "cov95" not in by["debevec"]
+    p = by["probabilistic"]
+    assert p["gives_variance"] and not p["held_out"]
+    assert 0.0 <= p["cov50"] <= p["cov80"] <= p["cov95"] <= p["cov99"] <= 1.0 and p["median_abs_z"] > 0

@@ -224,3 +224,37 @@ def exp_ghosts(
     typer.echo(format_table(summary, cols))
     if output is not None:
         output.write_text(json.dumps(rows, indent=2, default=float))
+
+
+@experiment_app.command("uncertainty")
+def exp_uncertainty(
+    families: str = typer.Option("paper,camera,dslr-lut,phone-local,drift", "--families",
+                                 help="Pipeline families (paper and camera tuning, the others held out)."),
+    seeds: str = typer.Option("0", "--seeds", help="Seeds, comma separated."),
+    size: str = typer.Option("192x128", "--size", help="Image size WxH."),
+    exposures: int = typer.Option(7, "--exposures", help="Exposures per bracket."),
+    output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
+) -> None:
+    """Issue 29: does each method's variance cover the truth? Coverage of the 50/80/95/99 %
+    intervals and median |z| on a bracket of every family (GP calibrated on the camera's chart)."""
+    from derender.evaluation.experiments import format_table
+    from derender.evaluation.uncertainty import uncertainty_experiment
+
+    try:
+        seed_list = [int(s) for s in seeds.split(",") if s.strip()]
+    except ValueError:
+        raise InputError(f"--seeds must be integers, got {seeds!r}") from None
+    rows = uncertainty_experiment(families=[f.strip() for f in families.split(",") if f.strip()], seeds=seed_list,
+                                  size=parse_size(size), exposures=exposures, progress=lambda m: console().print(m))
+    shown = []
+    for r in rows:
+        r2 = dict(r)
+        r2["family"] = f"{r['family']} ({'held out' if r['held_out'] else 'tuning'})"
+        if not r["gives_variance"]:
+            r2["method"] = f"{r['method']} (no variance)"
+        shown.append(r2)
+    typer.echo(format_table(shown, [("family", "family", ""), ("method", "method", ""), ("cov50", "50 %", ".3f"),
+                                    ("cov80", "80 %", ".3f"), ("cov95", "95 %", ".3f"), ("cov99", "99 %", ".3f"),
+                                    ("median_abs_z", "median |z|", ".2f")]))
+    if output is not None:
+        output.write_text(json.dumps(rows, indent=2, default=float))

@@ -18,7 +18,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "derendering_families": ["HELDOUT_ILLUMINANTS", "SPLITS", "derender_families"],
     "demo": ["run_demo", "MODEL_METHODS", "DEMO_TRAIN_PAIRS"],
     "ghosts": ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"],
-    "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table"],
+    "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table", "uncertainty_experiment"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })

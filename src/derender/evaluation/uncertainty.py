@@ -22,6 +22,7 @@ the shortest frame are reported on their own: their value is a bound, not a meas
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import numpy as np
@@ -32,6 +33,7 @@ __all__ = [
     "COVERAGE_LEVELS",
     "coverage_scores",
     "coverage_table",
+    "uncertainty_experiment",
 ]
 
 #: Central-interval probabilities reported by ``derender evaluate --variance``.
@@ -96,3 +98,53 @@ def coverage_table(result: Any, variance: Any, truth: Any, fit: str = "matrix",
             out["measured"] = coverage_scores(result, variance, truth, fit=fit, mask=~clipped)
             out["clipped"] = coverage_scores(result, variance, truth, fit=fit, mask=clipped)
     return out
+
+
+def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local", "drift"), seeds=(0,),
+                           size: tuple[int, int] = (192, 128), exposures: int = 7, camera: str = "nikon-d5100",
+                           methods=None, n_train: int = 5000, progress=None) -> list[dict[str, Any]]:
+    """``derender experiment uncertainty``: every method that gives a variance, on a bracket of
+    every family, scored by :func:`coverage_table`. The de-rendering model is paper 2's GP
+    calibrated once on the chart session of the same camera (``camera`` style, fixed white
+    balance: what a user of ``derender chart-pairs`` + ``calibrate`` has). Methods without a
+    variance are listed with ``gives_variance=False``. Rows: family, held_out, seed, method,
+    the 50/80/95/99 % coverages and median |z| over all pixels, and over pixels measured by some
+    frame (``measured_*``) when some are clipped in every frame."""
+    from derender.camera import simulate_bracket
+    from derender.camera.chart import chart_pairs
+    from derender.camera.families import check_family
+    from derender.core.types import Stack
+    from derender.derendering.base import fit_model, model_metadata
+    from derender.evaluation.families import TUNING_FAMILIES
+    from derender.hdr.registry import MERGE_METHODS, load_plugins, merge_seeded
+
+    load_plugins()
+    methods = list(MERGE_METHODS) if methods is None else list(methods)
+    pairs = chart_pairs(camera, seed=0)
+    rng = np.random.default_rng(0)
+    sel = rng.choice(pairs.jpeg.shape[0], size=min(n_train, pairs.jpeg.shape[0]), replace=False)
+    model = fit_model("gp", pairs.jpeg[sel], pairs.raw[sel], seed=0, n_train=n_train)
+    model.metadata.update(model_metadata(pairs))
+    rows: list[dict[str, Any]] = []
+    for family in families:
+        check_family(family)
+        for seed in seeds:
+            if progress is not None:
+                progress(f"{family} seed {seed}")
+            b = simulate_bracket(camera, size=size, exposures=exposures, seed=int(seed), family=family)
+            stack = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+            for m in methods:
+                fn = MERGE_METHODS[m]
+                row: dict[str, Any] = {"family": family, "held_out": family not in TUNING_FAMILIES, "seed": int(seed),
+                                       "method": m, "gives_variance": bool(getattr(fn, "gives_variance", False))}
+                if row["gives_variance"]:
+                    opts = {"model": model} if "model" in inspect.signature(fn).parameters else {}
+                    res = merge_seeded(stack, m, int(seed), **opts)
+                    table = coverage_table(res.radiance, res.variance, b.truth_linear_srgb, merge_mask=res.mask)
+                    for part, d in table.items():
+                        prefix = "" if part == "all" else f"{part}_"
+                        for p, c in d["coverage"].items():
+                            row[f"{prefix}cov{int(round(100 * p))}"] = c
+                        row[f"{prefix}median_abs_z"] = d["median_abs_z"]
+                rows.append(row)
+    return rows
