@@ -236,7 +236,7 @@ def exp_uncertainty(
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
     """Issue 29: does each method's variance cover the truth? Coverage of the 50/80/95/99 %
-    intervals and median |z| on a bracket of every family (GP calibrated on the camera's chart)."""
+    intervals and median abs(z) on a bracket of every family (GP calibrated on the camera's chart)."""
     from derender.evaluation.experiments import format_table
     from derender.evaluation.uncertainty import uncertainty_experiment
 
@@ -255,6 +255,6 @@ def exp_uncertainty(
         shown.append(r2)
     typer.echo(format_table(shown, [("family", "family", ""), ("method", "method", ""), ("cov50", "50 %", ".3f"),
                                     ("cov80", "80 %", ".3f"), ("cov95", "95 %", ".3f"), ("cov99", "99 %", ".3f"),
-                                    ("median_abs_z", "median |z|", ".2f")]))
+                                    ("median_abs_z", "median abs(z)", ".2f")]))
     if output is not None:
         output.write_text(json.dumps(rows, indent=2, default=float))

@@ -108,7 +108,7 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
     calibrated once on the chart session of the same camera (``camera`` style, fixed white
     balance: what a user of ``derender chart-pairs`` + ``calibrate`` has). Methods without a
     variance are listed with ``gives_variance=False``. Rows: family, held_out, seed, method,
-    the 50/80/95/99 % coverages and median |z| over all pixels, and over pixels measured by some
+    the 50/80/95/99 % coverages and median abs(z) over all pixels, and over pixels measured by some
     frame (``measured_*``) when some are clipped in every frame."""
     from derender.camera import simulate_bracket
     from derender.camera.chart import chart_pairs
