@@ -55,6 +55,9 @@ __all__ = [
     "log_slope",
     "neutral_offsets",
     "balance_channels",
+    "DEFAULT_TIE",
+    "tie_matrix",
+    "solve_tied",
     "as_stack",
     "plot_response",
 ]
@@ -370,7 +373,8 @@ NEUTRAL_MIN_COUNT = 16
 
 
 def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_weight: float = 0.25,
-                    tolerance: int = NEUTRAL_TOLERANCE, min_count: int = NEUTRAL_MIN_COUNT) -> tuple[np.ndarray, dict]:
+                    tolerance: int = NEUTRAL_TOLERANCE, min_count: int = NEUTRAL_MIN_COUNT,
+                    mode: str = "neutral") -> tuple[np.ndarray, dict]:
     """Per-channel log offsets ``o`` (``o[G] = 0``) that keep neutral colours neutral: ``g_c + o_c``.
 
     ``codes`` (N, P, 3) int: the sampled pixels of every frame (all three channels at the
@@ -380,8 +384,14 @@ def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_
     observations (all codes within ``tolerance`` of each other, every channel's weight at
     least ``min_weight``). With fewer than ``min_count`` of them, over the *grey axis*
     instead: ``median(g_G(z) - g_c(z))`` over the well-exposed green codes ``z`` of every
-    observation (equal codes taken as neutral). Returns ``(o (3,), info)``.
+    observation (equal codes taken as neutral). ``mode="grey-axis"`` always does the latter:
+    the choice for tied curves (:func:`solve_tied`), whose differences hardly change with the
+    code, so that equal codes give equal radiance over the whole well-exposed range (the
+    near-neutral observations, up to ``tolerance`` codes apart, carry the scene's colours'
+    bias: 10 % in B on the simulator's nominal rendering). Returns ``(o (3,), info)``.
     """
+    if mode not in ("neutral", "grey-axis"):
+        raise InputError(f"unknown balance mode {mode!r}: use 'neutral' or 'grey-axis'")
     g = np.asarray(g, dtype=np.float64)
     n_levels = g.shape[0]
     z = np.asarray(codes).reshape(-1, 3).astype(np.int64)
@@ -389,7 +399,7 @@ def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_
     ok = (wl[z] >= min_weight).all(axis=1)
     neutral = ok & (np.abs(z - z[:, 1:2]).max(axis=1) <= tolerance)
     off = np.zeros(3)
-    if int(neutral.sum()) >= min_count:
+    if mode == "neutral" and int(neutral.sum()) >= min_count:
         zn = z[neutral]
         for c in (0, 2):
             off[c] = float(np.median(g[zn[:, 1], 1] - g[zn[:, c], c]))
@@ -402,11 +412,56 @@ def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_
     return off, {"balance": "grey-axis", "neutral_count": int(neutral.sum())}
 
 
-def balance_channels(g: np.ndarray, codes: np.ndarray, weights: Any = "hat") -> tuple[np.ndarray, dict]:
-    """``g + o`` with the :func:`neutral_offsets` ``o`` of ``codes``; info gains ``channel_offsets``."""
-    off, info = neutral_offsets(g, codes, weights)
+def balance_channels(g: np.ndarray, codes: np.ndarray, weights: Any = "hat",
+                     mode: str = "neutral") -> tuple[np.ndarray, dict]:
+    """``g + o`` with the :func:`neutral_offsets` ``o`` of ``codes`` (``mode`` as there); info gains ``channel_offsets``."""
+    off, info = neutral_offsets(g, codes, weights, mode=mode)
     info["channel_offsets"] = [float(v) for v in off]
     return np.asarray(g, dtype=np.float64) + off[None, :], info
+
+
+#: Weight ``mu`` of the channel tie (:func:`solve_tied`) in the classic calibrations: the curves of
+#: R, G and B share one shape unless the data insist (issue 27). Chosen on the tuning families
+#: (``paper``, ``camera``); see :func:`solve_tied` and ``docs/paper1.md``.
+DEFAULT_TIE = 1000.0
+
+
+def tie_matrix(n_levels: int) -> np.ndarray:
+    """``D1' D1`` (n_levels, n_levels): the sum of squared first differences ``sum_z (x(z+1) - x(z))^2`` as ``x' L x``."""
+    d = np.diff(np.eye(n_levels), axis=0)
+    return d.T @ d
+
+
+def solve_tied(blocks: list[np.ndarray], rhs: list[np.ndarray], mu: float) -> np.ndarray:
+    """Three per-channel quadratic problems ``min_c x_c' A_c x_c - 2 b_c' x_c`` solved jointly with the tie
+
+    ``mu sum_{c < c'} sum_z [(g_c - g_c')(z + 1) - (g_c - g_c')(z)]^2``:
+
+    the differences between channel curves are penalised for *changing* with the code, not
+    for being non-zero, so the channels keep their own offsets (white balance) while equal
+    codes of a neutral surface keep giving equal log exposures at every level, unless the
+    data (a camera whose channel curves differ) outweigh ``mu``. ``mu = 0`` solves the
+    channels independently. Returns the (n_levels, 3) solution.
+    """
+    from derender.core.parallel import one_blas_thread
+
+    n = blocks[0].shape[0]
+    mu = max(float(mu), 0.0)
+    lap = tie_matrix(n) * float(mu)
+    big = np.zeros((3 * n, 3 * n))
+    for a in range(3):
+        big[a * n:(a + 1) * n, a * n:(a + 1) * n] = blocks[a] + 2.0 * lap
+        for b in range(3):
+            if a != b:
+                big[a * n:(a + 1) * n, b * n:(b + 1) * n] = -lap
+    with one_blas_thread():
+        try:
+            x = np.linalg.solve(big, np.concatenate(rhs))
+            if not np.all(np.isfinite(x)):
+                raise np.linalg.LinAlgError
+        except np.linalg.LinAlgError:
+            x = np.linalg.lstsq(big, np.concatenate(rhs), rcond=None)[0]
+    return x.reshape(3, n).T
 
 
 def as_stack(stack: Any) -> Stack:
