@@ -102,7 +102,8 @@ class RobertsonMethod:
     wants_histograms = False
 
     def __init__(self, curves=None, n_iter: int = 30, max_pixels: int = 40_000, weight: Any = "gaussian",
-                 seed: int = 0, block_rows: int | None = None, engine: str = "auto"):
+                 seed: int = 0, block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
+        self.tie = DEFAULT_TIE if tie is None else float(tie)
         self.curves, self.n_iter, self.max_pixels = curves, int(n_iter), int(max_pixels)
         self.weight, self.seed, self.block_rows = weight, int(seed), block_rows
 
@@ -121,7 +122,7 @@ class RobertsonMethod:
         curves = self.curves
         if curves is None:
             curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
-                                            max_pixels=self.max_pixels, weight=self.weight)
+                                            max_pixels=self.max_pixels, weight=self.weight, tie=self.tie)
         self.fitted = curves
         return TablePlan(values=curve_value_tables(curves, access.times, "linear"),
                          weights=robertson_weight_table(curves, self.weight),
@@ -266,6 +267,7 @@ def merge_robertson(
     seed: int = 0,
     block_rows: int | None = None,
     engine: str = "auto",
+    tie: float | None = None,
 ) -> HDRResult:
     """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
 
@@ -280,14 +282,15 @@ def merge_robertson(
 
     ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
-    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine)
+    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine, tie)
     res = run_stack(method, stack, engine)
     if res is not None:
         return res
     from derender.response.robertson2003 import calibrate_robertson
 
     if curves is None:
-        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed)
+        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed,
+                                     tie=method.tie)
     return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
                             weight_fn=_robertson_weight_fn(curves, weight), channel_weights="independent",
                             domain="linear")
