@@ -275,7 +275,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 
 #: Weight of the channel tie in the curve model's Debevec fit (:func:`unclipped_debevec`), as
 #: :data:`derender.response.curves.DEFAULT_TIE` for the classic merges (issue 27).
-CURVE_TIE = 10000.0
+CURVE_TIE = 1000.0
 
 
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, seed: int = 0,
