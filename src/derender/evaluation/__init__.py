@@ -2,7 +2,8 @@
 
 Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`,
 :mod:`derender.evaluation.derendering_families` (paper 2's de-rendering models on every camera-pipeline family),
-:mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
+:mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`,
+:mod:`derender.evaluation.neutral` (do greys stay grey at every brightness), :mod:`derender.evaluation.oracle` (merge by
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`.
 """
 
@@ -17,5 +18,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "derendering_families": ["HELDOUT_ILLUMINANTS", "SPLITS", "derender_families"],
     "demo": ["run_demo"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
+    "neutral": ["NeutralAxis", "neutral_pixels", "neutral_axis", "neutral_axis_truth", "scale_gap"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })
