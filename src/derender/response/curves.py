@@ -448,27 +448,60 @@ def solve_tied(blocks: list[np.ndarray], rhs: list[np.ndarray], mu: float) -> np
     for being non-zero, so the channels keep their own offsets (white balance) while equal
     codes of a neutral surface keep giving equal log exposures at every level, unless the
     data (a camera whose channel curves differ) outweigh ``mu``. ``mu = 0`` solves the
-    channels independently. Returns the (n_levels, 3) solution.
+    channels independently. Returns the (n_levels, 3) solution; right-hand sides of shape
+    (n_levels, k) (k systems at once) give (n_levels, 3, k).
     """
-    from derender.core.parallel import one_blas_thread
-
     n = blocks[0].shape[0]
     mu = max(float(mu), 0.0)
-    lap = tie_matrix(n) * float(mu)
-    big = np.zeros((3 * n, 3 * n))
-    for a in range(3):
-        big[a * n:(a + 1) * n, a * n:(a + 1) * n] = blocks[a] + 2.0 * lap
-        for b in range(3):
-            if a != b:
-                big[a * n:(a + 1) * n, b * n:(b + 1) * n] = -lap
+    r = [np.asarray(b, dtype=np.float64) for b in rhs]
+    if mu == 0.0:
+        x = [solve_symmetric(lambda a=a: np.array(a, dtype=np.float64), b) for a, b in zip(blocks, r)]
+    else:
+        # The system is blockdiag(B_c) - mu (J kron L) with B_c = A_c + 3 mu L (J: 3x3 ones): with
+        # s = x_R + x_G + x_B, x_c = B_c^-1 (r_c + mu L s), so (I - mu M L) s = sum_c B_c^-1 r_c
+        # with M = sum_c B_c^-1: four n x n systems instead of one 3n x 3n (memory: the engine
+        # calibrates while it holds the frames).
+        from scipy.linalg import cho_factor, cho_solve
+
+        lap = tie_matrix(n) * mu
+        eye = np.eye(n)
+        facs, m_sum, q = [], np.zeros((n, n)), 0.0
+        for a, b in zip(blocks, r):
+            try:
+                fac = cho_factor(np.asarray(a, dtype=np.float64) + 3.0 * lap, check_finite=False)
+                inv = lambda v, fac=fac: cho_solve(fac, v, check_finite=False)  # noqa: E731
+            except np.linalg.LinAlgError:     # not positive definite: least squares
+                mat = np.asarray(a, dtype=np.float64) + 3.0 * lap
+                inv = lambda v, mat=mat: np.linalg.lstsq(mat, v, rcond=None)[0]  # noqa: E731
+            facs.append(inv)
+            m_sum += inv(eye)
+            q = q + inv(b)
+        s_all = solve_symmetric(lambda: eye - m_sum @ lap, q, symmetric=False)
+        x = [inv(b + lap @ s_all) for inv, b in zip(facs, r)]
+    return np.stack(x, axis=1)
+
+
+def solve_symmetric(build: Callable[[], np.ndarray], rhs: np.ndarray, symmetric: bool = True) -> np.ndarray:
+    """``a x = rhs`` for ``a = build()`` (symmetric unless told), factorised in place (one BLAS
+    thread, no copy of ``a``); least squares on a fresh ``build()`` where ``a`` is singular or the
+    solution is not finite."""
+    from scipy.linalg import LinAlgError, solve
+
+    from derender.core.parallel import one_blas_thread
+
     with one_blas_thread():
         try:
-            x = np.linalg.solve(big, np.concatenate(rhs))
+            if symmetric:
+                # a is symmetric: its transpose is the same matrix, in the Fortran order LAPACK
+                # overwrites without a copy
+                x = solve(build().T, rhs, assume_a="sym", overwrite_a=True, check_finite=False)
+            else:
+                x = solve(build(), rhs, overwrite_a=True, check_finite=False)
             if not np.all(np.isfinite(x)):
-                raise np.linalg.LinAlgError
-        except np.linalg.LinAlgError:
-            x = np.linalg.lstsq(big, np.concatenate(rhs), rcond=None)[0]
-    return x.reshape(3, n).T
+                raise LinAlgError
+        except (LinAlgError, ValueError):
+            x = np.linalg.lstsq(build(), rhs, rcond=None)[0]
+    return x
 
 
 def as_stack(stack: Any) -> Stack:

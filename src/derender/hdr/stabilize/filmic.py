@@ -225,33 +225,23 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
     (:func:`derender.response.curves.solve_tied`, weight ``tie``; issue 27): ``codes`` (N, P, 3).
     The tied system is still linear in the per-channel log exposures, so one solve serves
     every round. Returns ``(g (256, 3), o (N, 3))``."""
-    from derender.core.parallel import one_blas_thread
-    from derender.response.curves import tie_matrix
+    from derender.response.curves import solve_tied
     from derender.response.debevec1997 import debevec_system
 
     z = np.asarray(codes, dtype=np.int64)
     n = z.shape[0]
-    lap = float(tie) * tie_matrix(256)
-    big = np.zeros((768, 768))
-    basis = np.zeros((768, 3 * n))
-    w2s, dinvs = [], []
+    blocks, rhs, w2s, dinvs = [], [], [], []
     for c in range(3):
         schur, m, w2, dinv = debevec_system(z[:, :, c], lam, "hat", 256)
-        big[c * 256:(c + 1) * 256, c * 256:(c + 1) * 256] = schur + 2.0 * lap
-        for c2 in range(3):
-            if c2 != c:
-                big[c * 256:(c + 1) * 256, c2 * 256:(c2 + 1) * 256] = -lap
         b_g = np.stack([np.bincount(z[j, :, c], weights=w2[j], minlength=256) for j in range(n)], axis=1)
-        basis[c * 256:(c + 1) * 256, c * n:(c + 1) * n] = b_g + (m * dinv) @ w2.T
+        basis = np.zeros((256, 3 * n))       # channel c's right-hand side for every log exposure
+        basis[:, c * n:(c + 1) * n] = b_g + (m * dinv) @ w2.T
+        blocks.append(schur)
+        rhs.append(basis)
         w2s.append(w2)
         dinvs.append(dinv)
-    with one_blas_thread():
-        try:
-            gm = np.linalg.solve(big, basis)
-            if not np.all(np.isfinite(gm)):
-                raise np.linalg.LinAlgError
-        except np.linalg.LinAlgError:
-            gm = np.linalg.lstsq(big, basis, rcond=None)[0]
+    # (768, 3N): the three curves stacked by channel = gm @ (b_R, b_G, b_B)
+    gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
     off = np.zeros((n, 3))
     tc = log_t - log_t.mean()
     span = np.stack([tc ** k for k in range(min(CURVE_OFFSET_DEGREE, log_t.size - 1) + 1)], axis=1)
