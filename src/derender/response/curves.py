@@ -451,6 +451,13 @@ def solve_tied(blocks: list[np.ndarray], rhs: list[np.ndarray], mu: float) -> np
     channels independently. Returns the (n_levels, 3) solution; right-hand sides of shape
     (n_levels, k) (k systems at once) give (n_levels, 3, k).
     """
+    from derender.core.parallel import one_blas_thread
+
+    with one_blas_thread():     # 256-square systems: threads only wait on a busy machine
+        return _solve_tied(blocks, rhs, mu)
+
+
+def _solve_tied(blocks: list[np.ndarray], rhs: list[np.ndarray], mu: float) -> np.ndarray:
     n = blocks[0].shape[0]
     mu = max(float(mu), 0.0)
     r = [np.asarray(b, dtype=np.float64) for b in rhs]
