@@ -37,7 +37,12 @@ per-frame exposure offsets on by default: sim-camera, a filmic auto-pipeline bra
 to 1.2 relative per pixel; Memorial and Frobisher unchanged; sim-simple within 3.6e-7); then ``robertson`` (issue 16:
 the calibration's leave-one-out radiance is the geometric mean of the other frames weighted by
 ``w`` instead of the linear mean weighted by ``w / g'^2``, and the smoother's data weighted by
-their inverse variance: a different curve; changes printed by ``--update``).
+their inverse variance: a different curve; changes printed by ``--update``); issue 27:
+``debevec``, ``robertson``, ``stabilized``, ``stabilized-joint``, ``stabilized-probabilistic`` (the
+three channel curves solved as one system whose curves share their shape, and the classic merges
+balanced along the grey axis, so that greys stay grey at every level: up to 0.9 relative on
+sim-simple (debevec), 2.2 on Memorial (robertson), 1.3 on sim-camera (stabilized); sim-simple's
+stabilised merges, on the power law, unchanged).
 """
 
 from __future__ import annotations
