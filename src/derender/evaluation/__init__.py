@@ -2,7 +2,8 @@
 
 Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluation.diagnose`, :mod:`derender.evaluation.experiments`,
 :mod:`derender.evaluation.derendering_families` (paper 2's de-rendering models on every camera-pipeline family),
-:mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`, :mod:`derender.evaluation.oracle` (merge by
+:mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`,
+:mod:`derender.evaluation.neutral` (do greys stay grey at every brightness), :mod:`derender.evaluation.oracle` (merge by
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`, :mod:`derender.evaluation.uncertainty`
 (coverage of a variance against the truth), :mod:`derender.evaluation.ghosts` (moving brackets by zone).
 """
@@ -20,5 +21,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "ghosts": ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"],
     "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table", "uncertainty_experiment"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
+    "neutral": ["NeutralAxis", "neutral_pixels", "neutral_axis", "neutral_axis_truth", "scale_gap"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })

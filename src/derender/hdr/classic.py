@@ -35,6 +35,7 @@ from derender.hdr.registry import register_method
 from derender.response.curves import (
     DEFAULT_LAMBDA,
     DEFAULT_SAMPLES,
+    DEFAULT_TIE,
     check_usable,
     check_usable_samples,
     grid_positions,
@@ -52,8 +53,9 @@ class DebevecMethod:
 
     def __init__(self, curves=None, lam: float | None = None, n_samples: int | None = None, sampling: str = "grid",
                  seed: int = 0, weight: Any = "gaussian", domain: str = "log", channel_weights: str = "mean",
-                 block_rows: int | None = None, engine: str = "auto"):
+                 block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
         self.curves = curves
+        self.tie = DEFAULT_TIE if tie is None else float(tie)
         self.lam = DEFAULT_LAMBDA if lam is None else float(lam)
         self.n_samples = DEFAULT_SAMPLES if n_samples is None else int(n_samples)
         self.sampling, self.seed = sampling, int(seed)
@@ -81,7 +83,7 @@ class DebevecMethod:
         if curves is None:
             curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, self.lam,
                                                     self.n_samples, self.sampling, self.seed,
-                                                    balance=self.sampling == "grid")
+                                                    balance=self.sampling == "grid", tie=self.tie)
         self.fitted = curves
         return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
                          weights=weight_table(self.weight), channel_weights=self.channel_weights,
@@ -100,7 +102,8 @@ class RobertsonMethod:
     wants_histograms = False
 
     def __init__(self, curves=None, n_iter: int = 30, max_pixels: int = 40_000, weight: Any = "gaussian",
-                 seed: int = 0, block_rows: int | None = None, engine: str = "auto"):
+                 seed: int = 0, block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
+        self.tie = DEFAULT_TIE if tie is None else float(tie)
         self.curves, self.n_iter, self.max_pixels = curves, int(n_iter), int(max_pixels)
         self.weight, self.seed, self.block_rows = weight, int(seed), block_rows
 
@@ -119,7 +122,7 @@ class RobertsonMethod:
         curves = self.curves
         if curves is None:
             curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
-                                            max_pixels=self.max_pixels, weight=self.weight)
+                                            max_pixels=self.max_pixels, weight=self.weight, tie=self.tie)
         self.fitted = curves
         return TablePlan(values=curve_value_tables(curves, access.times, "linear"),
                          weights=robertson_weight_table(curves, self.weight),
@@ -210,6 +213,7 @@ def merge_debevec(
     channel_weights: str = "mean",
     block_rows: int | None = None,
     engine: str = "auto",
+    tie: float | None = None,
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
@@ -239,14 +243,16 @@ def merge_debevec(
     the reference to ~1e-6 relative; ``block_rows`` then sets the engine's row blocks),
     ``"table"`` insists on it, ``"reference"`` always uses :func:`merge_linear`.
     """
-    method = DebevecMethod(curves, lam, n_samples, sampling, seed, weight, domain, channel_weights, block_rows, engine)
+    method = DebevecMethod(curves, lam, n_samples, sampling, seed, weight, domain, channel_weights, block_rows, engine,
+                           tie)
     res = run_stack(method, stack, engine)
     if res is not None:
         return res
     from derender.response.debevec1997 import calibrate_debevec
 
     return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
-        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid"),
+        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid",
+        tie=method.tie),
         weight, block_rows,
         channel_weights=channel_weights, domain=domain)
 
@@ -261,6 +267,7 @@ def merge_robertson(
     seed: int = 0,
     block_rows: int | None = None,
     engine: str = "auto",
+    tie: float | None = None,
 ) -> HDRResult:
     """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
 
@@ -275,14 +282,15 @@ def merge_robertson(
 
     ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
-    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine)
+    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine, tie)
     res = run_stack(method, stack, engine)
     if res is not None:
         return res
     from derender.response.robertson2003 import calibrate_robertson
 
     if curves is None:
-        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed)
+        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed,
+                                     tie=method.tie)
     return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
                             weight_fn=_robertson_weight_fn(curves, weight), channel_weights="independent",
                             domain="linear")

@@ -55,6 +55,9 @@ __all__ = [
     "log_slope",
     "neutral_offsets",
     "balance_channels",
+    "DEFAULT_TIE",
+    "tie_matrix",
+    "solve_tied",
     "as_stack",
     "plot_response",
 ]
@@ -370,7 +373,8 @@ NEUTRAL_MIN_COUNT = 16
 
 
 def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_weight: float = 0.25,
-                    tolerance: int = NEUTRAL_TOLERANCE, min_count: int = NEUTRAL_MIN_COUNT) -> tuple[np.ndarray, dict]:
+                    tolerance: int = NEUTRAL_TOLERANCE, min_count: int = NEUTRAL_MIN_COUNT,
+                    mode: str = "neutral") -> tuple[np.ndarray, dict]:
     """Per-channel log offsets ``o`` (``o[G] = 0``) that keep neutral colours neutral: ``g_c + o_c``.
 
     ``codes`` (N, P, 3) int: the sampled pixels of every frame (all three channels at the
@@ -380,8 +384,14 @@ def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_
     observations (all codes within ``tolerance`` of each other, every channel's weight at
     least ``min_weight``). With fewer than ``min_count`` of them, over the *grey axis*
     instead: ``median(g_G(z) - g_c(z))`` over the well-exposed green codes ``z`` of every
-    observation (equal codes taken as neutral). Returns ``(o (3,), info)``.
+    observation (equal codes taken as neutral). ``mode="grey-axis"`` always does the latter:
+    the choice for tied curves (:func:`solve_tied`), whose differences hardly change with the
+    code, so that equal codes give equal radiance over the whole well-exposed range (the
+    near-neutral observations, up to ``tolerance`` codes apart, carry the scene's colours'
+    bias: 10 % in B on the simulator's nominal rendering). Returns ``(o (3,), info)``.
     """
+    if mode not in ("neutral", "grey-axis"):
+        raise InputError(f"unknown balance mode {mode!r}: use 'neutral' or 'grey-axis'")
     g = np.asarray(g, dtype=np.float64)
     n_levels = g.shape[0]
     z = np.asarray(codes).reshape(-1, 3).astype(np.int64)
@@ -389,7 +399,7 @@ def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_
     ok = (wl[z] >= min_weight).all(axis=1)
     neutral = ok & (np.abs(z - z[:, 1:2]).max(axis=1) <= tolerance)
     off = np.zeros(3)
-    if int(neutral.sum()) >= min_count:
+    if mode == "neutral" and int(neutral.sum()) >= min_count:
         zn = z[neutral]
         for c in (0, 2):
             off[c] = float(np.median(g[zn[:, 1], 1] - g[zn[:, c], c]))
@@ -402,11 +412,103 @@ def neutral_offsets(g: np.ndarray, codes: np.ndarray, weights: Any = "hat", min_
     return off, {"balance": "grey-axis", "neutral_count": int(neutral.sum())}
 
 
-def balance_channels(g: np.ndarray, codes: np.ndarray, weights: Any = "hat") -> tuple[np.ndarray, dict]:
-    """``g + o`` with the :func:`neutral_offsets` ``o`` of ``codes``; info gains ``channel_offsets``."""
-    off, info = neutral_offsets(g, codes, weights)
+def balance_channels(g: np.ndarray, codes: np.ndarray, weights: Any = "hat",
+                     mode: str = "neutral") -> tuple[np.ndarray, dict]:
+    """``g + o`` with the :func:`neutral_offsets` ``o`` of ``codes`` (``mode`` as there); info gains ``channel_offsets``."""
+    off, info = neutral_offsets(g, codes, weights, mode=mode)
     info["channel_offsets"] = [float(v) for v in off]
     return np.asarray(g, dtype=np.float64) + off[None, :], info
+
+
+#: Weight ``mu`` of the channel tie (:func:`solve_tied`) in the classic calibrations: the curves of
+#: R, G and B share one shape unless the data insist (issue 27). Chosen on the tuning families
+#: (``paper``, ``camera``; outdoor + indoor x seeds 0-1, 192x128, 7 exposures): Debevec PSNR L
+#: 43.48 / 42.74 dB independent, 43.33 / 42.94 at 100, 43.54 / 42.95 at 1000, 43.63 / 42.93 at
+#: 10^4; the largest deviation of frame-grey pixels from grey 0.113 / 0.153, 0.104 / 0.097,
+#: 0.085 / 0.094, 0.072 / 0.099; Robertson 42.61 / 43.06 independent, 42.65 / 43.64 at 1000,
+#: 42.85 / 43.79 at 10^4 (greys 0.110 / 0.129 at 1000, 0.123 / 0.147 at 10^4). The tie assumes
+#: channel curves of one shape: a camera whose curves differ (``dslr-lut``'s per-channel gammas,
+#: the test suite's synthetic knees) is fitted less well at the ends of the range; see
+#: ``docs/paper1.md``.
+DEFAULT_TIE = 1000.0
+
+
+def tie_matrix(n_levels: int) -> np.ndarray:
+    """``D1' D1`` (n_levels, n_levels): the sum of squared first differences ``sum_z (x(z+1) - x(z))^2`` as ``x' L x``."""
+    d = np.diff(np.eye(n_levels), axis=0)
+    return d.T @ d
+
+
+def solve_tied(blocks: list[np.ndarray], rhs: list[np.ndarray], mu: float) -> np.ndarray:
+    """Three per-channel quadratic problems ``min_c x_c' A_c x_c - 2 b_c' x_c`` solved jointly with the tie
+
+    ``mu sum_{c < c'} sum_z [(g_c - g_c')(z + 1) - (g_c - g_c')(z)]^2``:
+
+    the differences between channel curves are penalised for *changing* with the code, not
+    for being non-zero, so the channels keep their own offsets (white balance) while equal
+    codes of a neutral surface keep giving equal log exposures at every level, unless the
+    data (a camera whose channel curves differ) outweigh ``mu``. ``mu = 0`` solves the
+    channels independently. Returns the (n_levels, 3) solution; right-hand sides of shape
+    (n_levels, k) (k systems at once) give (n_levels, 3, k).
+    """
+    from derender.core.parallel import one_blas_thread
+
+    with one_blas_thread():     # 256-square systems: threads only wait on a busy machine
+        return _solve_tied(blocks, rhs, mu)
+
+
+def _solve_tied(blocks: list[np.ndarray], rhs: list[np.ndarray], mu: float) -> np.ndarray:
+    n = blocks[0].shape[0]
+    mu = max(float(mu), 0.0)
+    r = [np.asarray(b, dtype=np.float64) for b in rhs]
+    if mu == 0.0:
+        x = [solve_symmetric(lambda a=a: np.array(a, dtype=np.float64), b) for a, b in zip(blocks, r)]
+    else:
+        # The system is blockdiag(B_c) - mu (J kron L) with B_c = A_c + 3 mu L (J: 3x3 ones): with
+        # s = x_R + x_G + x_B, x_c = B_c^-1 (r_c + mu L s), so (I - mu M L) s = sum_c B_c^-1 r_c
+        # with M = sum_c B_c^-1: four n x n systems instead of one 3n x 3n (memory: the engine
+        # calibrates while it holds the frames).
+        from scipy.linalg import cho_factor, cho_solve
+
+        lap = tie_matrix(n) * mu
+        eye = np.eye(n)
+        facs, m_sum, q = [], np.zeros((n, n)), 0.0
+        for a, b in zip(blocks, r):
+            try:
+                fac = cho_factor(np.asarray(a, dtype=np.float64) + 3.0 * lap, check_finite=False)
+                inv = lambda v, fac=fac: cho_solve(fac, v, check_finite=False)  # noqa: E731
+            except np.linalg.LinAlgError:     # not positive definite: least squares
+                mat = np.asarray(a, dtype=np.float64) + 3.0 * lap
+                inv = lambda v, mat=mat: np.linalg.lstsq(mat, v, rcond=None)[0]  # noqa: E731
+            facs.append(inv)
+            m_sum += inv(eye)
+            q = q + inv(b)
+        s_all = solve_symmetric(lambda: eye - m_sum @ lap, q, symmetric=False)
+        x = [inv(b + lap @ s_all) for inv, b in zip(facs, r)]
+    return np.stack(x, axis=1)
+
+
+def solve_symmetric(build: Callable[[], np.ndarray], rhs: np.ndarray, symmetric: bool = True) -> np.ndarray:
+    """``a x = rhs`` for ``a = build()`` (symmetric unless told), factorised in place (one BLAS
+    thread, no copy of ``a``); least squares on a fresh ``build()`` where ``a`` is singular or the
+    solution is not finite."""
+    from scipy.linalg import LinAlgError, solve
+
+    from derender.core.parallel import one_blas_thread
+
+    with one_blas_thread():
+        try:
+            if symmetric:
+                # a is symmetric: its transpose is the same matrix, in the Fortran order LAPACK
+                # overwrites without a copy
+                x = solve(build().T, rhs, assume_a="sym", overwrite_a=True, check_finite=False)
+            else:
+                x = solve(build(), rhs, overwrite_a=True, check_finite=False)
+            if not np.all(np.isfinite(x)):
+                raise LinAlgError
+        except (LinAlgError, ValueError):
+            x = np.linalg.lstsq(build(), rhs, rcond=None)[0]
+    return x
 
 
 def as_stack(stack: Any) -> Stack:

@@ -20,6 +20,7 @@ from derender.core.types import Stack
 from derender.response.curves import (
     DEFAULT_LAMBDA,
     DEFAULT_SAMPLES,
+    DEFAULT_TIE,
     ResponseCurves,
     as_stack,
     balance_channels,
@@ -28,11 +29,13 @@ from derender.response.curves import (
     level_weights,
     make_monotonic,
     sample_pixels,
+    solve_tied,
 )
 
 __all__ = [
     "calibrate_debevec_from_samples",
     "solve_debevec",
+    "solve_debevec_tied",
     "debevec_system",
     "solve_dense",
     "calibrate_debevec",
@@ -40,32 +43,34 @@ __all__ = [
 
 
 def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray],
-                            lam: float, n_samples: int, sampling: str, seed: int, balance: bool = False):
+                            lam: float, n_samples: int, sampling: str, seed: int, balance: bool = False,
+                            tie: float = 0.0):
     """:func:`derender.response.calibrate_debevec` (hat weights, monotonic) from pre-drawn samples.
 
     ``balance``: offset R and B so that neutral colours stay neutral
     (:func:`~derender.response.curves.balance_channels` on ``samples``; needs grid samples:
-    every channel of a sample from the same pixel).
+    every channel of a sample from the same pixel). ``tie``: weight of the channel tie of
+    :func:`solve_debevec_tied` (0: channels solved independently, the paper).
     """
     from derender.response.curves import ResponseCurves, make_monotonic
 
     if lam < 0 or not np.isfinite(lam):
         raise InputError(f"lambda must be a non-negative number, got {lam}")
     log_t = np.log(times)
-    g = np.empty((N_CODES, 3))
-    fixed = []
+    per_channel = []
     for c in range(3):
         zc = samples[:, :, c]
         if not np.any((zc > 0) & (zc < N_CODES - 1)):
             extra = histogram_samples(hists_fn(), n_samples)[:, :, c]
             zc = np.concatenate([zc, extra], axis=1)
-        g[:, c], _ = solve_debevec(zc, log_t, lam=lam, weights="hat", n_levels=N_CODES)
-        fixed.append(bool(np.any(np.diff(g[:, c]) < 0)))
+        per_channel.append(zc)
+    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights="hat", n_levels=N_CODES, tie=tie)
+    fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
     g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
-              "weights": "hat", "monotonic_fixed": fixed}
+              "weights": "hat", "monotonic_fixed": fixed, "tie": float(tie)}
     if balance:
-        g, info = balance_channels(g, samples)
+        g, info = balance_channels(g, samples, mode="grey-axis" if tie > 0 else "neutral")
         params.update(info)
     return ResponseCurves(log_inverse=g, method="debevec", params=params)
 
@@ -103,6 +108,44 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
     log_e = np.zeros(p)
     log_e[live] = ((w2 * (g[z] - b[:, None])).sum(axis=0))[live] * dinv[live]
     return g, log_e
+
+
+def _debevec_normal(codes: np.ndarray, log_times: np.ndarray, lam: float, weights: Any,
+                    n_levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The reduced normal equations ``(S, rhs)`` of :func:`solve_debevec` for one channel."""
+    z = np.asarray(codes).astype(np.int64)
+    b = np.asarray(log_times, dtype=np.float64).reshape(-1)
+    schur, m, w2, dinv = debevec_system(z, lam, weights, n_levels)
+    b_g = np.bincount(z.ravel(), weights=(w2 * b[:, None]).ravel(), minlength=n_levels)
+    b_e = -(w2 * b[:, None]).sum(axis=0)
+    return schur, b_g - m @ (dinv * b_e)
+
+
+def solve_debevec_tied(codes: list[np.ndarray], log_times: np.ndarray, lam: float = DEFAULT_LAMBDA,
+                       weights: Any = None, n_levels: int = 256, tie: float = DEFAULT_TIE) -> np.ndarray:
+    """The three channels' curves of :func:`solve_debevec` in one system, tied (issue 27).
+
+    ``codes``: per channel an (N_img, P_c) array. Each channel keeps its own data rows,
+    smoothness and ``g_c(mid) = 0``; added is ``tie * sum_{c < c'} sum_z [Delta (g_c - g_c')(z)]^2``
+    (:func:`~derender.response.curves.solve_tied`): the curves may differ by an offset (the
+    white balance, set afterwards by :func:`~derender.response.curves.balance_channels`) but
+    their difference pays for changing with the code. Debevec & Malik solve each channel
+    alone; where a channel has few samples (the ends of the range, a channel the scene
+    hardly exposes) its curve then bends on its own, and grey pixels rendered with equal
+    codes come out tinted at some levels and not at others. ``tie = 0``: the paper's
+    independent channels. Returns ``g`` (n_levels, 3).
+    """
+    blocks, rhs = [], []
+    for zc in codes:
+        z = np.asarray(zc)
+        if z.ndim != 2:
+            raise InputError(f"codes must be (N_img, P), got {z.shape}")
+        if z.size and (z.min() < 0 or z.max() >= n_levels):
+            raise InputError(f"codes must lie in [0, {n_levels - 1}]")
+        a, r = _debevec_normal(z, log_times, lam, weights, n_levels)
+        blocks.append(a)
+        rhs.append(r)
+    return solve_tied(blocks, rhs, tie)
 
 
 def debevec_system(codes: np.ndarray, lam: float, weights: Any = "hat",
@@ -157,7 +200,7 @@ def solve_dense(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
                       sampling: str = "grid", seed: int = 0, weights: Any = "hat", n_levels: int = 256,
-                      monotonic: bool = True, balance: bool = False) -> ResponseCurves:
+                      monotonic: bool = True, balance: bool = False, tie: float = 0.0) -> ResponseCurves:
     """Recover ``g = ln f^-1`` per channel with :func:`solve_debevec` (Debevec & Malik 1997).
 
     Samples by :func:`sample_pixels`; channels solved independently, each with
@@ -179,20 +222,21 @@ def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int 
     check_usable(stack, n_levels)
     samples = sample_pixels(stack, n_samples=n_samples, method=sampling, seed=seed, n_levels=n_levels)
     log_t = np.log(stack.times)
-    g = np.empty((n_levels, 3))
-    fixed = []
+    per_channel = []
     for c in range(3):
         zc = samples[:, :, c]
         if not np.any((zc > 0) & (zc < n_levels - 1)):
             extra = sample_pixels(stack, n_samples=n_samples, method="histogram", n_levels=n_levels)[:, :, c]
             zc = np.concatenate([zc, extra], axis=1)
-        g[:, c], _ = solve_debevec(zc, log_t, lam=lam, weights=weights, n_levels=n_levels)
-        fixed.append(bool(np.any(np.diff(g[:, c]) < 0)))
+        per_channel.append(zc)
+    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
+    fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
     if monotonic:
         g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
-              "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed}
+              "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed,
+              "tie": float(tie)}
     if balance:
-        g, info = balance_channels(g, samples)
+        g, info = balance_channels(g, samples, mode="grey-axis" if tie > 0 else "neutral")
         params.update(info)
     return ResponseCurves(log_inverse=g, method="debevec", params=params)

@@ -74,7 +74,7 @@ from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import relative_exponents
 from derender.hdr.stabilize.reference import REF_HIGH
 
-__all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP",
+__all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
            "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
            "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"]
 
@@ -219,9 +219,69 @@ def _debevec_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, ro
     return gm @ (log_t + off), off
 
 
+def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, rounds: int,
+                                 tie: float) -> tuple:
+    """:func:`_debevec_with_exposures` for the three channels at once, their curves tied
+    (:func:`derender.response.curves.solve_tied`, weight ``tie``; issue 27): ``codes`` (N, P, 3).
+    The tied system is still linear in the per-channel log exposures, so one solve serves
+    every round. Returns ``(g (256, 3), o (N, 3))``."""
+    from derender.response.curves import solve_tied
+    from derender.response.debevec1997 import debevec_system
+
+    z = np.asarray(codes, dtype=np.int64)
+    n = z.shape[0]
+    blocks, rhs, w2s, dinvs = [], [], [], []
+    for c in range(3):
+        schur, m, w2, dinv = debevec_system(z[:, :, c], lam, "hat", 256)
+        b_g = np.stack([np.bincount(z[j, :, c], weights=w2[j], minlength=256) for j in range(n)], axis=1)
+        basis = np.zeros((256, 3 * n))       # channel c's right-hand side for every log exposure
+        basis[:, c * n:(c + 1) * n] = b_g + (m * dinv) @ w2.T
+        blocks.append(schur)
+        rhs.append(basis)
+        w2s.append(w2)
+        dinvs.append(dinv)
+    # (768, 3N): the three curves stacked by channel = gm @ (b_R, b_G, b_B)
+    gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
+    off = np.zeros((n, 3))
+    tc = log_t - log_t.mean()
+    span = np.stack([tc ** k for k in range(min(CURVE_OFFSET_DEGREE, log_t.size - 1) + 1)], axis=1)
+    proj = span @ np.linalg.pinv(span)
+    for _ in range(max(int(rounds), 0)):
+        g = (gm @ (log_t[:, None] + off).T.ravel()).reshape(3, 256).T
+        new = np.empty_like(off)
+        for c in range(3):
+            w2, dinv = w2s[c], dinvs[c]
+            b = log_t + off[:, c]
+            gz = g[z[:, :, c], c]
+            ln_e = (w2 * (gz - b[:, None])).sum(axis=0) * dinv
+            res = gz - ln_e[None, :] - log_t[:, None]
+            ws = w2.sum(axis=1)
+            kappa = CURVE_OFFSET_PRIOR * float(ws.mean())
+            new[:, c] = (w2 * res).sum(axis=1) / np.maximum(ws + kappa, 1e-12)
+        off = np.clip(new - proj @ new, -CURVE_MAX_OFFSET, CURVE_MAX_OFFSET)
+    g = (gm @ (log_t[:, None] + off).T.ravel()).reshape(3, 256).T
+    return g, off
+
+
+#: Weight of the channel tie in the curve model's Debevec fit (:func:`unclipped_debevec`), as
+#: :data:`derender.response.curves.DEFAULT_TIE` for the classic merges (issue 27): the curve
+#: model's independent channels, each anchored at ``g(128) = 0``, turned the iPhone 6 bracket's
+#: greys red (R/G x1.2-1.3 in every mid frame). Measured (``derender experiment families``,
+#: outdoor + indoor x seeds 0-1; PSNR L, stabilized / stabilized-joint) 0 -> 1000: ``camera``
+#: 43.54 / 42.79 -> 43.39 / 42.66 (tuning; ``paper`` takes the power law, unchanged), held out
+#: ``dslr-lut`` 43.90 / 43.33 -> 43.30 / 43.10, ``phone-local`` 43.91 / 43.30 -> 44.08 / 43.56,
+#: ``drift`` 44.11 / 43.28 -> 44.23 / 43.15; truly grey pixels of ``camera`` (largest deviation
+#: over the decades, :func:`derender.evaluation.neutral.neutral_axis_truth`) 0.22 -> 0.10; the
+#: iPhone's mid-frame greys 0.21-0.29 -> 0.10-0.15. The PSNR L that is lost is in the highlights,
+#: which only the shortest frame sees: the independent shoulders follow each channel's own data
+#: there. Ties of 3000 and more broke Debevec's Memorial (log-luminance correlation with
+#: ``memorial.hdr`` 0.997 at 0, 0.991 at 1000, 0.70 at 3000).
+CURVE_TIE = 1000.0
+
+
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, seed: int = 0,
                       high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS,
-                      exposure_rounds: int | None = None) -> Any:
+                      exposure_rounds: int | None = None, tie: float | None = None) -> Any:
     """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
     :data:`CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
     pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
@@ -267,19 +327,26 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     lam = DEFAULT_LAMBDA * float(np.sqrt(codes.shape[1] / 256.0))
     g = np.empty((256, 3))
     rounds = CURVE_EXPOSURE_ROUNDS if exposure_rounds is None else int(exposure_rounds)
+    tie = CURVE_TIE if tie is None else float(tie)
     offsets = np.zeros((n, 3))
-    for c in range(3):
-        g[:, c], offsets[:, c] = _debevec_with_exposures(codes[:, :, c], log_t, lam, rounds)
+
+    def fit(r: int) -> None:
+        if tie > 0:
+            g[:], offsets[:] = _debevec_tied_with_exposures(codes, log_t, lam, r, tie)
+            return
+        for c in range(3):
+            g[:, c], offsets[:, c] = _debevec_with_exposures(codes[:, :, c], log_t, lam, r)
+
+    fit(rounds)
     rejected = bool(rounds > 0 and np.max(np.abs(offsets)) >= CURVE_MAX_OFFSET * (1 - 1e-9))
     if rejected:
         # an offset at the bound is no gain or white-balance step of a camera: the data do not
         # determine it (Memorial's film frames), so the times are taken as given
-        for c in range(3):
-            g[:, c], offsets[:, c] = _debevec_with_exposures(codes[:, :, c], log_t, lam, 0)
+        fit(0)
     params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
               "weights": "hat", "clip": float(high), "clip_radius": r,
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
-              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected}
+              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie}
     return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
 
 
@@ -322,7 +389,7 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
             warped = images                 # no exponent warp: no full-size copy of the stack
         else:
             warped = np.clip(images, 0.0, 1.0) ** r[:, None, None, None].astype(np.float32)
-        return calibrate_debevec(Stack(images=warped, times=times), seed=seed).log_inverse
+        return calibrate_debevec(Stack(images=warped, times=times), seed=seed, tie=CURVE_TIE).log_inverse
 
     table = table_for(rho)
     for _ in range(int(rounds)):

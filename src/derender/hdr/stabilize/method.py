@@ -26,6 +26,7 @@ from derender.hdr.stabilize.colour_matrices import color_matrices_to_reference, 
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
 from derender.hdr.stabilize.filmic import (
+    CURVE_TIE,
     SCREEN_TREND,
     curve_model,
     gamma_trend,
@@ -281,7 +282,7 @@ class StabilizedMethod:
                 return np.stack([code_histograms(np.ascontiguousarray(view.codes(j))) for j in range(n)])
 
             return calibrate_debevec_from_samples(samples, t, aligned_hists, DEFAULT_LAMBDA, DEFAULT_SAMPLES, "grid",
-                                                  seed)
+                                                  seed, tie=CURVE_TIE)
 
         mode = "joint" if self.name == "stabilized-joint" else "reference"
         stab = stabilize_aligned(al, t, mode=mode, response=opts["response"], gammas=opts["gammas"],
