@@ -143,14 +143,14 @@ def test_camera_style_switches_to_a_common_curve(auto_camera):
 def test_stabilized_beats_debevec_on_auto_pipeline_camera(auto_camera):
     """Issue 5: PSNR-L over debevec on the auto pipeline, camera style (mean over the scene
     kinds; measured +2.04 on these seed-0 brackets, +2.19 over seeds 0-2 with ``derender
-    experiment fusion-gain`` before issue 27; since its channel tie, which moved debevec up and
-    stabilized's highlights down, +0.16: -1.51 / +0.43 / +1.57). Single scenes vary: on the outdoor one debevec
+    experiment fusion-gain`` before issue 27; since Debevec's channel tie, which moved debevec up,
+    +1.87: -0.94 / +1.52 / +5.04). Single scenes vary: on the outdoor one debevec
     wins by ~1.3 dB, as it does (by ~1.4 dB) against a merge with the simulator's exact
     per-image curves; the lamp edges that only the shortest exposure sees carry most of
     the error there."""
     diffs = [_scores(d["stabilized"], d["bracket"])["L"] - _scores(d["debevec"], d["bracket"])["L"]
              for d in auto_camera.values()]
-    assert np.mean(diffs) >= 0.0, diffs
+    assert np.mean(diffs) >= 1.0, diffs
 
 
 def test_unclipped_debevec_keeps_the_filmic_shoulder():
