@@ -316,9 +316,11 @@ def evaluate(
                                               "over-exposed in every frame are scored on their own."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """Score RESULT against the ground truth: PSNR on R, G, B and luminance L (scale fitted per
-    plane; docs/paper1.md), per-pixel relative error (median, p90, after a 3x3 'matrix' or one
-    'scale' fitted to RESULT by trimmed least squares on relative errors) and log-luminance PSNR.
+    """Score RESULT against the ground truth: PSNR, relative error, log PSNR; with --variance its coverage.
+
+    PSNR on R, G, B and luminance L (scale fitted per plane; docs/paper1.md), per-pixel
+    relative error (median, p90, after a 3x3 'matrix' or one 'scale' fitted to RESULT by
+    trimmed least squares on relative errors) and log-luminance PSNR.
 
     The scores are not symmetric (the fit maps RESULT onto the truth, PSNR's peak is the
     truth's): the first line printed names which file was taken as the truth."""

@@ -24,8 +24,9 @@ def illuminance(
                                         "pixels over-exposed in every frame (a lower bound there)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """Vertical illuminance Ev (lx) at the lens, as Radiance's 'evalglare -V' computes it:
-    sum of L cos(theta) Omega over the view, L = 179 (w·RGB) cd/m2 (docs: luminance maps)."""
+    """Vertical illuminance Ev (lx) at the lens, as Radiance's 'evalglare -V' computes it.
+
+    Ev is the sum of L cos(theta) Omega over the view, L = 179 (w·RGB) cd/m2 (docs: luminance maps)."""
     from derender.io.rgbe import read_hdr_header, read_radiance
     from derender.photometry.illuminance import vertical_illuminance
     from derender.photometry.projection import parse_view
@@ -98,7 +99,9 @@ def vignetting(
     max_residual: float = typer.Option(0.05, "--max-residual", help="Largest rms deviation (relative) of the flat "
                                        "field from the radial model."),
 ) -> None:
-    """Fit the lens's radial falloff V(r) = 1 + a1 r^2 + a2 r^4 + a3 r^6 on a merged flat field;
+    """Fit the lens's radial falloff on a merged flat field, for 'derender merge --vignetting'.
+
+    V(r) = 1 + a1 r^2 + a2 r^4 + a3 r^6, r the distance to the centre over half the diagonal;
     'derender merge --vignetting V' divides it out."""
     from derender.hdr.files import merge_files
     from derender.io.exif import parse_times
@@ -135,8 +138,11 @@ def report(
     max_pixels: int = typer.Option(2_000_000, "--max-pixels", help="Largest page image (the map is reduced by an "
                                    "integer factor)."),
 ) -> None:
-    """A self-contained HTML report of a radiance map: tone mapping with exposure, falsecolor,
-    uncertainty, mask overlays, summary and a readout under the cursor (works offline)."""
+    """A self-contained HTML report of a radiance map, to look at it in any browser, offline.
+
+    Panels: tone mapping with an exposure slider (linear or Reinhard); falsecolor luminance with
+    a legend; relative uncertainty sigma/mu (with --variance); overlays of the masks; the
+    response curves (merge --report); a summary; a readout under the mouse or arrow keys."""
     from derender.applications.report import write_report
     from derender.io.files import OutputTransaction
 
