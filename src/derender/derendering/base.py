@@ -615,7 +615,36 @@ def model_metadata(pairs) -> dict:
 
 
 def fit_model(method: str, jpeg, raw, seed: int = 0, **kw) -> DerenderModel:
-    """Fit a de-rendering model by name (``"gp"``, ``"poly"``, ``"rbf"``); extra keywords go to the class."""
+    """Fit a de-rendering model by name (``"gp"``, ``"poly"``, ``"rbf"``); extra keywords go to the class.
+
+    Parameters
+    ----------
+    method : str
+        ``"gp"`` (paper 2's local Gaussian process), ``"poly"`` (Chakrabarti et al.'s polynomial
+        after a linear map) or ``"rbf"`` (Lin et al.'s radial basis functions); for a choice by
+        cross-validation see :func:`derender.derendering.model_selection.fit_auto`.
+    jpeg : array_like
+        (N, 3) rendered colours: 8-bit codes (uint8) or values in [0, 1].
+    raw : array_like
+        (N, 3) linear RAW camera colours of the same pixels or patches.
+    seed : int
+        Seed of every random step (subsampling, k-means).
+    **kw
+        Options of the model class (e.g. ``n_train`` for the GP).
+
+    Returns
+    -------
+    DerenderModel
+        The fitted model; ``model.predict(colours)`` gives the per-colour Gaussian over the RAW
+        colour, ``model.save(path)`` a versioned ``.npz``.
+
+    References
+    ----------
+    Paper 2, Sec. 2.2 and 4 (``docs/paper2.md``); A. Chakrabarti, D. Scharstein, T. Zickler,
+    "An Empirical Camera Model for Internet Color Vision", BMVC 2009; H. Lin, S. J. Kim,
+    S. Süsstrunk, M. S. Brown, "Revisiting Radiometric Calibration for Color Computer Vision",
+    ICCV 2011.
+    """
     if method not in MODEL_TYPES:
         raise InputError(f"unknown de-rendering method '{method}' (choose from {', '.join(MODEL_TYPES)})")
     try:

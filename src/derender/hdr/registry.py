@@ -148,7 +148,36 @@ def _missing_message(method: str, missing: list[str]) -> str:
 def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     """Merge a :class:`~derender.core.types.Stack` into an HDR radiance map with a registered method.
 
-    Unknown methods or options raise :class:`InputError` (listing what is known).
+    Parameters
+    ----------
+    stack : Stack
+        The bracket: 8- or 16-bit images as float32 ``(N, H, W, 3)`` in [0, 1] and their
+        exposure times (:func:`derender.io.images.read_stack` makes one from files).
+    method : str
+        A name of :data:`MERGE_METHODS` (``derender methods`` lists them with their options).
+    **options
+        The method's keyword options (for text values, :func:`parse_options`); paper 2's
+        methods need ``model`` (a :class:`~derender.derendering.base.DerenderModel` or a path).
+
+    Returns
+    -------
+    HDRResult
+        ``radiance`` (H, W, 3) float32, finite and non-negative; ``mask`` (0 merged, 1 taken
+        from the shortest exposure, 2 from the longest); ``variance`` for the methods that give
+        one; ``info`` (the method's parameters, timings, ``n_clipped``).
+
+    Raises
+    ------
+    InputError
+        An unknown method or option (the message lists the known ones), a missing required
+        option, or input the method cannot merge.
+
+    References
+    ----------
+    The methods' papers are cited in their modules: Debevec & Malik 1997
+    (:mod:`derender.response.debevec1997`), Robertson et al. 2003
+    (:mod:`derender.response.robertson2003`), paper 1 (:mod:`derender.hdr.stabilize`) and
+    paper 2 (:mod:`derender.hdr.probabilistic`).
     """
     if not isinstance(stack, Stack):
         raise InputError(f"merge() needs a Stack, got {type(stack).__name__}")
