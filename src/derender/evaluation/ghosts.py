@@ -60,13 +60,17 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                      progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """One row per (family, setting, seed, method): zone medians on the moving bracket and on
     its still twin, and their ratios. ``shake`` defaults to 2 % of the width (issue 23's
-    handheld case); ``options`` go to every merge (e.g. a future ``deghost=True``)."""
+    handheld case); ``options`` go to every merge (e.g. a future ``deghost=True``). Methods
+    that take a ``reference`` frame get the truth's (the middle frame), so that the table
+    measures ghosts and alignment, not the choice of instant; the others have none to choose."""
+    import inspect
+
     from derender.camera import simulate_bracket
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.motion import MotionSpec
     from derender.core.types import Stack
     from derender.evaluation.families import TUNING_FAMILIES
-    from derender.hdr.registry import merge_seeded
+    from derender.hdr.registry import get_method, merge_seeded
 
     for s in settings:
         if s not in GHOST_SETTINGS:
@@ -79,7 +83,14 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
             base = MotionSpec(objects=objects, shake=shake_px)
             still_b = simulate_bracket(camera, kind=kind, size=size, exposures=exposures, seed=int(seed),
                                        family=family, motion=base.still())
-            still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), **(options or {})).radiance
+            ref = still_b.params["motion"]["reference"]
+
+            def opts(m: str) -> dict:
+                fn = get_method(m)
+                extra = {"reference": ref} if "reference" in inspect.signature(fn).parameters else {}
+                return {**extra, **(options or {})}
+
+            still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), **opts(m)).radiance
                              for m in methods}
             for setting in settings:
                 spec = base if setting == "handheld" else base.tripod()
@@ -88,7 +99,7 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                 b = simulate_bracket(camera, kind=kind, size=size, exposures=exposures, seed=int(seed),
                                      family=family, motion=spec)
                 for m in methods:
-                    moving = zone_errors(merge_seeded(_stack(b, Stack), m, int(seed), **(options or {})).radiance,
+                    moving = zone_errors(merge_seeded(_stack(b, Stack), m, int(seed), **opts(m)).radiance,
                                          b.truth_linear_srgb, b.motion_zones)
                     still = zone_errors(still_results[m], still_b.truth_linear_srgb, b.motion_zones)
                     row = {"family": family, "held_out": family not in TUNING_FAMILIES, "setting": setting, "seed": int(seed),
