@@ -13,6 +13,7 @@ on the float reference engine. ``info["engine_path"]`` says which ran.
 
 from __future__ import annotations
 
+import inspect
 import os
 import time
 from pathlib import Path
@@ -69,7 +70,10 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
             if Path(out).suffix.lower() != ".exr":
                 raise InputError(f"output must end in .exr, got {Path(out).name}")
             check_not_input(out, all_inputs)
+    seed = options.pop("seed", 0)   # every caller may pass one; only methods that take a seed get it
     opts = method_options(method, options)
+    if "seed" in inspect.signature(fn).parameters:
+        opts["seed"] = seed
     if times is not None:
         hint = "check the order of the times (one per image, in the order the images are given)"
     elif times_file is not None:
@@ -92,7 +96,6 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     if res is None:
         from derender.io.images import read_stack
 
-        seed = options.pop("seed", 0)
         stack = read_stack(paths, times=t, max_megapixels=max_megapixels)
         names = [paths[i].name for i in np.argsort(t, kind="stable")]
         check_brightness_order(stack.times, [255.0 * float(im[::8, ::8].mean()) for im in stack.images],

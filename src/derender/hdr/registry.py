@@ -210,12 +210,29 @@ def merge_seeded(stack: Stack, method: str, seed: int = 0, **options: Any) -> HD
 def settable_options(method: str) -> dict[str, tuple[Any, Any]]:
     """The options of ``method`` a user can set as text (``derender merge --option NAME=VALUE``):
     ``{name: (type, default)}``, the type from the merge function's annotation."""
+    fn = get_method(method)
+    params = list(inspect.signature(fn).parameters.items())[1:]
+    out = {}
+    for k, p in params:
+        if k in _NOT_SETTABLE or p.annotation is inspect.Parameter.empty:
+            continue
+        tp = _annotation(fn, p.annotation)
+        if tp is not None:
+            out[k] = (tp, p.default)
+    return out
+
+
+def _annotation(fn, ann: Any) -> Any:
+    """A parameter's annotation as a type (string annotations evaluated in the function's module;
+    None when that fails, e.g. a name imported only inside a function)."""
     import typing
 
-    fn = get_method(method)
-    hints = typing.get_type_hints(fn)
-    params = list(inspect.signature(fn).parameters.items())[1:]
-    return {k: (hints[k], p.default) for k, p in params if k not in _NOT_SETTABLE and k in hints}
+    if not isinstance(ann, str):
+        return ann
+    try:
+        return eval(ann, {**vars(typing), **getattr(fn, "__globals__", {})})  # noqa: S307 - our own annotations
+    except Exception:  # noqa: BLE001
+        return None
 
 
 def _type_name(tp: Any) -> str:
