@@ -9,15 +9,24 @@ options from ``--option``, and ``derender methods`` lists it with its output col
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import run_cli
+
+
+@pytest.fixture
+def toy_method():
+    """The toy method registered for one test and removed after it (the registry is process-wide:
+    the demo and the families tables run every registered method)."""
+    from derender.hdr.registry import MERGE_METHODS
+
+    _register_toy()
+    yield "toy-mean"
+    MERGE_METHODS.pop("toy-mean", None)
 
 
 def _register_toy():
     from derender.core.types import HDRResult
-    from derender.hdr.registry import MERGE_METHODS, register_method
-
-    if "toy-mean" in MERGE_METHODS:
-        return
+    from derender.hdr.registry import register_method
 
     @register_method("toy-mean", output_space="the codes taken as linear, divided by the exposure time")
     def merge_toy(stack, low: float = 0.05, high: float = 0.95) -> HDRResult:
@@ -32,12 +41,11 @@ def _register_toy():
                          info={"method": "toy-mean", "low": low})
 
 
-def test_a_method_defined_outside_the_package_works_everywhere(tmp_path, capsys):
+def test_a_method_defined_outside_the_package_works_everywhere(tmp_path, capsys, toy_method):
     import derender as dr
     from derender.camera import bracket_paths, simulate_bracket, write_bracket
     from derender.io.exr import read_exr
 
-    _register_toy()
     write_bracket(simulate_bracket(size=(64, 48), exposures=3, pipeline="fixed", style="simple", seed=3),
                   tmp_path / "b")
     paths = bracket_paths(tmp_path / "b", "jpeg")
