@@ -89,6 +89,12 @@ def pack_half(values: np.ndarray, mantissa_bits: int = 10) -> str:
     return base64.b64encode(gzip.compress(planes, compresslevel=6, mtime=0)).decode("ascii")
 
 
+def _half_scale(values: np.ndarray) -> float:
+    """The power of two that puts the largest of ``values`` near 2^14 (1 when none is positive)."""
+    top = float(np.max(values)) if values.size else 0.0
+    return float(2.0 ** np.floor(np.log2(16384.0 / top))) if top > 0 else 1.0
+
+
 def _pack_bytes(values: np.ndarray) -> str:
     return base64.b64encode(gzip.compress(np.ascontiguousarray(values, dtype=np.uint8).tobytes(), 6,
                                           mtime=0)).decode("ascii")
@@ -147,8 +153,7 @@ def write_report(path: str | os.PathLike, radiance: np.ndarray, *, variance: np.
     sh, sw = small.shape[:2]
     # a power of two that puts the brightest value near 2^14: half floats then keep their relative
     # precision down to 2^-14 of it (normal range), whatever the map's units
-    top = float(np.max(small)) if small.size else 0.0
-    pscale = float(2.0 ** np.floor(np.log2(16384.0 / top))) if top > 0 else 1.0
+    pscale = _half_scale(small)
     data: dict[str, Any] = {"width": sw, "height": sh, "factor": f, "full": [w, h], "absolute": bool(absolute),
                             "weights": [float(v) for v in luminance_weights(primaries)],
                             "scale": pscale, "rgb": pack_half(np.clip(small * pscale, 0, 65000), RGB_MANTISSA_BITS)}
@@ -158,8 +163,7 @@ def write_report(path: str | os.PathLike, radiance: np.ndarray, *, variance: np.
         var_y = np.clip(np.asarray(variance, dtype=np.float32), 0, None) @ (wts * wts).astype(np.float32)
         v_small, _ = reduce_map(var_y, max_pixels)
         sd_small = np.sqrt(v_small / (f * f))        # stored as a standard deviation: half the decades of a variance
-        vtop = float(np.max(sd_small)) if sd_small.size else 0.0
-        vscale = float(2.0 ** np.floor(np.log2(16384.0 / vtop))) if vtop > 0 else 1.0
+        vscale = _half_scale(sd_small)
         data["varscale"] = vscale
         data["var"] = pack_half(np.clip(sd_small * vscale, 0, 65000), VAR_MANTISSA_BITS)
     overlays = np.zeros((sh, sw), np.uint8)

@@ -161,6 +161,30 @@ def is_float(text: str) -> bool:
 
 
 
+def read_radiance_map(path: Path) -> tuple:
+    """A radiance map (.exr or .hdr) as ``(image, header, primaries)``: the .hdr's header lines
+    (``VIEW``, ``EXPOSURE``, ...; empty for an EXR) and the primaries its RGB is in: the .hdr's
+    ``PRIMARIES`` line (None: Radiance's standard primaries), linear sRGB for an EXR (derender
+    writes its maps in linear sRGB)."""
+    from derender.io.rgbe import SRGB_PRIMARIES, read_hdr_header, read_radiance
+
+    is_hdr = Path(path).suffix.lower() in (".hdr", ".pic")
+    header = read_hdr_header(path) if is_hdr else {}
+    primaries = header.get("PRIMARIES") if is_hdr else SRGB_PRIMARIES
+    return read_radiance(path), header, primaries
+
+
+def read_mask_codes(path: Path, option: str, shape: tuple | None = None):
+    """The first channel of an 8-bit mask PNG (a merge's ``--mask``, a ghost mask), checked
+    against the ``(H, W)`` ``shape`` of the map it belongs to."""
+    from derender.io.images import read_codes
+
+    codes = read_codes(path, max_megapixels=None)
+    if codes is None or (shape is not None and codes.shape[:2] != tuple(shape)):
+        raise InputError(f"{option} {path} is not an 8-bit mask" + (" of the map's size" if shape else ""))
+    return codes[..., 0]
+
+
 def check_model_camera(model_path: Path, image: Path, strict: bool) -> None:
     """Warn (one ``warning:`` line) or, ``strict``, refuse when a single model file was
     calibrated for another camera than the image's EXIF names."""

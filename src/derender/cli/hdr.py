@@ -22,6 +22,7 @@ from derender.cli.app import (
     load_camera_cli,
     parse_size,
     progress,
+    read_mask_codes,
     read_stack_from_cli,
 )
 from derender.core.errors import InputError
@@ -341,14 +342,7 @@ def evaluate(
     if variance is not None:
         from derender.evaluation.uncertainty import coverage_table
 
-        mask_codes = None
-        if merge_mask is not None:
-            from derender.io.images import read_codes
-
-            codes = read_codes(merge_mask, max_megapixels=None)
-            if codes is None or codes.shape[:2] != res_map.shape[:2]:
-                raise InputError(f"--mask {merge_mask} is not an 8-bit mask of the result's size")
-            mask_codes = codes[..., 0]
+        mask_codes = None if merge_mask is None else read_mask_codes(merge_mask, "--mask", res_map.shape[:2])
         var_map = read_radiance(variance)
         if var_map.shape != res_map.shape:
             raise InputError(f"--variance {variance} is {var_map.shape[1]}x{var_map.shape[0]}, the result "

@@ -9,7 +9,15 @@ from typing import List, Optional
 
 import typer
 
-from derender.cli.app import INVERSE_HELP, TIMES_FILE_HELP, TIMES_HELP, app, check_times_options
+from derender.cli.app import (
+    INVERSE_HELP,
+    TIMES_FILE_HELP,
+    TIMES_HELP,
+    app,
+    check_times_options,
+    read_mask_codes,
+    read_radiance_map,
+)
 from derender.core.errors import InputError
 
 
@@ -27,27 +35,17 @@ def illuminance(
     """Vertical illuminance Ev (lx) at the lens, as Radiance's 'evalglare -V' computes it.
 
     Ev is the sum of L cos(theta) Omega over the view, L = 179 (w·RGB) cd/m2 (docs: luminance maps)."""
-    from derender.io.rgbe import read_hdr_header, read_radiance
+    from derender.io.rgbe import read_radiance
     from derender.photometry.illuminance import vertical_illuminance
     from derender.photometry.projection import parse_view
 
-    header = read_hdr_header(radiance_map) if radiance_map.suffix.lower() in (".hdr", ".pic") else {}
+    rad, header, primaries = read_radiance_map(radiance_map)
     text = view if view is not None else header.get("VIEW")
     if text is None:
         raise InputError(f"{radiance_map} states no view; give --view (e.g. '-vta -vh 180 -vv 180')")
     v = parse_view(text)
-    rad = read_radiance(radiance_map)
     var = read_radiance(variance) if variance is not None else None
-    flagged = None
-    if mask is not None:
-        from derender.io.images import read_codes
-
-        codes = read_codes(mask, max_megapixels=None)
-        if codes is None or codes.shape[:2] != rad.shape[:2]:
-            raise InputError(f"--mask {mask} is not an 8-bit mask of the map's size")
-        flagged = codes[..., 0] == 128
-    primaries = header.get("PRIMARIES") if radiance_map.suffix.lower() in (".hdr", ".pic") else \
-        "0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290"
+    flagged = None if mask is None else read_mask_codes(mask, "--mask", rad.shape[:2]) == 128
     res = vertical_illuminance(rad, v, primaries=primaries, variance=var, flagged=flagged)
     if as_json:
         typer.echo(json.dumps({"ev_lx": res.ev, "ev_sd_lx": res.ev_sd, "solid_angle_sr": res.solid_angle,
@@ -71,14 +69,11 @@ def falsecolor(
 ) -> None:
     """Falsecolor luminance map with a legend in cd/m2 (179 (w·RGB), as Radiance's falsecolor)."""
     from derender.io.files import OutputTransaction
-    from derender.io.rgbe import read_hdr_header, read_radiance
     from derender.photometry.falsecolor import falsecolor_figure
 
     if log < 0:
         raise InputError(f"--log takes a number of decades >= 0, got {log}")
-    header = read_hdr_header(radiance_map) if radiance_map.suffix.lower() in (".hdr", ".pic") else {}
-    primaries = header.get("PRIMARIES") if header else "0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290"
-    rad = read_radiance(radiance_map)
+    rad, _, primaries = read_radiance_map(radiance_map)
     with OutputTransaction([radiance_map]) as tx:
         tmp = tx.add(output, "--output", (".png", ".pdf", ".svg"))
         scale = falsecolor_figure(rad, tmp, primaries=primaries, top=top, decades=log if log > 0 else None,
@@ -146,7 +141,7 @@ def report(
     from derender.applications.report import write_report
     from derender.io.files import OutputTransaction
 
-    rad, extras, header = _report_inputs(radiance_map, variance, mask, ghost_mask)
+    rad, extras, header, primaries = _report_inputs(radiance_map, variance, mask, ghost_mask)
     v = _report_view(view, header)
     inputs = [p for p in (radiance_map, variance, mask, ghost_mask) if p is not None]
     summary = {"map": str(radiance_map), "size": f"{rad.shape[1]}x{rad.shape[0]}"}
@@ -154,7 +149,7 @@ def report(
         summary["software"] = header["SOFTWARE"]
     with OutputTransaction(inputs) as tx:
         tmp = tx.add(output, "--output", (".html", ".htm"))
-        info = write_report(tmp, rad, **extras, absolute=absolute, primaries=header.get("PRIMARIES"),
+        info = write_report(tmp, rad, **extras, absolute=absolute, primaries=primaries,
                             summary=summary, view=v, title=f"derender report: {radiance_map.name}",
                             max_pixels=max_pixels, inputs=inputs)
     typer.echo(f"report {info['width']}x{info['height']} (reduced {info['factor']}x), {info['bytes'] / 1e6:.2f} MB "
@@ -162,23 +157,16 @@ def report(
 
 
 def _report_inputs(radiance_map: Path, variance, mask, ghost_mask):
-    from derender.io.images import read_codes
-    from derender.io.rgbe import read_hdr_header, read_radiance
+    from derender.io.rgbe import read_radiance
 
-    header = read_hdr_header(radiance_map) if radiance_map.suffix.lower() in (".hdr", ".pic") else {}
-    if not header:
-        header = {"PRIMARIES": "0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290"}
-    rad = read_radiance(radiance_map)
+    rad, header, primaries = read_radiance_map(radiance_map)
     extras: dict = {}
     if variance is not None:
         extras["variance"] = read_radiance(variance)
-    for key, p in (("mask", mask), ("ghost_mask", ghost_mask)):
+    for key, option, p in (("mask", "--mask", mask), ("ghost_mask", "--ghost-mask", ghost_mask)):
         if p is not None:
-            codes = read_codes(p, max_megapixels=None)
-            if codes is None:
-                raise InputError(f"{p} is not an 8-bit mask")
-            extras[key] = codes[..., 0]
-    return rad, extras, header
+            extras[key] = read_mask_codes(p, option, rad.shape[:2])
+    return rad, extras, header, primaries
 
 
 def _report_view(view, header):
