@@ -5,7 +5,7 @@ import pytest
 from helpers import write_png_codes
 
 from derender.hdr.files import merge_files as merge_files_fast
-from derender.hdr.ward2003 import _half, grey8_codes, to_grey8
+from derender.engine.ward2003 import _half, grey8_codes, to_grey8
 
 
 def test_grey8_codes_equal_rint_of_ward_weights_for_every_colour():
@@ -60,7 +60,7 @@ def test_compiled_mtb_counts_equal_bitmap_counts(percentile, step):
     scorer counts on explicit bitmaps, for every candidate shift (width not a multiple of 64)."""
     import cv2
 
-    from derender.hdr import ward2003 as A
+    from derender.engine import ward2003 as A
 
     rng = np.random.default_rng(int(percentile))
     h, w = 300, 901
@@ -83,7 +83,7 @@ def test_compiled_mtb_counts_with_shifts_across_words():
     them): the compiled scorer still counts exactly what the NumPy scorer counts."""
     import cv2
 
-    from derender.hdr import ward2003 as A
+    from derender.engine import ward2003 as A
 
     rng = np.random.default_rng(7)
     h, w = 96, 301

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import derender.engine.reference_frame as RF
 import derender.hdr.stabilize as S
 import derender.hdr.stabilize.blocks as SB
 import derender.hdr.stabilize.exponents as SX
@@ -272,10 +273,10 @@ def test_select_reference_fewest_badly_exposed():
     z[1, :2] = 1.0          # 20 % over
     z[2, :1] = 0.01         # 10 % under
     z[3, :3] = 0.99         # 30 % over
-    over, under = S.exposure_fractions(z)
+    over, under = RF.exposure_fractions(z)
     np.testing.assert_allclose(over, [0, 0.2, 0, 0.3])
     np.testing.assert_allclose(under, [0.6, 0, 0.1, 0])
-    assert S.select_reference(z) == 2
+    assert RF.select_reference(z) == 2
     st = Stack(images=z, times=[1, 2, 4, 8])
     with pytest.raises(InputError):
         S.stabilize(st, reference=7)

@@ -81,7 +81,7 @@ def read_frames(paths: list[Path], threads: int | None,
     """Decode 8-bit frames (in threads) into one (N, H, W, 3) uint8 array (pages populated
     up front, :func:`populated_zeros`) and, with ``derive(frame, out)``, one uint8 plane
     (N, H, W) per frame computed in the decoding threads (e.g. Ward's grey images for MTB
-    registration, :func:`derender.hdr.ward2003.grey8_codes`). The first frame gives the size;
+    registration, :func:`derender.engine.ward2003.grey8_codes`). The first frame gives the size;
     the others are decoded straight into their slot. ``derive_alloc(H, W, nbytes)``, if
     given, returns the uint8 memory (at least ``nbytes``) the planes go to, so that a later
     stage can reuse it. ``infos`` are the files' probed headers

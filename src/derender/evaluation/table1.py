@@ -325,11 +325,11 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[st
 def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = "stabilized",
                      references: Sequence[int] | None = None, **options: Any) -> dict:
     """PSNR (R, G, B, L; :func:`derender.evaluation.metrics.psnr_rgbl`) of ``method`` for every
-    reference in ``references`` (default :func:`derender.hdr.stabilize.reasonable_references`) and the spread
+    reference in ``references`` (default :func:`derender.engine.reference_frame.reasonable_references`) and the spread
     (max - min) of each plane over them (paper 1, Fig. 5)."""
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.registry import merge
-    from derender.hdr.stabilize import reasonable_references
+    from derender.engine.reference_frame import reasonable_references
 
     refs = reasonable_references(stack.images) if references is None else [int(r) for r in references]
     if not refs:

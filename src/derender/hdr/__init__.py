@@ -1,17 +1,15 @@
-"""HDR merge methods: the registry, the classic merges, paper 1 (alignment, stabilisation) and paper 2 (probabilistic HDR).
+"""HDR merge methods: the registry, the classic merges, paper 1 (stabilisation) and paper 2 (probabilistic HDR).
 
-Modules: :mod:`derender.hdr.align`, :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.stabilized_probabilistic`, :mod:`derender.hdr.ward2003`.
+Modules: :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.stabilized_probabilistic`.
 """
 
 from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "align": ["ALIGN_METHODS", "Alignment", "shift_into", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
     "batch": ["stack_files", "merge_one_stack", "merge_batch"],
     "classic": ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"],
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
     "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
     "registry": ["MERGE_METHODS", "OUTPUT_SPACES", "method_summary", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options"],
-    "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
 })

@@ -8,10 +8,10 @@ display gamma, ~2.2). Undoing the gamma gives linear images ``L_j = J_j ** gamma
 which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
 ``H_j = A_ref A_j^-1 t_ref / t_j``. Algorithm 1, one module per step:
 
-* Step 1, :mod:`.reference` -- :func:`select_reference`, the best-exposed image (fewest
+* Step 1, :mod:`derender.engine.reference_frame` -- :func:`~derender.engine.reference_frame.select_reference`, the best-exposed image (fewest
   over/under-exposed pixels).
-* Step 2, registration -- :func:`derender.hdr.align.align_images` (Ward's MTB translation by
-  default, :mod:`derender.hdr.ward2003`).
+* Step 2, registration -- :func:`derender.engine.align.align_images` (Ward's MTB translation by
+  default, :mod:`derender.engine.ward2003`).
 * Step 3.1, per-image linearisation, :mod:`.exponents` -- :func:`estimate_gammas` (a display gamma
   per image, blind pairwise searches; absolute level with times or blind), read through
   the :class:`Curve` linearisations of :mod:`.curves`. When those gammas drift steadily
@@ -59,7 +59,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"],
     "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],
     "pair_fit": ["RIDGE", "predict_codes", "pair_weights", "fit_pair", "effective_codes", "pair_cost", "pair_residuals", "pair_costs_power"],
-    "reference": ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fractions", "select_reference", "reasonable_references"],
     "saturation": ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO",
                    "HIDDEN_FRACTION", "hidden_saturation", "hidden_fraction", "saturation_fraction",
                    "saturation_mask"],

@@ -34,7 +34,7 @@ from derender.hdr.stabilize.filmic import (
     screen_gamma_trend,
     unclipped_debevec,
 )
-from derender.hdr.stabilize.reference import REF_PIXELS, select_reference
+from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
@@ -117,7 +117,7 @@ def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: boo
 
 class ShiftedFrames:
     """8-bit frames seen through integer registration shifts, as the float images
-    :func:`derender.hdr.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
+    :func:`derender.engine.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
     clip(x + dx)]``, codes as ``k * float32(1/255)``), without making them: ``shape`` and
     ``pixels(j, ys, xs)`` for :func:`stabilize_aligned`; ``codes(j)`` gives the aligned
     uint8 frame."""
@@ -143,7 +143,7 @@ class ShiftedFrames:
         return self.frames[j][yy, xx]
 
     def codes(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
-        from derender.hdr.align import shift_into
+        from derender.engine.align import shift_into
 
         dy, dx = self.shifts[j]
         if dy == 0 and dx == 0:
@@ -175,7 +175,7 @@ class _CodeFrames:
     def __getitem__(self, j: int) -> np.ndarray:
         if self.rows == 1:
             return self.view.codes(j)
-        from derender.hdr.align import shift_into
+        from derender.engine.align import shift_into
 
         # the rows of the shifted frame, without shifting the whole frame first (at 24 MP that
         # copied 72 MB per frame to keep one row in ``rows``): shift_into's clipped source rows
@@ -192,7 +192,7 @@ class _CodeFrames:
 
 @dataclass
 class LazyAlignment:
-    """What :func:`stabilize_aligned` reads of an :class:`~derender.hdr.align.Alignment`."""
+    """What :func:`stabilize_aligned` reads of an :class:`~derender.engine.align.Alignment`."""
 
     images: ShiftedFrames
     valid: ShiftedValid
@@ -208,7 +208,7 @@ class StabilizedMethod:
 
     Every frame is held once as 8-bit codes (72 MB per 24 MP frame, a quarter of the
     float image the reference path holds); Ward's grey images are made in the decoding
-    threads (registration, :func:`derender.hdr.align.chain_transforms`); the reference is
+    threads (registration, :func:`derender.engine.align.chain_transforms`); the reference is
     chosen on the codes as :func:`select_reference` does; the gamma / matrix fits read
     only their sampled blocks through :class:`ShiftedFrames`; the Debevec curve (filmic
     cameras) comes from grid samples of the aligned frames; the merge is the engine's
@@ -231,7 +231,7 @@ class StabilizedMethod:
     def derive(self):
         if self.align != "mtb":
             return None
-        from derender.hdr.ward2003 import grey8_codes
+        from derender.engine.ward2003 import grey8_codes
 
         return lambda frame, out: grey8_codes(frame, out=out)
 
@@ -239,7 +239,7 @@ class StabilizedMethod:
         return None
 
     def plan(self, access: FrameAccess) -> MatrixPlan:
-        from derender.hdr.align import chain_transforms, transforms_to_shifts
+        from derender.engine.align import chain_transforms, transforms_to_shifts
         from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, check_usable_samples, grid_positions
         from derender.response.debevec1997 import calibrate_debevec_from_samples
 
@@ -321,7 +321,7 @@ class Stabilization:
     matrices : numpy.ndarray
         (N, 3, 3) H_j or K_j.
     alignment : Alignment
-        :class:`derender.hdr.align.Alignment` (or :class:`LazyAlignment`).
+        :class:`derender.engine.align.Alignment` (or :class:`LazyAlignment`).
     times : numpy.ndarray
         (N,) exposure times (s).
     curves : list
@@ -376,7 +376,7 @@ def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mo
     if not isinstance(stack, Stack):
         raise InputError(f"stabilize() needs a Stack, got {type(stack).__name__}")
     _check_modes(mode, response)
-    from derender.hdr.align import align_images
+    from derender.engine.align import align_images
     from derender.response.curves import check_usable
 
     check_usable(stack)
@@ -416,7 +416,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
                       calibrate: Any = None, exposure_rounds: int | None = None) -> Stabilization:
     """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
 
-    ``al`` is an :class:`derender.hdr.align.Alignment`, or a lazy equivalent with ``images``
+    ``al`` is an :class:`derender.engine.align.Alignment`, or a lazy equivalent with ``images``
     and ``valid`` offering ``shape`` and ``pixels(j, ys, xs)`` (the streaming path of
     :func:`derender.hdr.files.merge_files`, which also passes ``calibrate``, see
     :func:`curve_model`). The reference is ``al.reference``.
