@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from helpers import write_png_codes
 
-from derender.hdr.files import merge_files as merge_files_fast
 from derender.engine.ward2003 import _half, grey8_codes, to_grey8
+from derender.hdr.files import merge_files as merge_files_fast
 
 
 def test_grey8_codes_equal_rint_of_ward_weights_for_every_colour():

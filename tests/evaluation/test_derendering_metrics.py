@@ -5,8 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derender.evaluation.derendering_metrics import (interval_coverage, max_colour_share, median_relative_error,
-                                                     relative_rmse, rmse)
+from derender.evaluation.derendering_metrics import (
+    interval_coverage,
+    max_colour_share,
+    median_relative_error,
+    relative_rmse,
+    rmse,
+)
 
 
 def test_metrics_on_known_values():

@@ -128,6 +128,19 @@ def merge_cmd(
     strict_camera: bool = typer.Option(False, "--strict-camera",
                                        help="Refuse a -m model calibrated for another camera than the images' EXIF "
                                             "names (default: a warning)."),
+    reference: Optional[str] = typer.Option(None, "--reference", help="Reference frame: N (the N-th image as "
+                                            "given, from 1) or 'auto' (fewest clipped pixels). The result shows the "
+                                            "scene at that frame's instant, on its pixel grid."),
+    align: Optional[str] = typer.Option(None, "--align", help="Register the frames to the reference: none, "
+                                        "translation (Ward's MTB) or homography (features). Default: translation "
+                                        "for the stabilised methods, none for the others."),
+    deghost: bool = typer.Option(False, "--deghost", help="Leave out, per pixel, the frames that disagree with the "
+                                 "reference under the method's noise model (moving people, leaves, cars)."),
+    ghost_threshold: Optional[float] = typer.Option(None, "--ghost-threshold", help="Ghost test threshold (window "
+                                                    "mean of z^2 per channel; default 4: lower removes more)."),
+    ghost_mask: Optional[Path] = typer.Option(None, "--ghost-mask", help="PNG of where frames were left out "
+                                              "(ghosts, or not covered after alignment): 0 none, 255 all but the "
+                                              "reference."),
     option: List[str] = typer.Option([], "--option", "-O",
                                      help="A method option as NAME=VALUE (repeat; 'derender methods' lists them), "
                                           "e.g. --option exposure_rounds=0 or --option colour_space=camera_rgb."),
@@ -171,6 +184,7 @@ def merge_cmd(
                          f"{', '.join(users)})")
     if plot is not None and not getattr(fn, "gives_curves", False):
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
+    motion_opts = _motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
     t0 = time.perf_counter()
     inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else []) + \
         ([vignetting] if vignetting else [])
@@ -188,7 +202,8 @@ def merge_cmd(
         mask_tmp = tx.add(mask, "--mask", (".png", ".tif", ".tiff"))
         plot_tmp = tx.add(plot, "--plot", (".png", ".pdf", ".svg"))
         report_tmp = tx.add(report, "--report", (".html", ".htm"))
-        extra = dict(method_opts)
+        ghost_tmp = tx.add(ghost_mask, "--ghost-mask", (".png", ".tif", ".tiff"))
+        extra = {**method_opts, **motion_opts}
         if model is not None:
             from derender.derendering.library import resolve_model
 
@@ -239,6 +254,8 @@ def merge_cmd(
             m[result.mask == 1] = 128
             m[result.mask == 2] = 255
             write_png(mask_tmp, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
+        if ghost_tmp is not None:
+            write_png(ghost_tmp, _ghost_png(result.ghosts, len(images)), inputs=inputs)
         if plot_tmp is not None:
             from derender.response.curves import plot_response
 
@@ -253,6 +270,71 @@ def merge_cmd(
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
                f"({time.perf_counter() - t0:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
                f"{n_dark} px from the longest (mask))")
+    motion_line = _motion_summary(result.info, images)
+    if motion_line:
+        typer.echo(motion_line)
+
+
+def _motion_options(reference: Optional[str], align: Optional[str], deghost: bool, threshold: Optional[float],
+                    ghost_mask: Optional[Path], n_images: int) -> dict:
+    """The engine's motion options of ``derender merge`` (``--reference`` counts from 1)."""
+    out: dict = {}
+    if reference is not None:
+        text = reference.strip().lower()
+        if text == "auto":
+            out["reference"] = "auto"
+        else:
+            try:
+                k = int(text)
+            except ValueError:
+                raise InputError(f"--reference takes N (from 1) or 'auto', got {reference!r}") from None
+            if not 1 <= k <= n_images:
+                raise InputError(f"--reference {k} is out of range: {n_images} images given (1..{n_images})")
+            out["reference"] = k - 1
+    if align is not None:
+        from derender.engine.motion import ALIGNMENTS
+
+        if align not in ALIGNMENTS + ("mtb",):
+            raise InputError(f"--align takes {', '.join(ALIGNMENTS)}, got {align!r}")
+        out["align"] = align
+    if deghost:
+        out["deghost"] = True
+    if threshold is not None:
+        if not deghost:
+            raise InputError("--ghost-threshold sets the test of --deghost; add --deghost")
+        out["ghost_threshold"] = threshold
+    if ghost_mask is not None and not deghost and align in (None, "none"):
+        raise InputError("--ghost-mask shows where --deghost or --align left frames out; add one of them")
+    return out
+
+
+def _ghost_png(ghosts, n_images: int):
+    """8-bit RGB picture of :attr:`HDRResult.ghosts`: frames left out per pixel, 255 = all but the reference."""
+    import numpy as np
+
+    g = np.zeros((1, 1), np.uint8) if ghosts is None else np.asarray(ghosts)
+    v = np.clip(np.rint(g.astype(np.float64) * (255.0 / max(n_images - 1, 1))), 0, 255).astype(np.uint8)
+    return np.repeat(v[:, :, None], 3, axis=2)
+
+
+def _motion_summary(info: dict, images) -> str:
+    """One line on the reference frame, the alignment and ghost removal (motion path only)."""
+    if info.get("engine_path") != "motion":
+        return ""
+    parts = []
+    k = info.get("reference_input")
+    if k is not None:
+        parts.append(f"reference frame {k + 1} ({images[k].name})")
+    al = info.get("alignment", {})
+    if al.get("align") == "translation":
+        shifts = al.get("shifts") or [[0, 0]]
+        parts.append(f"aligned by translation (largest shift {max(max(abs(a), abs(b)) for a, b in shifts)} px)")
+    elif al.get("align") == "homography":
+        parts.append("aligned by homography")
+    dg = info.get("deghost")
+    if dg:
+        parts.append(f"ghost removal left out {100 * dg.get('rejected', 0.0):.1f} % of the other frames' pixels")
+    return "; ".join(parts)
 
 
 def _merge_report(path, result, images, method: str, absolute: bool, view: str | None, inputs, times) -> None:

@@ -214,12 +214,17 @@ class HDRResult:
         (also when written without being held, as ``radiance``).
     info : dict
         Free-form details (curves, gammas, matrices, reference index, timings).
+    ghosts : numpy.ndarray or None
+        (H, W) uint8, how many frames did not take part at each pixel because they disagreed
+        with the reference frame (ghost removal) or did not cover it after alignment; None
+        when the engine neither aligned nor removed ghosts (:mod:`derender.engine.motion`).
     """
 
     radiance: np.ndarray
     mask: np.ndarray
     variance: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    ghosts: np.ndarray | None = None
 
     MASK_OK = 0
     MASK_BRIGHT = 1

@@ -16,7 +16,9 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "gaussian": ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held"],
     "overlap": ["OVERLAP_ROWS", "RING_SLOTS", "RowsDone", "OutputRing", "merge_writing", "run_bands"],
     "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"],
-    "align": ["ALIGN_METHODS", "Alignment", "shift_into", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
+    "align": ["ALIGN_METHODS", "Alignment", "shift_into", "shift_valid", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
     "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
-    "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "ENGINES"],
+    "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "frame_brightness", "table_kernel_merge", "ENGINES"],
+    "motion": ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "run_motion"],
+    "deghost": ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "MAX_REJECTED", "frame_estimates", "detect_ghosts", "merge_valid"],
 })

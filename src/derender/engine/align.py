@@ -42,6 +42,7 @@ __all__ = [
     "ALIGN_METHODS",
     "Alignment",
     "shift_into",
+    "shift_valid",
     "shift_image",
     "estimate_homography",
     "warp_image",
@@ -104,10 +105,10 @@ def shift_image(image: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.nda
     h, w = img.shape[:2]
     out = np.empty_like(img)
     shift_into(out, img, dy, dx)
-    return out, _shift_valid(h, w, dy, dx)
+    return out, shift_valid(h, w, dy, dx)
 
 
-def _shift_valid(h: int, w: int, dy: int, dx: int) -> np.ndarray:
+def shift_valid(h: int, w: int, dy: int, dx: int) -> np.ndarray:
     ys = np.arange(h) + int(dy)
     xs = np.arange(w) + int(dx)
     return ((ys >= 0) & (ys < h))[:, None] & ((xs >= 0) & (xs < w))[None, :]
@@ -230,7 +231,7 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
         for j in range(n):              # written in place: no per-frame temporaries
             src = arr[j] if arr.dtype == np.float32 else arr[j].astype(np.float32)
             shift_into(out[j], src, shifts[j, 0], shifts[j, 1])
-            valid[j] = _shift_valid(h, w, shifts[j, 0], shifts[j, 1])
+            valid[j] = shift_valid(h, w, shifts[j, 0], shifts[j, 1])
     else:
         for j in range(n):
             if j == ref:

@@ -58,13 +58,17 @@ class LogGaussianProduct:
         self.acc = np.zeros((3, *shape), dtype=np.float64)
         self.bound = np.full((3, *shape), -np.inf)
 
-    def add_rows(self, planes: np.ndarray, rows: np.ndarray, log_scale: float) -> None:
+    def add_rows(self, planes: np.ndarray, rows: np.ndarray, log_scale: float,
+                 keep: np.ndarray | None = None) -> None:
         """One exposure: ``planes`` (9, M) = ``[mu; p; low]`` per channel of its colours,
-        ``rows`` (...) the row of each pixel's colour, and the frame's ``log(t_0 / t_j)``."""
+        ``rows`` (...) the row of each pixel's colour, and the frame's ``log(t_0 / t_j)``;
+        ``keep`` (bool, ``rows``' shape): the pixels where the frame takes part (all if None)."""
         t = np.empty(rows.shape, dtype=np.float64)
         p = np.empty(rows.shape, dtype=np.float64)
         for c in range(3):
             np.take(planes[3 + c], rows, out=p, mode="clip")       # clip: rows are valid; unbuffered out
+            if keep is not None:
+                p[~keep] = 0.0
             self.prec[c] += p
             np.take(planes[c], rows, out=t, mode="clip")
             t += log_scale
@@ -72,12 +76,14 @@ class LogGaussianProduct:
             self.acc[c] += t
             np.take(planes[6 + c], rows, out=t, mode="clip")
             t += log_scale
+            if keep is not None:
+                t[~keep] = -np.inf
             np.maximum(self.bound[c], t, out=self.bound[c])
 
 
 def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None,
                           write=None, outputs: tuple[np.ndarray, np.ndarray] | None = None,
-                          ring: int = 0) -> HDRResult:
+                          ring: int = 0, valid: np.ndarray | None = None) -> HDRResult:
     """Run a :class:`~derender.engine.plans.GaussianPlan` on held frames (N, H, W, 3) uint8
     sorted by exposure time; bands of ``plan.band_rows`` rows in ``threads`` threads.
     ``write(result, rows_done)``: the radiance written while merging
@@ -86,7 +92,8 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     fused compiled pass): radiance and variance go through an
     :class:`~derender.engine.overlap.OutputRing` of band buffers read by ``ring`` writers (1:
     the radiance file, 2: and the variance file); the result's ``radiance`` and ``variance``
-    are None."""
+    are None. ``valid`` (N, H, W) uint8: frame ``j`` takes part only where ``valid[j]`` is
+    non-zero (the engine's alignment and ghost removal, :mod:`derender.engine.motion`)."""
     from derender.core.memory import populated_zeros
     from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing, run_bands
 
@@ -119,6 +126,8 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     planes = None if fused is not None else plan.rows_planes()
     compiled = (fused is not None or (lut is not None and planes.dtype == np.float64 and planes.flags.c_contiguous
                                       and frames.flags.c_contiguous))
+    whole = valid is None
+    valid_k = np.ones((n, 1, 1), dtype=np.uint8) if whole else np.ascontiguousarray(valid, dtype=np.uint8)
     if compiled:
         from derender.engine.kernels import gaussian_band
 
@@ -136,16 +145,17 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
                 (rad, var), row0 = rng.slot(y0)
             else:
                 rad, var, row0 = radiance, variance, 0
-            gaussian_moments_band(frames, lut, table, scales, y0, y1, bool(fused.censor),
+            gaussian_moments_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
                                   float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var)
             mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
             return
         prod = LogGaussianProduct((y1 - y0, w))
         if compiled:
-            gaussian_band(frames, lut, planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
+            gaussian_band(frames, valid_k, lut, planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
         else:
             for j in range(n):
-                prod.add_rows(planes, plan.index.rows(frames[j, y0:y1]), log_scales[j])
+                prod.add_rows(planes, plan.index.rows(frames[j, y0:y1]), log_scales[j],
+                              keep=None if whole else valid[j, y0:y1] != 0)
         radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
         mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
 

@@ -29,6 +29,7 @@ __all__ = [
     "gaussian_moments_band",
     "log_tables_rows",
     "mark_colours",
+    "ghost_statistic",
 ]
 
 
@@ -58,8 +59,8 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
     ``min_c weights[z_c, c]`` if some image sees all channels of the pixel with positive
     weight, else the weight of the brightest channel ``weights[max_c z_c, 0]``. Both sums are
     kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
-    comes from the shortest exposure (``mask`` 1) if its largest code is ``bright``, else
-    from the longest (``mask`` 2), with ``mats64`` (projected as above); elsewhere ``mask`` is 0. ``out`` is
+    comes from the shortest exposure that takes part there (``mask`` 1) if its largest code is
+    ``bright``, else from the longest (``mask`` 2), with ``mats64`` (projected as above); elsewhere ``mask`` is 0. ``out`` is
     (3, rows, W) float32, row ``y`` at ``out[:, y - row0]`` (the whole image: ``row0`` 0; a band
     buffer: its first row). Rows run in parallel; within a row, tiles of :data:`MERGE_TILE`
     pixels take the frames one after another (each pixel's sums still run over the frames in
@@ -142,13 +143,24 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                     out[2, y - row0, x] = acc[k + 3, t] / dm
                     mask[y, x] = 0
                     continue
-                ys = min(max(y + shifts[j_short, 0], 0), h - 1)
-                xs = min(max(x + shifts[j_short, 1], 0), w - 1)
-                zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
-                jj = j_short
+                js = j_short
+                jl = j_long
+                if not whole:       # the shortest and longest frames that take part here
+                    for jv in range(n):
+                        if valid[jv, y, x] != 0:
+                            js = jv
+                            break
+                    for jv in range(n - 1, -1, -1):
+                        if valid[jv, y, x] != 0:
+                            jl = jv
+                            break
+                ys = min(max(y + shifts[js, 0], 0), h - 1)
+                xs = min(max(x + shifts[js, 1], 0), w - 1)
+                zmax = max(max(frames[js, ys, xs, 0], frames[js, ys, xs, 1]), frames[js, ys, xs, 2])
+                jj = js
                 mask[y, x] = 1
                 if not bright[zmax]:
-                    jj = j_long
+                    jj = jl
                     mask[y, x] = 2
                 ys = min(max(y + shifts[jj, 0], 0), h - 1)
                 xs = min(max(x + shifts[jj, 1], 0), w - 1)
@@ -271,12 +283,14 @@ def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margi
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def table_merge_rows(frames, order, values, weights, independent, log_domain, v_short, v_long, j_short, j_long,
+def table_merge_rows(frames, valid, order, values, weights, independent, log_domain, v_short, v_long, j_short, j_long,
                      bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the table merge (:class:`derender.engine.tables.TableMerge`, modes
     ``"mean"`` and ``"independent"``) of held frames in one pass per pixel, same arithmetic.
 
-    ``frames`` (N, H, W, 3) uint8; frames are added in the order ``order``; frame ``j``'s code
+    ``frames`` (N, H, W, 3) uint8; frame ``j`` takes part where ``valid[j, y, x]`` (``valid`` of
+    shape (N, 1, 1): everywhere; the engine's alignment and ghost removal,
+    :mod:`derender.engine.motion`); frames are added in the order ``order``; frame ``j``'s code
     ``z`` of channel ``c`` contributes ``values[j, z, c]`` with weight ``weights[j, z, c]``
     (float32, already scaled by the image weight, and by 1/3 in the ``"mean"`` mode, as
     :meth:`TableMerge.add` scales them). ``"mean"`` (``independent`` False): one weight per
@@ -293,7 +307,9 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
     engine's blocks; linear: non-finite values replaced as ``np.nan_to_num``).
     """
     n = order.shape[0]
+    nf = frames.shape[0]
     w = frames.shape[2]
+    whole = valid.shape[1] == 1 and valid.shape[2] == 1
     tile = MERGE_TILE
     f32max = np.float32(3.4028234663852886e38)
     for y in prange(y0, y1):
@@ -310,6 +326,8 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
             for k in range(n):
                 j = order[k]
                 for x in range(x0, xe):
+                    if not whole and valid[j, y, x] == 0:
+                        continue
                     t = x - x0
                     z0 = frames[j, y, x, 0]
                     z1 = frames[j, y, x, 1]
@@ -346,6 +364,17 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
                 t = x - x0
                 nb = False
                 ndk = False
+                js = j_short
+                jl = j_long
+                if not whole:       # the shortest and longest frames that take part here
+                    for jj in range(nf):
+                        if valid[jj, y, x] != 0:
+                            js = jj
+                            break
+                    for jj in range(nf - 1, -1, -1):
+                        if valid[jj, y, x] != 0:
+                            jl = jj
+                            break
                 for c in range(3):
                     dc = c if independent else 0
                     if log_domain:
@@ -355,12 +384,13 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
                         ok = den32[dc, t] > np.float32(0.0)
                         r = np.float64(num32[c, t] / den32[dc, t]) if ok else 0.0
                     if not ok:
-                        zs = frames[j_short, y, x, c]
+                        zs = frames[js, y, x, c]
                         if bright[zs]:
-                            r = np.float64(v_short[zs, c])
+                            r = np.float64(v_short[zs, c]) if whole else np.float64(values[js, zs, c])
                             nb = True
                         else:
-                            r = np.float64(v_long[frames[j_long, y, x, c], c])
+                            zl = frames[jl, y, x, c]
+                            r = np.float64(v_long[zl, c]) if whole else np.float64(values[jl, zl, c])
                             ndk = True
                     if log_domain:
                         out[c, y - row0, x] = np.float32(min(r, 88.0))
@@ -377,9 +407,10 @@ def table_merge_rows(frames, order, values, weights, independent, log_domain, v_
 
 
 @njit(nogil=True, cache=True)
-def gaussian_band(frames, lut, planes, log_scales, y0, y1, prec, acc, bound):  # pragma: no cover - compiled
+def gaussian_band(frames, valid, lut, planes, log_scales, y0, y1, prec, acc, bound):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the log-space Gaussian product (:class:`derender.engine.gaussian.LogGaussianProduct`)
-    of held frames (N, H, W, 3) uint8, in one pass per pixel: the colour's row is
+    of held frames (N, H, W, 3) uint8 (frame ``j`` where ``valid[j, y, x]``; ``valid`` (N, 1, 1):
+    everywhere), in one pass per pixel: the colour's row is
     ``lut[R << 16 | G << 8 | B]`` (:class:`derender.derendering.apply.ColourIndex`), ``planes``
     (9, M) float64 ``[mu; p; low]`` per channel; frame ``j`` (in order) adds ``p``,
     ``(mu + s_j) p`` and ``max(bound, low + s_j)`` per channel into ``prec``, ``acc``, ``bound``
@@ -393,11 +424,14 @@ def gaussian_band(frames, lut, planes, log_scales, y0, y1, prec, acc, bound):  #
     (65 -> 43 ms per 64 rows x 9 frames of the 24 MP bracket)."""
     n = frames.shape[0]
     w = frames.shape[2]
+    whole = valid.shape[1] == 1 and valid.shape[2] == 1
     for y in range(y0, y1):
         r = y - y0
         for j in range(n):
             ls = log_scales[j]
             for x in range(w):
+                if not whole and valid[j, y, x] == 0:
+                    continue
                 k = lut[(np.int64(frames[j, y, x, 0]) << 16) | (np.int64(frames[j, y, x, 1]) << 8)
                         | np.int64(frames[j, y, x, 2])]
                 for c in range(3):
@@ -421,7 +455,7 @@ def _ndtr(a):  # pragma: no cover - compiled
 
 
 @njit(nogil=True, cache=True, error_model="numpy")
-def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
+def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
                           row0, radiance, variance):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the log-space Gaussian product, sums and moments in one pass: the sums of
     :func:`gaussian_band` (same float64 operations and order), kept for one row at a time, from a
@@ -440,6 +474,7 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
     (the whole image: ``row0`` 0; band buffers: the band's first row). Releases the GIL."""
     n = frames.shape[0]
     w = frames.shape[2]
+    whole = valid.shape[1] == 1 and valid.shape[2] == 1
     prec = np.empty((3, w))
     acc = np.empty((3, w))
     bound = np.empty((3, w))
@@ -455,6 +490,8 @@ def gaussian_moments_band(frames, lut, table, log_scales, y0, y1, censor, max_lo
         for j in range(n):
             ls = log_scales[j]
             for x in range(w):
+                if not whole and valid[j, y, x] == 0:
+                    continue
                 k = lut[(np.int64(frames[j, y, x, 0]) << 16) | (np.int64(frames[j, y, x, 1]) << 8)
                         | np.int64(frames[j, y, x, 2])]
                 pj = table[k, 3]
@@ -634,3 +671,93 @@ def mark_colours(frames, j0, j1, present):  # pragma: no cover - compiled
             for x in range(w):
                 present[(np.int64(frames[j, y, x, 0]) << 16) | (np.int64(frames[j, y, x, 1]) << 8)
                         | np.int64(frames[j, y, x, 2])] = True
+
+
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, edge_shift, cap, ok, out):  # pragma: no cover - compiled
+    """Per pixel of the detection grid, :mod:`derender.engine.deghost`'s ``min(mean_c z_c^2, cap)``
+    of frame j against the reference (0 where ``ok`` is 0, e.g. a pixel one frame does not cover).
+
+    ``mu_*``, ``sd_*`` (h, w, 3) float32 log radiance and its standard deviation, ``cens_*``
+    (h, w, 3) int8 (0 observed, +1 a lower bound, -1 an upper bound); frame j is shifted by
+    ``-offset[c]`` (its global log offset) and the variance of a channel is
+    ``sd_j^2 + sd_r^2 + extra_var[c] + edge_shift^2 (|grad mu_j|^2 + |grad mu_r|^2)`` (central
+    differences, clamped at the borders). ``z`` is the gap between the two intervals over the
+    standard deviation; where either frame has a channel bounded below (clipped bright), only
+    the pixel's brightest channel is compared (its variance the mean of both argmax channels')."""
+    h, w = mu_j.shape[0], mu_j.shape[1]
+    inf = np.inf
+    e2 = edge_shift * edge_shift
+    for y in prange(h):
+        ya = max(y - 1, 0)
+        yb = min(y + 1, h - 1)
+        dy = 1.0 / max(yb - ya, 1)
+        var_c = np.empty(3)
+        for x in range(w):
+            if ok[y, x] == 0:
+                out[y, x] = 0.0
+                continue
+            xa = max(x - 1, 0)
+            xb = min(x + 1, w - 1)
+            dx = 1.0 / max(xb - xa, 1)
+            qsum = 0.0
+            bright_j = False
+            bright_r = False
+            kj = 0
+            kr = 0
+            best_j = -inf
+            best_r = -inf
+            for c in range(3):
+                mj = np.float64(mu_j[y, x, c]) - offset[c]
+                mr = np.float64(mu_r[y, x, c])
+                gjy = (np.float64(mu_j[yb, x, c]) - np.float64(mu_j[ya, x, c])) * dy
+                gjx = (np.float64(mu_j[y, xb, c]) - np.float64(mu_j[y, xa, c])) * dx
+                gry = (np.float64(mu_r[yb, x, c]) - np.float64(mu_r[ya, x, c])) * dy
+                grx = (np.float64(mu_r[y, xb, c]) - np.float64(mu_r[y, xa, c])) * dx
+                sj = np.float64(sd_j[y, x, c])
+                sr = np.float64(sd_r[y, x, c])
+                var = sj * sj + sr * sr + extra_var[c] + e2 * (gjy * gjy + gjx * gjx + gry * gry + grx * grx)
+                var_c[c] = var
+                cj = cens_j[y, x, c]
+                cr = cens_r[y, x, c]
+                if cj > 0:
+                    bright_j = True
+                if cr > 0:
+                    bright_r = True
+                if mj > best_j:
+                    best_j = mj
+                    kj = c
+                if mr > best_r:
+                    best_r = mr
+                    kr = c
+                lo_j = mj if cj >= 0 else -inf
+                hi_j = mj if cj <= 0 else inf
+                lo_r = mr if cr >= 0 else -inf
+                hi_r = mr if cr <= 0 else inf
+                gap = 0.0
+                if lo_j - hi_r > 0.0:
+                    gap = lo_j - hi_r
+                elif hi_j - lo_r < 0.0:
+                    gap = hi_j - lo_r
+                if gap != 0.0 and var > 0.0 and np.isfinite(var):
+                    z2 = gap * gap / var
+                    if np.isfinite(z2):
+                        qsum += z2
+            q = qsum / 3.0
+            if bright_j or bright_r:
+                lo_j = best_j
+                hi_j = inf if bright_j else best_j
+                lo_r = best_r
+                hi_r = inf if bright_r else best_r
+                gap = 0.0
+                if lo_j - hi_r > 0.0:
+                    gap = lo_j - hi_r
+                elif hi_j - lo_r < 0.0:
+                    gap = hi_j - lo_r
+                var = 0.5 * (var_c[kj] + var_c[kr])
+                q = 0.0
+                if gap != 0.0 and var > 0.0 and np.isfinite(var):
+                    q = gap * gap / var
+                    if not np.isfinite(q):
+                        q = 0.0
+            out[y, x] = min(q, cap)

@@ -95,8 +95,8 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     with ``ring`` too the radiance goes through an :class:`~derender.engine.overlap.OutputRing` of
     band buffers into the file and the result's ``radiance`` is None (the mask is kept).
     """
-    from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing
     from derender.engine.kernels import stabilized_merge_rows
+    from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing
 
     times = np.asarray(times, dtype=np.float64)
     n = times.shape[0]

@@ -41,6 +41,12 @@ class FrameAccess:
     first use (from the held frames, or by decoding the frames again). A method done with
     ``planes`` calls :meth:`release_planes`: the engine frees them then if it has no later
     use for their memory (``release_fn``).
+
+    ``aligned``: the engine has registered the frames to ``reference`` (the index of the
+    reference frame, by time) and may have excluded pixels: ``valid`` (N, H, W) uint8, non-zero
+    where frame ``j`` takes part (None: everywhere); a method's fits should read only those
+    pixels (:mod:`derender.engine.motion`: alignment, ghost removal). Streamed methods'
+    ``samples`` then hold only positions valid in every frame.
     """
 
     times: np.ndarray
@@ -52,6 +58,9 @@ class FrameAccess:
     threads: int | None = None
     info: dict = field(default_factory=dict)
     release_fn: Callable[[], None] | None = None
+    reference: int | None = None
+    valid: np.ndarray | None = None
+    aligned: bool = False
     _hists: np.ndarray | None = None
 
     def release_planes(self) -> None:

@@ -46,7 +46,8 @@ from derender.io.exr import write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
-__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "ENGINES"]
+__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "frame_brightness",
+           "table_kernel_merge", "ENGINES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
 ENGINES = ("auto", "table", "reference")
@@ -80,6 +81,7 @@ class FileFrames:
                  max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS):
         t = np.asarray(times, dtype=np.float64).reshape(-1)
         order = np.argsort(t, kind="stable")
+        self.order = order                   # frame k (by time) is paths[order[k]]
         self.paths = [Path(paths[i]) for i in order]
         self.times = t[order]
         # every header before any pixel: truncation, forged sizes, the megapixel and memory budgets
@@ -113,6 +115,7 @@ class ArrayFrames:
         if codes.dtype != np.uint8 or codes.ndim != 4 or codes.shape[-1] != 3 or codes.shape[0] != t.size:
             raise InputError(f"frames must be (N, H, W, 3) uint8 with one time each, got {codes.dtype} {codes.shape}")
         order = np.argsort(t, kind="stable")
+        self.order = order                   # frame k (by time) is codes[order[k]]
         self.codes = codes if np.all(order == np.arange(t.size)) else codes[order]
         self.times = t[order]
 
@@ -155,7 +158,7 @@ def clipped_pixels(codes: np.ndarray) -> int:
     return int(np.count_nonzero((codes[..., 0] == full) | (codes[..., 1] == full) | (codes[..., 2] == full)))
 
 
-def _brightness(codes: np.ndarray) -> float:
+def frame_brightness(codes: np.ndarray) -> float:
     """Mean code of a frame on a 1/64 subsample (about 1 ms per 24 MP frame)."""
     return float(codes[::8, ::8].mean())
 
@@ -176,8 +179,9 @@ def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarra
     return values, weights
 
 
-def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
-                        bright_threshold: float = 0.5, write=None, ring: int = 0) -> HDRResult:
+def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
+                        bright_threshold: float = 0.5, write=None, ring: int = 0,
+                        valid: np.ndarray | None = None) -> HDRResult:
     """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
     kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of
     :class:`TableMerge` (frames added in ``order``; the log domain's exponential by OpenCV
@@ -187,7 +191,8 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
     :data:`OVERLAP_ROWS` rows; it must read row ``y`` of the result only after
     ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile). ``ring``
     (with ``write``): the radiance goes through an :class:`~derender.engine.overlap.OutputRing`
-    of band buffers into the file, the result's ``radiance`` is None."""
+    of band buffers into the file, the result's ``radiance`` is None. ``valid`` (N, H, W) uint8:
+    frame ``j`` takes part only where ``valid[j]`` is non-zero (:mod:`derender.engine.motion`)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from derender.core.memory import import_cv2, opencv_single_thread
@@ -211,6 +216,7 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
     else:
         out = populated_zeros((3, h, w), dtype=np.float32)
     order_a = np.asarray(order, dtype=np.int64)
+    valid_k = np.ones((n, 1, 1), dtype=np.uint8) if valid is None else np.ascontiguousarray(valid, dtype=np.uint8)
     independent = plan.channel_weights == "independent"
     info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "engine": "table",
             "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
@@ -234,7 +240,7 @@ def _table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], t
 
             with KERNEL_LOCK:
                 set_numba_threads(threads)
-                table_merge_rows(frames, order_a, values, weights, independent, log, values[0], values[n - 1],
+                table_merge_rows(frames, valid_k, order_a, values, weights, independent, log, values[0], values[n - 1],
                                  0, n - 1, bright, y0, y1, row0, dst, mask)
             run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
 
@@ -258,14 +264,16 @@ def _warm_up_kernel(which: str = "table") -> None:
             f32 = np.float32
             if which == "gaussian":
                 z = np.zeros((3, 1, 1))
-                gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
+                gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8),
+                              np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
                               np.zeros(1), 0, 1, z, z.copy(), z.copy())
                 o = np.zeros((1, 1, 3), np.float32)
-                gaussian_moments_band(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
+                gaussian_moments_band(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8),
+                                      np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
                                       np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, 0, o, o.copy())
                 return
             with KERNEL_LOCK:
-                table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros(1, np.int64),
+                table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8), np.zeros(1, np.int64),
                                  np.zeros((1, N_CODES, 3), f32), np.zeros((1, N_CODES, 3), f32), False, True,
                                  np.zeros((N_CODES, 3), f32), np.zeros((N_CODES, 3), f32), 0, 0,
                                  np.zeros(N_CODES, bool), 0, 1, 0, np.zeros((3, 1, 1), f32), np.zeros((1, 1), np.uint8))
@@ -279,7 +287,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
                        write=None, ring: int = 0) -> HDRResult:
     """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
     once into one (N, H, W, 3) array, the calibration samples (and histograms) read from it,
-    and the merge in one compiled pass per pixel (:func:`_table_kernel_merge`) from
+    and the merge in one compiled pass per pixel (:func:`table_kernel_merge`) from
     :data:`KERNEL_MIN_PIXEL_FRAMES` on; smaller brackets, and modes the kernel lacks, run
     :class:`TableMerge` on the held frames. Same numbers as the two-pass stream."""
     n = source.n
@@ -296,7 +304,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     h, w = frames.shape[1:3]
     n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:
-        check_brightness_order(t, [_brightness(f) for f in frames], [source.name(j) for j in range(n)], order_hint)
+        check_brightness_order(t, [frame_brightness(f) for f in frames], [source.name(j) for j in range(n)], order_hint)
     samples = None
     pos = method.sample_positions(h, w)
     if pos is not None:
@@ -313,7 +321,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     t2 = time.perf_counter()
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
     if compiled and plan.channel_weights in ("mean", "independent"):
-        res = _table_kernel_merge(frames, plan, order, threads, write=write, ring=ring)
+        res = table_kernel_merge(frames, plan, order, threads, write=write, ring=ring)
         res.info["overlapped_write"] = write is not None
     else:
         iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
@@ -385,7 +393,7 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
         if j == 0:
             n_clipped = clipped_pixels(codes)
         if order_hint is not None:
-            brightness[j] = _brightness(codes)
+            brightness[j] = frame_brightness(codes)
         if hists is not None:
             hists[j] = code_histograms(codes)
         if j >= n - keep:
@@ -460,7 +468,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
     n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:
-        check_brightness_order(source.times, [_brightness(f) for f in frames],
+        check_brightness_order(source.times, [frame_brightness(f) for f in frames],
                                [source.name(j) for j in range(source.n)], order_hint)
     t1 = time.perf_counter()
     access = FrameAccess(times=source.times, shape=frames.shape[1:3], frames=frames, planes=planes, threads=threads,
@@ -567,7 +575,7 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
         output: str | os.PathLike | None = None,
         variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
         inputs: Iterable[str | os.PathLike] = (), order_hint: str | None = None,
-        hold_outputs: bool = True) -> HDRResult:
+        hold_outputs: bool = True, motion=None) -> HDRResult:
     """Merge ``source`` with ``method`` (see the module docstring); optionally write the
     radiance to ``output`` and the variance to ``variance_output`` (OpenEXR).
 
@@ -582,6 +590,10 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     their exposure times (:func:`derender.core.types.check_brightness_order`), the hint
     ending the error message.
 
+    ``motion`` (:class:`~derender.engine.motion.MotionOptions`): a reference frame, alignment
+    or ghost removal; when it asks for any, every frame is held and
+    :func:`derender.engine.motion.run_motion` merges (``info["engine_path"]`` ``"motion"``).
+
     Streamed methods hold every frame (decoded once, merged by a compiled kernel:
     :func:`_run_streamed_held`) when ``keep_frames`` is None and the bracket's codes fit
     in ``hold_bytes`` (and, with the outputs, in half the available memory); otherwise they
@@ -590,6 +602,16 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     :class:`~derender.engine.frames.NotStreamable` for inputs without 8-bit codes.
     """
     t0 = time.perf_counter()
+    if motion is not None and motion.active:
+        from derender.engine.motion import run_motion
+
+        res = run_motion(method, source, motion, threads=threads, order_hint=order_hint)
+        res.info["engine_path"] = "motion"
+        res.info["outputs_held"] = True
+        write_outputs(res, output, variance_output, half=half, compression=compression, inputs=list(inputs),
+                      threads=threads, name=method.name)
+        res.info["total_seconds"] = time.perf_counter() - t0
+        return res
     write = None
     if output is not None:
         def write(res: HDRResult, done: RowsDone) -> None:

@@ -80,8 +80,12 @@ def derender_families(families: Sequence[str] | None = None, cameras: Sequence[s
     from derender.camera.chart import chart_pairs
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.spectral import camera_search_dirs, load_camera
-    from derender.evaluation.derendering_metrics import (code_floor_errors, fit_and_predict,
-                                                               max_colour_share, relative_rmse)
+    from derender.evaluation.derendering_metrics import (
+        code_floor_errors,
+        fit_and_predict,
+        max_colour_share,
+        relative_rmse,
+    )
     from derender.evaluation.families import TUNING_FAMILIES
 
     families = list(families) if families else list(FAMILIES)

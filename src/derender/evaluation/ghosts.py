@@ -60,10 +60,9 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                      progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """One row per (family, setting, seed, method): zone medians on the moving bracket and on
     its still twin, and their ratios. ``shake`` defaults to 2 % of the width (issue 23's
-    handheld case); ``options`` go to every merge (e.g. a future ``deghost=True``). Methods
-    that take a ``reference`` frame get the truth's (the middle frame), so that the table
-    measures ghosts and alignment, not the choice of instant; the others have none to choose."""
-    import inspect
+    handheld case); ``options`` go to every merge (e.g. ``deghost=True, align="translation"``).
+    Every method gets the truth's reference frame (the middle frame, an engine option of every
+    method), so that the table measures ghosts and alignment, not the choice of instant."""
 
     from derender.camera import simulate_bracket
     from derender.camera.families import FAMILIES, check_family
@@ -86,9 +85,8 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
             ref = still_b.params["motion"]["reference"]
 
             def opts(m: str) -> dict:
-                fn = get_method(m)
-                extra = {"reference": ref} if "reference" in inspect.signature(fn).parameters else {}
-                return {**extra, **(options or {})}
+                get_method(m)
+                return {"reference": ref, **(options or {})}
 
             still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), **opts(m)).radiance
                              for m in methods}

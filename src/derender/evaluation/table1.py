@@ -327,9 +327,9 @@ def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = 
     """PSNR (R, G, B, L; :func:`derender.evaluation.metrics.psnr_rgbl`) of ``method`` for every
     reference in ``references`` (default :func:`derender.engine.reference_frame.reasonable_references`) and the spread
     (max - min) of each plane over them (paper 1, Fig. 5)."""
+    from derender.engine.reference_frame import reasonable_references
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.registry import merge
-    from derender.engine.reference_frame import reasonable_references
 
     refs = reasonable_references(stack.images) if references is None else [int(r) for r in references]
     if not refs:

@@ -47,7 +47,9 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     Times as :func:`derender.io.images.read_stack` (``times`` in the order of ``paths``,
     else ``times_file``, else EXIF). ``options`` are the method's (as
     :func:`derender.hdr.registry.merge` takes them); ``threads``, ``keep_frames`` and
-    ``keep_bytes`` go to the engine. Every file's header is read before any pixel
+    ``keep_bytes`` go to the engine, as do ``reference`` (an index among ``paths`` as given,
+    from 0), ``align`` and ``deghost`` (:func:`derender.hdr.registry.split_motion`,
+    :mod:`derender.engine.motion`). Every file's header is read before any pixel
     (:func:`derender.io.headers.probe_images`: truncated files, sizes above
     ``max_megapixels`` megapixels and stacks that need more memory than is available are
     refused first). The result equals ``merge(read_stack(paths), method,
@@ -71,6 +73,10 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 raise InputError(f"output must end in .exr, got {Path(out).name}")
             check_not_input(out, all_inputs)
     seed = options.pop("seed", 0)   # every caller may pass one; only methods that take a seed get it
+    from derender.hdr.registry import split_motion
+
+    motion, options = split_motion(method, {**options, "seed": seed}, engine_reference=True)
+    options.pop("seed", None)
     opts = method_options(method, options)
     if "seed" in inspect.signature(fn).parameters:
         opts["seed"] = seed
@@ -83,6 +89,9 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         hint = "the EXIF exposure times disagree with the images; give the times with --times"
     res = None
     factory = getattr(fn, "engine_method", None)
+    if motion is not None and (factory is None or opts.get("engine", "auto") == "reference"):
+        raise InputError(f"merge method {method!r} with these options runs outside the engine: reference, "
+                         "align and deghost need the engine")
     if factory is not None and opts.get("engine", "auto") != "reference":
         try:
             engine_method = factory(opts)
@@ -90,8 +99,13 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 res = run(engine_method, FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
                           keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
                           compression=compression, inputs=all_inputs, order_hint=hint,
-                          hold_outputs=hold_outputs or output is None)
-        except NotStreamable:
+                          hold_outputs=hold_outputs or output is None, motion=motion)
+            elif motion is not None:
+                raise InputError(f"merge method {method!r} with these options cannot align or remove ghosts")
+        except NotStreamable as exc:
+            if motion is not None:
+                raise InputError(f"merge method {method!r} cannot align or remove ghosts on these images "
+                                 f"({exc})") from None
             res = None
     if res is None:
         from derender.io.images import read_stack

@@ -14,6 +14,8 @@ import importlib
 import inspect
 from typing import Any, Callable
 
+import numpy as np
+
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 
@@ -145,6 +147,70 @@ def _missing_message(method: str, missing: list[str]) -> str:
     return f"merge method {method!r} needs option(s) {', '.join(missing)}{hint}"
 
 
+#: Options the engine takes for every method (:class:`derender.engine.motion.MotionOptions`).
+MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold")
+
+
+def split_motion(method: str, options: dict, engine_reference: bool = False) -> tuple[Any, dict]:
+    """The engine's motion options (:data:`MOTION_OPTIONS`) of a merge call and the method's own.
+
+    Returns ``(motion, options)``: ``motion`` a :class:`~derender.engine.motion.MotionOptions`
+    when the call asks the engine for a reference frame, alignment or ghost removal, else None.
+    Paper 1's methods choose a reference and register the frames themselves (their own
+    ``reference`` and ``align`` options, ``"mtb"`` by default, ``"translation"`` accepted); the
+    engine takes these over when ghost removal is asked for, and for a ``reference`` when
+    ``engine_reference`` (files, whose order as given the engine knows: the reference then
+    counts the images as given, not by exposure time)."""
+    from derender.engine.motion import MotionOptions
+
+    fn = get_method(method)
+    params = inspect.signature(fn).parameters
+    own = "align" in params and "reference" in params
+    opts = dict(options)
+    deghost = opts.pop("deghost", False)
+    if not isinstance(deghost, (bool, np.bool_)):
+        raise InputError(f"deghost must be True or False, got {deghost!r}")
+    threshold = opts.pop("ghost_threshold", None)
+    if own:
+        ref, align = opts.get("reference"), opts.get("align", "mtb")
+        if align == "translation":
+            opts["align"] = align = "mtb"
+        if not deghost and not (engine_reference and ref is not None and align != "homography"):
+            if align not in ("mtb", "none", "homography"):
+                MotionOptions(align=align)      # the error names the choices
+            return None, opts
+        opts["reference"], opts["align"] = None, "none"
+        align = "translation" if align == "mtb" else align
+    else:
+        ref, align = opts.pop("reference", None), opts.pop("align", None) or "none"
+    motion = MotionOptions(reference=ref, align=align, deghost=bool(deghost), ghost_threshold=threshold,
+                           seed=int(opts.get("seed", 0) or 0))
+    return (motion if motion.active else None), opts
+
+
+def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRResult:
+    """:func:`merge` on the engine's motion path (reference, alignment, ghost removal)."""
+    from derender.engine.frames import NotStreamable
+    from derender.engine.run import ArrayFrames, run
+    from derender.engine.tables import stack_codes_exact
+
+    factory = getattr(fn, "engine_method", None)
+    if factory is None:
+        raise InputError(f"merge method {method!r} runs outside the engine: reference, align and deghost "
+                         "need a method with an engine form (derender methods lists them)")
+    codes = None if stack.bit_depth == 16 else stack_codes_exact(stack.images)
+    if codes is None:
+        raise InputError("alignment and ghost removal need 8-bit images (every value a code / 255)")
+    opts = method_options(method, options)
+    try:
+        engine_method = factory(opts)
+        if engine_method is None:
+            raise NotStreamable("these options have no engine form")
+        return run(engine_method, ArrayFrames(codes, stack.times), motion=motion)
+    except NotStreamable as exc:
+        raise InputError(f"merge method {method!r} cannot align or remove ghosts with these options ({exc})") from None
+
+
 def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     """Merge a :class:`~derender.core.types.Stack` into an HDR radiance map with a registered method.
 
@@ -158,13 +224,19 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     **options
         The method's keyword options (for text values, :func:`parse_options`); paper 2's
         methods need ``model`` (a :class:`~derender.derendering.base.DerenderModel` or a path).
+        Every method also takes the engine's (:mod:`derender.engine.motion`):
+        ``reference`` (index of the reference frame among the images, from 0, or ``"auto"``),
+        ``align`` (``"none"``, ``"translation"``, ``"homography"``), ``deghost`` (bool) and
+        ``ghost_threshold``; paper 1's methods register to their own reference by default.
 
     Returns
     -------
     HDRResult
         ``radiance`` (H, W, 3) float32, finite and non-negative; ``mask`` (0 merged, 1 taken
         from the shortest exposure, 2 from the longest); ``variance`` for the methods that give
-        one; ``info`` (the method's parameters, timings, ``n_clipped``).
+        one; ``info`` (the method's parameters, timings, ``n_clipped``; with the engine's
+        options also ``reference``, ``alignment``, ``deghost``); ``ghosts`` (how many frames
+        were left out per pixel) when the engine aligned or removed ghosts.
 
     Raises
     ------
@@ -182,6 +254,9 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     if not isinstance(stack, Stack):
         raise InputError(f"merge() needs a Stack, got {type(stack).__name__}")
     fn = get_method(method)
+    motion, options = split_motion(method, options)
+    if motion is not None:
+        return _merge_motion(stack, method, fn, motion, options)
     try:
         inspect.signature(fn).bind(stack, **options)
     except TypeError:

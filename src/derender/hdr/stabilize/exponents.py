@@ -23,10 +23,10 @@ import numpy as np
 
 from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709
 from derender.core.errors import InputError
+from derender.engine.reference_frame import check_images
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks, make_blocks
 from derender.hdr.stabilize.curves import Curve, as_curve
 from derender.hdr.stabilize.pair_fit import effective_codes, fit_pair, pair_cost, pair_costs_power, pair_residuals
-from derender.engine.reference_frame import check_images
 from derender.hdr.stabilize.solvers import bounded_minimizer, drive, find_root, minimize_bounded
 
 __all__ = ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"]

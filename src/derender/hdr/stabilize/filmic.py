@@ -69,10 +69,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from derender.core.types import Stack
+from derender.engine.reference_frame import REF_HIGH
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import relative_exponents
-from derender.engine.reference_frame import REF_HIGH
 
 __all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
            "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",

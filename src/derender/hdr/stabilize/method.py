@@ -19,6 +19,7 @@ from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.matrix import matrix_output_bytes, merge_matrix_frames, warm_up_kernels
 from derender.engine.plans import FrameAccess, MatrixPlan
+from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
@@ -34,7 +35,6 @@ from derender.hdr.stabilize.filmic import (
     screen_gamma_trend,
     unclipped_debevec,
 )
-from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
@@ -166,6 +166,17 @@ class ShiftedValid:
         return (ys + dy >= 0) & (ys + dy < h) & (xs + dx >= 0) & (xs + dx < w)
 
 
+class HeldValid:
+    """The engine's ``valid`` planes (N, H, W) uint8 (alignment, ghost removal) as the fits read them."""
+
+    def __init__(self, valid: np.ndarray):
+        self.valid = valid
+        self.shape = valid.shape
+
+    def pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        return self.valid[j][ys, xs] != 0
+
+
 class _CodeFrames:
     """Every ``rows``-th row of the aligned uint8 frames of a :class:`ShiftedFrames`, one at a time."""
 
@@ -250,23 +261,26 @@ class StabilizedMethod:
         ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
         check_usable_samples(np.stack([f[ys, xs] for f in frames]), access.histograms)
         t0 = time.perf_counter()
-        if opts.get("reference") is None:
+        if access.aligned:
+            ref = int(access.reference)            # the engine chose it and registered the frames
+        elif opts.get("reference") is None:
             ref = select_reference(frames)         # counts 8-bit codes against the code thresholds
         else:
             ref = int(opts["reference"])
             if not 0 <= ref < n:
                 raise InputError(f"reference image {opts['reference']} is out of range 0..{n - 1}")
-        if self.align == "mtb":
+        if self.align == "mtb" and not access.aligned:
             transforms, ainfo = chain_transforms(access.planes, "mtb", ref, seed=seed, threads=access.threads)
             access.release_planes()      # Ward's grey images (N bytes per pixel) are done with
         else:
             transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         shifts = transforms_to_shifts(transforms)
         view = ShiftedFrames(frames, shifts)
+        valid_view = view.valid_view if access.valid is None else HeldValid(access.valid)
         rows = -(-h * w // REF_PIXELS)     # the gate counts ~REF_PIXELS pixels per frame (every k-th row)
         if saturation_fraction(_CodeFrames(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
             raise NotStreamable("saturation below white (stabilize.saturation)")
-        al = LazyAlignment(images=view, valid=view.valid_view, transforms=transforms, method=self.align,
+        al = LazyAlignment(images=view, valid=valid_view, transforms=transforms, method=self.align,
                            reference=ref, shifts=shifts, info=ainfo)
         t1 = time.perf_counter()
 
@@ -276,6 +290,9 @@ class StabilizedMethod:
             if cur is not None:
                 return cur
             ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
+            if access.valid is not None:       # only pixels every frame covers and agrees on
+                keep = np.all(access.valid[:, ys, xs] != 0, axis=0)
+                ys, xs = ys[keep], xs[keep]
             samples = np.stack([view.code_pixels(j, ys, xs) for j in range(n)]).astype(np.int32)
 
             def aligned_hists() -> np.ndarray:

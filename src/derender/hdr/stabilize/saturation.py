@@ -33,8 +33,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from derender.hdr.stabilize.blocks import FIT_HIGH
 from derender.engine.reference_frame import REF_HIGH
+from derender.hdr.stabilize.blocks import FIT_HIGH
 
 __all__ = ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO", "HIDDEN_FRACTION",
            "hidden_saturation", "hidden_fraction", "saturation_fraction", "saturation_mask"]

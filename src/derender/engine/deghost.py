@@ -1,0 +1,282 @@
+"""Ghost removal by a per-pixel consistency test against the reference frame, with the method's own noise model.
+
+A moving object puts different radiance at a pixel in different frames. Every merge method
+already says how a frame's code becomes radiance and how uncertain that is (its plan); the
+engine tests each frame against the reference frame with it (in the spirit of Granados et
+al. 2013, *Automatic noise modeling for ghost-free HDR reconstruction*, and of the noise-model
+driven merge of Google's HDR+), and excludes the frames that disagree, per pixel.
+
+Per frame ``j``, pixel and channel, on a grid of at most :data:`DETECT_PIXELS` pixels
+(every ``s``-th row and column):
+
+* the frame's log radiance ``mu_j`` and its standard deviation ``sd_j``
+  (:func:`frame_estimates`): for table and matrix plans (Debevec & Malik, Robertson, paper 1)
+  the code noise ``sqrt(sigma_c^2 + 1/12)`` (read noise and JPEG error :data:`CODE_SIGMA`,
+  quantisation) through the slope of the plan's log-radiance table, plus what a
+  half-pixel misregistration does on an edge (:data:`EDGE_SHIFT` times the log radiance's
+  gradient); for Gaussian plans
+  (paper 2) the model's own predictive variance. Codes the method gives no weight (clipped)
+  are *bounds*: a clipped-bright code says the radiance is at least the value of the
+  brightest usable code, a clipped-dark one that it is at most the darkest usable code's.
+  Where either frame has a channel clipped bright only the pixel's brightest channel is
+  compared (a camera clips a pixel to white when one sensor channel saturates and
+  desaturates its highlights, so a white code bounds the brightest channel, not each).
+* ``z = gap(I_j - b_j, I_ref) / sqrt(sd_j^2 + sd_ref^2 + s_j^2)``, where ``gap`` is the
+  distance between the two intervals (points for observed codes, half-lines for bounds: a
+  frame clipped where the reference is clipped agrees), ``b_j`` the frame's global log offset
+  against the reference and ``s_j`` the spread the noise model does not explain, both robust
+  (median, MAD) over the pixels well exposed in both frames: a camera that changes its white
+  balance or gain between frames is not a ghost, and a model error is not either.
+* the statistic ``Q = mean over a (2k+1)^2 window of min(mean over channels of z^2,``
+  :data:`Z2_CAP` ``)`` (a local chi-square per degree of freedom, about 1 where the model
+  holds; the cap keeps one wild pixel from rejecting its window) is compared with
+  :data:`GHOST_THRESHOLD`; the rejections are cleaned into regions (a 3x3 opening removes
+  specks, a dilation by :data:`GHOST_DILATE` covers the object's blurred edges) and brought
+  to full resolution.
+
+The reference frame always takes part. Where every other frame is rejected the reference
+alone gives the value (its mask rule as usual: a clipped reference gives the bound).
+A bracket in which almost nothing agrees with the reference is refused
+(:data:`MAX_REJECTED`): it is not one scene.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from derender.core.errors import StackError
+
+__all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED",
+           "Z2_CAP", "EDGE_SHIFT",
+           "frame_estimates", "detect_ghosts", "merge_valid"]
+
+#: Window mean of z^2 per channel above which a frame is rejected at a pixel (chosen on the
+#: tuning families ``paper`` and ``camera``, ``derender experiment ghosts``).
+GHOST_THRESHOLD = 4.0
+
+#: Half-width k of the pooling window (2k+1 pixels of the detection grid).
+GHOST_WINDOW = 2
+
+#: Dilation of the rejected regions, in pixels of the detection grid.
+GHOST_DILATE = 2
+
+#: Code noise (standard deviation, codes) besides quantisation: sensor read/shot noise and
+#: JPEG error of a mid-grey 8-bit code.
+CODE_SIGMA = 1.0
+
+#: Each pixel's ``z^2`` counts at most this much in the window mean: a region is rejected
+#: when a good part of the window disagrees, not when one pixel does.
+Z2_CAP = 16.0
+
+#: Misregistration (pixels) an edge may show between two exposures without a ghost:
+#: sub-pixel alignment error, blur and JPEG ringing: ``(EDGE_SHIFT |grad mu|)^2`` is added to
+#: the variance of both frames' log radiance.
+EDGE_SHIFT = 0.5
+
+#: The test runs on every s-th row and column so that at most about this many pixels remain.
+DETECT_PIXELS = 1 << 20
+
+#: The offsets and spreads are robust statistics of at most about this many pixels.
+STAT_PIXELS = 1 << 16
+
+#: A bracket is refused when more than this fraction of the non-reference frames' pixels
+#: disagree with the reference.
+MAX_REJECTED = 0.9
+
+_LOG_FLOOR = -60.0
+
+
+def _fill_nearest(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """Per channel, entries where ``usable`` is False take the value of the nearest usable code."""
+    out = values.copy()
+    codes = np.arange(values.shape[0])
+    for c in range(values.shape[1]):
+        u = usable[:, c]
+        if not u.any():
+            continue
+        idx = np.flatnonzero(u)
+        nearest = idx[np.clip(np.searchsorted(idx, codes), 0, idx.size - 1)]
+        lower = idx[np.clip(np.searchsorted(idx, codes) - 1, 0, idx.size - 1)]
+        pick = np.where(np.abs(lower - codes) <= np.abs(nearest - codes), lower, nearest)
+        out[~u, c] = values[pick[~u], c]
+    return out
+
+
+def _code_tables(log_values: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(256, 3) log radiance, its standard deviation and a censoring flag (0 observed, +1 a
+    lower bound, -1 an upper bound) per code, from a frame's log-radiance table."""
+    lv = np.asarray(log_values, dtype=np.float64)
+    fin = np.isfinite(lv)
+    usable = usable & fin
+    lv = _fill_nearest(np.where(fin, lv, 0.0), fin)
+    slope = np.abs(np.gradient(lv, axis=0))
+    sd = slope * np.sqrt(CODE_SIGMA ** 2 + 1.0 / 12.0)
+    sd = _fill_nearest(sd, usable)
+    mu = _fill_nearest(lv, usable)          # a clipped code's bound: the nearest usable code's value
+    codes = np.arange(lv.shape[0])[:, None]
+    cens = np.where(usable, 0, np.where(codes >= lv.shape[0] // 2, 1, -1)).astype(np.int8)
+    return mu, sd, cens
+
+
+def _lut3(codes: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """Per-channel look-up of a (256, 3) table on (h, w, 3) uint8 codes, float32 (OpenCV's LUT)."""
+    import cv2
+
+    lut = np.ascontiguousarray(np.asarray(table, dtype=np.float32).reshape(1, 256, 3))
+    return cv2.LUT(np.ascontiguousarray(codes), lut)
+
+
+def frame_estimates(plan, codes: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``j``'s log radiance, its standard deviation and censoring flags, each
+    ``codes.shape`` ((h, w, 3)) float32, float32, int8, under ``plan`` (module docstring)."""
+    import cv2
+
+    from derender.engine.plans import GaussianPlan, MatrixPlan, TablePlan
+
+    if isinstance(plan, TablePlan):
+        vals = np.asarray(plan.values[j], dtype=np.float64)
+        if plan.domain == "linear":
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vals = np.where(vals > 0, np.log(vals), -np.inf)
+        usable = np.asarray(plan.weight_of(j)) > 0
+        mu, sd, cens = _code_tables(vals, usable)
+        return (_lut3(codes, np.clip(mu, _LOG_FLOOR, -_LOG_FLOOR)), _lut3(codes, sd),
+                _lut3(codes, cens).astype(np.int8))
+    if isinstance(plan, MatrixPlan):
+        lin = np.asarray(plan.values[j], dtype=np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            llin = np.where(lin > 0, np.log(lin), -np.inf)
+        usable = np.asarray(plan.weights) > 0
+        bound, sd, cens = _code_tables(llin, usable)
+        # a clipped channel at its bound (nearest usable code), then the frame's 3x3 matrix
+        e = cv2.transform(_lut3(codes, np.exp(bound)), np.asarray(plan.matrices[j], dtype=np.float32))
+        np.maximum(e, np.float32(np.exp(_LOG_FLOOR)), out=e)
+        return cv2.log(e), _lut3(codes, sd), _lut3(codes, cens).astype(np.int8)
+    if isinstance(plan, GaussianPlan):
+        packed = ((codes[..., 0].astype(np.int64) << 16) | (codes[..., 1].astype(np.int64) << 8)
+                  | codes[..., 2].astype(np.int64))
+        rows = plan.index.lut[packed]
+        ls = float(plan.log_scales[j])
+        if plan.table is not None:
+            t = plan.table[rows]
+            mean, p, low = t[..., 0:3], t[..., 3:4], t[..., 4:7]
+            prec = np.where(np.isneginf(low), p, 0.0)
+        else:
+            pl = plan.rows_planes()[:, rows]
+            mean, prec, low = np.moveaxis(pl[0:3], 0, -1), np.moveaxis(pl[3:6], 0, -1), np.moveaxis(pl[6:9], 0, -1)
+        bound = np.isfinite(low)
+        with np.errstate(divide="ignore"):
+            sd = np.where(prec > 0, 1.0 / np.sqrt(np.maximum(prec, 1e-300)), np.inf)
+        mu = np.where(bound, low, mean) + ls
+        # a bound's own uncertainty: the spread of the observed channels of that colour (else 0.1)
+        obs_sd = np.where(np.isfinite(sd), sd, np.nan)
+        with np.errstate(all="ignore"):
+            fallback = np.nanmin(obs_sd, axis=-1, keepdims=True)
+        fallback = np.where(np.isfinite(fallback), fallback, 0.1)
+        sd = np.where(bound | ~np.isfinite(sd), fallback, sd)
+        return (np.clip(mu, _LOG_FLOOR, -_LOG_FLOOR).astype(np.float32), sd.astype(np.float32),
+                bound.astype(np.int8))
+    raise TypeError(f"no noise model for a {type(plan).__name__}")
+
+
+def _estimates32(plan, codes: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`frame_estimates` as C-contiguous arrays (what the kernel reads)."""
+    return tuple(np.ascontiguousarray(a) for a in frame_estimates(plan, codes, j))
+
+
+def _offset_spread(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> tuple[np.ndarray, np.ndarray]:
+    """Frame j's global log offset against the reference and the variance its noise model
+    does not explain, per channel: median and MAD of ``mu_j - mu_r`` over the pixels observed
+    (not clipped) in both with ``sd < 0.5`` (0 where fewer than 64 such pixels)."""
+    both = (cens_j == 0) & (cens_r == 0) & (sd_j < 0.5) & (sd_r < 0.5) & (ok != 0)[..., None]
+    b = np.zeros(3)
+    s2 = np.zeros(3)
+    for c in range(3):
+        sel = both[..., c]
+        if np.count_nonzero(sel) >= 64:
+            dc = (mu_j[..., c][sel] - mu_r[..., c][sel]).astype(np.float64)
+            b[c] = float(np.median(dc))
+            mad = 1.4826 * float(np.median(np.abs(dc - b[c])))
+            model = float(np.median(sd_j[..., c][sel].astype(np.float64) ** 2 + sd_r[..., c][sel].astype(np.float64) ** 2))
+            s2[c] = max(0.0, mad * mad - model)
+    return b, s2
+
+
+def _box_mean(a: np.ndarray, k: int) -> np.ndarray:
+    import cv2
+
+    return cv2.blur(a.astype(np.float32), (2 * k + 1, 2 * k + 1), borderType=cv2.BORDER_REFLECT)
+
+
+def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None) -> np.ndarray | None:
+    """``valid`` (N, H, W) uint8 or None with the ``rejected`` (N, H, W) bool pixels removed."""
+    if rejected is None:
+        return valid
+    keep = (~rejected).astype(np.uint8)
+    return keep if valid is None else (valid & keep)
+
+
+def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, threshold: float = GHOST_THRESHOLD,
+                  window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """Per frame and pixel, whether the frame disagrees with frame ``ref`` (module docstring).
+
+    Returns ``rejected`` ((N, H, W) bool, False for the reference and where ``valid`` already
+    excludes the pixel; None when nothing is rejected) and the details per frame (rejected
+    fraction, log offset ``b``, unexplained spread ``s``). Raises :class:`StackError` when more
+    than :data:`MAX_REJECTED` of the other frames' pixels disagree. The per-pixel statistic is
+    one compiled pass (:func:`derender.engine.kernels.ghost_statistic`); the offsets and
+    spreads are robust statistics of at most :data:`STAT_PIXELS` pixels."""
+    import cv2
+
+    from derender.engine.kernels import ghost_statistic
+
+    n, h, w = frames.shape[:3]
+    step = max(1, int(np.ceil(np.sqrt(h * w / DETECT_PIXELS))))
+    sub = frames[:, ::step, ::step]
+    hs, ws = sub.shape[1:3]
+    vsub = None if valid is None else valid[:, ::step, ::step] != 0
+    mu_r, sd_r, cens_r = _estimates32(plan, sub[ref], ref)
+    rejected = np.zeros((n, h, w), dtype=bool)
+    per_frame = []
+    open_k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+    dil_k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
+    stat_step = max(1, int(np.ceil(np.sqrt(hs * ws / STAT_PIXELS))))
+    q = np.empty((hs, ws), dtype=np.float32)
+    total = counted = 0
+    for j in range(n):
+        if j == ref:
+            per_frame.append({"frame": j, "reference": True})
+            continue
+        mu_j, sd_j, cens_j = _estimates32(plan, sub[j], j)
+        ok = np.ones((hs, ws), dtype=np.uint8) if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
+        b, s2 = _offset_spread(mu_j[::stat_step, ::stat_step], sd_j[::stat_step, ::stat_step],
+                               cens_j[::stat_step, ::stat_step], mu_r[::stat_step, ::stat_step],
+                               sd_r[::stat_step, ::stat_step], cens_r[::stat_step, ::stat_step],
+                               ok[::stat_step, ::stat_step])
+        ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, b, s2, float(EDGE_SHIFT), float(Z2_CAP), ok, q)
+        pooled = _box_mean(q, window)
+        bad = (pooled > threshold).astype(np.uint8)
+        bad = cv2.morphologyEx(bad, cv2.MORPH_OPEN, open_k)
+        if dilate > 0:
+            bad = cv2.dilate(bad, dil_k)
+        if step > 1:
+            bad = cv2.resize(bad, (ws * step, hs * step), interpolation=cv2.INTER_NEAREST)[:h, :w]
+            if bad.shape != (h, w):
+                bad = np.pad(bad, ((0, h - bad.shape[0]), (0, w - bad.shape[1])), mode="edge")
+        rj = bad.astype(bool)
+        if valid is not None:
+            rj &= valid[j] != 0
+        rejected[j] = rj
+        frac = float(rj.mean())
+        total += int(rj.sum())
+        counted += h * w
+        per_frame.append({"frame": j, "rejected": frac, "offset": np.round(b, 4).tolist(),
+                          "spread": np.round(np.sqrt(s2), 4).tolist()})
+    info = {"threshold": float(threshold), "window": 2 * window + 1, "detect_step": step, "frames": per_frame,
+            "rejected": total / max(counted, 1)}
+    if counted and total / counted > MAX_REJECTED:
+        raise StackError(f"{100 * total / counted:.0f}% of the pixels disagree with the reference frame: "
+                         "these images do not show one scene (or their exposure times are wrong)")
+    return (rejected if total else None), info

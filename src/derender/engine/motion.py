@@ -1,0 +1,291 @@
+"""Reference frame, alignment and ghost removal, one step of the engine for every method (issue 23).
+
+Real brackets are shot by hand and things move in them. :func:`run_motion` is the engine's
+path for such brackets, whatever the method (its plan says how codes become radiance and
+with what uncertainty; this module only decides *which pixels of which frame* take part):
+
+1. **Reference frame** (:func:`resolve_reference`): the result shows the scene at that
+   frame's instant, on its pixel grid. ``"auto"`` is paper 1's rule (Sec. 3.1,
+   :func:`derender.engine.reference_frame.select_reference`: fewest over- and
+   under-exposed pixels, ties to the middle of the bracket).
+2. **Alignment** (:func:`align_frames`): every frame is registered to the reference and
+   warped in place (8-bit codes): ``"translation"`` by Ward's median threshold bitmaps
+   (:mod:`derender.engine.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
+   features and a seeded RANSAC (:func:`derender.engine.align.estimate_homography`,
+   bilinear on the codes). Pixels a frame does not cover after warping are left out of that
+   frame (``valid``).
+3. **Ghost removal** (:mod:`derender.engine.deghost`): per pixel and frame, the frame's
+   radiance against the reference's under the method's own noise model, pooled over a window,
+   cleaned into regions; inconsistent frames get no weight there. The method is then
+   *calibrated again without them* (fit, detect, refit: its response samples, the
+   stabiliser's gamma/3x3 fits read only consistent pixels) and the decision is made once
+   more with the refitted model.
+4. **Merge**: the method's plan on the engine's kernels with the ``valid`` planes
+   (:func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
+   ``gaussian_moments_band``); where no frame that takes part has weight, the shortest
+   (bright) or longest (dark) frame that takes part gives the value, as before.
+
+The frames are held in memory (N x H x W x 3 bytes, plus one byte per pixel and frame for
+``valid``); the memory is checked before any pixel is decoded.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from derender.core.errors import InputError
+from derender.core.memory import check_memory
+from derender.core.types import HDRResult, check_brightness_order
+
+__all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "run_motion"]
+
+#: ``align=`` choices (``"mtb"`` is accepted as another name for ``"translation"``).
+ALIGNMENTS = ("none", "translation", "homography")
+
+
+@dataclass(frozen=True)
+class MotionOptions:
+    """What the engine does about camera shake and moving things (see the module docstring).
+
+    reference : int, "auto" or None
+        The reference frame: an index among the images *as given* (0-based; the CLI counts
+        from 1), or ``"auto"`` / None for paper 1's rule.
+    align : str
+        ``"none"``, ``"translation"`` (Ward's MTB) or ``"homography"`` (features).
+    deghost : bool
+        Exclude, per pixel, the frames inconsistent with the reference.
+    ghost_threshold : float
+        The pooled statistic's threshold: a frame is rejected where the window mean of
+        ``z^2`` per channel exceeds it (:data:`derender.engine.deghost.GHOST_THRESHOLD`).
+    seed : int
+        Seeds the homography's RANSAC.
+    """
+
+    reference: int | str | None = None
+    align: str = "none"
+    deghost: bool = False
+    ghost_threshold: float | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        align = "translation" if self.align == "mtb" else self.align
+        if align not in ALIGNMENTS:
+            raise InputError(f"unknown alignment {self.align!r}; use one of {', '.join(ALIGNMENTS)}")
+        object.__setattr__(self, "align", align)
+        ref = self.reference
+        if isinstance(ref, str):
+            if ref.strip().lower() != "auto":
+                raise InputError(f"reference must be a frame index or 'auto', got {ref!r}")
+            object.__setattr__(self, "reference", None)
+        elif ref is not None:
+            if isinstance(ref, bool) or not float(ref).is_integer() or int(ref) < 0:
+                raise InputError(f"reference must be a frame index (from 0) or 'auto', got {ref!r}")
+            object.__setattr__(self, "reference", int(ref))
+        if self.ghost_threshold is not None and not (np.isfinite(self.ghost_threshold) and self.ghost_threshold > 0):
+            raise InputError(f"ghost_threshold must be a positive number, got {self.ghost_threshold!r}")
+
+    @property
+    def active(self) -> bool:
+        """True when the engine has anything to do beyond a plain merge."""
+        return self.align != "none" or self.deghost or self.reference is not None
+
+
+def resolve_reference(option: int | None, frames: np.ndarray, order: np.ndarray | None = None) -> int:
+    """The reference frame's index among ``frames`` (sorted by time): ``option`` is an index
+    among the frames as given (``order[k]`` is frame k's given index), None for paper 1's rule."""
+    from derender.engine.reference_frame import select_reference
+
+    n = frames.shape[0]
+    if option is None:
+        return int(select_reference(frames))
+    if not 0 <= option < n:
+        raise InputError(f"reference frame {option} is out of range: the bracket has {n} images (0..{n - 1})")
+    if order is None:
+        return int(option)
+    return int(np.flatnonzero(np.asarray(order) == option)[0])
+
+
+def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: str, seed: int = 0,
+                 threads: int | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """Register ``frames`` (N, H, W, 3) uint8 to frame ``ref`` and warp them **in place**.
+
+    ``grey``: (N, H, W) uint8 grey images (:func:`derender.engine.ward2003.grey8_codes`),
+    made here when None. Returns ``valid`` ((N, H, W) uint8, 1 where the warped pixel comes
+    from inside frame j; None when no frame moved) and the details (per-frame shifts or
+    homographies, per-pair registration). ``"homography"`` refuses a bracket in which no pair
+    of neighbouring frames has features to match (:class:`InputError`); a single dark or
+    bright frame falls back to a translation (recorded per pair)."""
+    from derender.engine.align import chain_transforms, shift_into, shift_valid, transforms_to_shifts
+    from derender.engine.ward2003 import grey8_codes
+
+    n, h, w = frames.shape[:3]
+    info: dict[str, Any] = {"align": align}
+    if align == "none":
+        return None, info
+    if grey is None:
+        grey = np.empty((n, h, w), dtype=np.uint8)
+        for j in range(n):
+            grey8_codes(frames[j], out=grey[j])
+    method = "mtb" if align == "translation" else "homography"
+    transforms, pinfo = chain_transforms(list(grey), method, ref, seed=seed, threads=threads)
+    pairs = pinfo.get("pairs", [])
+    if align == "homography" and pairs and all("fallback" in p for p in pairs):
+        reasons = sorted({p.get("reason", "") for p in pairs})
+        raise InputError("--align homography found no features to match between any two frames "
+                         f"({reasons[0]}); use --align translation or none")
+    info["pairs"] = pairs
+    valid = None
+    if align == "translation":
+        shifts = transforms_to_shifts(transforms)
+        info["shifts"] = shifts.tolist()
+        moved = [j for j in range(n) if shifts[j, 0] or shifts[j, 1]]
+        if moved:
+            valid = np.ones((n, h, w), dtype=np.uint8)
+            tmp = np.empty_like(frames[0])
+            for j in moved:
+                tmp[...] = frames[j]
+                shift_into(frames[j], tmp, int(shifts[j, 0]), int(shifts[j, 1]))
+                valid[j] = shift_valid(h, w, int(shifts[j, 0]), int(shifts[j, 1]))
+        return valid, info
+    import cv2
+
+    info["homographies"] = transforms.tolist()
+    valid = np.ones((n, h, w), dtype=np.uint8)
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    ones = np.ones((h, w), dtype=np.uint8)
+    for j in range(n):
+        if j == ref or np.allclose(transforms[j], np.eye(3)):
+            continue
+        m = np.asarray(transforms[j], dtype=np.float64)
+        warped = cv2.warpPerspective(frames[j], m, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+        frames[j] = warped
+        cover = cv2.warpPerspective(ones, m, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        valid[j] = cover
+    return valid, info
+
+
+def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: int, threads: int | None):
+    """The :class:`~derender.engine.plans.FrameAccess` a method plans from on the motion path:
+    held (aligned) frames, the reference, ``valid``; streamed methods' samples only at
+    positions every frame takes part in."""
+    from derender.engine.plans import FrameAccess
+    from derender.engine.tables import code_histograms
+
+    h, w = frames.shape[1:3]
+    samples = None
+    if not method.holds_frames:
+        pos = method.sample_positions(h, w)
+        if pos is not None:
+            ys, xs = pos
+            if valid is not None:
+                keep = np.all(valid[:, ys, xs] != 0, axis=0)
+                ys, xs = ys[keep], xs[keep]
+            samples = frames[:, ys, xs].astype(np.int32)
+    return FrameAccess(times=source.times, shape=(h, w), samples=samples, frames=frames, threads=threads,
+                       histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]),
+                       reference=ref, valid=valid, aligned=True)
+
+
+def _merge(plan, frames: np.ndarray, times: np.ndarray, valid: np.ndarray | None, threads: int | None) -> HDRResult:
+    from derender.engine.plans import GaussianPlan, MatrixPlan, TablePlan
+
+    n = frames.shape[0]
+    if isinstance(plan, MatrixPlan):
+        from derender.engine.matrix import merge_matrix_frames
+
+        return merge_matrix_frames(frames, plan, times, valid=valid, threads=threads)
+    if isinstance(plan, GaussianPlan):
+        from derender.engine.gaussian import merge_gaussian_frames
+
+        return merge_gaussian_frames(frames, plan, threads=threads, valid=valid)
+    if isinstance(plan, TablePlan):
+        from derender.engine.run import table_kernel_merge
+
+        if plan.channel_weights not in ("mean", "independent"):
+            raise InputError(f"channel_weights={plan.channel_weights!r} cannot be merged with alignment or "
+                             "ghost removal; use 'mean' or 'independent'")
+        return table_kernel_merge(frames, plan, list(range(n - 1, -1, -1)), threads, valid=valid)
+    raise TypeError(f"unknown plan {type(plan).__name__}")
+
+
+def run_motion(method, source, motion: MotionOptions, threads: int | None = None,
+               order_hint: str | None = None) -> HDRResult:
+    """Merge ``source`` with ``method`` on the motion path (module docstring): every frame held,
+    the reference chosen, the frames aligned, inconsistent pixels excluded, the method
+    calibrated on what is left. ``info`` records ``reference`` (index by time),
+    ``reference_input`` (index among the images as given, 0-based), ``align`` (shifts or
+    homographies) and ``deghost`` (threshold, rejected fraction per frame, rounds);
+    ``result.ghosts`` is the (H, W) uint8 count of frames excluded at each pixel (rejected
+    as inconsistent or not covered after warping)."""
+    from derender.engine.run import ArrayFrames, FileFrames, clipped_pixels, frame_brightness
+
+    t0 = time.perf_counter()
+    n = source.n
+    if isinstance(source, FileFrames):
+        h, w = source.infos[0].height, source.infos[0].width
+    elif isinstance(source, ArrayFrames):
+        h, w = source.codes.shape[1:3]
+    else:
+        raise TypeError(f"unknown frame source {type(source).__name__}")
+    check_memory(n * h * w * 5 + h * w * 16, f"aligning and checking {n} frames of {w}x{h} for motion")
+    derive = None
+    if motion.align != "none":
+        from derender.engine.ward2003 import grey8_codes
+
+        derive = lambda frame, out: grey8_codes(frame, out=out)  # noqa: E731 - made in the decoding threads
+    frames, grey = source.read_all(threads, derive=derive)
+    n_clipped = clipped_pixels(frames[0])
+    if order_hint is not None:
+        check_brightness_order(source.times, [frame_brightness(f) for f in frames],
+                               [source.name(j) for j in range(n)], order_hint)
+    t1 = time.perf_counter()
+    order = getattr(source, "order", None)
+    ref = resolve_reference(motion.reference, frames, order)
+    valid, ainfo = align_frames(frames, grey, ref, motion.align, seed=motion.seed, threads=threads)
+    del grey
+    t2 = time.perf_counter()
+    access = _access(method, source, frames, valid, ref, threads)
+    plan = method.plan(access)
+    t3 = time.perf_counter()
+    ghosts = None
+    ginfo: dict[str, Any] = {}
+    if motion.deghost:
+        from derender.engine.deghost import GHOST_THRESHOLD, detect_ghosts, merge_valid
+
+        threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
+        rejected, ginfo = detect_ghosts(frames, plan, ref, valid, threshold=threshold)
+        rounds = 1
+        if rejected is not None and getattr(method, "refits_on_frames", True):
+            # fit, detect, refit: the method's calibration without the inconsistent pixels
+            access = _access(method, source, frames, merge_valid(valid, rejected), ref, threads)
+            plan = method.plan(access)
+            rejected, ginfo = detect_ghosts(frames, plan, ref, valid, threshold=threshold)
+            rounds = 2
+        ginfo["rounds"] = rounds
+        if rejected is not None:
+            ghosts = rejected.sum(axis=0, dtype=np.uint8)
+        valid = merge_valid(valid, rejected)
+    if valid is not None:
+        uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
+        ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
+    t4 = time.perf_counter()
+    res = _merge(plan, frames, source.times, valid, threads)
+    t5 = time.perf_counter()
+    res.ghosts = ghosts if ghosts is not None else np.zeros((h, w), dtype=np.uint8)
+    res.info["n_clipped"] = n_clipped
+    res.info["reference"] = ref
+    res.info["reference_input"] = int(order[ref]) if order is not None else ref
+    res.info["alignment"] = ainfo
+    if motion.deghost:
+        res.info["deghost"] = ginfo
+    res.info["motion"] = {"reference": motion.reference, "align": motion.align, "deghost": motion.deghost}
+    res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "align_s": t2 - t1, "plan_s": t3 - t2,
+                                               "deghost_s": t4 - t3, "merge_s": t5 - t4})
+    res.info["streaming"] = {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}
+    method.finish(res, access)
+    return res
