@@ -109,6 +109,7 @@ def shift_image(image: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.nda
 
 
 def shift_valid(h: int, w: int, dy: int, dx: int) -> np.ndarray:
+    """(H, W) bool: True where a frame read at ``(y + dy, x + dx)`` (:func:`shift_into`) is inside it."""
     ys = np.arange(h) + int(dy)
     xs = np.arange(w) + int(dx)
     return ((ys >= 0) & (ys < h))[:, None] & ((xs >= 0) & (xs < w))[None, :]
