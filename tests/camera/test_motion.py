@@ -47,28 +47,35 @@ def test_twins_share_the_static_truth_and_zones_cover_the_objects():
     tripod = simulate_bracket(size=(96, 64), exposures=5, seed=1, motion=spec.tripod())
     zones = moving.motion_zones
     assert (zones == ZONE_OBJECT).any() and (zones == ZONE_SWEPT).any() and (zones == ZONE_STATIC).mean() > 0.5
-    static = zones == ZONE_STATIC
-    np.testing.assert_array_equal(moving.truth_linear_srgb[static], still.truth_linear_srgb[static])
+    # the still twin is the same instant with nothing moving: the same truth, objects included
+    np.testing.assert_array_equal(moving.truth_linear_srgb, still.truth_linear_srgb)
     np.testing.assert_array_equal(moving.truth_linear_srgb, tripod.truth_linear_srgb)   # same instant, grid
     np.testing.assert_array_equal(moving.times, still.times)
     np.testing.assert_array_equal(tripod.motion_zones, zones)
-    # the reference frame shows the truth's objects: its codes differ from the still twin's there
     ref = moving.params["motion"]["reference"]
-    diff = np.abs(moving.jpeg_codes[ref].astype(int) - still.jpeg_codes[ref].astype(int)).max(-1)
-    assert np.median(diff[zones == ZONE_OBJECT]) > np.median(diff[static]) + 5
+    np.testing.assert_array_equal(tripod.jpeg_codes[ref], still.jpeg_codes[ref])     # the reference frame too
+    # the other frames differ from the still twin's where the objects have moved, not elsewhere
+    far = ref - 1                  # a shorter neighbour (the longest frame is mostly white)
+    diff = np.abs(tripod.jpeg_codes[far].astype(int) - still.jpeg_codes[far].astype(int)).max(-1)
+    assert np.median(diff[zones == ZONE_OBJECT]) > np.median(diff[zones == ZONE_STATIC]) + 10
 
 
-def test_ghost_experiment_sees_the_ghosts():
-    """Every method blends the moving objects today: on the object zone the error is far above
-    the still twin's (issue 23's measured 4-8x); this is the baseline ghost removal must lower."""
+
+def test_ghost_experiment_sees_the_ghosts_and_deghost_removes_them():
+    """Without ghost removal every method blends the moving objects: the swept and object zones
+    are far above the still twin's (same truth, objects frozen); with ``deghost`` they come
+    down towards it while the static zone stays (issue 23). Measured here (96x64, 5 exposures,
+    camera family, tripod, debevec): swept 1.55 -> 1.04, object 1.93 -> 1.14, static 0.96 -> 0.86."""
     from derender.evaluation.ghosts import ghost_comparison
 
-    rows = ghost_comparison(families=("camera",), settings=("tripod",), size=(96, 64), exposures=5,
-                            methods=("debevec",))
-    (r,) = rows
-    assert r["object_ratio"] > 2.0 and r["object_moving"] > 0.4
-    assert r["static_still"] < r["object_moving"]
-    assert not r["held_out"]
+    kw = dict(families=("camera",), settings=("tripod",), size=(96, 64), exposures=5, methods=("debevec",))
+    (plain,) = ghost_comparison(**kw)
+    (clean,) = ghost_comparison(**kw, options={"deghost": True})
+    assert plain["object_ratio"] > 1.6 and plain["swept_ratio"] > 1.3
+    assert clean["object_ratio"] < plain["object_ratio"] - 0.5
+    assert clean["swept_ratio"] < plain["swept_ratio"] - 0.3
+    assert clean["static_ratio"] < 1.1
+    assert not plain["held_out"]
 
 
 def test_bad_motion_is_refused():

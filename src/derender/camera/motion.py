@@ -17,9 +17,10 @@ The truth is frame ``reference``'s scene: what the merge should show is that ins
 frame's pixel grid. :func:`motion_zones` labels the reference's pixels ``STATIC`` (no object
 covers them in any frame, in the reference's coordinates), ``SWEPT`` (an object covers them in
 some frame but not in the reference: the background must win) and ``OBJECT`` (an object covers
-them in the reference). With ``objects=0`` and ``shake=0`` the same seed gives the *still twin*:
-the same canvas, noise and pipeline, nothing moving, so the best result a merge can reach on
-each zone is known.
+them in the reference). :meth:`MotionSpec.still` gives, with the same seed, the *still twin*:
+the same canvas, noise, pipeline and objects, frozen where they are at the reference instant,
+no shake: the same truth with nothing moving, so the best result a merge can reach on each
+zone (the objects included) is known.
 """
 
 from __future__ import annotations
@@ -47,9 +48,9 @@ ZONE_NAMES = ("static", "swept", "object")
 @dataclass(frozen=True)
 class MotionSpec:
     """What moves: ``objects`` discs of radius ``radius`` (fraction of the image height)
-    travelling ``travel`` x the image width over the bracket; camera shake up to ``shake``
-    pixels per frame; ``reference`` the frame whose instant is the truth (None: the middle
-    frame, as hdrgen and paper 1 take it)."""
+    travelling ``travel`` x the image width over the bracket (``frozen``: they stay where they
+    are at the reference instant); camera shake up to ``shake`` pixels per frame; ``reference``
+    the frame whose instant is the truth (None: the middle frame, as hdrgen and paper 1 take it)."""
 
     objects: int = 3
     radius: float = 0.09
@@ -57,16 +58,18 @@ class MotionSpec:
     shake: int = 0
     reference: int | None = None
     margin: int | None = None        # canvas margin (px); None: ``shake``
+    frozen: bool = False             # objects stay where they are at the reference instant
 
     def still(self) -> "MotionSpec":
-        """The still twin: nothing moves (no objects, no shake), the same canvas and reference."""
-        return MotionSpec(objects=0, radius=self.radius, travel=self.travel, shake=0, reference=self.reference,
-                          margin=self.canvas_margin)
+        """The still twin: nothing moves (the same objects frozen where they are at the
+        reference instant, no shake), the same canvas, truth and reference."""
+        return MotionSpec(objects=self.objects, radius=self.radius, travel=self.travel, shake=0,
+                          reference=self.reference, margin=self.canvas_margin, frozen=True)
 
     def tripod(self) -> "MotionSpec":
         """The same objects on the same paths, without camera shake (the same canvas)."""
         return MotionSpec(objects=self.objects, radius=self.radius, travel=self.travel, shake=0,
-                          reference=self.reference, margin=self.canvas_margin)
+                          reference=self.reference, margin=self.canvas_margin, frozen=self.frozen)
 
     @property
     def canvas_margin(self) -> int:
@@ -115,6 +118,8 @@ def plan_motion(spec: MotionSpec, n_frames: int, size: tuple[int, int], seed: in
     # straight paths through the frame, centred at a random place at the reference instant
     paths = np.zeros((k, n_frames, 2))
     steps = (np.arange(n_frames) - ref) / max(n_frames - 1, 1)
+    if spec.frozen:
+        steps = np.zeros(n_frames)
     for i in range(k):
         centre = np.array([rng.uniform(margin + r, margin + h - r), rng.uniform(margin + r, margin + w - r)])
         angle = rng.uniform(0, 2 * np.pi)

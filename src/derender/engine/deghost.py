@@ -50,7 +50,7 @@ from derender.core.errors import StackError
 
 __all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED",
            "Z2_CAP", "EDGE_SHIFT",
-           "frame_estimates", "detect_ghosts", "merge_valid"]
+           "frame_estimates", "ConsistencyTest", "upsample_mask", "detect_ghosts", "merge_valid"]
 
 #: Window mean of z^2 per channel above which a frame is rejected at a pixel (chosen on the
 #: tuning families ``paper`` and ``camera``, ``derender experiment ghosts``).
@@ -218,6 +218,71 @@ def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None) -> np.nda
     return keep if valid is None else (valid & keep)
 
 
+class ConsistencyTest:
+    """The test of the module docstring against frame ``ref`` under ``plan``, on the detection
+    grid of (H, W) frames (every ``step``-th row and column, :data:`DETECT_PIXELS`)."""
+
+    def __init__(self, plan, ref_codes: np.ndarray, ref: int, threshold: float = GHOST_THRESHOLD,
+                 window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE):
+        import cv2
+
+        self.plan, self.ref = plan, int(ref)
+        self.threshold, self.window, self.dilate = float(threshold), int(window), int(dilate)
+        self.h, self.w = ref_codes.shape[:2]
+        self.step = max(1, int(np.ceil(np.sqrt(self.h * self.w / DETECT_PIXELS))))
+        self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, ref_codes[::self.step, ::self.step], ref)
+        self.hs, self.ws = self.mu_r.shape[:2]
+        self.stat_step = max(1, int(np.ceil(np.sqrt(self.hs * self.ws / STAT_PIXELS))))
+        self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+        self._dilate = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
+
+    def sub(self, a: np.ndarray) -> np.ndarray:
+        """``a`` (H, W, ...) on the detection grid."""
+        return a[::self.step, ::self.step]
+
+    def statistic(self, codes: np.ndarray, j: int, ok: np.ndarray | None = None,
+                  offset_spread: tuple[np.ndarray, np.ndarray] | None = None):
+        """Frame ``j``'s capped ``z^2`` per pixel of the detection grid ((hs, ws) float32), its log
+        radiance estimates (mu, sd, cens) and ``(offset, spread^2)`` (estimated here unless given).
+        ``codes`` is the whole (H, W, 3) frame; ``ok`` (hs, ws) uint8 where it may be compared."""
+        from derender.engine.kernels import ghost_statistic
+
+        mu_j, sd_j, cens_j = _estimates32(self.plan, self.sub(codes), j)
+        if ok is None:
+            ok = np.ones((self.hs, self.ws), dtype=np.uint8)
+        if offset_spread is None:
+            k = self.stat_step
+            offset_spread = _offset_spread(mu_j[::k, ::k], sd_j[::k, ::k], cens_j[::k, ::k], self.mu_r[::k, ::k],
+                                           self.sd_r[::k, ::k], self.cens_r[::k, ::k], ok[::k, ::k])
+        b, s2 = offset_spread
+        q = np.empty((self.hs, self.ws), dtype=np.float32)
+        ghost_statistic(mu_j, sd_j, cens_j, self.mu_r, self.sd_r, self.cens_r, b, s2,
+                        float(EDGE_SHIFT), float(Z2_CAP), np.ascontiguousarray(ok, dtype=np.uint8), q)
+        return q, (mu_j, sd_j, cens_j), (b, s2)
+
+    def regions(self, q: np.ndarray, dilate: bool = True) -> np.ndarray:
+        """The pooled statistic above the threshold, cleaned into regions, at full resolution ((H, W) bool)."""
+        import cv2
+
+        bad = (_box_mean(q, self.window) > self.threshold).astype(np.uint8)
+        bad = cv2.morphologyEx(bad, cv2.MORPH_OPEN, self._open)
+        if dilate and self.dilate > 0:
+            bad = cv2.dilate(bad, self._dilate)
+        return upsample_mask(bad, self.step, self.h, self.w)
+
+
+def upsample_mask(mask: np.ndarray, step: int, h: int, w: int) -> np.ndarray:
+    """A detection-grid uint8 mask (every ``step``-th pixel) at full resolution (H, W) bool."""
+    import cv2
+
+    if step > 1:
+        hs, ws = mask.shape
+        mask = cv2.resize(mask, (ws * step, hs * step), interpolation=cv2.INTER_NEAREST)[:h, :w]
+        if mask.shape != (h, w):
+            mask = np.pad(mask, ((0, h - mask.shape[0]), (0, w - mask.shape[1])), mode="edge")
+    return mask.astype(bool)
+
+
 def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, threshold: float = GHOST_THRESHOLD,
                   window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Per frame and pixel, whether the frame disagrees with frame ``ref`` (module docstring).
@@ -228,53 +293,27 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     than :data:`MAX_REJECTED` of the other frames' pixels disagree. The per-pixel statistic is
     one compiled pass (:func:`derender.engine.kernels.ghost_statistic`); the offsets and
     spreads are robust statistics of at most :data:`STAT_PIXELS` pixels."""
-    import cv2
-
-    from derender.engine.kernels import ghost_statistic
-
     n, h, w = frames.shape[:3]
-    step = max(1, int(np.ceil(np.sqrt(h * w / DETECT_PIXELS))))
-    sub = frames[:, ::step, ::step]
-    hs, ws = sub.shape[1:3]
-    vsub = None if valid is None else valid[:, ::step, ::step] != 0
-    mu_r, sd_r, cens_r = _estimates32(plan, sub[ref], ref)
+    test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)
+    vsub = None if valid is None else test.sub(valid) != 0
     rejected = np.zeros((n, h, w), dtype=bool)
     per_frame = []
-    open_k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
-    dil_k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
-    stat_step = max(1, int(np.ceil(np.sqrt(hs * ws / STAT_PIXELS))))
-    q = np.empty((hs, ws), dtype=np.float32)
     total = counted = 0
     for j in range(n):
         if j == ref:
             per_frame.append({"frame": j, "reference": True})
             continue
-        mu_j, sd_j, cens_j = _estimates32(plan, sub[j], j)
-        ok = np.ones((hs, ws), dtype=np.uint8) if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
-        b, s2 = _offset_spread(mu_j[::stat_step, ::stat_step], sd_j[::stat_step, ::stat_step],
-                               cens_j[::stat_step, ::stat_step], mu_r[::stat_step, ::stat_step],
-                               sd_r[::stat_step, ::stat_step], cens_r[::stat_step, ::stat_step],
-                               ok[::stat_step, ::stat_step])
-        ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, b, s2, float(EDGE_SHIFT), float(Z2_CAP), ok, q)
-        pooled = _box_mean(q, window)
-        bad = (pooled > threshold).astype(np.uint8)
-        bad = cv2.morphologyEx(bad, cv2.MORPH_OPEN, open_k)
-        if dilate > 0:
-            bad = cv2.dilate(bad, dil_k)
-        if step > 1:
-            bad = cv2.resize(bad, (ws * step, hs * step), interpolation=cv2.INTER_NEAREST)[:h, :w]
-            if bad.shape != (h, w):
-                bad = np.pad(bad, ((0, h - bad.shape[0]), (0, w - bad.shape[1])), mode="edge")
-        rj = bad.astype(bool)
+        ok = None if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
+        q, _, (b, s2) = test.statistic(frames[j], j, ok)
+        rj = test.regions(q)
         if valid is not None:
             rj &= valid[j] != 0
         rejected[j] = rj
-        frac = float(rj.mean())
         total += int(rj.sum())
         counted += h * w
-        per_frame.append({"frame": j, "rejected": frac, "offset": np.round(b, 4).tolist(),
+        per_frame.append({"frame": j, "rejected": float(rj.mean()), "offset": np.round(b, 4).tolist(),
                           "spread": np.round(np.sqrt(s2), 4).tolist()})
-    info = {"threshold": float(threshold), "window": 2 * window + 1, "detect_step": step, "frames": per_frame,
+    info = {"threshold": float(threshold), "window": 2 * window + 1, "detect_step": test.step, "frames": per_frame,
             "rejected": total / max(counted, 1)}
     if counted and total / counted > MAX_REJECTED:
         raise StackError(f"{100 * total / counted:.0f}% of the pixels disagree with the reference frame: "

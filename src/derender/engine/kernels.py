@@ -673,18 +673,32 @@ def mark_colours(frames, j0, j1, present):  # pragma: no cover - compiled
                         | np.int64(frames[j, y, x, 2])] = True
 
 
+@njit(inline="always")
+def _interval_gap(lo_j, hi_j, lo_r, hi_r):  # pragma: no cover - compiled
+    """Signed distance between two intervals (0 where they overlap)."""
+    if lo_j - hi_r > 0.0:
+        return lo_j - hi_r
+    if hi_j - lo_r < 0.0:
+        return hi_j - lo_r
+    return 0.0
+
+
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, edge_shift, cap, ok, out):  # pragma: no cover - compiled
-    """Per pixel of the detection grid, :mod:`derender.engine.deghost`'s ``min(mean_c z_c^2, cap)``
-    of frame j against the reference (0 where ``ok`` is 0, e.g. a pixel one frame does not cover).
+    """Per pixel of the detection grid, :mod:`derender.engine.deghost`'s ``min(Q, cap)`` of frame j
+    against the reference (0 where ``ok`` is 0, e.g. a pixel one frame does not cover).
 
     ``mu_*``, ``sd_*`` (h, w, 3) float32 log radiance and its standard deviation, ``cens_*``
-    (h, w, 3) int8 (0 observed, +1 a lower bound, -1 an upper bound); frame j is shifted by
+    (h, w, 3) int8 (0 observed, +1 clipped bright, -1 clipped dark); frame j is shifted by
     ``-offset[c]`` (its global log offset) and the variance of a channel is
     ``sd_j^2 + sd_r^2 + extra_var[c] + edge_shift^2 (|grad mu_j|^2 + |grad mu_r|^2)`` (central
-    differences, clamped at the borders). ``z`` is the gap between the two intervals over the
-    standard deviation; where either frame has a channel bounded below (clipped bright), only
-    the pixel's brightest channel is compared (its variance the mean of both argmax channels')."""
+    differences, clamped at the borders). Each frame says, per channel, an interval of log
+    radiance: a point where observed, ``(-inf, mu]`` where clipped dark; a pixel with a channel
+    clipped bright says nothing of that channel and ``(-inf, mu]`` of its others (a camera
+    desaturates such a pixel towards white), and that its brightest channel is at least its
+    bound. ``z`` is the gap between the two frames' intervals over the standard deviation;
+    ``Q = max(mean_c z_c^2, z_top^2)``, ``z_top`` comparing the brightest channels where
+    either frame is clipped bright (its variance the mean of both argmax channels')."""
     h, w = mu_j.shape[0], mu_j.shape[1]
     inf = np.inf
     e2 = edge_shift * edge_shift
@@ -700,9 +714,9 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
             xa = max(x - 1, 0)
             xb = min(x + 1, w - 1)
             dx = 1.0 / max(xb - xa, 1)
+            bright_j = cens_j[y, x, 0] > 0 or cens_j[y, x, 1] > 0 or cens_j[y, x, 2] > 0
+            bright_r = cens_r[y, x, 0] > 0 or cens_r[y, x, 1] > 0 or cens_r[y, x, 2] > 0
             qsum = 0.0
-            bright_j = False
-            bright_r = False
             kj = 0
             kr = 0
             best_j = -inf
@@ -720,44 +734,35 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
                 var_c[c] = var
                 cj = cens_j[y, x, c]
                 cr = cens_r[y, x, c]
-                if cj > 0:
-                    bright_j = True
-                if cr > 0:
-                    bright_r = True
                 if mj > best_j:
                     best_j = mj
                     kj = c
                 if mr > best_r:
                     best_r = mr
                     kr = c
-                lo_j = mj if cj >= 0 else -inf
-                hi_j = mj if cj <= 0 else inf
-                lo_r = mr if cr >= 0 else -inf
-                hi_r = mr if cr <= 0 else inf
-                gap = 0.0
-                if lo_j - hi_r > 0.0:
-                    gap = lo_j - hi_r
-                elif hi_j - lo_r < 0.0:
-                    gap = hi_j - lo_r
+                if bright_j:
+                    lo_j = -inf
+                    hi_j = inf if cj > 0 else mj
+                else:
+                    lo_j = mj if cj >= 0 else -inf
+                    hi_j = mj
+                if bright_r:
+                    lo_r = -inf
+                    hi_r = inf if cr > 0 else mr
+                else:
+                    lo_r = mr if cr >= 0 else -inf
+                    hi_r = mr
+                gap = _interval_gap(lo_j, hi_j, lo_r, hi_r)
                 if gap != 0.0 and var > 0.0 and np.isfinite(var):
                     z2 = gap * gap / var
                     if np.isfinite(z2):
                         qsum += z2
             q = qsum / 3.0
             if bright_j or bright_r:
-                lo_j = best_j
-                hi_j = inf if bright_j else best_j
-                lo_r = best_r
-                hi_r = inf if bright_r else best_r
-                gap = 0.0
-                if lo_j - hi_r > 0.0:
-                    gap = lo_j - hi_r
-                elif hi_j - lo_r < 0.0:
-                    gap = hi_j - lo_r
+                gap = _interval_gap(best_j, inf if bright_j else best_j, best_r, inf if bright_r else best_r)
                 var = 0.5 * (var_c[kj] + var_c[kr])
-                q = 0.0
                 if gap != 0.0 and var > 0.0 and np.isfinite(var):
-                    q = gap * gap / var
-                    if not np.isfinite(q):
-                        q = 0.0
+                    qt = gap * gap / var
+                    if np.isfinite(qt) and qt > q:
+                        q = qt
             out[y, x] = min(q, cap)

@@ -61,6 +61,9 @@ class MotionOptions:
     ghost_threshold : float
         The pooled statistic's threshold: a frame is rejected where the window mean of
         ``z^2`` per channel exceeds it (:data:`derender.engine.deghost.GHOST_THRESHOLD`).
+    compensate : bool
+        With ``deghost``: fill the rejected pixels of each frame from its own view of the moved
+        thing, found by optical flow and tested again (:mod:`derender.engine.compensation`).
     seed : int
         Seeds the homography's RANSAC.
     """
@@ -69,6 +72,7 @@ class MotionOptions:
     align: str = "none"
     deghost: bool = False
     ghost_threshold: float | None = None
+    compensate: bool = True
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -239,6 +243,8 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
 
         derive = lambda frame, out: grey8_codes(frame, out=out)  # noqa: E731 - made in the decoding threads
     frames, grey = source.read_all(threads, derive=derive)
+    if isinstance(source, ArrayFrames) and np.shares_memory(frames, source.codes):
+        frames = frames.copy()       # aligned and filled in place: the caller's array stays as it was
     n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:
         check_brightness_order(source.times, [frame_brightness(f) for f in frames],
@@ -255,16 +261,29 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     ghosts = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
-        from derender.engine.deghost import GHOST_THRESHOLD, detect_ghosts, merge_valid
+        from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
 
         threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
-        rejected, ginfo = detect_ghosts(frames, plan, ref, valid, threshold=threshold)
+
+        def detect_and_fill(plan):
+            rejected, info = detect_ghosts(frames, plan, ref, valid, threshold=threshold)
+            if rejected is not None and motion.compensate:
+                from derender.engine.compensation import compensate_frames
+
+                offsets = {f["frame"]: (np.asarray(f["offset"]), np.asarray(f["spread"]) ** 2)
+                           for f in info["frames"] if "offset" in f}
+                info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
+                                                         rejected, valid, offsets)
+                info["rejected_after_fill"] = float(rejected.mean() * n / max(n - 1, 1))
+            return rejected, info
+
+        rejected, ginfo = detect_and_fill(plan)
         rounds = 1
         if rejected is not None and getattr(method, "refits_on_frames", True):
-            # fit, detect, refit: the method's calibration without the inconsistent pixels
+            # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
             access = _access(method, source, frames, merge_valid(valid, rejected), ref, threads)
             plan = method.plan(access)
-            rejected, ginfo = detect_ghosts(frames, plan, ref, valid, threshold=threshold)
+            rejected, ginfo = detect_and_fill(plan)
             rounds = 2
         ginfo["rounds"] = rounds
         if rejected is not None:
@@ -283,7 +302,8 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     res.info["alignment"] = ainfo
     if motion.deghost:
         res.info["deghost"] = ginfo
-    res.info["motion"] = {"reference": motion.reference, "align": motion.align, "deghost": motion.deghost}
+    res.info["motion"] = {"reference": motion.reference, "align": motion.align, "deghost": motion.deghost,
+                          "compensate": motion.compensate}
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "align_s": t2 - t1, "plan_s": t3 - t2,
                                                "deghost_s": t4 - t3, "merge_s": t5 - t4})
     res.info["streaming"] = {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}

@@ -148,7 +148,7 @@ def _missing_message(method: str, missing: list[str]) -> str:
 
 
 #: Options the engine takes for every method (:class:`derender.engine.motion.MotionOptions`).
-MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold")
+MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold", "ghost_fill")
 
 
 def split_motion(method: str, options: dict, engine_reference: bool = False) -> tuple[Any, dict]:
@@ -171,6 +171,7 @@ def split_motion(method: str, options: dict, engine_reference: bool = False) -> 
     if not isinstance(deghost, (bool, np.bool_)):
         raise InputError(f"deghost must be True or False, got {deghost!r}")
     threshold = opts.pop("ghost_threshold", None)
+    fill = opts.pop("ghost_fill", True)
     if own:
         ref, align = opts.get("reference"), opts.get("align", "mtb")
         if align == "translation":
@@ -184,7 +185,7 @@ def split_motion(method: str, options: dict, engine_reference: bool = False) -> 
     else:
         ref, align = opts.pop("reference", None), opts.pop("align", None) or "none"
     motion = MotionOptions(reference=ref, align=align, deghost=bool(deghost), ghost_threshold=threshold,
-                           seed=int(opts.get("seed", 0) or 0))
+                           compensate=bool(fill), seed=int(opts.get("seed", 0) or 0))
     return (motion if motion.active else None), opts
 
 
@@ -226,8 +227,10 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
         methods need ``model`` (a :class:`~derender.derendering.base.DerenderModel` or a path).
         Every method also takes the engine's (:mod:`derender.engine.motion`):
         ``reference`` (index of the reference frame among the images, from 0, or ``"auto"``),
-        ``align`` (``"none"``, ``"translation"``, ``"homography"``), ``deghost`` (bool) and
-        ``ghost_threshold``; paper 1's methods register to their own reference by default.
+        ``align`` (``"none"``, ``"translation"``, ``"homography"``), ``deghost`` (bool),
+        ``ghost_threshold`` and ``ghost_fill`` (bool, default True: rejected pixels filled from
+        each frame's flow-compensated view); paper 1's methods register to their own
+        reference by default.
 
     Returns
     -------

@@ -280,7 +280,7 @@ CURVE_TIE = 0.0
 
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, seed: int = 0,
                       high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS,
-                      exposure_rounds: int | None = None, tie: float | None = None) -> Any:
+                      exposure_rounds: int | None = None, tie: float | None = None, valid_at: Any = None) -> Any:
     """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
     :data:`CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
     pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
@@ -300,7 +300,9 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     log-exposure offsets re-estimated with the curve (:func:`_debevec_with_exposures`; in
     ``params["exposure_offsets"]``, (N, 3)); 0 is Debevec & Malik with the times as given.
 
-    ``codes_at(j, ys, xs)``: (P, 3) integer codes of aligned image j at those pixels.
+    ``codes_at(j, ys, xs)``: (P, 3) integer codes of aligned image j at those pixels;
+    ``valid_at(j, ys, xs)`` (optional): (P,) bool, False where image j does not take part
+    (the engine's alignment borders and ghosts): that sample counts in no channel.
     Returns :class:`derender.response.ResponseCurves`, or None when some channel keeps no
     usable sample (then use :func:`derender.response.calibrate_debevec`).
     """
@@ -317,6 +319,9 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
             yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
             for j in range(n):
                 clipped[j] |= np.asarray(codes_at(j, yy, xx)).max(axis=-1) >= top
+    if valid_at is not None:
+        for j in range(n):
+            clipped[j] |= ~np.asarray(valid_at(j, ys, xs), dtype=bool)
     codes[clipped] = 0                       # hat weight 0: the sample drops out of every channel
     if not np.all(((codes > 0) & (codes < 255)).any(axis=(0, 1))):
         return None

@@ -286,7 +286,8 @@ class StabilizedMethod:
 
         def calibrate():
             cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed,
-                                    exposure_rounds=opts.get("exposure_rounds"))
+                                    exposure_rounds=opts.get("exposure_rounds"),
+                                    valid_at=None if access.valid is None else valid_view.pixels)
             if cur is not None:
                 return cur
             ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)

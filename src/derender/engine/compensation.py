@@ -1,0 +1,124 @@
+"""Motion-compensated fill: where ghost removal left a frame out, that frame's own view of the
+moved thing, found by dense optical flow and kept only if it passes the consistency test.
+
+Ghost removal (:mod:`derender.engine.deghost`) keeps the scene of the reference instant but,
+where something moved, leaves only the reference frame: an object clipped or too dark in
+the reference has no other measurement, and its radiance is the reference's bound or noise.
+The object is still in the other frames, elsewhere. Per frame ``j`` with rejected pixels:
+
+1. both frames as log radiance under the method's plan (:func:`derender.engine.deghost.frame_estimates`,
+   mean of the channels, frame j's global offset removed), clipped to the range *both* frames
+   observe and scaled to 8 bits: a short exposure's unclipped object and the reference's clipped
+   one then look alike (the exposure normalisation of Kalantari & Ramamoorthi 2017);
+2. dense optical flow from the reference to frame j (OpenCV's DIS, Kroeger et al. 2016) on the
+   detection grid, brought to full resolution;
+3. frame j's codes sampled through the flow (nearest code: the colours stay ones the frame
+   has, as paper 2's per-colour tables need), tested against the reference with the same
+   test and the same offset and spread as frame j itself (:class:`~derender.engine.deghost.ConsistencyTest`);
+4. where the warped frame agrees and the frame had been rejected, its warped codes replace its
+   own and it takes part again.
+
+A clipped reference bounds the radiance from one side only, so a wrong flow that brings a
+brighter patch there would pass the test: the flow is trusted only where its forward-backward
+error is below :data:`FLOW_CHECK` pixels (of the detection grid).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["FLOW_CHECK", "compensate_frames"]
+
+#: Largest forward-backward disagreement of the flow (pixels of the detection grid) where
+#: a compensated pixel is used.
+FLOW_CHECK = 1.0
+
+
+FLOW = "dis"
+
+
+def _flow(dis, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    import cv2
+
+    if FLOW == "farneback":
+        return cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 5, 15, 5, 5, 1.1, 0)
+    return dis.calc(a, b, None)
+
+
+def _grey8(mu: np.ndarray, cens: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    g = mu.mean(axis=-1)
+    g = np.clip((g - lo) * (255.0 / max(hi - lo, 1e-6)), 0, 255)
+    return np.ascontiguousarray(np.rint(g).astype(np.uint8))
+
+
+def _observed_range(mu: np.ndarray, cens: np.ndarray) -> tuple[float, float] | None:
+    obs = np.all(cens == 0, axis=-1)
+    if np.count_nonzero(obs) < 64:
+        return None
+    g = mu.mean(axis=-1)[obs]
+    return float(np.percentile(g, 0.5)), float(np.percentile(g, 99.5))
+
+
+def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.ndarray | None,
+                      offsets: dict[int, tuple[np.ndarray, np.ndarray]]) -> dict[str, Any]:
+    """Fill the ``rejected`` pixels of every frame from its flow-compensated view (module
+    docstring), **in place**: ``frames[j]`` takes the warped codes and ``rejected[j]`` turns
+    False where they pass ``test`` (a :class:`~derender.engine.deghost.ConsistencyTest` of the
+    reference). ``offsets[j]``: frame j's (offset, spread^2) of the detection. Returns the
+    filled fraction per frame."""
+    import cv2
+
+    from derender.engine.deghost import frame_estimates, upsample_mask
+
+    n, h, w = frames.shape[:3]
+    ref = test.ref
+    step = test.step
+    hs, ws = test.hs, test.ws
+    rng_r = _observed_range(test.mu_r, test.cens_r)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    gy, gx = np.mgrid[0:hs, 0:ws].astype(np.float32)
+    fy, fx = np.mgrid[0:h, 0:w].astype(np.float32)
+    out: dict[str, Any] = {"frames": []}
+    for j in range(n):
+        if j == ref or not rejected[j].any() or rng_r is None:
+            continue
+        b, s2 = offsets[j]
+        mu_j, _, cens_j = frame_estimates(test.plan, test.sub(frames[j]), j)
+        mu_j = mu_j - np.asarray(b, dtype=np.float32)
+        rng_j = _observed_range(mu_j, cens_j)
+        if rng_j is None:
+            continue
+        lo, hi = max(rng_r[0], rng_j[0]), min(rng_r[1], rng_j[1])
+        if hi - lo < 0.5:          # the two exposures share almost no range: nothing to match
+            continue
+        a8 = _grey8(test.mu_r, test.cens_r, lo, hi)
+        b8 = _grey8(mu_j, cens_j, lo, hi)
+        fwd = _flow(dis, a8, b8)
+        bwd = _flow(dis, b8, a8)
+        # forward-backward check: x -> x + f(x) -> back by b at that point
+        bx = cv2.remap(bwd[..., 0], gx + fwd[..., 0], gy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        by = cv2.remap(bwd[..., 1], gx + fwd[..., 0], gy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        reliable = ((fwd[..., 0] + bx) ** 2 + (fwd[..., 1] + by) ** 2 <= FLOW_CHECK ** 2).astype(np.uint8)
+        if step > 1:
+            flow = cv2.resize(fwd, (ws * step, hs * step), interpolation=cv2.INTER_LINEAR)[:h, :w] * np.float32(step)
+            if flow.shape[:2] != (h, w):
+                flow = np.pad(flow, ((0, h - flow.shape[0]), (0, w - flow.shape[1]), (0, 0)), mode="edge")
+        else:
+            flow = fwd
+        mx, my = fx + flow[..., 0], fy + flow[..., 1]
+        warped = cv2.remap(frames[j], mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+        if valid is not None:
+            inside &= cv2.remap(valid[j], mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                                borderValue=0).astype(bool)
+        ok = (test.sub(inside) & reliable.astype(bool)).astype(np.uint8)
+        q, _, _ = test.statistic(warped, j, ok, (np.asarray(b), np.asarray(s2)))
+        disagree = test.regions(q, dilate=False)
+        use = rejected[j] & ~disagree & inside & upsample_mask(ok, step, h, w)
+        frames[j][use] = warped[use]
+        rejected[j][use] = False
+        out["frames"].append({"frame": j, "filled": float(use.mean())})
+    return out
+
