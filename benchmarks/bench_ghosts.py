@@ -212,16 +212,37 @@ def run_pfstools(codes, times, ref, work: Path, *, deghost: bool, sigmas: float)
 
 
 def run_hdrgen(codes, times, ref, work: Path, *, deghost: bool, exe: str | None):
+    """hdrgen cannot solve its response on the whole 7-frame bracket ("Cannot solve for response
+    function": the darkest and brightest frames, ~3 stops apart); its man page's remedy: solve on
+    the frames without the extremes into a response file (``-r``), then merge all with it."""
     exe = _need(exe or "hdrgen", " (build github.com/radiance-org/hdrgen, pass --hdrgen PATH)")
     files = write_frames(codes, work.parent / "tif", "tif")
-    cmd = [exe, "-o", "out.hdr", "-F"] + (["-g"] if deghost else [])
-    for f, t in zip(files, times):
+    log = work / "log.txt"
+
+    def images(idx):
         # -s: sample-to-nits factor of the next image; only ratios matter: 1/t
-        cmd += ["-s", f"{1.0 / t:.9g}", str(f)]
-    _run(cmd, work, work / "log.txt")
+        return [a for i in idx for a in ("-s", f"{1.0 / times[i]:.9g}", str(files[i]))]
+
+    n = len(files)
+    rsp = work / "camera.rsp"
+    rsp.unlink(missing_ok=True)
+    cmds = []
+    for k in range(1, n // 2):
+        cmds.append([exe, "-o", "calibration.hdr", "-F", "-r", str(rsp)] + images(range(k, n - k)))
+        _run(cmds[-1], work, log)
+        if rsp.exists():
+            break
+    if not rsp.exists():
+        raise RuntimeError("hdrgen: cannot solve for the response on any centred subset")
+    (work / "out.hdr").unlink(missing_ok=True)
+    cmds.append([exe, "-o", "out.hdr", "-F", "-r", str(rsp)] + (["-g"] if deghost else []) + images(range(n)))
+    _run(cmds[-1], work, log)
+    if not (work / "out.hdr").exists():
+        tail = log.read_text(errors="replace").strip().splitlines()[-2:]
+        raise RuntimeError(f"hdrgen wrote no output: {' | '.join(tail)}")
     from derender.io.rgbe import read_hdr
 
-    return read_hdr(work / "out.hdr"), cmd
+    return read_hdr(work / "out.hdr"), cmds
 
 
 def run_peer(name, codes, times, ref, work: Path, args):
