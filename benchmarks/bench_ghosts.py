@@ -229,7 +229,11 @@ def run_hdrgen(codes, times, ref, work: Path, *, deghost: bool, exe: str | None)
     cmds = []
     for k in range(1, n // 2):
         cmds.append([exe, "-o", "calibration.hdr", "-F", "-r", str(rsp)] + images(range(k, n - k)))
-        _run(cmds[-1], work, log)
+        try:
+            _run(cmds[-1], work, log)
+        except RuntimeError:            # no solution on this subset: drop one more frame each end
+            rsp.unlink(missing_ok=True)
+            continue
         if rsp.exists():
             break
     if not rsp.exists():
@@ -262,7 +266,7 @@ def run_peer(name, codes, times, ref, work: Path, args):
     rad = np.asarray(rad, dtype=np.float64)[..., :3]
     bad = int(np.sum(~np.isfinite(rad)))
     rad = np.clip(np.nan_to_num(rad, nan=0.0, posinf=0.0, neginf=0.0), 0, None)
-    return rad, dt, (f"{bad} non-finite values set to 0" if bad else ""), cmd
+    return rad, dt, ("(non-finite values set to 0)" if bad else ""), cmd
 
 
 # --------------------------------------------------------------------------- run + table
@@ -271,6 +275,7 @@ def run(args) -> list[dict]:
 
     rows: list[dict] = []
     missing: dict[str, str] = {}
+    failures: list[str] = []
     commands: dict[str, object] = {}
     root = Path(args.workdir or tempfile.mkdtemp(prefix="derender-ghost-peers-"))
     for family in args.families:
@@ -296,7 +301,7 @@ def run(args) -> list[dict]:
                                 commands.setdefault(entry, cmd)
                         except RuntimeError as exc:      # a peer that fails on one case: NaN + the reason
                             print(f"failed {entry} on {family} seed {seed} {case}: {exc}", file=sys.stderr, flush=True)
-                            notes.add(f"failed on {case}: {str(exc)[:120]}")
+                            failures.append(f"{entry} on {family} seed {seed} {case}: {exc}")
                             errs.update({("still", s): nan for s in args.settings} if case == "still" else {case: nan})
                             continue
                         secs.append(dt)
@@ -329,6 +334,7 @@ def run(args) -> list[dict]:
     for entry, why in missing.items():
         print(f"skipped {entry}: {why}")
     run.commands = commands        # for the README: the exact command lines used
+    run.failures = failures
     return rows
 
 
@@ -340,7 +346,8 @@ def summarise(rows: list[dict]) -> list[dict]:
     for (family, setting, method), rs in groups.items():
         s = {k: rs[0][k] for k in ("family", "held_out", "setting", "method", "peer", "reference")}
         s["note"] = "; ".join(sorted({r["note"] for r in rs if r["note"]}))
-        s["n"] = len(rs)
+        s["n"] = sum(bool(np.isfinite(r["static_ratio"])) for r in rs)
+        s["n_all"] = len(rs)
         for k in rs[0]:
             if k.endswith(("_moving", "_still", "_ratio")) or k == "seconds":
                 v = [r[k] for r in rs if np.isfinite(r[k])]
@@ -351,13 +358,14 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 def table(summary: list[dict]) -> str:
     head = ("| family | held out | setting | method / peer | reference frame | static | swept | object | "
-            "static / still | swept / still | object / still | s per merge |")
-    lines = [head, "|" + "---|" * 12]
+            "static / still | swept / still | object / still | s per merge | seeds |")
+    lines = [head, "|" + "---|" * 13]
     for s in summary:
-        name = s["method"] + (f" {s['note'].strip()}" if s["note"] else "")
+        name = (s["method"] + (f" {s['note'].strip()}" if s["note"] else "")).replace("|", "/")
         lines.append(f"| {s['family']} | {'yes' if s['held_out'] else 'no (tuning)'} | {s['setting']} | {name} | "
                      f"{s['reference']} | {s['static_moving']:.3f} | {s['swept_moving']:.3f} | {s['object_moving']:.3f} | "
-                     f"{s['static_ratio']:.2f} | {s['swept_ratio']:.2f} | {s['object_ratio']:.2f} | {s['seconds']:.2f} |")
+                     f"{s['static_ratio']:.2f} | {s['swept_ratio']:.2f} | {s['object_ratio']:.2f} | {s['seconds']:.2f} | "
+                     f"{s['n']}/{s['n_all']} |")
     return "\n".join(lines)
 
 
@@ -417,6 +425,11 @@ def main(argv=None) -> int:
         cmds = v if isinstance(v[0], list) else [v]
         for c in cmds:
             print(f"  {k}: {' '.join(map(str, c))}")
+    fails = getattr(run, "failures", [])
+    if fails:
+        print(f"\nFailed runs ({len(fails)}; those seeds are left out of the row's mean, see 'seeds'):")
+        for f in fails:
+            print(f"  {f}")
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     if args.json:
         Path(args.json).write_text(json.dumps({"rows": rows, "summary": summary}, indent=1))
