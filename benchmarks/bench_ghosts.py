@@ -51,6 +51,9 @@ PEERS = ("luminance", "hugin-khan", "pfstools", "hdrgen")
 #: Peer runs without their ghost removal (same pipeline otherwise): context, not in the default.
 BASELINES = ("luminance-noag", "hugin-avg", "pfstools-nodeghost", "hdrgen-nog")
 
+#: The verdict's ratio columns use only rows whose still twin's static median is below this.
+STILL_USABLE = 0.5
+
 #: What each peer does about the reference instant (the truth is at the middle frame).
 PEER_REFERENCE = {
     "luminance": "auto (h0 = least hue error; not settable)",
@@ -369,6 +372,42 @@ def table(summary: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def verdict(summary: list[dict]) -> str:
+    """Per family, setting and zone (swept, object): the best derender row and the best peer row,
+    by the moving median and by the ratio to the still twin; "yes" when derender's best is lower
+    than every peer's (rows without a finite value are left out). A row whose still twin's static
+    median is >= ``STILL_USABLE`` is left out of the ratio columns: a ratio to a still-twin merge
+    that is itself wrong (Luminance's --autoag output, ~0.9) says nothing about ghosts."""
+    lines = ["| family | held out | setting | zone | best derender: median (ratio) | best peer: median (ratio) | "
+             "derender lower median? | derender lower ratio? |", "|" + "---|" * 8]
+    keys = []
+    for s in summary:
+        if (s["family"], s["setting"]) not in keys:
+            keys.append((s["family"], s["setting"]))
+    for family, setting in keys:
+        group = [s for s in summary if s["family"] == family and s["setting"] == setting]
+        for zone in ("swept", "object"):
+            def best(rows, k):
+                rows = [r for r in rows if np.isfinite(r[k])]
+                return min(rows, key=lambda r: r[k]) if rows else None
+            ours = [s for s in group if not s["peer"]]
+            peers = [s for s in group if s["peer"]]
+            om, pm = best(ours, f"{zone}_moving"), best(peers, f"{zone}_moving")
+            usable = [r for r in peers if r["static_still"] < STILL_USABLE]
+            orat, prat = best(ours, f"{zone}_ratio"), best(usable, f"{zone}_ratio")
+            if not (om and pm and orat and prat):
+                continue
+
+            def cell(a, b):
+                return f"{a['method'].replace('derender ', '')} {a[f'{zone}_moving']:.3f} ({a[f'{zone}_ratio']:.2f})" + (
+                    "" if a is b else f"; {b['method'].replace('derender ', '')} ({b[f'{zone}_ratio']:.2f})")
+            lines.append(f"| {family} | {'yes' if group[0]['held_out'] else 'no (tuning)'} | {setting} | {zone} | "
+                         f"{cell(om, orat)} | {cell(pm, prat)} | "
+                         f"{'yes' if om[f'{zone}_moving'] < pm[f'{zone}_moving'] else 'no'} | "
+                         f"{'yes' if orat[f'{zone}_ratio'] < prat[f'{zone}_ratio'] else 'no'} |")
+    return "\n".join(lines)
+
+
 def peer_times(rows: list[dict]) -> str:
     by: dict[str, list[float]] = {}
     for r in rows:
@@ -418,6 +457,10 @@ def main(argv=None) -> int:
           f"{args.size[0]}x{args.size[1]}, {args.exposures} exposures. Tuning families: paper, camera; "
           f"held out: the others.\n")
     print(table(summary))
+    if args.methods and args.peers:
+        print(f"\nDoes derender beat every peer? (best of each side; a second name is the side's best ratio; "
+              f"ratios only from rows whose still twin's static median < {STILL_USABLE})\n")
+        print(verdict(summary))
     print("\nTime per merge (median over cases):\n")
     print(peer_times(rows))
     print("\nPeer commands (first case):")
