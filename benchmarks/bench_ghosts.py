@@ -450,6 +450,14 @@ def main(argv=None) -> int:
     if bad:
         print(f"error: unknown peer(s) {', '.join(bad)}; known: {', '.join(PEERS + BASELINES)}", file=sys.stderr)
         return 2
+    from derender.camera.families import check_family
+    from derender.core.errors import InputError
+
+    try:
+        args.families = [check_family(f) for f in args.families]
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
     rows = run(args)
     summary = summarise(rows)
