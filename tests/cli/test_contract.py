@@ -61,6 +61,14 @@ TIMES = ["--times", "1,2,4"]
     (["--plot", "c.png", "--method", "stabilized"], "no response curves"),
     (["--variance", "v.exr"], "gives no variance"),
     (["--times-inverse"], "--times-inverse applies to a --times-file"),
+    (["--reference", "4"], "--reference 4 is out of range: 3 images given (1..3)"),
+    (["--reference", "0"], "out of range"),
+    (["--reference", "middle"], "--reference takes N (from 1) or 'auto'"),
+    (["--align", "rotation"], "--align takes none, translation, homography"),
+    (["--ghost-threshold", "3"], "add --deghost"),
+    (["--ghost-mask", "g.png"], "--ghost-mask shows where --deghost or --align left frames out"),
+    (["--deghost", "--ghost-mask", "g.exr"], "--ghost-mask must end in"),
+    (["--align", "homography"], "no features"),
 ])
 def test_outputs_checked_before_any_work(tmp_path, capsys, monkeypatch, extra, needle):
     monkeypatch.chdir(tmp_path)
@@ -71,6 +79,22 @@ def test_outputs_checked_before_any_work(tmp_path, capsys, monkeypatch, extra, n
     code, _, err = run_cli(args, capsys)
     _assert_error(code, err, needle)
     assert _listing(tmp_path) == listing and _digest(ins) == before
+
+
+def test_deghost_outputs_and_summary(tmp_path, capsys, monkeypatch):
+    """--reference/--align/--deghost/--ghost-mask end to end: the ghost mask is written (8-bit, the
+    size of the map), the summary names the reference frame as given, and nothing else appears."""
+    from derender.io.images import read_codes
+
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    code, out, err = run_cli(["merge", *ins, "-o", "o.exr", *TIMES, "--reference", "2", "--align", "translation",
+                              "--deghost", "--ghost-mask", "g.png"], capsys)
+    assert code == 0, err
+    assert "reference frame 2 (in1.png)" in out and "ghost removal left out" in out
+    g = read_codes(tmp_path / "g.png")
+    assert g.shape == (48, 64, 3) and g.max() <= 255
+    assert not [n for n in _listing(tmp_path) if n.startswith(TEMP_PREFIX)]
 
 
 def test_every_output_or_none(tmp_path, capsys, monkeypatch):

@@ -18,7 +18,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"],
     "align": ["ALIGN_METHODS", "Alignment", "shift_into", "shift_valid", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
     "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
-    "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "frame_brightness", "table_kernel_merge", "ENGINES"],
+    "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "motion_attributes", "clipped_pixels", "frame_brightness", "table_kernel_merge", "ENGINES"],
     "motion": ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "run_motion"],
     "deghost": ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "MAX_REJECTED", "frame_estimates", "detect_ghosts", "merge_valid"],
 })

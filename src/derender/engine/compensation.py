@@ -62,12 +62,12 @@ def _observed_range(mu: np.ndarray, cens: np.ndarray) -> tuple[float, float] | N
 
 
 def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.ndarray | None,
-                      offsets: dict[int, tuple[np.ndarray, np.ndarray]]) -> dict[str, Any]:
+                      offsets: dict) -> dict[str, Any]:
     """Fill the ``rejected`` pixels of every frame from its flow-compensated view (module
     docstring), **in place**: ``frames[j]`` takes the warped codes and ``rejected[j]`` turns
     False where they pass ``test`` (a :class:`~derender.engine.deghost.ConsistencyTest` of the
-    reference). ``offsets[j]``: frame j's (offset, spread^2) of the detection. Returns the
-    filled fraction per frame."""
+    reference). ``offsets[j]``: frame j's :class:`~derender.engine.deghost.FrameAgreement` of the
+    detection. Returns the filled fraction per frame."""
     import cv2
 
     from derender.engine.deghost import frame_estimates, upsample_mask
@@ -84,9 +84,9 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
     for j in range(n):
         if j == ref or not rejected[j].any() or rng_r is None:
             continue
-        b, s2 = offsets[j]
+        agreement = offsets[j]
         mu_j, _, cens_j = frame_estimates(test.plan, test.sub(frames[j]), j)
-        mu_j = mu_j - np.asarray(b, dtype=np.float32)
+        mu_j = mu_j - agreement.maps(test.mu_r)[0]
         rng_j = _observed_range(mu_j, cens_j)
         if rng_j is None:
             continue
@@ -114,7 +114,7 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
             inside &= cv2.remap(valid[j], mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                                 borderValue=0).astype(bool)
         ok = (test.sub(inside) & reliable.astype(bool)).astype(np.uint8)
-        q, _, _ = test.statistic(warped, j, ok, (np.asarray(b), np.asarray(s2)))
+        q, _, _ = test.statistic(warped, j, ok, agreement)
         disagree = test.regions(q, dilate=False)
         use = rejected[j] & ~disagree & inside & upsample_mask(ok, step, h, w)
         frames[j][use] = warped[use]

@@ -23,10 +23,11 @@ Per frame ``j``, pixel and channel, on a grid of at most :data:`DETECT_PIXELS` p
   desaturates its highlights, so a white code bounds the brightest channel, not each).
 * ``z = gap(I_j - b_j, I_ref) / sqrt(sd_j^2 + sd_ref^2 + s_j^2)``, where ``gap`` is the
   distance between the two intervals (points for observed codes, half-lines for bounds: a
-  frame clipped where the reference is clipped agrees), ``b_j`` the frame's global log offset
+  frame clipped where the reference is clipped agrees), ``b_j`` the frame's log offset
   against the reference and ``s_j`` the spread the noise model does not explain, both robust
-  (median, MAD) over the pixels well exposed in both frames: a camera that changes its white
-  balance or gain between frames is not a ghost, and a model error is not either.
+  (median, MAD) over the pixels well exposed in both frames, in bins of the reference's
+  brightness (:class:`FrameAgreement`): a camera that changes its white balance, gain or tone
+  curve between frames is not a ghost, and a model error is not either.
 * the statistic ``Q = mean over a (2k+1)^2 window of min(mean over channels of z^2,``
   :data:`Z2_CAP` ``)`` (a local chi-square per degree of freedom, about 1 where the model
   holds; the cap keeps one wild pixel from rejecting its window) is compared with
@@ -36,12 +37,14 @@ Per frame ``j``, pixel and channel, on a grid of at most :data:`DETECT_PIXELS` p
 
 The reference frame always takes part. Where every other frame is rejected the reference
 alone gives the value (its mask rule as usual: a clipped reference gives the bound).
-A bracket in which almost nothing agrees with the reference is refused
-(:data:`MAX_REJECTED`): it is not one scene.
+A bracket in which almost nothing agrees with the reference (:data:`MAX_REJECTED`), or with a
+frame whose radiance does not even rank like the reference's (:data:`MIN_SCENE_CORRELATION`),
+is refused: it is not one scene.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -49,8 +52,8 @@ import numpy as np
 from derender.core.errors import StackError
 
 __all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED",
-           "Z2_CAP", "EDGE_SHIFT",
-           "frame_estimates", "ConsistencyTest", "upsample_mask", "detect_ghosts", "merge_valid"]
+           "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_BINS", "MIN_SCENE_CORRELATION", "SceneMismatch",
+           "frame_estimates", "FrameAgreement", "ConsistencyTest", "upsample_mask", "detect_ghosts", "merge_valid"]
 
 #: Window mean of z^2 per channel above which a frame is rejected at a pixel (chosen on the
 #: tuning families ``paper`` and ``camera``, ``derender experiment ghosts``).
@@ -80,6 +83,13 @@ DETECT_PIXELS = 1 << 20
 
 #: The offsets and spreads are robust statistics of at most about this many pixels.
 STAT_PIXELS = 1 << 16
+
+#: Bins of the reference's brightness in which a frame's offset and spread are estimated.
+AGREEMENT_BINS = 8
+
+#: A frame whose radiance ranks correlate less than this with the reference's (over the pixels
+#: both observe) does not show the same scene: the bracket is refused.
+MIN_SCENE_CORRELATION = 0.3
 
 #: A bracket is refused when more than this fraction of the non-reference frames' pixels
 #: disagree with the reference.
@@ -186,22 +196,98 @@ def _estimates32(plan, codes: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarra
     return tuple(np.ascontiguousarray(a) for a in frame_estimates(plan, codes, j))
 
 
-def _offset_spread(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> tuple[np.ndarray, np.ndarray]:
-    """Frame j's global log offset against the reference and the variance its noise model
-    does not explain, per channel: median and MAD of ``mu_j - mu_r`` over the pixels observed
-    (not clipped) in both with ``sd < 0.5`` (0 where fewer than 64 such pixels)."""
+@dataclass(frozen=True)
+class FrameAgreement:
+    """How frame j departs from the reference where nothing moves, by the reference's brightness:
+    per channel, at log radiance ``centres`` (3, K), the median log offset ``offset`` (3, K)
+    and the variance the noise model leaves unexplained ``spread2`` (3, K) (robust: median and
+    MAD of ``mu_j - mu_r``). A camera that changes its white balance, gain or tone curve between
+    frames, or a response curve that fits some frames better than others, is not a ghost."""
+
+    centres: np.ndarray
+    offset: np.ndarray
+    spread2: np.ndarray
+
+    def maps(self, mu_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-pixel offset and extra variance (h, w, 3) float32 at the reference's log radiance
+        (interpolated between the bins, constant beyond them)."""
+        off = np.empty(mu_r.shape, np.float32)
+        var = np.empty(mu_r.shape, np.float32)
+        for c in range(3):
+            off[..., c] = np.interp(mu_r[..., c], self.centres[c], self.offset[c])
+            var[..., c] = np.interp(mu_r[..., c], self.centres[c], self.spread2[c])
+        return off, var
+
+    def summary(self) -> dict:
+        """JSON-friendly: the offsets and spreads (their square roots) per channel and bin."""
+        return {"centres": np.round(self.centres, 3).tolist(), "offset": np.round(self.offset, 4).tolist(),
+                "spread": np.round(np.sqrt(self.spread2), 4).tolist()}
+
+
+def _agreement(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> FrameAgreement:
+    """:class:`FrameAgreement` from the pixels observed (not clipped) in both frames with
+    ``sd < 0.5``, in :data:`AGREEMENT_BINS` bins of the reference's log radiance (quantiles;
+    a bin needs 64 pixels, fewer bins otherwise, a single global one at least; 0 without data)."""
     both = (cens_j == 0) & (cens_r == 0) & (sd_j < 0.5) & (sd_r < 0.5) & (ok != 0)[..., None]
-    b = np.zeros(3)
-    s2 = np.zeros(3)
+    k = AGREEMENT_BINS
+    centres = np.zeros((3, k))
+    off = np.zeros((3, k))
+    s2 = np.zeros((3, k))
     for c in range(3):
         sel = both[..., c]
-        if np.count_nonzero(sel) >= 64:
-            dc = (mu_j[..., c][sel] - mu_r[..., c][sel]).astype(np.float64)
-            b[c] = float(np.median(dc))
-            mad = 1.4826 * float(np.median(np.abs(dc - b[c])))
-            model = float(np.median(sd_j[..., c][sel].astype(np.float64) ** 2 + sd_r[..., c][sel].astype(np.float64) ** 2))
-            s2[c] = max(0.0, mad * mad - model)
-    return b, s2
+        m = int(np.count_nonzero(sel))
+        if m < 64:
+            continue
+        r = mu_r[..., c][sel].astype(np.float64)
+        d = mu_j[..., c][sel].astype(np.float64) - r
+        v = sd_j[..., c][sel].astype(np.float64) ** 2 + sd_r[..., c][sel].astype(np.float64) ** 2
+        nb = max(1, min(k, m // 64))
+        edges = np.quantile(r, np.linspace(0, 1, nb + 1))
+        idx = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, nb - 1)
+        cs, os_, ss = [], [], []
+        for i in range(nb):
+            sb = idx == i
+            if np.count_nonzero(sb) < 16:
+                continue
+            db = d[sb]
+            med = float(np.median(db))
+            mad = 1.4826 * float(np.median(np.abs(db - med)))
+            cs.append(float(np.median(r[sb])))
+            os_.append(med)
+            ss.append(max(0.0, mad * mad - float(np.median(v[sb]))))
+        order = np.argsort(cs)
+        cs, os_, ss = np.asarray(cs)[order], np.asarray(os_)[order], np.asarray(ss)[order]
+        centres[c] = np.interp(np.linspace(0, 1, k), np.linspace(0, 1, len(cs)), cs) if len(cs) > 1 else cs[0]
+        off[c] = np.interp(centres[c], cs, os_)
+        s2[c] = np.interp(centres[c], cs, ss)
+    return FrameAgreement(centres=centres, offset=off, spread2=s2)
+
+
+class SceneMismatch(StackError):
+    """Frame ``frame`` (by time) does not show the reference frame's scene."""
+
+    def __init__(self, frame: int, rho: float):
+        self.frame, self.rho = int(frame), float(rho)
+        super().__init__(f"frame {frame} does not show the reference frame's scene (rank correlation of their "
+                         f"radiance {rho:.2f}): these images are not one bracket")
+
+
+def _scene_correlation(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, k: int) -> float | None:
+    """Spearman rank correlation of the two frames' mean log radiance over the pixels both
+    measure well (every channel observed with ``sd < 0.1``; every ``k``-th row and column);
+    None with fewer than 256 such pixels (a nearly black or white frame tells nothing)."""
+    both = (np.all((cens_j[::k, ::k] == 0) & (sd_j[::k, ::k] < 0.1), axis=-1)
+            & np.all((cens_r[::k, ::k] == 0) & (sd_r[::k, ::k] < 0.1), axis=-1))
+    if np.count_nonzero(both) < 256:
+        return None
+    a = mu_j[::k, ::k].mean(axis=-1)[both]
+    b = mu_r[::k, ::k].mean(axis=-1)[both]
+    ra = np.argsort(np.argsort(a, kind="stable"), kind="stable").astype(np.float64)
+    rb = np.argsort(np.argsort(b, kind="stable"), kind="stable").astype(np.float64)
+    ra -= ra.mean()
+    rb -= rb.mean()
+    den = float(np.sqrt((ra * ra).sum() * (rb * rb).sum()))
+    return float((ra * rb).sum() / den) if den > 0 else None
 
 
 def _box_mean(a: np.ndarray, k: int) -> np.ndarray:
@@ -220,16 +306,16 @@ def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None) -> np.nda
 
 class ConsistencyTest:
     """The test of the module docstring against frame ``ref`` under ``plan``, on the detection
-    grid of (H, W) frames (every ``step``-th row and column, :data:`DETECT_PIXELS`)."""
+    grid of (H, W) frames (every ``step``-th row and column: at most about ``pixels``)."""
 
     def __init__(self, plan, ref_codes: np.ndarray, ref: int, threshold: float = GHOST_THRESHOLD,
-                 window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE):
+                 window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE, pixels: int = DETECT_PIXELS):
         import cv2
 
         self.plan, self.ref = plan, int(ref)
         self.threshold, self.window, self.dilate = float(threshold), int(window), int(dilate)
         self.h, self.w = ref_codes.shape[:2]
-        self.step = max(1, int(np.ceil(np.sqrt(self.h * self.w / DETECT_PIXELS))))
+        self.step = max(1, int(np.ceil(np.sqrt(self.h * self.w / pixels))))
         self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, ref_codes[::self.step, ::self.step], ref)
         self.hs, self.ws = self.mu_r.shape[:2]
         self.stat_step = max(1, int(np.ceil(np.sqrt(self.hs * self.ws / STAT_PIXELS))))
@@ -241,24 +327,24 @@ class ConsistencyTest:
         return a[::self.step, ::self.step]
 
     def statistic(self, codes: np.ndarray, j: int, ok: np.ndarray | None = None,
-                  offset_spread: tuple[np.ndarray, np.ndarray] | None = None):
+                  agreement: "FrameAgreement | None" = None):
         """Frame ``j``'s capped ``z^2`` per pixel of the detection grid ((hs, ws) float32), its log
-        radiance estimates (mu, sd, cens) and ``(offset, spread^2)`` (estimated here unless given).
-        ``codes`` is the whole (H, W, 3) frame; ``ok`` (hs, ws) uint8 where it may be compared."""
+        radiance estimates (mu, sd, cens) and its :class:`FrameAgreement` (estimated here unless
+        given). ``codes`` is the whole (H, W, 3) frame; ``ok`` (hs, ws) uint8 where it may be compared."""
         from derender.engine.kernels import ghost_statistic
 
         mu_j, sd_j, cens_j = _estimates32(self.plan, self.sub(codes), j)
         if ok is None:
             ok = np.ones((self.hs, self.ws), dtype=np.uint8)
-        if offset_spread is None:
+        if agreement is None:
             k = self.stat_step
-            offset_spread = _offset_spread(mu_j[::k, ::k], sd_j[::k, ::k], cens_j[::k, ::k], self.mu_r[::k, ::k],
-                                           self.sd_r[::k, ::k], self.cens_r[::k, ::k], ok[::k, ::k])
-        b, s2 = offset_spread
+            agreement = _agreement(mu_j[::k, ::k], sd_j[::k, ::k], cens_j[::k, ::k], self.mu_r[::k, ::k],
+                                   self.sd_r[::k, ::k], self.cens_r[::k, ::k], ok[::k, ::k])
+        off, extra = agreement.maps(self.mu_r)
         q = np.empty((self.hs, self.ws), dtype=np.float32)
-        ghost_statistic(mu_j, sd_j, cens_j, self.mu_r, self.sd_r, self.cens_r, b, s2,
+        ghost_statistic(mu_j, sd_j, cens_j, self.mu_r, self.sd_r, self.cens_r, off, extra,
                         float(EDGE_SHIFT), float(Z2_CAP), np.ascontiguousarray(ok, dtype=np.uint8), q)
-        return q, (mu_j, sd_j, cens_j), (b, s2)
+        return q, (mu_j, sd_j, cens_j), agreement
 
     def regions(self, q: np.ndarray, dilate: bool = True) -> np.ndarray:
         """The pooled statistic above the threshold, cleaned into regions, at full resolution ((H, W) bool)."""
@@ -298,23 +384,27 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     vsub = None if valid is None else test.sub(valid) != 0
     rejected = np.zeros((n, h, w), dtype=bool)
     per_frame = []
+    agreements: dict[int, FrameAgreement] = {}
     total = counted = 0
     for j in range(n):
         if j == ref:
             per_frame.append({"frame": j, "reference": True})
             continue
         ok = None if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
-        q, _, (b, s2) = test.statistic(frames[j], j, ok)
+        q, (mu_j, sd_j, cens_j), agreement = test.statistic(frames[j], j, ok)
+        rho = _scene_correlation(mu_j, sd_j, cens_j, test.mu_r, test.sd_r, test.cens_r, test.stat_step)
+        if rho is not None and rho < MIN_SCENE_CORRELATION:
+            raise SceneMismatch(j, rho)
         rj = test.regions(q)
         if valid is not None:
             rj &= valid[j] != 0
         rejected[j] = rj
         total += int(rj.sum())
         counted += h * w
-        per_frame.append({"frame": j, "rejected": float(rj.mean()), "offset": np.round(b, 4).tolist(),
-                          "spread": np.round(np.sqrt(s2), 4).tolist()})
+        agreements[j] = agreement
+        per_frame.append({"frame": j, "rejected": float(rj.mean()), **agreement.summary()})
     info = {"threshold": float(threshold), "window": 2 * window + 1, "detect_step": test.step, "frames": per_frame,
-            "rejected": total / max(counted, 1)}
+            "rejected": total / max(counted, 1), "agreements": agreements}
     if counted and total / counted > MAX_REJECTED:
         raise StackError(f"{100 * total / counted:.0f}% of the pixels disagree with the reference frame: "
                          "these images do not show one scene (or their exposure times are wrong)")

@@ -690,8 +690,8 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
 
     ``mu_*``, ``sd_*`` (h, w, 3) float32 log radiance and its standard deviation, ``cens_*``
     (h, w, 3) int8 (0 observed, +1 clipped bright, -1 clipped dark); frame j is shifted by
-    ``-offset[c]`` (its global log offset) and the variance of a channel is
-    ``sd_j^2 + sd_r^2 + extra_var[c] + edge_shift^2 (|grad mu_j|^2 + |grad mu_r|^2)`` (central
+    ``-offset[y, x, c]`` (its log offset, (h, w, 3)) and the variance of a channel is
+    ``sd_j^2 + sd_r^2 + extra_var[y, x, c] + edge_shift^2 (|grad mu_j|^2 + |grad mu_r|^2)`` (central
     differences, clamped at the borders). Each frame says, per channel, an interval of log
     radiance: a point where observed, ``(-inf, mu]`` where clipped dark; a pixel with a channel
     clipped bright says nothing of that channel and ``(-inf, mu]`` of its others (a camera
@@ -722,7 +722,7 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
             best_j = -inf
             best_r = -inf
             for c in range(3):
-                mj = np.float64(mu_j[y, x, c]) - offset[c]
+                mj = np.float64(mu_j[y, x, c]) - np.float64(offset[y, x, c])
                 mr = np.float64(mu_r[y, x, c])
                 gjy = (np.float64(mu_j[yb, x, c]) - np.float64(mu_j[ya, x, c])) * dy
                 gjx = (np.float64(mu_j[y, xb, c]) - np.float64(mu_j[y, xa, c])) * dx
@@ -730,7 +730,8 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
                 grx = (np.float64(mu_r[y, xb, c]) - np.float64(mu_r[y, xa, c])) * dx
                 sj = np.float64(sd_j[y, x, c])
                 sr = np.float64(sd_r[y, x, c])
-                var = sj * sj + sr * sr + extra_var[c] + e2 * (gjy * gjy + gjx * gjx + gry * gry + grx * grx)
+                var = sj * sj + sr * sr + np.float64(extra_var[y, x, c]) + e2 * (gjy * gjy + gjx * gjx + gry * gry
+                                                                                 + grx * grx)
                 var_c[c] = var
                 cj = cens_j[y, x, c]
                 cr = cens_r[y, x, c]

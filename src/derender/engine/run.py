@@ -46,7 +46,8 @@ from derender.io.exr import write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
-__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "frame_brightness",
+__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "motion_attributes", "clipped_pixels",
+           "frame_brightness",
            "table_kernel_merge", "ENGINES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
@@ -561,13 +562,34 @@ def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
     inputs = list(inputs)
     if variance_output is not None and res.variance is None:
         raise InputError(f"method {name!r} gives no variance")
+    attributes = motion_attributes(res.info)
     if output is not None:
         tw = time.perf_counter()
-        write_exr_fast(output, res.radiance, half=half, inputs=inputs, compression=compression, threads=threads)
+        write_exr_fast(output, res.radiance, half=half, inputs=inputs, compression=compression, threads=threads,
+                       attributes=attributes)
         res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
     if variance_output is not None:
         write_exr_fast(variance_output, res.variance, half=half, inputs=inputs + ([output] if output else []),
-                       compression=compression, threads=threads)
+                       compression=compression, threads=threads, attributes=attributes)
+
+
+def motion_attributes(info: dict) -> dict[str, str]:
+    """The EXR header attributes that record the engine's reference frame, alignment and ghost
+    removal (``derender:reference``: the frame's name and its place among the images as given,
+    from 1; ``derender:alignment``; ``derender:deghost``); empty for a plain merge."""
+    if info.get("engine_path") != "motion" and "reference_name" not in info:
+        return {}
+    out = {}
+    if info.get("reference_input") is not None:
+        out["derender:reference"] = f"{info.get('reference_name', 'frame')} (image {info['reference_input'] + 1})"
+    al = info.get("alignment") or {}
+    if al.get("align"):
+        out["derender:alignment"] = str(al["align"])
+    dg = info.get("deghost")
+    if dg:
+        out["derender:deghost"] = (f"threshold {dg.get('threshold')}, "
+                                   f"{100 * float(dg.get('rejected', 0.0)):.2f} % of the other frames' pixels left out")
+    return out
 
 
 def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,
@@ -607,6 +629,7 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
 
         res = run_motion(method, source, motion, threads=threads, order_hint=order_hint)
         res.info["engine_path"] = "motion"
+        res.info["reference_name"] = source.name(res.info["reference"])
         res.info["outputs_held"] = True
         write_outputs(res, output, variance_output, half=half, compression=compression, inputs=list(inputs),
                       threads=threads, name=method.name)

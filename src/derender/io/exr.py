@@ -92,7 +92,8 @@ def _exr_attr(name: str, typ: str, data: bytes) -> bytes:
     return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(data)) + data
 
 
-def _exr_header(w: int, h: int, channels: Sequence[str], pixel_type: int, compression: int) -> bytes:
+def _exr_header(w: int, h: int, channels: Sequence[str], pixel_type: int, compression: int,
+                attributes: dict[str, str] | None = None) -> bytes:
     ch = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", pixel_type, 0, 1, 1) for c in channels) + b"\0"
     box = struct.pack("<iiii", 0, 0, w - 1, h - 1)
     attrs = [
@@ -105,6 +106,10 @@ def _exr_header(w: int, h: int, channels: Sequence[str], pixel_type: int, compre
         _exr_attr("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
         _exr_attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
     ]
+    for name, value in sorted((attributes or {}).items()):
+        if not name or "\0" in name or len(name) > 31:
+            raise InputError(f"EXR attribute names are 1-31 characters, got {name!r}")
+        attrs.append(_exr_attr(name, "string", str(value).encode("utf-8")))
     return struct.pack("<ii", 20000630, 2) + b"".join(attrs) + b"\0"
 
 
@@ -135,7 +140,8 @@ def _zip_chunk(raw: np.ndarray, deflate: Callable[[bytes], bytes]):
 
 def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = False,
                    inputs: Iterable[str | os.PathLike] = (), compression: str = "zip", level: int = 1,
-                   threads: int | None = None, probe: int = 16, min_saving: float = 0.1) -> Path:
+                   threads: int | None = None, probe: int = 16, min_saving: float = 0.1,
+                   attributes: dict[str, str] | None = None) -> Path:
     """Write an (H, W, 3) RGB float image as a scanline OpenEXR file (ZIP), atomically.
 
     Blocks of 16 lines are converted and compressed as OpenEXR's ZIP_COMPRESSION
@@ -148,7 +154,8 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
     hardly compresses: ~5 %; ``probe=1`` compresses every block). Deterministic bytes.
     ``compression="none"`` writes uncompressed lines. Non-finite values are refused
     (like :func:`derender.io.write_exr`); with ``half=True`` values beyond the half-float
-    range are clipped to +-65504 instead of becoming inf. See :func:`write_exr_lines`
+    range are clipped to +-65504 instead of becoming inf. ``attributes``: extra string
+    attributes of the header (e.g. ``derender:reference``). See :func:`write_exr_lines`
     for images produced block by block.
     """
     arr = image
@@ -161,14 +168,15 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
 
     return write_exr_lines(path, arr.shape[1], arr.shape[0], bgr_lines, half=half, inputs=inputs,
                            compression=compression, level=level, threads=threads, probe=probe,
-                           min_saving=min_saving)
+                           min_saving=min_saving, attributes=attributes)
 
 
 def write_exr_lines(path: str | os.PathLike, width: int, height: int,
                     lines: Callable[[int, int, np.ndarray], None], half: bool = False,
                     inputs: Iterable[str | os.PathLike] = (), compression: str = "zip", level: int = 1,
                     threads: int | None = None, probe: int = 16, min_saving: float = 0.1,
-                    rows_read: Callable[[int], None] | None = None) -> Path:
+                    rows_read: Callable[[int], None] | None = None,
+                    attributes: dict[str, str] | None = None) -> Path:
     """:func:`write_exr_fast` for an image that exists only block by block.
 
     ``lines(y0, y1, buf)`` fills ``buf`` (float32, shape ``(y1 - y0, 3, width)``) with rows
@@ -192,7 +200,7 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
     dtype = np.dtype("<f2") if half else np.dtype("<f4")
     deflate = _deflate(level)
     n_blocks = (h + 15) // 16 if comp_id == 3 else h
-    header = _exr_header(w, h, "BGR", 1 if half else 2, comp_id)
+    header = _exr_header(w, h, "BGR", 1 if half else 2, comp_id, attributes)
     probe = max(1, int(probe))
 
     def raw_lines(y0: int, y1: int) -> np.ndarray:
