@@ -37,9 +37,9 @@ Per frame ``j``, pixel and channel, on a grid of at most :data:`DETECT_PIXELS` p
 
 The reference frame always takes part. Where every other frame is rejected the reference
 alone gives the value (its mask rule as usual: a clipped reference gives the bound).
-A bracket in which almost nothing agrees with the reference (:data:`MAX_REJECTED`), or with a
-frame whose radiance does not even rank like the reference's (:data:`MIN_SCENE_CORRELATION`),
-is refused: it is not one scene.
+A bracket in which almost nothing agrees with the reference is refused (:data:`MAX_REJECTED`;
+and, before any of this, neighbouring frames whose structure disagrees:
+:func:`derender.engine.motion.check_one_scene`).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ import numpy as np
 from derender.core.errors import StackError
 
 __all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED",
-           "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_BINS", "MIN_SCENE_CORRELATION", "SceneMismatch",
+           "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_BINS",
            "frame_estimates", "FrameAgreement", "ConsistencyTest", "upsample_mask", "detect_ghosts", "merge_valid"]
 
 #: Window mean of z^2 per channel above which a frame is rejected at a pixel (chosen on the
@@ -85,11 +85,14 @@ DETECT_PIXELS = 1 << 20
 STAT_PIXELS = 1 << 16
 
 #: Bins of the reference's brightness in which a frame's offset and spread are estimated.
-AGREEMENT_BINS = 8
+AGREEMENT_BINS = 4
 
-#: A frame whose radiance ranks correlate less than this with the reference's (over the pixels
-#: both observe) does not show the same scene: the bracket is refused.
-MIN_SCENE_CORRELATION = 0.3
+#: The spread is read at this quantile of ``|d - median|`` (scaled to a normal's standard
+#: deviation): below the median, so that ghosts filling a good part of a brightness bin do not
+#: widen it (0.5 would be the MAD).
+SPREAD_QUANTILE = 0.3
+_HALF_NORMAL_QUANTILE = float(__import__("scipy.stats", fromlist=["norm"]).norm.ppf(0.5 + SPREAD_QUANTILE / 2))
+
 
 #: A bracket is refused when more than this fraction of the non-reference frames' pixels
 #: disagree with the reference.
@@ -214,6 +217,10 @@ class FrameAgreement:
         off = np.empty(mu_r.shape, np.float32)
         var = np.empty(mu_r.shape, np.float32)
         for c in range(3):
+            if np.ptp(self.offset[c]) == 0 and np.ptp(self.spread2[c]) == 0:
+                off[..., c] = self.offset[c][0]
+                var[..., c] = self.spread2[c][0]
+                continue
             off[..., c] = np.interp(mu_r[..., c], self.centres[c], self.offset[c])
             var[..., c] = np.interp(mu_r[..., c], self.centres[c], self.spread2[c])
         return off, var
@@ -251,7 +258,7 @@ def _agreement(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> FrameAgreement:
                 continue
             db = d[sb]
             med = float(np.median(db))
-            mad = 1.4826 * float(np.median(np.abs(db - med)))
+            mad = float(np.quantile(np.abs(db - med), SPREAD_QUANTILE)) / _HALF_NORMAL_QUANTILE
             cs.append(float(np.median(r[sb])))
             os_.append(med)
             ss.append(max(0.0, mad * mad - float(np.median(v[sb]))))
@@ -261,33 +268,6 @@ def _agreement(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> FrameAgreement:
         off[c] = np.interp(centres[c], cs, os_)
         s2[c] = np.interp(centres[c], cs, ss)
     return FrameAgreement(centres=centres, offset=off, spread2=s2)
-
-
-class SceneMismatch(StackError):
-    """Frame ``frame`` (by time) does not show the reference frame's scene."""
-
-    def __init__(self, frame: int, rho: float):
-        self.frame, self.rho = int(frame), float(rho)
-        super().__init__(f"frame {frame} does not show the reference frame's scene (rank correlation of their "
-                         f"radiance {rho:.2f}): these images are not one bracket")
-
-
-def _scene_correlation(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, k: int) -> float | None:
-    """Spearman rank correlation of the two frames' mean log radiance over the pixels both
-    measure well (every channel observed with ``sd < 0.1``; every ``k``-th row and column);
-    None with fewer than 256 such pixels (a nearly black or white frame tells nothing)."""
-    both = (np.all((cens_j[::k, ::k] == 0) & (sd_j[::k, ::k] < 0.1), axis=-1)
-            & np.all((cens_r[::k, ::k] == 0) & (sd_r[::k, ::k] < 0.1), axis=-1))
-    if np.count_nonzero(both) < 256:
-        return None
-    a = mu_j[::k, ::k].mean(axis=-1)[both]
-    b = mu_r[::k, ::k].mean(axis=-1)[both]
-    ra = np.argsort(np.argsort(a, kind="stable"), kind="stable").astype(np.float64)
-    rb = np.argsort(np.argsort(b, kind="stable"), kind="stable").astype(np.float64)
-    ra -= ra.mean()
-    rb -= rb.mean()
-    den = float(np.sqrt((ra * ra).sum() * (rb * rb).sum()))
-    return float((ra * rb).sum() / den) if den > 0 else None
 
 
 def _box_mean(a: np.ndarray, k: int) -> np.ndarray:
@@ -319,8 +299,28 @@ class ConsistencyTest:
         self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, ref_codes[::self.step, ::self.step], ref)
         self.hs, self.ws = self.mu_r.shape[:2]
         self.stat_step = max(1, int(np.ceil(np.sqrt(self.hs * self.ws / STAT_PIXELS))))
+        self._maps: dict = {}
+        self._levels: np.ndarray | None = None
+        self._level_idx: np.ndarray | None = None
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self._dilate = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
+
+    def maps(self, agreement: "FrameAgreement") -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FrameAgreement.maps` at the reference's log radiance, read from 4096-level
+        tables of it (one frame's maps serve every candidate shift and round: cached)."""
+        key = id(agreement)
+        if key not in self._maps:
+            if self._levels is None:
+                lo, hi = float(self.mu_r.min()), float(self.mu_r.max())
+                self._levels = np.linspace(lo, hi, 4096)
+                self._level_idx = np.clip(np.rint((self.mu_r - lo) * (4095.0 / max(hi - lo, 1e-12))),
+                                          0, 4095).astype(np.intp)
+            self._maps.clear()
+            off_t, var_t = agreement.maps(np.repeat(self._levels[:, None], 3, axis=1))
+            ch = np.arange(3)
+            self._maps[key] = (agreement, np.ascontiguousarray(off_t[self._level_idx, ch]),
+                               np.ascontiguousarray(var_t[self._level_idx, ch]))
+        return self._maps[key][1], self._maps[key][2]
 
     def sub(self, a: np.ndarray) -> np.ndarray:
         """``a`` (H, W, ...) on the detection grid."""
@@ -340,7 +340,7 @@ class ConsistencyTest:
             k = self.stat_step
             agreement = _agreement(mu_j[::k, ::k], sd_j[::k, ::k], cens_j[::k, ::k], self.mu_r[::k, ::k],
                                    self.sd_r[::k, ::k], self.cens_r[::k, ::k], ok[::k, ::k])
-        off, extra = agreement.maps(self.mu_r)
+        off, extra = self.maps(agreement)
         q = np.empty((self.hs, self.ws), dtype=np.float32)
         ghost_statistic(mu_j, sd_j, cens_j, self.mu_r, self.sd_r, self.cens_r, off, extra,
                         float(EDGE_SHIFT), float(Z2_CAP), np.ascontiguousarray(ok, dtype=np.uint8), q)
@@ -381,7 +381,7 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     spreads are robust statistics of at most :data:`STAT_PIXELS` pixels."""
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)
-    vsub = None if valid is None else test.sub(valid) != 0
+    vsub = None if valid is None else valid[:, ::test.step, ::test.step] != 0
     rejected = np.zeros((n, h, w), dtype=bool)
     per_frame = []
     agreements: dict[int, FrameAgreement] = {}
@@ -391,10 +391,7 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
             per_frame.append({"frame": j, "reference": True})
             continue
         ok = None if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
-        q, (mu_j, sd_j, cens_j), agreement = test.statistic(frames[j], j, ok)
-        rho = _scene_correlation(mu_j, sd_j, cens_j, test.mu_r, test.sd_r, test.cens_r, test.stat_step)
-        if rho is not None and rho < MIN_SCENE_CORRELATION:
-            raise SceneMismatch(j, rho)
+        q, _, agreement = test.statistic(frames[j], j, ok)
         rj = test.regions(q)
         if valid is not None:
             rj &= valid[j] != 0

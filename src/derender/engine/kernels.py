@@ -42,7 +42,7 @@ MERGE_TILE = 256
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
+def stabilized_merge_rows(frames, shifts, valid, ref, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
                           colour_w, use_colour_w, j_short, j_long, bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the stabilised merge of paper 1 (Algorithm 1 step 4) from 8-bit codes.
 
@@ -59,8 +59,11 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
     ``min_c weights[z_c, c]`` if some image sees all channels of the pixel with positive
     weight, else the weight of the brightest channel ``weights[max_c z_c, 0]``. Both sums are
     kept and the right one chosen at the end. Where the chosen weights sum to 0 the value
-    comes from the shortest exposure that takes part there (``mask`` 1) if its largest code is
-    ``bright``, else from the longest (``mask`` 2), with ``mats64`` (projected as above); elsewhere ``mask`` is 0. ``out`` is
+    comes from the shortest exposure (``mask`` 1) if its largest code is ``bright``, else from
+    the longest (``mask`` 2); where frames are left out (``valid``, ``ref >= 0``: the engine's
+    reference frame) the reference's largest code decides instead, and the value comes from the
+    shortest frame taking part that is bright there (the tightest lower bound), else from the
+    longest one that is not (the tightest upper bound), with ``mats64`` (projected as above); elsewhere ``mask`` is 0. ``out`` is
     (3, rows, W) float32, row ``y`` at ``out[:, y - row0]`` (the whole image: ``row0`` 0; a band
     buffer: its first row). Rows run in parallel; within a row, tiles of :data:`MERGE_TILE`
     pixels take the frames one after another (each pixel's sums still run over the frames in
@@ -143,25 +146,32 @@ def stabilized_merge_rows(frames, shifts, valid, lin, mats32, mats64, weights, i
                     out[2, y - row0, x] = acc[k + 3, t] / dm
                     mask[y, x] = 0
                     continue
-                js = j_short
-                jl = j_long
-                if not whole:       # the shortest and longest frames that take part here
-                    for jv in range(n):
-                        if valid[jv, y, x] != 0:
-                            js = jv
+                if whole or ref < 0:
+                    ys = min(max(y + shifts[j_short, 0], 0), h - 1)
+                    xs = min(max(x + shifts[j_short, 1], 0), w - 1)
+                    zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
+                    jj = j_short
+                    mask[y, x] = 1
+                    if not bright[zmax]:
+                        jj = j_long
+                        mask[y, x] = 2
+                else:
+                    # frames left out here: the reference decides (over- or under-exposed), and the
+                    # tightest bound on its side among the frames that take part gives the value
+                    zr = max(max(frames[ref, y, x, 0], frames[ref, y, x, 1]), frames[ref, y, x, 2])
+                    up = bright[zr]
+                    jj = ref
+                    for k in range(n):
+                        jv = k if up else n - 1 - k
+                        if valid[jv, y, x] == 0:
+                            continue
+                        yv = min(max(y + shifts[jv, 0], 0), h - 1)
+                        xv = min(max(x + shifts[jv, 1], 0), w - 1)
+                        zv = max(max(frames[jv, yv, xv, 0], frames[jv, yv, xv, 1]), frames[jv, yv, xv, 2])
+                        if bright[zv] == up:
+                            jj = jv
                             break
-                    for jv in range(n - 1, -1, -1):
-                        if valid[jv, y, x] != 0:
-                            jl = jv
-                            break
-                ys = min(max(y + shifts[js, 0], 0), h - 1)
-                xs = min(max(x + shifts[js, 1], 0), w - 1)
-                zmax = max(max(frames[js, ys, xs, 0], frames[js, ys, xs, 1]), frames[js, ys, xs, 2])
-                jj = js
-                mask[y, x] = 1
-                if not bright[zmax]:
-                    jj = jl
-                    mask[y, x] = 2
+                    mask[y, x] = 1 if up else 2
                 ys = min(max(y + shifts[jj, 0], 0), h - 1)
                 xs = min(max(x + shifts[jj, 1], 0), w - 1)
                 e0 = np.float64(lin[jj, frames[jj, ys, xs, 0], 0])
@@ -283,8 +293,8 @@ def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margi
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def table_merge_rows(frames, valid, order, values, weights, independent, log_domain, v_short, v_long, j_short, j_long,
-                     bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
+def table_merge_rows(frames, valid, ref, order, values, weights, independent, log_domain, v_short, v_long, j_short,
+                     j_long, bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the table merge (:class:`derender.engine.tables.TableMerge`, modes
     ``"mean"`` and ``"independent"``) of held frames in one pass per pixel, same arithmetic.
 
@@ -300,7 +310,9 @@ def table_merge_rows(frames, valid, order, values, weights, independent, log_dom
     the float64 product rounded once), as the table engine keeps them. Where a channel's
     weights sum to 0 its value comes from the shortest exposure (``j_short``, table
     ``v_short``) if ``bright[code]`` (the ``"mean"`` mode: the channel's code, like the
-    engine's finish), else from the longest; ``mask`` 1 if some channel took the shortest,
+    engine's finish), else from the longest; where frames are left out (``valid``, ``ref >= 0``
+    the reference frame) the reference's code decides, and the value comes from the shortest
+    frame taking part that is bright there, else the longest that is not; ``mask`` 1 if some channel took the shortest,
     else 2 if some took the longest, else 0. ``out`` (3, rows, W) float32 receives row ``y``'s
     value at ``out[:, y - row0]`` (the whole image: ``row0`` 0; a band buffer: its first row)
     (log domain: ``min(value, 88)``, to be exponentiated by the caller with OpenCV on the
@@ -364,17 +376,6 @@ def table_merge_rows(frames, valid, order, values, weights, independent, log_dom
                 t = x - x0
                 nb = False
                 ndk = False
-                js = j_short
-                jl = j_long
-                if not whole:       # the shortest and longest frames that take part here
-                    for jj in range(nf):
-                        if valid[jj, y, x] != 0:
-                            js = jj
-                            break
-                    for jj in range(nf - 1, -1, -1):
-                        if valid[jj, y, x] != 0:
-                            jl = jj
-                            break
                 for c in range(3):
                     dc = c if independent else 0
                     if log_domain:
@@ -383,14 +384,28 @@ def table_merge_rows(frames, valid, order, values, weights, independent, log_dom
                     else:
                         ok = den32[dc, t] > np.float32(0.0)
                         r = np.float64(num32[c, t] / den32[dc, t]) if ok else 0.0
-                    if not ok:
-                        zs = frames[js, y, x, c]
+                    if not ok and (whole or ref < 0):
+                        zs = frames[j_short, y, x, c]
                         if bright[zs]:
-                            r = np.float64(v_short[zs, c]) if whole else np.float64(values[js, zs, c])
+                            r = np.float64(v_short[zs, c])
                             nb = True
                         else:
-                            zl = frames[jl, y, x, c]
-                            r = np.float64(v_long[zl, c]) if whole else np.float64(values[jl, zl, c])
+                            r = np.float64(v_long[frames[j_long, y, x, c], c])
+                            ndk = True
+                    elif not ok:
+                        # frames left out here: the reference's code decides, the tightest bound
+                        # on its side among the frames taking part gives the value
+                        up = bright[frames[ref, y, x, c]]
+                        jj = ref
+                        for k in range(nf):
+                            jv = k if up else nf - 1 - k
+                            if valid[jv, y, x] != 0 and bright[frames[jv, y, x, c]] == up:
+                                jj = jv
+                                break
+                        r = np.float64(values[jj, frames[jj, y, x, c], c])
+                        if up:
+                            nb = True
+                        else:
                             ndk = True
                     if log_domain:
                         out[c, y - row0, x] = np.float32(min(r, 88.0))

@@ -66,7 +66,7 @@ def warm_up_kernels() -> threading.Thread:
             f32 = np.float32
             with KERNEL_LOCK:
                 stabilized_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.zeros((1, 2), np.int64),
-                                      np.ones((1, 1, 1), np.uint8), np.zeros((1, N_CODES, 3), f32),
+                                      np.ones((1, 1, 1), np.uint8), -1, np.zeros((1, N_CODES, 3), f32),
                                       np.zeros((1, 3, 3), f32), np.zeros((1, 3, 3)), np.zeros((N_CODES, 3), f32),
                                       np.zeros((1, N_CODES, 3), f32), np.ones(1, f32), True,
                                       np.ones(1, f32), False, 0, 0,
@@ -82,11 +82,12 @@ def warm_up_kernels() -> threading.Thread:
 
 def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray, valid: np.ndarray | None = None,
                         threads: int | None = None, buffer: np.ndarray | None = None, write=None,
-                        ring: int = 0) -> HDRResult:
+                        ring: int = 0, ref: int = -1) -> HDRResult:
     """Run a :class:`~derender.engine.plans.MatrixPlan` on held frames (N, H, W, 3) uint8.
 
     Frame ``j`` is read through ``plan.shifts[j]`` and restricted to ``valid`` (N, H, W)
-    uint8 (None: everywhere). ``times`` (sorted or not) name the shortest and the longest
+    uint8 (None: everywhere); ``ref`` (the engine's reference frame, -1 none) decides the
+    saturation policy where frames are left out. ``times`` (sorted or not) name the shortest and the longest
     exposure for the saturation policy. ``buffer``: uint8 memory of at least
     :func:`matrix_output_bytes` to hold the radiance and mask (the kernel writes every
     pixel of both, so it need not be zero). The radiance is an (H, W, 3) view of planar
@@ -137,7 +138,8 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     res = HDRResult(radiance=None if radiance is None else radiance.transpose(1, 2, 0), mask=mask, variance=None,
                     info=info)
     args = (np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
-            np.ascontiguousarray(valid, dtype=np.uint8), lin, mats64.astype(np.float32), mats64, wt, inv_var, inv_k,
+            np.ascontiguousarray(valid, dtype=np.uint8), int(ref), lin, mats64.astype(np.float32), mats64, wt, inv_var,
+            inv_k,
             use_iv, colour_w, use_cw, int(np.argmin(times)), int(np.argmax(times)), bright)
 
     def band(y0: int, y1: int) -> None:

@@ -41,8 +41,9 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import check_memory
 from derender.core.types import HDRResult, check_brightness_order
 
-__all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "run_motion",
-           "REFINE_PIXELS", "REFINE_REACH"]
+__all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
+           "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
+           "SCENE_CHECK_PIXELS"]
 
 #: ``align=`` choices (``"mtb"`` is accepted as another name for ``"translation"``).
 ALIGNMENTS = ("none", "translation", "homography")
@@ -174,9 +175,13 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
     return valid, info
 
 
+#: Fill the rejected pixels from the flow-compensated frames before the refit too (else only
+#: after it, for the merge).
+FILL_BEFORE_REFIT = False
+
 #: The consistency check of the alignment scores each candidate shift on at most about
 #: this many pixels.
-REFINE_PIXELS = 1 << 18
+REFINE_PIXELS = 1 << 16
 
 #: Candidate corrections (pixels) of each frame's registration shift in that check.
 REFINE_REACH = 1
@@ -246,6 +251,52 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     return valid, info
 
 
+#: Neighbouring frames whose threshold bitmaps agree on less than this fraction of the pixels
+#: both expose well are not of one scene (measured: 0.85-0.99 for the simulator's moving
+#: brackets and the real ones in ``../shared/data``; two different scenes about 0.5).
+MIN_BITMAP_AGREEMENT = 0.65
+
+#: The scene check reads at most about this many pixels per frame.
+SCENE_CHECK_PIXELS = 1 << 18
+
+
+def bitmap_agreement(grey_a: np.ndarray, grey_b: np.ndarray) -> float | None:
+    """How alike two exposures of one scene look: the fraction of pixels, among those neither
+    frame has near its threshold, on the same side of it, over Ward's thresholds at
+    :func:`~derender.engine.ward2003.common_percentiles` (exposure-invariant; 1 for one scene,
+    about 0.5 for unrelated images). None when they share fewer than 256 such pixels."""
+    from derender.engine.ward2003 import common_percentiles, median_threshold_bitmaps
+
+    agree = total = 0
+    for q in common_percentiles(grey_a, grey_b):
+        ba, ea = median_threshold_bitmaps(grey_a, 4, q)
+        bb, eb = median_threshold_bitmaps(grey_b, 4, q)
+        both = ea & eb
+        agree += int(np.count_nonzero((ba == bb) & both))
+        total += int(np.count_nonzero(both))
+    return agree / total if total >= 256 else None
+
+
+def check_one_scene(frames: np.ndarray, names: list[str]) -> list[float | None]:
+    """Refuse (:class:`StackError`) a bracket whose neighbouring frames (by time, after
+    alignment) disagree in structure: :func:`bitmap_agreement` below
+    :data:`MIN_BITMAP_AGREEMENT`. Returns the agreements of the neighbouring pairs."""
+    from derender.engine.ward2003 import grey8_codes
+
+    n, h, w = frames.shape[:3]
+    s = max(1, int(np.ceil(np.sqrt(h * w / SCENE_CHECK_PIXELS))))
+    grey = [grey8_codes(np.ascontiguousarray(frames[j, ::s, ::s])) for j in range(n)]
+    out: list[float | None] = []
+    for j in range(n - 1):
+        a = bitmap_agreement(grey[j], grey[j + 1])
+        out.append(None if a is None else round(a, 4))
+        if a is not None and a < MIN_BITMAP_AGREEMENT:
+            raise StackError(f"{names[j]} and {names[j + 1]} do not show one scene (their structure agrees on "
+                             f"{100 * a:.0f} % of the pixels, one scene gives over {100 * MIN_BITMAP_AGREEMENT:.0f} %): "
+                             "these images are not one bracket")
+    return out
+
+
 def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: int, threads: int | None):
     """The :class:`~derender.engine.plans.FrameAccess` a method plans from on the motion path:
     held (aligned) frames, the reference, ``valid``; streamed methods' samples only at
@@ -268,14 +319,15 @@ def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: i
                        reference=ref, valid=valid, aligned=True)
 
 
-def _merge(plan, frames: np.ndarray, times: np.ndarray, valid: np.ndarray | None, threads: int | None) -> HDRResult:
+def _merge(plan, frames: np.ndarray, times: np.ndarray, valid: np.ndarray | None, threads: int | None,
+           ref: int = -1) -> HDRResult:
     from derender.engine.plans import GaussianPlan, MatrixPlan, TablePlan
 
     n = frames.shape[0]
     if isinstance(plan, MatrixPlan):
         from derender.engine.matrix import merge_matrix_frames
 
-        return merge_matrix_frames(frames, plan, times, valid=valid, threads=threads)
+        return merge_matrix_frames(frames, plan, times, valid=valid, threads=threads, ref=ref)
     if isinstance(plan, GaussianPlan):
         from derender.engine.gaussian import merge_gaussian_frames
 
@@ -286,7 +338,7 @@ def _merge(plan, frames: np.ndarray, times: np.ndarray, valid: np.ndarray | None
         if plan.channel_weights not in ("mean", "independent"):
             raise InputError(f"channel_weights={plan.channel_weights!r} cannot be merged with alignment or "
                              "ghost removal; use 'mean' or 'independent'")
-        return table_kernel_merge(frames, plan, list(range(n - 1, -1, -1)), threads, valid=valid)
+        return table_kernel_merge(frames, plan, list(range(n - 1, -1, -1)), threads, valid=valid, ref=ref)
     raise TypeError(f"unknown plan {type(plan).__name__}")
 
 
@@ -327,6 +379,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     ref = resolve_reference(motion.reference, frames, order)
     valid, ainfo = align_frames(frames, grey, ref, motion.align, seed=motion.seed, threads=threads)
     del grey
+    ainfo["agreement"] = check_one_scene(frames, [source.name(j) for j in range(n)])
     t2 = time.perf_counter()
     access = _access(method, source, frames, valid, ref, threads)
     plan = method.plan(access)
@@ -334,21 +387,16 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     ghosts = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
-        from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, SceneMismatch, detect_ghosts, merge_valid
+        from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
 
         threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
 
         def detect(plan):
-            try:
-                return detect_ghosts(frames, plan, ref, valid, threshold=threshold)
-            except SceneMismatch as exc:
-                raise StackError(f"{source.name(exc.frame)} does not show the scene of the reference frame "
-                                 f"{source.name(ref)} (rank correlation of their radiance {exc.rho:.2f}): "
-                                 "these images are not one bracket") from None
+            return detect_ghosts(frames, plan, ref, valid, threshold=threshold)
 
-        def detect_and_fill(plan):
+        def detect_and_fill(plan, fill=True):
             rejected, info = detect(plan)
-            if rejected is not None and motion.compensate:
+            if rejected is not None and motion.compensate and fill:
                 from derender.engine.compensation import compensate_frames
 
                 info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
@@ -361,9 +409,10 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
             rejected, _ = detect(plan)
             valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"))
             ainfo["refined"] = rinfo["corrections"]
-        rejected, ginfo = detect_and_fill(plan)
+        refits = getattr(method, "refits_on_frames", True)
+        rejected, ginfo = detect_and_fill(plan, fill=FILL_BEFORE_REFIT or not refits)
         rounds = 1
-        if rejected is not None and getattr(method, "refits_on_frames", True):
+        if rejected is not None and refits:
             # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
             access = _access(method, source, frames, merge_valid(valid, rejected), ref, threads)
             plan = method.plan(access)
@@ -378,7 +427,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
         ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
     t4 = time.perf_counter()
-    res = _merge(plan, frames, source.times, valid, threads)
+    res = _merge(plan, frames, source.times, valid, threads, ref)
     t5 = time.perf_counter()
     res.ghosts = ghosts if ghosts is not None else np.zeros((h, w), dtype=np.uint8)
     res.info["n_clipped"] = n_clipped

@@ -182,7 +182,7 @@ def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarra
 
 def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
                         bright_threshold: float = 0.5, write=None, ring: int = 0,
-                        valid: np.ndarray | None = None) -> HDRResult:
+                        valid: np.ndarray | None = None, ref: int = -1) -> HDRResult:
     """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
     kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of
     :class:`TableMerge` (frames added in ``order``; the log domain's exponential by OpenCV
@@ -193,7 +193,8 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
     ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile). ``ring``
     (with ``write``): the radiance goes through an :class:`~derender.engine.overlap.OutputRing`
     of band buffers into the file, the result's ``radiance`` is None. ``valid`` (N, H, W) uint8:
-    frame ``j`` takes part only where ``valid[j]`` is non-zero (:mod:`derender.engine.motion`)."""
+    frame ``j`` takes part only where ``valid[j]`` is non-zero, and where none with weight does,
+    the reference frame ``ref`` decides the saturation policy (:mod:`derender.engine.motion`)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from derender.core.memory import import_cv2, opencv_single_thread
@@ -241,8 +242,8 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
 
             with KERNEL_LOCK:
                 set_numba_threads(threads)
-                table_merge_rows(frames, valid_k, order_a, values, weights, independent, log, values[0], values[n - 1],
-                                 0, n - 1, bright, y0, y1, row0, dst, mask)
+                table_merge_rows(frames, valid_k, int(ref), order_a, values, weights, independent, log, values[0],
+                                 values[n - 1], 0, n - 1, bright, y0, y1, row0, dst, mask)
             run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
 
         merge_writing(h, step, band, res, write, ring=rng)
@@ -274,7 +275,7 @@ def _warm_up_kernel(which: str = "table") -> None:
                                       np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, 0, o, o.copy())
                 return
             with KERNEL_LOCK:
-                table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8), np.zeros(1, np.int64),
+                table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8), -1, np.zeros(1, np.int64),
                                  np.zeros((1, N_CODES, 3), f32), np.zeros((1, N_CODES, 3), f32), False, True,
                                  np.zeros((N_CODES, 3), f32), np.zeros((N_CODES, 3), f32), 0, 0,
                                  np.zeros(N_CODES, bool), 0, 1, 0, np.zeros((3, 1, 1), f32), np.zeros((1, 1), np.uint8))
