@@ -192,16 +192,21 @@ def exp_ghosts(
                                                 "tuning families, the others held out)."),
     settings: str = typer.Option("tripod,handheld", "--settings", help="tripod (objects move) and/or handheld "
                                  "(objects move and the camera shakes)."),
-    methods: str = typer.Option("debevec,robertson,stabilized,stabilized-joint", "--methods", help="Merge methods."),
+    methods: str = typer.Option("debevec,robertson,stabilized,stabilized-joint,probabilistic", "--methods",
+                                help="Merge methods (probabilistic: the camera's chart GP)."),
     seeds: str = typer.Option("0", "--seeds", help="Seeds, comma separated."),
     size: str = typer.Option("192x128", "--size", help="Image size WxH."),
     exposures: int = typer.Option(7, "--exposures", help="Exposures per bracket."),
     objects: int = typer.Option(3, "--objects", help="Moving objects."),
     shake: Optional[int] = typer.Option(None, "--shake", help="Camera shake in pixels (default 2 % of the width)."),
+    deghost: bool = typer.Option(False, "--deghost", help="Merge with ghost removal (issue 23)."),
+    align: Optional[str] = typer.Option(None, "--align", help="none, translation or homography (default: each "
+                                        "method's own)."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
     """Issue 23: every method on brackets where objects move (and the camera shakes), median
-    relative error per zone (static / swept / object) against the still twin's."""
+    relative error per zone (static / swept / object) against the still twin's (the same
+    objects, frozen at the reference instant), with or without ``--deghost``."""
     from derender.evaluation.experiments import format_table
     from derender.evaluation.ghosts import ghost_comparison, summarise_ghosts
 
@@ -213,6 +218,7 @@ def exp_ghosts(
                             settings=[s.strip() for s in settings.split(",") if s.strip()],
                             seeds=seed_list, size=parse_size(size), exposures=exposures, objects=objects,
                             shake=shake, methods=[m.strip() for m in methods.split(",") if m.strip()],
+                            options={**({"deghost": True} if deghost else {}), **({"align": align} if align else {})},
                             progress=lambda msg: console().print(msg))
     summary = summarise_ghosts(rows)
     for r in summary:

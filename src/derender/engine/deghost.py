@@ -44,6 +44,7 @@ and, before any of this, neighbouring frames whose structure disagrees:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -185,7 +186,8 @@ def frame_estimates(plan, codes: np.ndarray, j: int) -> tuple[np.ndarray, np.nda
         mu = np.where(bound, low, mean) + ls
         # a bound's own uncertainty: the spread of the observed channels of that colour (else 0.1)
         obs_sd = np.where(np.isfinite(sd), sd, np.nan)
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # a colour censored in every channel
             fallback = np.nanmin(obs_sd, axis=-1, keepdims=True)
         fallback = np.where(np.isfinite(fallback), fallback, 0.1)
         sd = np.where(bound | ~np.isfinite(sd), fallback, sd)

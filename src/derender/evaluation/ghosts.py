@@ -27,8 +27,8 @@ from derender.core.errors import InputError
 
 __all__ = ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"]
 
-#: The methods the ghost experiment merges (paper 2's need a model; see ``--methods``).
-GHOST_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
+#: The methods the ghost experiment merges (paper 2's with the camera's chart GP).
+GHOST_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic")
 
 #: Motion settings: ``tripod`` (objects move) and ``handheld`` (objects move, camera shake).
 GHOST_SETTINGS = ("tripod", "handheld")
@@ -57,12 +57,15 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                      seeds: Sequence[int] = (0,), size: tuple[int, int] = (192, 128), exposures: int = 7,
                      objects: int = 3, shake: int | None = None, methods: Sequence[str] = GHOST_METHODS,
                      camera: str = "nikon-d5100", kind: str = "outdoor", options: dict | None = None,
-                     progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+                     progress: Callable[[str], None] | None = None, model: Any = None) -> list[dict[str, Any]]:
     """One row per (family, setting, seed, method): zone medians on the moving bracket and on
     its still twin, and their ratios. ``shake`` defaults to 2 % of the width (issue 23's
     handheld case); ``options`` go to every merge (e.g. ``deghost=True, align="translation"``).
     Every method gets the truth's reference frame (the middle frame, an engine option of every
-    method), so that the table measures ghosts and alignment, not the choice of instant."""
+    method), so that the table measures ghosts and alignment, not the choice of instant. Paper 2's
+    methods get ``model`` (default: the GP of :func:`derender.evaluation.uncertainty.chart_model`)."""
+
+    import inspect
 
     from derender.camera import simulate_bracket
     from derender.camera.families import FAMILIES, check_family
@@ -75,6 +78,10 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
         if s not in GHOST_SETTINGS:
             raise InputError(f"unknown motion setting {s!r}: use {', '.join(GHOST_SETTINGS)}")
     families = [check_family(f) for f in families] if families else list(FAMILIES)
+    if model is None and any("model" in inspect.signature(get_method(m)).parameters for m in methods):
+        from derender.evaluation.uncertainty import chart_model
+
+        model = chart_model(camera)
     shake_px = max(1, int(round(0.02 * size[0]))) if shake is None else int(shake)
     rows: list[dict[str, Any]] = []
     for family in families:
@@ -85,8 +92,9 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
             ref = still_b.params["motion"]["reference"]
 
             def opts(m: str) -> dict:
-                get_method(m)
-                return {"reference": ref, **(options or {})}
+                fn = get_method(m)
+                extra = {"model": model} if "model" in inspect.signature(fn).parameters else {}
+                return {"reference": ref, **extra, **(options or {})}
 
             still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), **opts(m)).radiance
                              for m in methods}

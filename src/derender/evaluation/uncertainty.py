@@ -30,6 +30,7 @@ import numpy as np
 from derender.core.errors import InputError
 
 __all__ = [
+    "chart_model",
     "COVERAGE_LEVELS",
     "coverage_scores",
     "coverage_table",
@@ -100,6 +101,21 @@ def coverage_table(result: Any, variance: Any, truth: Any, fit: str = "matrix",
     return out
 
 
+def chart_model(camera: str = "nikon-d5100", n_train: int = 1200, seed: int = 0):
+    """Paper 2's GP for ``camera``, calibrated on its simulated chart session (``camera`` style,
+    fixed white balance: what ``derender chart-pairs`` + ``calibrate`` give a user), with the
+    camera metadata ``calibrate`` stores; ``n_train`` pairs drawn with ``seed``."""
+    from derender.camera.chart import chart_pairs
+    from derender.derendering.base import fit_model, model_metadata
+
+    pairs = chart_pairs(camera, seed=seed)
+    rng = np.random.default_rng(seed)
+    sel = rng.choice(pairs.jpeg.shape[0], size=min(n_train, pairs.jpeg.shape[0]), replace=False)
+    model = fit_model("gp", pairs.jpeg[sel], pairs.raw[sel], seed=seed, n_train=n_train)
+    model.metadata.update(model_metadata(pairs))
+    return model
+
+
 def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local", "drift"), seeds=(0,),
                            size: tuple[int, int] = (192, 128), exposures: int = 7, camera: str = "nikon-d5100",
                            methods=None, n_train: int = 5000, progress=None) -> list[dict[str, Any]]:
@@ -111,20 +127,14 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
     the 50/80/95/99 % coverages and median abs(z) over all pixels, and over pixels measured by some
     frame (``measured_*``) when some are clipped in every frame."""
     from derender.camera import simulate_bracket
-    from derender.camera.chart import chart_pairs
     from derender.camera.families import check_family
     from derender.core.types import Stack
-    from derender.derendering.base import fit_model, model_metadata
     from derender.evaluation.families import TUNING_FAMILIES
     from derender.hdr.registry import MERGE_METHODS, load_plugins, merge_seeded
 
     load_plugins()
     methods = list(MERGE_METHODS) if methods is None else list(methods)
-    pairs = chart_pairs(camera, seed=0)
-    rng = np.random.default_rng(0)
-    sel = rng.choice(pairs.jpeg.shape[0], size=min(n_train, pairs.jpeg.shape[0]), replace=False)
-    model = fit_model("gp", pairs.jpeg[sel], pairs.raw[sel], seed=0, n_train=n_train)
-    model.metadata.update(model_metadata(pairs))
+    model = chart_model(camera, n_train)
     rows: list[dict[str, Any]] = []
     for family in families:
         check_family(family)
