@@ -28,7 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--memory-frames", type=int, default=18,
                     help="also run derender-debevec on a bracket of this many frames to compare peak RSS (0: skip)")
     ap.add_argument("--entries", default="floor,opencv,derender-debevec,derender-stabilized",
-                    help="comma-separated: floor, opencv, opencv-robertson, colour-hdri, derender-<method>")
+                    help="comma-separated: floor, opencv, opencv-robertson, colour-hdri, derender-<method>, "
+                         "derender-<method>+align (--align translation), derender-<method>+deghost "
+                         "(--align translation --deghost)")
     ap.add_argument("--workdir", default=None, help="cache folder for brackets and outputs (default: $TMPDIR/derender-bench)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="alternating rounds over all entries; medians and median same-round ratios are reported")

@@ -295,9 +295,16 @@ def _bench_one(name: str, paths: list[Path], outdir: Path, python: str, model: P
             return {"status": "skipped", "reason": "needs a merged output to write (run a derender entry first)"}
         cmd = [python, "-c", _FLOOR_WORKER, str(like), str(outdir / f"floor-{len(paths)}.exr"), *files]
     elif name.startswith("derender-"):
-        method = name[len("derender-"):]
+        method, *extras = name[len("derender-"):].split("+")
         cmd = [python, "-m", "derender.cli", "merge", *files, "-o", str(outdir / f"{name}-{len(paths)}.exr"),
                "--method", method]
+        for extra in extras:        # derender-METHOD+align, +deghost: the engine's motion steps
+            if extra == "align":
+                cmd += ["--align", "translation"]
+            elif extra == "deghost":
+                cmd += ["--align", "translation", "--deghost"]
+            else:
+                raise InputError(f"unknown benchmark entry suffix +{extra} (use +align or +deghost)")
         if method in MODEL_METHODS:
             if model is None:
                 return {"status": "skipped", "reason": "needs a de-rendering model"}
@@ -378,7 +385,7 @@ def run_bench(size: tuple[int, int] = (6000, 4000), frames: int = 9, workdir: st
     paths = generate_bench_bracket(workdir, size, frames, seed, texture=texture)
     outdir = workdir / "outputs"
     outdir.mkdir(exist_ok=True)
-    need_model = any(e.startswith("derender-") and e[len("derender-"):] in MODEL_METHODS for e in entries)
+    need_model = any(e.startswith("derender-") and e[len("derender-"):].split("+")[0] in MODEL_METHODS for e in entries)
     model_path = Path(model) if model is not None else (bench_model(workdir, seed) if need_model else None)
     rounds: dict[str, list[dict]] = {name: [] for name in entries}
     skipped: dict[str, dict] = {}
@@ -387,7 +394,7 @@ def run_bench(size: tuple[int, int] = (6000, 4000), frames: int = 9, workdir: st
         for name in entries:
             if name in skipped:
                 continue
-            if name.startswith("derender-") and not method_registered(name[len("derender-"):]):
+            if name.startswith("derender-") and not method_registered(name[len("derender-"):].split("+")[0]):
                 skipped[name] = {"status": "skipped", "reason": f"method {name[len('derender-'):]!r} is not registered"}
                 continue
             say(f"round {r + 1}: running {name}")

@@ -75,7 +75,7 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
     detection. Returns the filled fraction per frame."""
     import cv2
 
-    from derender.engine.deghost import frame_estimates, upsample_mask
+    from derender.engine.deghost import frame_estimates
 
     n, h, w = frames.shape[:3]
     ref = test.ref
@@ -83,7 +83,6 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
     hs, ws = test.hs, test.ws
     rng_r = _observed_range(test.mu_r, test.cens_r)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    fy, fx = np.mgrid[0:h, 0:w].astype(np.float32)
     out: dict[str, Any] = {"frames": []}
     for j in range(n):
         if j == ref or not rejected[j].any() or rng_r is None:
@@ -116,24 +115,41 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
         if (hc, wc) != (hs, ws):
             fwd = cv2.resize(fwd, (ws, hs), interpolation=cv2.INTER_LINEAR) * np.float32(ws / wc)
             reliable = cv2.resize(reliable, (ws, hs), interpolation=cv2.INTER_NEAREST)
-        if step > 1:
-            flow = cv2.resize(fwd, (ws * step, hs * step), interpolation=cv2.INTER_LINEAR)[:h, :w] * np.float32(step)
-            if flow.shape[:2] != (h, w):
-                flow = np.pad(flow, ((0, h - flow.shape[0]), (0, w - flow.shape[1]), (0, 0)), mode="edge")
-        else:
-            flow = fwd
-        mx, my = fx + flow[..., 0], fy + flow[..., 1]
-        warped = cv2.remap(frames[j], mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+        # the test on the detection grid: frame j sampled through the flow at the grid's pixels
+        gy, gx = np.mgrid[0:hs, 0:ws].astype(np.float32)
+        sx = (gx + fwd[..., 0]) * step
+        sy = (gy + fwd[..., 1]) * step
+        inside = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
+        ix = np.clip(np.rint(sx), 0, w - 1).astype(np.intp)
+        iy = np.clip(np.rint(sy), 0, h - 1).astype(np.intp)
         if valid is not None:
-            inside &= cv2.remap(valid[j], mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                                borderValue=0).astype(bool)
-        ok = (test.sub(inside) & reliable.astype(bool)).astype(np.uint8)
-        q, _, _ = test.statistic(warped, j, ok, agreement)
-        disagree = test.regions(q, dilate=False)
-        use = rejected[j] & ~disagree & inside & upsample_mask(ok, step, h, w)
-        frames[j][use] = warped[use]
-        rejected[j][use] = False
-        out["frames"].append({"frame": j, "filled": float(use.mean())})
+            inside &= valid[j][iy, ix] != 0
+        ok = (inside & (reliable != 0)).astype(np.uint8)
+        q, _, _ = test.statistic(frames[j][iy, ix], j, ok, agreement, on_grid=True)
+        use_g = test.sub(rejected[j]) & ~test.regions_grid(q) & (ok != 0)
+        if not use_g.any():
+            out["frames"].append({"frame": j, "filled": 0.0})
+            continue
+        # full resolution only at the grid cells that passed: each cell's step x step pixels, moved
+        # by the cell's flow (nearest code), where frame j was rejected
+        cy_, cx_ = np.nonzero(use_g)
+        dy, dx = np.mgrid[0:step, 0:step]
+        ys = (cy_[:, None] * step + dy.reshape(1, -1)).reshape(-1)
+        xs = (cx_[:, None] * step + dx.reshape(1, -1)).reshape(-1)
+        keep = (ys < h) & (xs < w)
+        ys, xs = ys[keep], xs[keep]
+        cell = (ys // step, xs // step)
+        keep = rejected[j][ys, xs]
+        ys, xs = ys[keep], xs[keep]
+        cell = (cell[0][keep], cell[1][keep])
+        sx = np.rint(xs + fwd[cell[0], cell[1], 0] * step).astype(np.intp)
+        sy = np.rint(ys + fwd[cell[0], cell[1], 1] * step).astype(np.intp)
+        keep = (sx >= 0) & (sx < w) & (sy >= 0) & (sy < h)
+        ys, xs, sy, sx = ys[keep], xs[keep], sy[keep], sx[keep]
+        frames[j][ys, xs] = frames[j][sy, sx]      # gathered first, then written
+        rejected[j][ys, xs] = False
+        use = ys
+        out["frames"].append({"frame": j, "filled": float(use.size) / (h * w)})
+        continue
     return out
 

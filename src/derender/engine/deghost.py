@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
@@ -80,7 +81,7 @@ Z2_CAP = 16.0
 EDGE_SHIFT = 0.5
 
 #: The test runs on every s-th row and column so that at most about this many pixels remain.
-DETECT_PIXELS = 1 << 20
+DETECT_PIXELS = 1 << 19
 
 #: The offsets and spreads are robust statistics of at most about this many pixels.
 STAT_PIXELS = 1 << 16
@@ -92,7 +93,7 @@ AGREEMENT_BINS = 4
 #: deviation): below the median, so that ghosts filling a good part of a brightness bin do not
 #: widen it (0.5 would be the MAD).
 SPREAD_QUANTILE = 0.3
-_HALF_NORMAL_QUANTILE = float(__import__("scipy.stats", fromlist=["norm"]).norm.ppf(0.5 + SPREAD_QUANTILE / 2))
+_HALF_NORMAL_QUANTILE = NormalDist().inv_cdf(0.5 + SPREAD_QUANTILE / 2)   # |N(0, 1)|'s quantile
 
 
 #: A bracket is refused when more than this fraction of the non-reference frames' pixels
@@ -282,8 +283,10 @@ def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None) -> np.nda
     """``valid`` (N, H, W) uint8 or None with the ``rejected`` (N, H, W) bool pixels removed."""
     if rejected is None:
         return valid
-    keep = (~rejected).astype(np.uint8)
-    return keep if valid is None else (valid & keep)
+    keep = np.logical_not(rejected).view(np.uint8)        # one new plane, its bytes 0/1
+    if valid is not None:
+        np.bitwise_and(keep, valid, out=keep)
+    return keep
 
 
 class ConsistencyTest:
@@ -329,13 +332,14 @@ class ConsistencyTest:
         return a[::self.step, ::self.step]
 
     def statistic(self, codes: np.ndarray, j: int, ok: np.ndarray | None = None,
-                  agreement: "FrameAgreement | None" = None):
+                  agreement: "FrameAgreement | None" = None, on_grid: bool = False):
         """Frame ``j``'s capped ``z^2`` per pixel of the detection grid ((hs, ws) float32), its log
         radiance estimates (mu, sd, cens) and its :class:`FrameAgreement` (estimated here unless
-        given). ``codes`` is the whole (H, W, 3) frame; ``ok`` (hs, ws) uint8 where it may be compared."""
+        given). ``codes`` is the whole (H, W, 3) frame (``on_grid``: already the grid's (hs, ws, 3));
+        ``ok`` (hs, ws) uint8 where it may be compared."""
         from derender.engine.kernels import ghost_statistic
 
-        mu_j, sd_j, cens_j = _estimates32(self.plan, self.sub(codes), j)
+        mu_j, sd_j, cens_j = _estimates32(self.plan, codes if on_grid else self.sub(codes), j)
         if ok is None:
             ok = np.ones((self.hs, self.ws), dtype=np.uint8)
         if agreement is None:
@@ -348,15 +352,19 @@ class ConsistencyTest:
                         float(EDGE_SHIFT), float(Z2_CAP), np.ascontiguousarray(ok, dtype=np.uint8), q)
         return q, (mu_j, sd_j, cens_j), agreement
 
-    def regions(self, q: np.ndarray, dilate: bool = True) -> np.ndarray:
-        """The pooled statistic above the threshold, cleaned into regions, at full resolution ((H, W) bool)."""
+    def regions_grid(self, q: np.ndarray, dilate: bool = False) -> np.ndarray:
+        """The pooled statistic above the threshold, cleaned into regions, on the grid ((hs, ws) bool)."""
         import cv2
 
         bad = (_box_mean(q, self.window) > self.threshold).astype(np.uint8)
         bad = cv2.morphologyEx(bad, cv2.MORPH_OPEN, self._open)
         if dilate and self.dilate > 0:
             bad = cv2.dilate(bad, self._dilate)
-        return upsample_mask(bad, self.step, self.h, self.w)
+        return bad.astype(bool)
+
+    def regions(self, q: np.ndarray, dilate: bool = True) -> np.ndarray:
+        """:meth:`regions_grid` at full resolution ((H, W) bool)."""
+        return upsample_mask(self.regions_grid(q, dilate).astype(np.uint8), self.step, self.h, self.w)
 
 
 def upsample_mask(mask: np.ndarray, step: int, h: int, w: int) -> np.ndarray:
@@ -375,8 +383,9 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
                   window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Per frame and pixel, whether the frame disagrees with frame ``ref`` (module docstring).
 
-    Returns ``rejected`` ((N, H, W) bool, False for the reference and where ``valid`` already
-    excludes the pixel; None when nothing is rejected) and the details per frame (rejected
+    Returns ``rejected`` ((N, H, W) bool, False for the reference and, to the detection grid's
+    resolution, where ``valid`` already excludes the pixel; None when nothing is rejected) and
+    the details per frame (rejected
     fraction, log offset ``b``, unexplained spread ``s``). Raises :class:`StackError` when more
     than :data:`MAX_REJECTED` of the other frames' pixels disagree. The per-pixel statistic is
     one compiled pass (:func:`derender.engine.kernels.ghost_statistic`); the offsets and
@@ -394,14 +403,14 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
             continue
         ok = None if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
         q, _, agreement = test.statistic(frames[j], j, ok)
-        rj = test.regions(q)
-        if valid is not None:
-            rj &= valid[j] != 0
-        rejected[j] = rj
-        total += int(rj.sum())
-        counted += h * w
+        bad = test.regions_grid(q, dilate=True)
+        if vsub is not None:
+            bad &= vsub[j]
+        rejected[j] = upsample_mask(bad.astype(np.uint8), test.step, h, w)   # counted on the grid
+        total += int(bad.sum())
+        counted += bad.size
         agreements[j] = agreement
-        per_frame.append({"frame": j, "rejected": float(rj.mean()), **agreement.summary()})
+        per_frame.append({"frame": j, "rejected": float(bad.mean()), **agreement.summary()})
     info = {"threshold": float(threshold), "window": 2 * window + 1, "detect_step": test.step, "frames": per_frame,
             "rejected": total / max(counted, 1), "agreements": agreements}
     if counted and total / counted > MAX_REJECTED:

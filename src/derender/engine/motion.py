@@ -220,6 +220,7 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     ok = keep.astype(np.uint8)
     tmp = np.empty_like(frames[0])
     r = int(REFINE_REACH)
+    rows0, cols0 = np.arange(0, h, st), np.arange(0, w, st)
     cands = sorted(((dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1)), key=lambda d: abs(d[0]) + abs(d[1]))
     for j in range(n):
         if j == ref:
@@ -227,12 +228,9 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
         scores = []
         agreement = None
         for dy, dx in cands:
-            if (dy, dx) == (0, 0):
-                view = frames[j]
-            else:
-                shift_into(tmp, frames[j], dy, dx)
-                view = tmp
-            q, _, agreement = test.statistic(view, j, ok, agreement)   # one per frame: comparable scores
+            # the grid of the frame read at (y + dy, x + dx): gathered, never shifted whole
+            grid = frames[j][np.ix_(np.clip(rows0 + dy, 0, h - 1), np.clip(cols0 + dx, 0, w - 1))]
+            q, _, agreement = test.statistic(grid, j, ok, agreement, on_grid=True)   # one per frame: comparable
             scores.append(float(q[keep].mean()))
         best = int(np.argmin(scores))
         if best != 0 and scores[best] < scores[0] * 0.9:
@@ -394,23 +392,28 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         def detect(plan):
             return detect_ghosts(frames, plan, ref, valid, threshold=threshold)
 
-        def detect_and_fill(plan, fill=True):
-            rejected, info = detect(plan)
-            if rejected is not None and motion.compensate and fill:
-                from derender.engine.compensation import compensate_frames
+        def fill(plan, rejected, info) -> None:
+            from derender.engine.compensation import compensate_frames
 
-                info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
-                                                         rejected, valid, info["agreements"])
-                info["rejected_after_fill"] = float(rejected.mean() * n / max(n - 1, 1))
+            info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
+                                                     rejected, valid, info["agreements"])
+
+        def detect_and_fill(plan):
+            rejected, info = detect(plan)
+            if rejected is not None and motion.compensate:
+                fill(plan, rejected, info)
             return rejected, info
 
+        refits = getattr(method, "refits_on_frames", True)
+        rejected, ginfo = detect(plan)
         if motion.align == "translation":
             # the registration checked with the method's noise model, the ghosts left out
-            rejected, _ = detect(plan)
             valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"))
             ainfo["refined"] = rinfo["corrections"]
-        refits = getattr(method, "refits_on_frames", True)
-        rejected, ginfo = detect_and_fill(plan, fill=FILL_BEFORE_REFIT or not refits)
+            if rinfo["corrections"]:
+                rejected, ginfo = detect(plan)
+        if rejected is not None and motion.compensate and (FILL_BEFORE_REFIT or not refits):
+            fill(plan, rejected, ginfo)
         rounds = 1
         if rejected is not None and refits:
             # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
