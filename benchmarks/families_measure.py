@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 
 import numpy as np
@@ -35,9 +34,7 @@ def stack_of(b):
 
 
 def score(rad, b) -> dict:
-    from derender.evaluation.metrics import hdr_scores
-
-    from derender.evaluation.metrics import relative_errors
+    from derender.evaluation.metrics import hdr_scores, relative_errors
 
     s = hdr_scores(rad, b.truth_linear_srgb)
     # rel_median at full resolution is dominated by a floor every method shares (demosaicing,

@@ -13,7 +13,6 @@ import argparse
 import json
 
 import numpy as np
-
 from families_measure import TUNING, bracket, score, stack_of
 
 

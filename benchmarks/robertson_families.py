@@ -15,7 +15,6 @@ import argparse
 import json
 
 import numpy as np
-
 from families_measure import HELD_OUT, TUNING, bracket, score, stack_of
 
 

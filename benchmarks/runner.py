@@ -266,7 +266,7 @@ def bench_model(workdir: str | os.PathLike, seed: int = 0) -> Path:
     """A GP de-rendering model for the probabilistic methods (5000 simulated D5100 chart
     pairs), fitted once and cached in ``workdir``."""
     from derender.core.errors import DerenderError
-    from derender.derendering.base import fit_model, load_model, model_metadata, model_camera_to_srgb
+    from derender.derendering.base import fit_model, load_model, model_camera_to_srgb, model_metadata
 
     model = Path(workdir) / "nikon-d5100-gp.npz"
     try:
