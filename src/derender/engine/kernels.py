@@ -689,6 +689,16 @@ def mark_colours(frames, j0, j1, present):  # pragma: no cover - compiled
 
 
 @njit(inline="always")
+def _interval(m, c, bright):  # pragma: no cover - compiled
+    """One frame's interval of log radiance for a channel with estimate ``m`` and censoring ``c``
+    (:func:`ghost_statistic`): a point, ``(-inf, m]`` clipped dark; in a pixel clipped bright
+    ``(-inf, inf)`` for a clipped channel and ``(-inf, m]`` for the others."""
+    if bright:
+        return -np.inf, (np.inf if c > 0 else m)
+    return (m if c >= 0 else -np.inf), m
+
+
+@njit(inline="always")
 def _interval_gap(lo_j, hi_j, lo_r, hi_r):  # pragma: no cover - compiled
     """Signed distance between two intervals (0 where they overlap)."""
     if lo_j - hi_r > 0.0:
@@ -756,18 +766,8 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
                 if mr > best_r:
                     best_r = mr
                     kr = c
-                if bright_j:
-                    lo_j = -inf
-                    hi_j = inf if cj > 0 else mj
-                else:
-                    lo_j = mj if cj >= 0 else -inf
-                    hi_j = mj
-                if bright_r:
-                    lo_r = -inf
-                    hi_r = inf if cr > 0 else mr
-                else:
-                    lo_r = mr if cr >= 0 else -inf
-                    hi_r = mr
+                lo_j, hi_j = _interval(mj, cj, bright_j)
+                lo_r, hi_r = _interval(mr, cr, bright_r)
                 gap = _interval_gap(lo_j, hi_j, lo_r, hi_r)
                 if gap != 0.0 and var > 0.0 and np.isfinite(var):
                     z2 = gap * gap / var
