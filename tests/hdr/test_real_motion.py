@@ -1,5 +1,6 @@
 """Ghost removal and alignment on real brackets with motion (``../shared/data``, issue 23).
 
+``iphone6-bracket``: 8 handheld iPhone 6 JPEGs (frames up to 20 px apart);
 ``motion-pingpong``: 3 handheld in-camera JPEGs (Canon EOS 1000D, frames 30-55 px apart) of a
 person swinging a paddle; ``motion-sculpture-garden``: 5 tripod TIFFs with pedestrians, whose
 EXIF times are wrong (given here from ``times.txt``). Neither has a ground truth, so the oracle
@@ -15,10 +16,14 @@ motion-pingpong           debevec     0.974                 0.996
 motion-pingpong           stabilized  0.960                 0.995
 motion-sculpture-garden   debevec     0.990                 0.994
 motion-sculpture-garden   stabilized  0.986                 0.993
+iphone6-bracket           debevec     0.9936                0.9950
+iphone6-bracket           stabilized  0.9944                0.9964
 ========================  ==========  ====================  ===========================
 
-(unaligned debevec on motion-pingpong: 0.942). The structural errors ghost removal takes away
-lie inside its ghost mask (dilated by 4 px): 70-83 % of them.
+(unaligned debevec: motion-pingpong 0.942, iphone6-bracket 0.9909: its sky and monitor are
+flat, so the buildings' double edges weigh little in the fraction; look at a preview). The
+structural errors ghost removal takes away lie inside its ghost mask (dilated by 4 px): 70-83 %
+of them.
 """
 
 from __future__ import annotations
@@ -49,10 +54,17 @@ def _disagreement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+#: The least gain in structure agreement ``--deghost`` must bring over alignment alone (about
+#: half of what was measured: 0.022-0.036, 0.004-0.007 and 0.0014-0.002).
+MARGIN = {"motion-pingpong": 0.01, "motion-sculpture-garden": 0.002, "iphone6-bracket": 0.0007}
+
+
 def _bracket(name: str):
     root = require_shared(name)
     if name == "motion-pingpong":
         return sorted(root.glob("Img*.JPG")), None, 1
+    if name == "iphone6-bracket":
+        return sorted(root.glob("*.JPG")), None, 2
     times = {}
     for line in (root / "times.txt").read_text().splitlines():
         if line.strip():
@@ -63,7 +75,7 @@ def _bracket(name: str):
     return files, [times[f.name] for f in files], 2
 
 
-@pytest.mark.parametrize("name", ["motion-pingpong", "motion-sculpture-garden"])
+@pytest.mark.parametrize("name", ["motion-pingpong", "motion-sculpture-garden", "iphone6-bracket"])
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])
 def test_deghost_shows_the_reference_instant(name, method):
     import cv2
@@ -74,7 +86,7 @@ def test_deghost_shows_the_reference_instant(name, method):
     clean = merge_files(files, times, method=method, align="translation", reference=ref, deghost=True)
     a_plain = bitmap_agreement(_grey(plain.radiance), ref_grey)
     a_clean = bitmap_agreement(_grey(clean.radiance), ref_grey)
-    assert a_clean >= 0.99 and a_clean > a_plain + 0.003, (a_plain, a_clean)
+    assert a_clean >= 0.99 and a_clean > a_plain + MARGIN[name], (a_plain, a_clean)
     # what ghost removal fixed lies inside the ghost mask it reports
     fixed = _disagreement(_grey(plain.radiance), ref_grey) & ~_disagreement(_grey(clean.radiance), ref_grey)
     mask = cv2.dilate((clean.ghosts > 0).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
