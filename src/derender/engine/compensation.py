@@ -67,7 +67,7 @@ def _observed_range(mu: np.ndarray, cens: np.ndarray) -> tuple[float, float] | N
 
 
 def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.ndarray | None,
-                      offsets: dict) -> dict[str, Any]:
+                      offsets: dict, threads: int | None = None) -> dict[str, Any]:
     """Fill the ``rejected`` pixels of every frame from its flow-compensated view (module
     docstring), **in place**: ``frames[j]`` takes the warped codes and ``rejected[j]`` turns
     False where they pass ``test`` (a :class:`~derender.engine.deghost.ConsistencyTest` of the
@@ -75,27 +75,31 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
     detection. Returns the filled fraction per frame."""
     import cv2
 
-    from derender.engine.deghost import frame_estimates
+    from derender.engine.deghost import frame_estimates, map_frames
 
     n, h, w = frames.shape[:3]
     ref = test.ref
     step = test.step
     hs, ws = test.hs, test.ws
     rng_r = _observed_range(test.mu_r, test.cens_r)
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     out: dict[str, Any] = {"frames": []}
-    for j in range(n):
-        if j == ref or not rejected[j].any() or rng_r is None:
-            continue
+    if rng_r is None:
+        return out
+
+    def one(j: int) -> dict | None:
+        """Frame j's fill (frames[j] and rejected[j] only: the frames run in threads)."""
+        if not rejected[j].any():
+            return None
+        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)     # one per thread
         agreement = offsets[j]
         mu_j, _, cens_j = frame_estimates(test.plan, test.sub(frames[j]), j)
         mu_j = mu_j - test.maps(agreement)[0]
         rng_j = _observed_range(mu_j, cens_j)
         if rng_j is None:
-            continue
+            return None
         lo, hi = max(rng_r[0], rng_j[0]), min(rng_r[1], rng_j[1])
         if hi - lo < 0.5:          # the two exposures share almost no range: nothing to match
-            continue
+            return None
         a8 = _grey8(test.mu_r, test.cens_r, lo, hi)
         b8 = _grey8(mu_j, cens_j, lo, hi)
         fs = max(1, int(np.ceil(np.sqrt(hs * ws / FLOW_PIXELS))))
@@ -128,8 +132,7 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
         q, _, _ = test.statistic(frames[j][iy, ix], j, ok, agreement, on_grid=True)
         use_g = test.sub(rejected[j]) & ~test.regions_grid(q) & (ok != 0)
         if not use_g.any():
-            out["frames"].append({"frame": j, "filled": 0.0})
-            continue
+            return {"frame": j, "filled": 0.0}
         # full resolution only at the grid cells that passed: each cell's step x step pixels, moved
         # by the cell's flow (nearest code), where frame j was rejected
         cy_, cx_ = np.nonzero(use_g)
@@ -148,8 +151,9 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
         ys, xs, sy, sx = ys[keep], xs[keep], sy[keep], sx[keep]
         frames[j][ys, xs] = frames[j][sy, sx]      # gathered first, then written
         rejected[j][ys, xs] = False
-        use = ys
-        out["frames"].append({"frame": j, "filled": float(use.size) / (h * w)})
-        continue
+        return {"frame": j, "filled": float(ys.size) / (h * w)}
+
+    others = [j for j in range(n) if j != ref]
+    out["frames"] = [r for r in map_frames(one, others, threads) if r is not None]
     return out
 

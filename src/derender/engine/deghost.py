@@ -44,6 +44,7 @@ and, before any of this, neighbouring frames whose structure disagrees:
 
 from __future__ import annotations
 
+import threading
 import warnings
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -55,7 +56,8 @@ from derender.core.errors import StackError
 
 __all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED",
            "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_BINS",
-           "frame_estimates", "FrameAgreement", "ConsistencyTest", "upsample_mask", "detect_ghosts", "merge_valid"]
+           "frame_estimates", "FrameAgreement", "ConsistencyTest", "upsample_mask", "map_frames", "detect_ghosts",
+           "merge_valid"]
 
 #: Window mean of z^2 per channel above which a frame is rejected at a pixel (chosen on the
 #: tuning families ``paper`` and ``camera``, ``derender experiment ghosts``).
@@ -85,6 +87,9 @@ DETECT_PIXELS = 1 << 19
 
 #: The offsets and spreads are robust statistics of at most about this many pixels.
 STAT_PIXELS = 1 << 16
+
+#: Frames whose brightness maps a :class:`ConsistencyTest` keeps (two per thread at most).
+MAPS_CACHED = 4
 
 #: Bins of the reference's brightness in which a frame's offset and spread are estimated.
 AGREEMENT_BINS = 4
@@ -279,6 +284,21 @@ def _box_mean(a: np.ndarray, k: int) -> np.ndarray:
     return cv2.blur(a.astype(np.float32), (2 * k + 1, 2 * k + 1), borderType=cv2.BORDER_REFLECT)
 
 
+def map_frames(fn, items: list, threads: int | None = None) -> list:
+    """``[fn(item) for item in items]`` in a pool of ``threads`` threads (default: the usable
+    cores): the per-frame work is NumPy, OpenCV and a GIL-free kernel. Results in order; the
+    first exception is raised."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from derender.core.memory import thread_count
+
+    k = max(1, min(thread_count(threads), len(items)))
+    if k == 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(k, thread_name_prefix="derender-ghosts") as ex:
+        return list(ex.map(fn, items))
+
+
 def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None) -> np.ndarray | None:
     """``valid`` (N, H, W) uint8 or None with the ``rejected`` (N, H, W) bool pixels removed."""
     if rejected is None:
@@ -305,27 +325,31 @@ class ConsistencyTest:
         self.hs, self.ws = self.mu_r.shape[:2]
         self.stat_step = max(1, int(np.ceil(np.sqrt(self.hs * self.ws / STAT_PIXELS))))
         self._maps: dict = {}
-        self._levels: np.ndarray | None = None
-        self._level_idx: np.ndarray | None = None
+        self._lock = threading.Lock()
+        lo, hi = float(self.mu_r.min()), float(self.mu_r.max())
+        self._levels = np.linspace(lo, hi, 4096)
+        self._level_idx = np.clip(np.rint((self.mu_r - lo) * (4095.0 / max(hi - lo, 1e-12))), 0, 4095).astype(np.intp)
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self._dilate = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
 
     def maps(self, agreement: "FrameAgreement") -> tuple[np.ndarray, np.ndarray]:
         """:meth:`FrameAgreement.maps` at the reference's log radiance, read from 4096-level
-        tables of it (one frame's maps serve every candidate shift and round: cached)."""
+        tables of it (one frame's maps serve every candidate shift and round: cached for the
+        last :data:`MAPS_CACHED` frames; thread-safe)."""
         key = id(agreement)
-        if key not in self._maps:
-            if self._levels is None:
-                lo, hi = float(self.mu_r.min()), float(self.mu_r.max())
-                self._levels = np.linspace(lo, hi, 4096)
-                self._level_idx = np.clip(np.rint((self.mu_r - lo) * (4095.0 / max(hi - lo, 1e-12))),
-                                          0, 4095).astype(np.intp)
-            self._maps.clear()
-            off_t, var_t = agreement.maps(np.repeat(self._levels[:, None], 3, axis=1))
-            ch = np.arange(3)
-            self._maps[key] = (agreement, np.ascontiguousarray(off_t[self._level_idx, ch]),
-                               np.ascontiguousarray(var_t[self._level_idx, ch]))
-        return self._maps[key][1], self._maps[key][2]
+        with self._lock:
+            hit = self._maps.get(key)
+        if hit is not None and hit[0] is agreement:
+            return hit[1], hit[2]
+        off_t, var_t = agreement.maps(np.repeat(self._levels[:, None], 3, axis=1))
+        ch = np.arange(3)
+        entry = (agreement, np.ascontiguousarray(off_t[self._level_idx, ch]),
+                 np.ascontiguousarray(var_t[self._level_idx, ch]))
+        with self._lock:
+            self._maps[key] = entry
+            while len(self._maps) > MAPS_CACHED:
+                self._maps.pop(next(iter(self._maps)))
+        return entry[1], entry[2]
 
     def sub(self, a: np.ndarray) -> np.ndarray:
         """``a`` (H, W, ...) on the detection grid."""
@@ -380,7 +404,8 @@ def upsample_mask(mask: np.ndarray, step: int, h: int, w: int) -> np.ndarray:
 
 
 def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, threshold: float = GHOST_THRESHOLD,
-                  window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE) -> tuple[np.ndarray | None, dict[str, Any]]:
+                  window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE,
+                  threads: int | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Per frame and pixel, whether the frame disagrees with frame ``ref`` (module docstring).
 
     Returns ``rejected`` ((N, H, W) bool, False for the reference and, to the detection grid's
@@ -394,23 +419,23 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)
     vsub = None if valid is None else valid[:, ::test.step, ::test.step] != 0
     rejected = np.zeros((n, h, w), dtype=bool)
-    per_frame = []
     agreements: dict[int, FrameAgreement] = {}
-    total = counted = 0
-    for j in range(n):
-        if j == ref:
-            per_frame.append({"frame": j, "reference": True})
-            continue
+
+    def one(j: int) -> tuple[int, int, dict]:
         ok = None if vsub is None else (vsub[j] & vsub[ref]).astype(np.uint8)
         q, _, agreement = test.statistic(frames[j], j, ok)
         bad = test.regions_grid(q, dilate=True)
         if vsub is not None:
             bad &= vsub[j]
         rejected[j] = upsample_mask(bad.astype(np.uint8), test.step, h, w)   # counted on the grid
-        total += int(bad.sum())
-        counted += bad.size
         agreements[j] = agreement
-        per_frame.append({"frame": j, "rejected": float(bad.mean()), **agreement.summary()})
+        return int(bad.sum()), bad.size, {"frame": j, "rejected": float(bad.mean()), **agreement.summary()}
+
+    others = [j for j in range(n) if j != ref]
+    results = dict(zip(others, map_frames(one, others, threads)))          # frames in threads, in order
+    per_frame = [{"frame": j, "reference": True} if j == ref else results[j][2] for j in range(n)]
+    total = sum(results[j][0] for j in others)
+    counted = sum(results[j][1] for j in others)
     info = {"threshold": float(threshold), "window": 2 * window + 1, "detect_step": test.step, "frames": per_frame,
             "rejected": total / max(counted, 1), "agreements": agreements}
     if counted and total / counted > MAX_REJECTED:

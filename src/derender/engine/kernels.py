@@ -708,7 +708,7 @@ def _interval_gap(lo_j, hi_j, lo_r, hi_r):  # pragma: no cover - compiled
     return 0.0
 
 
-@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+@njit(nogil=True, cache=True, error_model="numpy")
 def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, edge_shift, cap, ok, out):  # pragma: no cover - compiled
     """Per pixel of the detection grid, :mod:`derender.engine.deghost`'s ``min(Q, cap)`` of frame j
     against the reference (0 where ``ok`` is 0, e.g. a pixel one frame does not cover).
@@ -723,11 +723,13 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
     desaturates such a pixel towards white), and that its brightest channel is at least its
     bound. ``z`` is the gap between the two frames' intervals over the standard deviation;
     ``Q = max(mean_c z_c^2, z_top^2)``, ``z_top`` comparing the brightest channels where
-    either frame is clipped bright (its variance the mean of both argmax channels')."""
+    either frame is clipped bright (its variance the mean of both argmax channels'). One thread,
+    the GIL released: the engine runs it for several frames at once (not a parallel kernel,
+    which numba cannot launch from two threads)."""
     h, w = mu_j.shape[0], mu_j.shape[1]
     inf = np.inf
     e2 = edge_shift * edge_shift
-    for y in prange(h):
+    for y in range(h):
         ya = max(y - 1, 0)
         yb = min(y + 1, h - 1)
         dy = 1.0 / max(yb - ya, 1)

@@ -390,13 +390,13 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
 
         def detect(plan):
-            return detect_ghosts(frames, plan, ref, valid, threshold=threshold)
+            return detect_ghosts(frames, plan, ref, valid, threshold=threshold, threads=threads)
 
         def fill(plan, rejected, info) -> None:
             from derender.engine.compensation import compensate_frames
 
             info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
-                                                     rejected, valid, info["agreements"])
+                                                     rejected, valid, info["agreements"], threads=threads)
 
         def detect_and_fill(plan):
             rejected, info = detect(plan)
