@@ -180,3 +180,32 @@ def test_merge_writes_its_report(tmp_path, capsys):
     code, _, err = run_cli(["merge", *bracket_paths(tmp_path / "b", "jpeg"), "-o", tmp_path / "n.exr",
                             "--report", tmp_path / "r.txt"], capsys)
     assert code == 2 and "--report must end in .html" in err and not (tmp_path / "n.exr").exists()
+
+
+def test_merge_report_shows_the_ghosts(tmp_path, capsys):
+    """A moving, handheld bracket merged with --deghost: the report's summary names the
+    reference frame (as given) and the ghost removal, and its ghost overlay (bit 2 of the
+    overlays) is set exactly where the ghost map is (the report is at full size here)."""
+    import base64
+    import gzip
+    import json
+    import re
+
+    from derender.camera import bracket_paths, simulate_bracket, write_bracket
+    from derender.camera.motion import MotionSpec
+    from derender.hdr.files import merge_files
+
+    b = simulate_bracket(size=(96, 64), exposures=5, seed=3, motion=MotionSpec(objects=2, shake=3))
+    write_bracket(b, tmp_path / "b")
+    paths = bracket_paths(tmp_path / "b", "jpeg")
+    code, _, err = run_cli(["merge", *paths, "-o", tmp_path / "m.exr", "--reference", "3", "--align", "translation",
+                            "--deghost", "--report", tmp_path / "r.html"], capsys)
+    assert code == 0, err
+    page = (tmp_path / "r.html").read_text()
+    data = json.loads(re.search(r"const D = (\{.*?\});\n", page, flags=re.S).group(1))
+    assert data["summary"]["reference frame"].endswith("(image 3 as given)")
+    assert "ghost removal" in data["summary"]
+    overlays = np.frombuffer(gzip.decompress(base64.b64decode(data["overlays"])), np.uint8).reshape(64, 96)
+    res = merge_files(paths, reference=2, align="translation", deghost=True)
+    np.testing.assert_array_equal((overlays & 2) != 0, res.ghosts > 0)
+    assert (res.ghosts > 0).any()

@@ -115,9 +115,16 @@ def merge_summary(result_info: dict, frames: list[dict]) -> dict[str, Any]:
         rows.append(text)
     out["frames (time order)"] = "; ".join(rows)
     if "reference" in result_info:
-        out["reference frame"] = str(result_info["reference"])
-    if "shifts" in result_info:
-        out["alignment shifts (dy, dx) px"] = json.dumps(result_info["shifts"])
+        k = result_info.get("reference_input")
+        out["reference frame"] = (f"{result_info['reference']} in time order"
+                                  + (f" (image {k + 1} as given)" if k is not None else ""))
+    shifts = result_info.get("shifts") or (result_info.get("alignment") or {}).get("shifts")
+    if shifts is not None:
+        out["alignment shifts (dy, dx) px"] = json.dumps(shifts)
+    dg = result_info.get("deghost")
+    if dg:
+        out["ghost removal"] = (f"threshold {dg.get('threshold')}, {100 * float(dg.get('rejected', 0.0)):.1f} % of "
+                                "the other frames' pixels left out (overlay: ghosts)")
     for key, label in (("n_bright", "pixels over-exposed in every frame"), ("n_dark", "pixels under-exposed "
                                                                                       "everywhere")):
         if key in result_info:

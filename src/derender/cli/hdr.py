@@ -349,7 +349,7 @@ def _merge_report(path, result, images, method: str, absolute: bool, view: str |
     frames = [{"name": images[j].name, "time": float(exposures[j]), "FNumber": exifs[j].get("FNumber"),
                "ISO": exifs[j].get("ISO")} for j in order]
     curves = result.info.get("curves")
-    write_report(path, result.radiance, variance=result.variance, mask=result.mask,
+    write_report(path, result.radiance, variance=result.variance, mask=result.mask, ghost_mask=result.ghosts,
                  absolute=absolute, primaries=SRGB_PRIMARIES, summary=merge_summary(result.info, frames),
                  curves=getattr(curves, "log_inverse", None), view=parse_view(view) if view else None,
                  title=f"derender merge --method {method}", inputs=inputs)
