@@ -45,7 +45,6 @@ and, before any of this, neighbouring frames whose structure disagrees:
 from __future__ import annotations
 
 import threading
-import warnings
 from dataclasses import dataclass
 from statistics import NormalDist
 from typing import Any
@@ -191,10 +190,7 @@ def frame_estimates(plan, codes: np.ndarray, j: int) -> tuple[np.ndarray, np.nda
             sd = np.where(prec > 0, 1.0 / np.sqrt(np.maximum(prec, 1e-300)), np.inf)
         mu = np.where(bound, low, mean) + ls
         # a bound's own uncertainty: the spread of the observed channels of that colour (else 0.1)
-        obs_sd = np.where(np.isfinite(sd), sd, np.nan)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)      # a colour censored in every channel
-            fallback = np.nanmin(obs_sd, axis=-1, keepdims=True)
+        fallback = np.where(np.isfinite(sd), sd, np.inf).min(axis=-1, keepdims=True)
         fallback = np.where(np.isfinite(fallback), fallback, 0.1)
         sd = np.where(bound | ~np.isfinite(sd), fallback, sd)
         return (np.clip(mu, _LOG_FLOOR, -_LOG_FLOOR).astype(np.float32), sd.astype(np.float32),
