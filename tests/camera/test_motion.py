@@ -86,3 +86,22 @@ def test_bad_motion_is_refused():
         plan_motion(MotionSpec(reference=9), 5, (64, 48), 0)
     with pytest.raises(InputError, match="too large"):
         plan_motion(MotionSpec(shake=40), 5, (64, 48), 0)
+
+
+def test_simulate_cli_writes_a_moving_bracket(tmp_path, capsys):
+    """``derender simulate --moving N --shake PX``: the bracket's scene.json records the objects and
+    the frames' offsets (the middle frame at 0), and a bad count is one error line."""
+    import json
+
+    from helpers import run_cli
+
+    code, _, err = run_cli(["simulate", tmp_path / "s", "--moving", "2", "--shake", "3", "--size", "96x64", "-n", "5"],
+                           capsys)
+    assert code == 0, err
+    motion = json.loads((tmp_path / "s" / "scene.json").read_text())["motion"]
+    assert motion["objects"] == 2 and motion["shake_px"] == 3 and motion["reference"] == 2
+    shifts = np.array(motion["shifts_dy_dx"])
+    assert (shifts[2] == 0).all() and np.abs(shifts).max() <= 3 and np.abs(shifts).max() > 0
+    assert len(list((tmp_path / "s" / "jpeg").glob("*.jpg"))) == 5
+    code, _, err = run_cli(["simulate", tmp_path / "t", "--moving", "-1"], capsys)
+    assert code == 2 and "--moving and --shake" in err and not (tmp_path / "t").exists()

@@ -70,6 +70,10 @@ def simulate(
     tone_curve: bool = typer.Option(False, "--tone-curve", help="Extra S-shaped tone curve (simple style)."),
     bits: int = typer.Option(14, "--bits", help="ADC bit depth: 12 or 14."),
     stops: Optional[float] = typer.Option(None, "--stops", help="Stops between exposures (default: cover the scene)."),
+    moving: int = typer.Option(0, "--moving", help="Objects (discs of the scene's texture) moving across the "
+                               "bracket; the truth is then the middle frame's instant (docs/simulator.md)."),
+    shake: int = typer.Option(0, "--shake", help="Camera shake: each frame offset by up to this many pixels "
+                              "(handheld); the middle frame is the truth's grid."),
 ) -> None:
     """Simulate a bracket with a spectral camera model: real DNG and JPEG files plus exact truth."""
     from derender.camera import simulate_bracket, write_bracket
@@ -85,12 +89,19 @@ def simulate(
         raise InputError("--exposures must be between 1 and 64")
     if outdir.exists() and not outdir.is_dir():
         raise InputError(f"{outdir} exists and is not a folder")
+    if moving < 0 or shake < 0:
+        raise InputError("--moving and --shake take a count of objects and pixels (0 or more)")
+    motion = None
+    if moving or shake:
+        from derender.camera.motion import MotionSpec
+
+        motion = MotionSpec(objects=moving, shake=shake)
     cam = load_camera_cli(camera, camera_file).with_bits(bits)
     with progress() as prog:
         task = prog.add_task("simulating exposures", total=exposures)
         bracket = simulate_bracket(camera=cam, kind=scene, size=(w, h), exposures=exposures, pipeline=pipeline,
                                    style=render if family is None else "camera", seed=seed,
-                                   tone_curve=tone_curve, stops=stops, family=family,
+                                   tone_curve=tone_curve, stops=stops, family=family, motion=motion,
                                    progress=lambda i, n: prog.update(task, completed=i))
     outdir.mkdir(parents=True, exist_ok=True)
     write_bracket(bracket, outdir)
