@@ -41,16 +41,6 @@ FLOW_CHECK = 1.0
 #: 0.77 MP, no change in the filled pixels' test.
 FLOW_PIXELS = 1 << 18
 
-FLOW = "dis"
-
-
-def _flow(dis, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    import cv2
-
-    if FLOW == "farneback":
-        return cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 5, 15, 5, 5, 1.1, 0)
-    return dis.calc(a, b, None)
-
 
 def _grey8(mu: np.ndarray, cens: np.ndarray, lo: float, hi: float) -> np.ndarray:
     g = mu.mean(axis=-1)
@@ -108,8 +98,8 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
             a8c, b8c = (cv2.resize(x, size, interpolation=cv2.INTER_AREA) for x in (a8, b8))
         else:
             a8c, b8c = a8, b8
-        fwd = _flow(dis, a8c, b8c)
-        bwd = _flow(dis, b8c, a8c)
+        fwd = dis.calc(a8c, b8c, None)
+        bwd = dis.calc(b8c, a8c, None)
         hc, wc = a8c.shape
         cy, cx = np.mgrid[0:hc, 0:wc].astype(np.float32)
         # forward-backward check: x -> x + f(x) -> back by b at that point

@@ -175,10 +175,6 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
     return valid, info
 
 
-#: Fill the rejected pixels from the flow-compensated frames before the refit too (else only
-#: after it, for the merge).
-FILL_BEFORE_REFIT = False
-
 #: The consistency check of the alignment scores each candidate shift on at most about
 #: this many pixels.
 REFINE_PIXELS = 1 << 16
@@ -412,8 +408,8 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
             ainfo["refined"] = rinfo["corrections"]
             if rinfo["corrections"]:
                 rejected, ginfo = detect(plan)
-        if rejected is not None and motion.compensate and (FILL_BEFORE_REFIT or not refits):
-            fill(plan, rejected, ginfo)
+        if rejected is not None and motion.compensate and not refits:
+            fill(plan, rejected, ginfo)      # else after the refit (filled pixels posterised the stabiliser's fits)
         rounds = 1
         if rejected is not None and refits:
             # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
