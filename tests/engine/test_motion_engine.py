@@ -111,7 +111,7 @@ def test_gaussian_kernel_valid_planes_exclude_a_frame_exactly(tiny_model):
 
 
 def _q_numpy(mu_j, sd_j, cj, mu_r, sd_r, cr, b, s2, edge, cap):
-    """NumPy transcription of kernels.ghost_statistic (the test's oracle)."""
+    """NumPy transcription of ghost_kernels.ghost_statistic (the test's oracle)."""
     def grad2(mu):
         gy, gx = np.gradient(mu.astype(np.float64), axis=(0, 1))
         return gy * gy + gx * gx
@@ -139,7 +139,7 @@ def _q_numpy(mu_j, sd_j, cj, mu_r, sd_r, cr, b, s2, edge, cap):
 
 
 def test_ghost_statistic_kernel_matches_its_numpy_transcription():
-    from derender.engine.kernels import ghost_statistic
+    from derender.engine.ghost_kernels import ghost_statistic
 
     rng = np.random.default_rng(3)
     h, w = 17, 23

@@ -357,7 +357,7 @@ class ConsistencyTest:
         radiance estimates (mu, sd, cens) and its :class:`FrameAgreement` (estimated here unless
         given). ``codes`` is the whole (H, W, 3) frame (``on_grid``: already the grid's (hs, ws, 3));
         ``ok`` (hs, ws) uint8 where it may be compared."""
-        from derender.engine.kernels import ghost_statistic
+        from derender.engine.ghost_kernels import ghost_statistic
 
         mu_j, sd_j, cens_j = _estimates32(self.plan, codes if on_grid else self.sub(codes), j)
         if ok is None:
@@ -409,7 +409,7 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     the details per frame (rejected
     fraction, log offset ``b``, unexplained spread ``s``). Raises :class:`StackError` when more
     than :data:`MAX_REJECTED` of the other frames' pixels disagree. The per-pixel statistic is
-    one compiled pass (:func:`derender.engine.kernels.ghost_statistic`); the offsets and
+    one compiled pass (:func:`derender.engine.ghost_kernels.ghost_statistic`); the offsets and
     spreads are robust statistics of at most :data:`STAT_PIXELS` pixels."""
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)

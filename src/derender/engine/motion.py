@@ -42,7 +42,7 @@ from derender.core.memory import check_memory
 from derender.core.types import HDRResult, check_brightness_order
 
 __all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
-           "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
+           "check_one_scene", "run_motion", "motion_attributes", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
            "SCENE_CHECK_PIXELS"]
 
 #: ``align=`` choices (``"mtb"`` is accepted as another name for ``"translation"``).
@@ -192,7 +192,7 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     its shift by a pixel or two (measured on the simulator: a tripod bracket's darkest frame moved
     by (2, -2) while the static scene had not). Here every correction within
     :data:`REFINE_REACH` pixels of the current registration is scored by the mean capped ``z^2``
-    of :func:`derender.engine.kernels.ghost_statistic` over the pixels no frame has rejected (on
+    of :func:`derender.engine.ghost_kernels.ghost_statistic` over the pixels no frame has rejected (on
     at most :data:`REFINE_PIXELS` of them), ties keeping the registration as it is; the frames
     move **in place** and ``valid`` with them. Returns ``valid`` and the corrections."""
     from derender.engine.align import shift_into, shift_valid
@@ -288,6 +288,25 @@ def check_one_scene(frames: np.ndarray, names: list[str]) -> list[float | None]:
             raise StackError(f"{names[j]} and {names[j + 1]} do not show one scene (their structure agrees on "
                              f"{100 * a:.0f} % of the pixels, one scene gives over {100 * MIN_BITMAP_AGREEMENT:.0f} %): "
                              "these images are not one bracket")
+    return out
+
+
+def motion_attributes(info: dict) -> dict[str, str]:
+    """The EXR header attributes that record the engine's reference frame, alignment and ghost
+    removal (``derender:reference``: the frame's name and its place among the images as given,
+    from 1; ``derender:alignment``; ``derender:deghost``); empty for a plain merge."""
+    if info.get("engine_path") != "motion" and "reference_name" not in info:
+        return {}
+    out = {}
+    if info.get("reference_input") is not None:
+        out["derender:reference"] = f"{info.get('reference_name', 'frame')} (image {info['reference_input'] + 1})"
+    al = info.get("alignment") or {}
+    if al.get("align"):
+        out["derender:alignment"] = str(al["align"])
+    dg = info.get("deghost")
+    if dg:
+        out["derender:deghost"] = (f"threshold {dg.get('threshold')}, "
+                                   f"{100 * float(dg.get('rejected', 0.0)):.2f} % of the other frames' pixels left out")
     return out
 
 

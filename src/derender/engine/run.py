@@ -39,6 +39,7 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
+from derender.engine.motion import motion_attributes
 from derender.engine.overlap import OVERLAP_ROWS, OutputRing, RowsDone, merge_writing, run_bands
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
 from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
@@ -46,7 +47,7 @@ from derender.io.exr import write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
-__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "motion_attributes", "clipped_pixels",
+__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels",
            "frame_brightness",
            "table_kernel_merge", "ENGINES"]
 
@@ -572,25 +573,6 @@ def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
     if variance_output is not None:
         write_exr_fast(variance_output, res.variance, half=half, inputs=inputs + ([output] if output else []),
                        compression=compression, threads=threads, attributes=attributes)
-
-
-def motion_attributes(info: dict) -> dict[str, str]:
-    """The EXR header attributes that record the engine's reference frame, alignment and ghost
-    removal (``derender:reference``: the frame's name and its place among the images as given,
-    from 1; ``derender:alignment``; ``derender:deghost``); empty for a plain merge."""
-    if info.get("engine_path") != "motion" and "reference_name" not in info:
-        return {}
-    out = {}
-    if info.get("reference_input") is not None:
-        out["derender:reference"] = f"{info.get('reference_name', 'frame')} (image {info['reference_input'] + 1})"
-    al = info.get("alignment") or {}
-    if al.get("align"):
-        out["derender:alignment"] = str(al["align"])
-    dg = info.get("deghost")
-    if dg:
-        out["derender:deghost"] = (f"threshold {dg.get('threshold')}, "
-                                   f"{100 * float(dg.get('rejected', 0.0)):.2f} % of the other frames' pixels left out")
-    return out
 
 
 def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,
