@@ -98,11 +98,11 @@ def test_demo_runs_and_scores(tmp_path, capsys):
     assert code == 0, e
     rows = json.loads((tmp_path / "demo" / "scores.json").read_text())
     names = [r["method"] for r in rows]
-    from derender.hdr.registry import BUILTIN_METHODS
+    from derender.hdr.registry import METHODS
 
     assert names == ["raw-groundtruth (DNG)", "debevec", "robertson", "stabilized", "stabilized-joint",
                      "probabilistic", "stabilized-probabilistic"]
-    assert set(names[1:]) == set(BUILTIN_METHODS)              # "every method" is every method
+    assert set(names[1:]) == set(METHODS)                      # "every method" is every method
     for r in rows:
         assert all(np.isfinite(r[p]) for p in "RGBL")
         assert r["L"] > 30.0, r                                # against the simulator's exact radiance

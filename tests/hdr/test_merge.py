@@ -11,7 +11,7 @@ from derender.core.types import HDRResult, Stack
 from derender.engine.reference import merge_linear
 from derender.engine.weights import WEIGHTS, weight_gaussian, weight_hat, weight_trapezoid
 from derender.evaluation.metrics import psnr_rgbl
-from derender.hdr.registry import MERGE_METHODS, merge, register_method
+from derender.hdr.registry import METHODS, merge, register_method
 from derender.response.curves import ResponseCurves
 
 cv2 = pytest.importorskip("cv2")
@@ -162,7 +162,7 @@ def test_registry_unknown_method_and_options():
         merge(st, method="debevec", bogus=1)
     with pytest.raises(InputError):
         merge(codes, method="debevec")
-    assert {"debevec", "robertson"} <= set(MERGE_METHODS)
+    assert {"debevec", "robertson"} <= set(METHODS)
 
     @register_method("_test_identity")
     def _identity(stack, gain=1.0):
@@ -172,7 +172,7 @@ def test_registry_unknown_method_and_options():
         res = merge(st, method="_test_identity", gain=2.0)
         assert res.info["gain"] == 2.0
     finally:
-        MERGE_METHODS.pop("_test_identity", None)
+        METHODS.pop("_test_identity", None)
 
 
 def test_all_clipped_stack_raises_stack_error():

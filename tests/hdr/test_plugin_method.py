@@ -17,11 +17,11 @@ from helpers import run_cli
 def toy_method():
     """The toy method registered for one test and removed after it (the registry is process-wide:
     the demo and the families tables run every registered method)."""
-    from derender.hdr.registry import MERGE_METHODS
+    from derender.hdr.registry import METHODS
 
     _register_toy()
     yield "toy-mean"
-    MERGE_METHODS.pop("toy-mean", None)
+    METHODS.pop("toy-mean", None)
 
 
 def _register_toy():

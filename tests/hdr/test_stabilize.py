@@ -317,9 +317,9 @@ def test_power_law_plausibility():
 
 
 def test_registered_methods_and_bad_options(auto_simple):
-    from derender.hdr.registry import MERGE_METHODS
+    from derender.hdr.registry import METHODS
 
-    assert "stabilized" in MERGE_METHODS and "stabilized-joint" in MERGE_METHODS
+    assert "stabilized" in METHODS and "stabilized-joint" in METHODS
     st = auto_simple["outdoor"]["stack"]
     with pytest.raises(InputError):
         merge(st, method="stabilized", response="spline")

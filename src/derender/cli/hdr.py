@@ -165,14 +165,14 @@ def merge_cmd(
     import numpy as np
 
     from derender.hdr.files import merge_files
-    from derender.hdr.registry import get_method, parse_options
+    from derender.hdr.registry import METHODS, method_spec, parse_options
     from derender.io.exif import parse_times
     from derender.io.files import OutputTransaction, expand_image_paths
     from derender.io.preview import IMAGE8_SUFFIXES, write_png, write_preview
 
     check_times_options(times, times_file, times_inverse)
     images = expand_image_paths(images)
-    fn = get_method(method)
+    spec = method_spec(method)
     method_opts = parse_options(method, option)
     vig = None
     if vignetting is not None:
@@ -184,16 +184,13 @@ def merge_cmd(
         from derender.photometry.calibration import parse_spot
 
         spot_reading = parse_spot(spot)
-    if variance is not None and not getattr(fn, "gives_variance", False):
+    if variance is not None and not spec.gives_variance:
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
-    if model is not None and "model" not in inspect.signature(fn).parameters:
-        from derender.hdr.registry import MERGE_METHODS, load_plugins
-
-        load_plugins()
-        users = sorted(n for n, f in MERGE_METHODS.items() if "model" in inspect.signature(f).parameters)
+    if model is not None and not spec.needs_model:
+        users = sorted(n for n, s in METHODS.items() if s.needs_model)
         raise InputError(f"method {method!r} uses no de-rendering model (drop -m; the methods that use one: "
                          f"{', '.join(users)})")
-    if plot is not None and not getattr(fn, "gives_curves", False):
+    if plot is not None and not spec.gives_curves:
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     motion_opts = _motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
     t0 = time.perf_counter()
@@ -372,21 +369,20 @@ def methods_cmd() -> None:
     import inspect
     import textwrap
 
-    from derender.hdr.registry import MERGE_METHODS, load_plugins, method_summary, settable_options
+    from derender.hdr.registry import METHODS, settable_options
 
-    load_plugins()
-    for name, fn in sorted(MERGE_METHODS.items()):
+    for name, spec in sorted(METHODS.items()):
         typer.echo(name)
-        lines = [method_summary(fn)]
-        params = inspect.signature(fn).parameters
+        lines = [spec.summary]
+        params = inspect.signature(spec.load()).parameters
         if "model" in params and params["model"].default is inspect.Parameter.empty:
             lines.append("Needs a de-rendering model (-m MODEL.npz, from 'derender calibrate').")
-        gives = ["a variance (--variance)"] if getattr(fn, "gives_variance", False) else []
-        if getattr(fn, "gives_curves", False):
+        gives = ["a variance (--variance)"] if spec.gives_variance else []
+        if spec.gives_curves:
             gives.append("response curves (--plot)")
         if gives:
             lines.append("Also gives " + " and ".join(gives) + ".")
-        lines.append(f"Output: {getattr(fn, 'output_space', 'not stated')}.")
+        lines.append(f"Output: {spec.output_space}.")
         opts = settable_options(name)
         if opts:
             lines.append("Options (--option NAME=VALUE): " + "; ".join(

@@ -25,7 +25,6 @@ from derender.engine.tables import code_values
 __all__ = [
     "merge_matrix_frames",
     "matrix_output_bytes",
-    "stabilized_output_bytes",
     "KERNEL_LOCK",
     "set_numba_threads",
     "warm_up_kernels",
@@ -35,10 +34,6 @@ __all__ = [
 def matrix_output_bytes(h: int, w: int) -> int:
     """Bytes of the matrix kernel's outputs: planar float32 radiance and a uint8 mask."""
     return 13 * int(h) * int(w)
-
-
-#: The name the stabilised merge used for :func:`matrix_output_bytes`.
-stabilized_output_bytes = matrix_output_bytes
 
 
 #: Serialises launches of the parallel numba kernels (see :mod:`derender.kernels`).

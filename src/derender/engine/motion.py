@@ -419,7 +419,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
                 fill(plan, rejected, info)
             return rejected, info
 
-        refits = getattr(method, "refits_on_frames", True)
+        refits = method.refits_on_frames
         rejected, ginfo = detect(plan)
         if motion.align == "translation":
             # the registration checked with the method's noise model, the ghosts left out

@@ -27,7 +27,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"]
+__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod", "MethodDefaults"]
 
 
 @dataclass
@@ -171,19 +171,32 @@ class LogNormalMoments:
 
 
 class EngineMethod(Protocol):
-    """A merge method as the engine runs it.
+    """A merge method as the engine runs it: everything the engine reads of a method.
 
     ``name``; ``holds_frames``: True if :meth:`plan` needs every frame in memory (as one
     (N, H, W, 3) uint8 array), False to stream (frames decoded one at a time, twice);
     :meth:`derive` (held methods): ``fn(frame, out)`` computing one uint8 plane per frame
     in the decoding threads, or None; :meth:`sample_positions` (streamed methods): the
     pixels whose codes the calibration reads, or None; ``wants_histograms``: streamed
-    methods that calibrate from code histograms get them in the first pass.
+    methods that calibrate from code histograms get them in the first pass; ``warm_up``:
+    ``"gaussian"`` to load the compiled Gaussian kernel while the frames decode, else None;
+    ``output_bytes(h, w)``: the bytes of the plan's outputs, so that a held method's derived
+    planes can be allocated large enough to be reused for them (None: not reused);
+    ``refits_on_frames``: the plan is refitted without the pixels ghost removal rejects (the
+    motion-compensated fill then runs after the refit). :class:`MethodDefaults` gives the
+    defaults of all but ``name`` and :meth:`plan`.
+
+    A method (or its factory) with no engine form for its options raises
+    :class:`~derender.engine.frames.NotStreamable`; that is the one way to ask for the float
+    reference engine.
     """
 
     name: str
     holds_frames: bool
     wants_histograms: bool
+    warm_up: str | None
+    output_bytes: Callable[[int, int], int] | None
+    refits_on_frames: bool
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None: ...
 
@@ -192,3 +205,24 @@ class EngineMethod(Protocol):
     def plan(self, access: FrameAccess) -> TablePlan | MatrixPlan | GaussianPlan: ...
 
     def finish(self, result: Any, access: FrameAccess) -> None: ...
+
+
+class MethodDefaults:
+    """The defaults of :class:`EngineMethod`'s attributes: a streamed method without derived
+    planes, sample positions or histograms, no kernel warm-up, outputs not sized in advance,
+    refitted after ghost removal, nothing added to the result's info."""
+
+    holds_frames: bool = False
+    wants_histograms: bool = False
+    warm_up: str | None = None
+    output_bytes: Callable[[int, int], int] | None = None
+    refits_on_frames: bool = True
+
+    def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None:
+        return None
+
+    def sample_positions(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray] | None:
+        return None
+
+    def finish(self, result: Any, access: FrameAccess) -> None:
+        return None

@@ -457,7 +457,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
               write=None, ring: int = 0) -> HDRResult:
     t0 = time.perf_counter()
     held: dict = {}
-    out_bytes = getattr(method, "output_bytes", None)
+    out_bytes = method.output_bytes
 
     def derive_alloc(h: int, w: int, nbytes: int) -> np.ndarray:
         # the derived planes' memory is reused for the outputs once the plan is made: fresh
@@ -466,7 +466,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
         held["buffer"] = populated_zeros(max(nbytes, extra), np.uint8)
         return held["buffer"]
 
-    if getattr(method, "warm_up", None) == "gaussian":
+    if method.warm_up == "gaussian":
         _warm_up_kernel("gaussian")
     frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
     n_clipped = clipped_pixels(frames[0])
@@ -481,7 +481,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     del planes
     outputs: list = []
     prepare = None
-    if getattr(method, "warm_up", None) == "gaussian" and not ring:
+    if method.warm_up == "gaussian" and not ring:
         # the Gaussian merge's float32 outputs, pages present, mapped in a thread while the
         # plan runs (its serial parts leave a core idle; populating 576 MB at 24 MP takes ~0.3 s)
         h, w = frames.shape[1:3]
@@ -671,19 +671,19 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     return res
 
 
-def run_stack(method, stack: Stack, engine: str = "auto") -> HDRResult | None:
-    """Run an engine ``method`` on an in-memory stack when its values are 8-bit codes; None
-    when they are not (or ``engine="reference"``), so the caller uses the reference engine."""
+def run_stack(method, stack: Stack, engine: str = "auto") -> HDRResult:
+    """Run an engine ``method`` on an in-memory stack whose values are 8-bit codes.
+
+    The one way to fall back: :class:`~derender.engine.frames.NotStreamable` when the stack is
+    not 8-bit codes (or ``engine="reference"``, or the method finds no engine form), and the
+    caller then uses the float reference engine."""
     if engine not in ENGINES:
         raise InputError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     if engine == "reference":
-        return None
+        raise NotStreamable("engine='reference' asked for")
     codes = None if stack.bit_depth == 16 else stack_codes_exact(stack.images)
     if codes is None:
         if engine == "table":
             raise InputError("engine='table' needs an 8-bit stack (every value a code / 255)")
-        return None
-    try:
-        return run(method, ArrayFrames(codes, stack.times))
-    except NotStreamable:
-        return None
+        raise NotStreamable("the stack's values are not 8-bit codes")
+    return run(method, ArrayFrames(codes, stack.times))

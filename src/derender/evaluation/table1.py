@@ -70,12 +70,11 @@ PLANES = ("R", "G", "B", "L")
 
 def default_methods() -> list[str]:
     """Registered merge methods that need no extra input (e.g. no de-rendering model)."""
-    from derender.hdr.registry import MERGE_METHODS, load_plugins
+    from derender.hdr.registry import METHODS
 
-    load_plugins()
     out = []
-    for name, fn in sorted(MERGE_METHODS.items()):
-        params = list(inspect.signature(fn).parameters.values())[1:]
+    for name, spec in sorted(METHODS.items()):
+        params = list(inspect.signature(spec.load()).parameters.values())[1:]
         if any(p.default is inspect.Parameter.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
                for p in params):
             continue
@@ -249,12 +248,11 @@ def run_benchmark(dataset_dir: str | os.PathLike, methods: Sequence[str] | None 
     """Evaluate every scene of a dataset with every method (``scheduler="serial"`` for no Dask)."""
     scenes = list_scenes(dataset_dir)
     methods = list(methods) if methods else default_methods()
-    from derender.hdr.registry import MERGE_METHODS, load_plugins
+    from derender.hdr.registry import METHODS
 
-    load_plugins()
-    unknown = [m for m in methods if m not in MERGE_METHODS]
+    unknown = [m for m in methods if m not in METHODS]
     if unknown:
-        raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(sorted(MERGE_METHODS))}")
+        raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(sorted(METHODS))}")
     from derender.core.parallel import run_tasks
 
     t0 = time.perf_counter()

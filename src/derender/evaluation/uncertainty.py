@@ -130,10 +130,9 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
     from derender.camera.families import check_family
     from derender.core.types import Stack
     from derender.evaluation.families import TUNING_FAMILIES
-    from derender.hdr.registry import MERGE_METHODS, load_plugins, merge_seeded
+    from derender.hdr.registry import METHODS, merge_seeded, method_spec
 
-    load_plugins()
-    methods = list(MERGE_METHODS) if methods is None else list(methods)
+    methods = list(METHODS) if methods is None else list(methods)
     model = chart_model(camera, n_train)
     rows: list[dict[str, Any]] = []
     for family in families:
@@ -144,11 +143,11 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
             b = simulate_bracket(camera, size=size, exposures=exposures, seed=int(seed), family=family)
             stack = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
             for m in methods:
-                fn = MERGE_METHODS[m]
+                spec = method_spec(m)
                 row: dict[str, Any] = {"family": family, "held_out": family not in TUNING_FAMILIES, "seed": int(seed),
-                                       "method": m, "gives_variance": bool(getattr(fn, "gives_variance", False))}
+                                       "method": m, "gives_variance": spec.gives_variance}
                 if row["gives_variance"]:
-                    opts = {"model": model} if "model" in inspect.signature(fn).parameters else {}
+                    opts = {"model": model} if spec.needs_model else {}
                     res = merge_seeded(stack, m, int(seed), **opts)
                     table = coverage_table(res.radiance, res.variance, b.truth_linear_srgb, merge_mask=res.mask)
                     for part, d in table.items():

@@ -11,5 +11,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
     "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
-    "registry": ["MERGE_METHODS", "OUTPUT_SPACES", "method_summary", "register_method", "BUILTIN_METHODS", "load_plugins", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options"],
+    "registry": ["MethodSpec", "METHODS", "method_spec", "register_method", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options"],
 })

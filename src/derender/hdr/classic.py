@@ -27,11 +27,11 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
-from derender.engine.plans import FrameAccess, TablePlan
+from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
+from derender.engine.frames import NotStreamable
 from derender.engine.run import run_stack
 from derender.engine.tables import curve_value_tables, weight_table
-from derender.hdr.registry import register_method
 from derender.response.curves import (
     DEFAULT_LAMBDA,
     DEFAULT_SAMPLES,
@@ -45,7 +45,7 @@ from derender.response.curves import (
 __all__ = ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"]
 
 
-class DebevecMethod:
+class DebevecMethod(MethodDefaults):
     """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables."""
 
     name = "debevec"
@@ -94,7 +94,7 @@ class DebevecMethod:
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
 
 
-class RobertsonMethod:
+class RobertsonMethod(MethodDefaults):
     """Robertson et al. (2003) on the engine: grid samples, iterative curves, the ML merge in tables."""
 
     name = "robertson"
@@ -192,15 +192,16 @@ def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], An
     return res
 
 
-def _debevec_engine(opts: dict) -> DebevecMethod:
+def debevec_engine(opts: dict) -> DebevecMethod:
+    """The engine form of :func:`merge_debevec` (its registry entry's factory)."""
     return DebevecMethod(**opts)
 
 
-def _robertson_engine(opts: dict) -> RobertsonMethod:
+def robertson_engine(opts: dict) -> RobertsonMethod:
+    """The engine form of :func:`merge_robertson` (its registry entry's factory)."""
     return RobertsonMethod(**opts)
 
 
-@register_method("debevec", engine=_debevec_engine, gives_curves=True)
 def merge_debevec(
     stack: Stack,
     curves=None,
@@ -245,9 +246,10 @@ def merge_debevec(
     """
     method = DebevecMethod(curves, lam, n_samples, sampling, seed, weight, domain, channel_weights, block_rows, engine,
                            tie)
-    res = run_stack(method, stack, engine)
-    if res is not None:
-        return res
+    try:
+        return run_stack(method, stack, engine)
+    except NotStreamable:
+        pass
     from derender.response.debevec1997 import calibrate_debevec
 
     return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
@@ -257,7 +259,6 @@ def merge_debevec(
         channel_weights=channel_weights, domain=domain)
 
 
-@register_method("robertson", engine=_robertson_engine, gives_curves=True)
 def merge_robertson(
     stack: Stack,
     curves=None,
@@ -283,9 +284,10 @@ def merge_robertson(
     ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
     method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine, tie)
-    res = run_stack(method, stack, engine)
-    if res is not None:
-        return res
+    try:
+        return run_stack(method, stack, engine)
+    except NotStreamable:
+        pass
     from derender.response.robertson2003 import calibrate_robertson
 
     if curves is None:

@@ -25,7 +25,7 @@ from derender.core.errors import InputError
 from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import NotStreamable
 from derender.engine.run import FileFrames, run, write_outputs
-from derender.hdr.registry import get_method, merge_seeded, method_options
+from derender.hdr.registry import method_options, method_spec, merge_seeded
 from derender.io.exif import file_times
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
@@ -61,7 +61,8 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     t_start = time.perf_counter()
     from derender.io.files import expand_image_paths
 
-    fn = get_method(method)   # an unknown method is an error before any file is read
+    spec = method_spec(method)   # an unknown method is an error before any file is read
+    fn = spec.load()
     paths = expand_image_paths(paths)
     t = file_times(paths, times, times_file, times_file_inverse)
     all_inputs = list(paths) + list(inputs) + ([Path(times_file)] if times_file else [])
@@ -88,20 +89,16 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     else:
         hint = "the EXIF exposure times disagree with the images; give the times with --times"
     res = None
-    factory = getattr(fn, "engine_method", None)
+    factory = spec.engine_factory()
     if motion is not None and (factory is None or opts.get("engine", "auto") == "reference"):
         raise InputError(f"merge method {method!r} with these options runs outside the engine: reference, "
                          "align and deghost need the engine")
     if factory is not None and opts.get("engine", "auto") != "reference":
         try:
-            engine_method = factory(opts)
-            if engine_method is not None:
-                res = run(engine_method, FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
-                          keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
-                          compression=compression, inputs=all_inputs, order_hint=hint,
-                          hold_outputs=hold_outputs or output is None, motion=motion)
-            elif motion is not None:
-                raise InputError(f"merge method {method!r} with these options cannot align or remove ghosts")
+            res = run(factory(opts), FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
+                      keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
+                      compression=compression, inputs=all_inputs, order_hint=hint,
+                      hold_outputs=hold_outputs or output is None, motion=motion)
         except NotStreamable as exc:
             if motion is not None:
                 raise InputError(f"merge method {method!r} cannot align or remove ghosts on these images "

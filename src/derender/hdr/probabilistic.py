@@ -148,9 +148,8 @@ from derender.core.memory import thread_count
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
-from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments
+from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults
 from derender.engine.run import ArrayFrames, run
-from derender.hdr.registry import register_method
 
 __all__ = [
     "CODE_NOISE",
@@ -264,12 +263,15 @@ def as_model(model: Any):
     return model
 
 
-def _engine(opts: dict) -> "ProbabilisticMethod | None":
+def probabilistic_engine(opts: dict) -> "ProbabilisticMethod":
+    """The engine form of :func:`merge_probabilistic` (its registry entry's factory); the
+    raw-space product (``space="linear"``) has none (:class:`NotStreamable`)."""
     method = ProbabilisticMethod(opts)
-    return method if method.space == "log" else None
+    if method.space != "log":
+        raise NotStreamable("raw-space product")
+    return method
 
 
-@register_method("probabilistic", gives_variance=True, engine=_engine)
 def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colour_space: str = "linear_srgb",
                         censor: bool = True, seed: int = 0, space: str | None = None, floor: float = 0.0,
                         clip_code: int = 245, code_noise: float = CODE_NOISE) -> HDRResult:
@@ -374,7 +376,7 @@ def check_options(model, target_time: float, colour_space: str, censor: bool, sp
     return space, a
 
 
-class ProbabilisticMethod:
+class ProbabilisticMethod(MethodDefaults):
     """Paper 2's probabilistic merge on the engine (log-space product; GP models).
 
     Every frame is held once as 8-bit codes; every distinct colour of the bracket is

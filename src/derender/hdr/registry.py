@@ -1,17 +1,22 @@
 """The merge methods by name: registration, dispatch, and the seeded call used by experiments.
 
-Methods register themselves with :func:`register_method`; :func:`merge` dispatches an
-in-memory :class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files`
-image files. The methods live in :mod:`derender.hdr.classic` (``debevec``,
-``robertson``), :mod:`derender.hdr.stabilize` (``stabilized``, ``stabilized-joint``,
-paper 1) and :mod:`derender.hdr.probabilistic` (``probabilistic``, paper 2),
-:mod:`derender.hdr.stabilized_probabilistic` (``stabilized-probabilistic``, both papers); they are imported on first use.
+Every method is one :class:`MethodSpec` record in :data:`METHODS`: its name, where its merge
+function and engine factory live, what it gives (a variance, response curves) and the colour
+space of its radiance. :func:`merge` dispatches an in-memory
+:class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files` image
+files. The built-in methods live in :mod:`derender.hdr.classic` (``debevec``, ``robertson``),
+:mod:`derender.hdr.stabilize` (``stabilized``, ``stabilized-joint``, paper 1),
+:mod:`derender.hdr.probabilistic` (``probabilistic``, paper 2) and
+:mod:`derender.hdr.stabilized_probabilistic` (``stabilized-probabilistic``, both papers); a
+module is imported when its method is first used. A method defined outside the package joins
+with the :func:`register_method` decorator.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -20,12 +25,10 @@ from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 
 __all__ = [
-    "MERGE_METHODS",
-    "OUTPUT_SPACES",
-    "method_summary",
+    "MethodSpec",
+    "METHODS",
+    "method_spec",
     "register_method",
-    "BUILTIN_METHODS",
-    "load_plugins",
     "get_method",
     "method_options",
     "merge",
@@ -40,54 +43,106 @@ _NOT_SETTABLE = ("model", "seed", "curves", "engine")
 
 
 # --------------------------------------------------------------------------- registry
-#: Merge methods by name: ``fn(stack, **options) -> HDRResult`` (filled as their modules load).
-MERGE_METHODS: dict[str, Callable[..., HDRResult]] = {}
+def _resolve(target: Any) -> Any:
+    """A ``"package.module:attribute"`` string imported and looked up; anything else as is."""
+    if not isinstance(target, str):
+        return target
+    module, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module), attr)
 
-#: Where the built-in methods live: a merge imports only the module of its method (the
-#: stabiliser and the de-rendering models cost ~1 s of start-up a Debevec merge need not pay).
-BUILTIN_METHODS = {
-    "debevec": "derender.hdr.classic",
-    "robertson": "derender.hdr.classic",
-    "stabilized": "derender.hdr.stabilize.method",
-    "stabilized-joint": "derender.hdr.stabilize.method",
-    "probabilistic": "derender.hdr.probabilistic",
-    "stabilized-probabilistic": "derender.hdr.stabilized_probabilistic",
-}
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """One merge method: what ``derender methods`` prints and what the engine and the CLI read.
+
+    Parameters
+    ----------
+    name : str
+        The method's name (``derender merge --method NAME``).
+    function : str or callable
+        ``fn(stack, **options) -> HDRResult``, or where it lives as ``"package.module:name"``
+        (imported on first use: a Debevec merge does not pay the ~1 s start-up of the
+        stabiliser and the de-rendering models).
+    engine : str or callable or None
+        ``factory(options) -> EngineMethod`` (options: every keyword of ``function`` with its
+        default filled in), or its ``"module:name"``; None for a method that runs only in
+        memory. A factory that has no engine form for some options raises
+        :class:`~derender.engine.frames.NotStreamable`.
+    gives_variance, gives_curves : bool
+        Its results carry a per-pixel variance (``--variance``) / response curves
+        (``result.info["curves"]``, what ``derender merge --plot`` draws).
+    output_space : str
+        The colour space of its radiance, in words.
+    """
+
+    name: str
+    function: Any
+    engine: Any = None
+    gives_variance: bool = False
+    gives_curves: bool = False
+    output_space: str = "not stated"
+
+    def load(self) -> Callable[..., HDRResult]:
+        """The merge function (its module imported on first use)."""
+        return _resolve(self.function)
+
+    def engine_factory(self) -> Callable[[dict], Any] | None:
+        """The engine factory, or None."""
+        return _resolve(self.engine)
+
+    @property
+    def module(self) -> str:
+        """The module that defines the method."""
+        if isinstance(self.function, str):
+            return self.function.partition(":")[0]
+        return getattr(self.function, "__module__", "?")
+
+    @property
+    def needs_model(self) -> bool:
+        """Whether the method needs a de-rendering model (``-m MODEL.npz``)."""
+        return "model" in inspect.signature(self.load()).parameters
+
+    @property
+    def summary(self) -> str:
+        """The first sentence of the merge function's docstring, as plain text (no reST markup)."""
+        return method_summary(self.load())
 
 
 _RENDERED = ("linear RGB of the images' own rendering (their primaries and white balance; linear sRGB for "
              "in-camera JPEGs), relative units")
-#: The colour space of each built-in method's radiance (``derender methods`` prints it).
-OUTPUT_SPACES = {
-    "debevec": _RENDERED,
-    "robertson": _RENDERED,
-    "stabilized": _RENDERED + ", in the reference frame's white balance",
-    "stabilized-joint": _RENDERED + ", in the bracket's average rendering",
-    "probabilistic": ("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix "
-                      "(option colour_space='camera_rgb' keeps camera RGB); scaled to exposure time 1 s"),
-    "stabilized-probabilistic": _RENDERED + ", in the reference frame's white balance",
-}
+_CLASSIC = "derender.hdr.classic"
+_STABILIZED = "derender.hdr.stabilize.method"
+
+#: Every merge method by name. The built-in ones are listed here, one line each, and imported on
+#: first use; a method defined elsewhere joins with :func:`register_method`.
+METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
+    MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:debevec_engine", gives_curves=True,
+               output_space=_RENDERED),
+    MethodSpec("robertson", f"{_CLASSIC}:merge_robertson", f"{_CLASSIC}:robertson_engine", gives_curves=True,
+               output_space=_RENDERED),
+    MethodSpec("stabilized", f"{_STABILIZED}:merge_stabilized", f"{_STABILIZED}:stabilized_engine",
+               output_space=_RENDERED + ", in the reference frame's white balance"),
+    MethodSpec("stabilized-joint", f"{_STABILIZED}:merge_stabilized_joint", f"{_STABILIZED}:stabilized_joint_engine",
+               output_space=_RENDERED + ", in the bracket's average rendering"),
+    MethodSpec("probabilistic", "derender.hdr.probabilistic:merge_probabilistic",
+               "derender.hdr.probabilistic:probabilistic_engine", gives_variance=True,
+               output_space=("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix (option "
+                             "colour_space='camera_rgb' keeps camera RGB); scaled to exposure time 1 s")),
+    MethodSpec("stabilized-probabilistic", "derender.hdr.stabilized_probabilistic:merge_stabilized_probabilistic",
+               "derender.hdr.stabilized_probabilistic:stabilized_probabilistic_engine",
+               output_space=_RENDERED + ", in the reference frame's white balance"),
+)}
 
 
 def register_method(name: str, gives_variance: bool = False, engine: Callable[[dict], Any] | None = None,
                     gives_curves: bool = False,
                     output_space: str | None = None) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
-    """Decorator registering ``fn(stack, **options) -> HDRResult`` under ``name``.
-
-    ``gives_variance``: its results carry a per-pixel variance; ``gives_curves``: response
-    curves (``result.info["curves"]``, what ``derender merge --plot`` draws). ``engine(options)``, if
-    given, makes the method's :class:`~derender.engine.plans.EngineMethod` from its
-    options (all of ``fn``'s keywords, defaults filled in): image files then run on the
-    engine (:func:`derender.hdr.files.merge_files`) instead of being read into memory.
-    ``output_space`` says in words which colour space the radiance is in (built-in methods:
-    :data:`OUTPUT_SPACES`)."""
+    """Decorator adding ``fn(stack, **options) -> HDRResult`` to :data:`METHODS` as ``name``
+    (a method defined outside the package; the fields are those of :class:`MethodSpec`)."""
 
     def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
-        fn.output_space = output_space or OUTPUT_SPACES.get(name, "not stated")
-        fn.gives_variance = bool(gives_variance)
-        fn.gives_curves = bool(gives_curves)
-        fn.engine_method = engine
-        MERGE_METHODS[name] = fn
+        METHODS[name] = MethodSpec(name, fn, engine, gives_variance=bool(gives_variance),
+                                   gives_curves=bool(gives_curves), output_space=output_space or "not stated")
         return fn
 
     return deco
@@ -105,25 +160,17 @@ def method_summary(fn: Callable[..., HDRResult]) -> str:
     return first.replace("``", "")
 
 
-def load_plugins() -> None:
-    """Import the modules of every built-in method (they register themselves)."""
-    for mod in dict.fromkeys(BUILTIN_METHODS.values()):
-        importlib.import_module(mod)
+def method_spec(method: str) -> MethodSpec:
+    """The :class:`MethodSpec` registered as ``method``; an :class:`InputError` lists the known ones."""
+    spec = METHODS.get(method)
+    if spec is None:
+        raise InputError(f"unknown merge method {method!r}; known: {', '.join(sorted(METHODS))}")
+    return spec
 
 
 def get_method(method: str) -> Callable[..., HDRResult]:
     """The merge function registered as ``method``; an :class:`InputError` lists the known ones."""
-    if method not in MERGE_METHODS:
-        mod = BUILTIN_METHODS.get(method)
-        if mod is not None:
-            importlib.import_module(mod)
-        else:
-            load_plugins()
-    fn = MERGE_METHODS.get(method)
-    if fn is None:
-        load_plugins()
-        raise InputError(f"unknown merge method {method!r}; known: {', '.join(sorted(MERGE_METHODS))}")
-    return fn
+    return method_spec(method).load()
 
 
 def method_options(method: str, options: dict) -> dict:
@@ -195,7 +242,7 @@ def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRRe
     from derender.engine.run import ArrayFrames, run
     from derender.engine.tables import stack_codes_exact
 
-    factory = getattr(fn, "engine_method", None)
+    factory = method_spec(method).engine_factory()
     if factory is None:
         raise InputError(f"merge method {method!r} runs outside the engine: reference, align and deghost "
                          "need a method with an engine form (derender methods lists them)")
@@ -204,10 +251,7 @@ def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRRe
         raise InputError("alignment and ghost removal need 8-bit images (every value a code / 255)")
     opts = method_options(method, options)
     try:
-        engine_method = factory(opts)
-        if engine_method is None:
-            raise NotStreamable("these options have no engine form")
-        return run(engine_method, ArrayFrames(codes, stack.times), motion=motion)
+        return run(factory(opts), ArrayFrames(codes, stack.times), motion=motion)
     except NotStreamable as exc:
         raise InputError(f"merge method {method!r} cannot align or remove ghosts with these options ({exc})") from None
 
@@ -221,7 +265,7 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
         The bracket: 8- or 16-bit images as float32 ``(N, H, W, 3)`` in [0, 1] and their
         exposure times (:func:`derender.io.images.read_stack` makes one from files).
     method : str
-        A name of :data:`MERGE_METHODS` (``derender methods`` lists them with their options).
+        A name of :data:`METHODS` (``derender methods`` lists them with their options).
     **options
         The method's keyword options (for text values, :func:`parse_options`); paper 2's
         methods need ``model`` (a :class:`~derender.derendering.base.DerenderModel` or a path).

@@ -32,7 +32,7 @@ from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess
 from derender.hdr.probabilistic import as_model
-from derender.hdr.registry import method_options, register_method
+from derender.hdr.registry import method_options
 from derender.hdr.stabilize.method import StabilizedMethod
 
 __all__ = [
@@ -106,11 +106,11 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
         result.info.setdefault("timings", {})["colour_weights_s"] = self.colour_s
 
 
-def _stabilized_probabilistic_engine(opts: dict):
+def stabilized_probabilistic_engine(opts: dict) -> StabilizedProbabilisticMethod:
+    """The engine form of :func:`merge_stabilized_probabilistic` (its registry entry's factory)."""
     return StabilizedProbabilisticMethod(opts)
 
 
-@register_method("stabilized-probabilistic", engine=_stabilized_probabilistic_engine)
 def merge_stabilized_probabilistic(stack: Stack, model: Any, reference: int | None = None, align: str = "mtb",
                                    seed: int = 0) -> HDRResult:
     """Both papers together: paper 1's stabilised merge weighted by paper 2's de-rendering variances.
@@ -135,11 +135,9 @@ def merge_stabilized_probabilistic(stack: Stack, model: Any, reference: int | No
 
     t0 = time.perf_counter()
     try:
-        method = StabilizedProbabilisticMethod(dict(model=model, reference=reference, align=align, seed=seed))
+        res = run_stack(StabilizedProbabilisticMethod(dict(model=model, reference=reference, align=align, seed=seed)),
+                        stack)
     except NotStreamable:
-        method = None
-    res = run_stack(method, stack) if method is not None else None
-    if res is None:
         return stabilized_probabilistic_stack(stack, model, reference=reference, align=align, seed=seed)
     res.info["merge_seconds"] = time.perf_counter() - t0
     return res

@@ -18,7 +18,7 @@ from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.matrix import matrix_output_bytes, merge_matrix_frames, warm_up_kernels
-from derender.engine.plans import FrameAccess, MatrixPlan
+from derender.engine.plans import FrameAccess, MatrixPlan, MethodDefaults
 from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
@@ -43,7 +43,7 @@ __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge"
 
 
 def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                    shifts: np.ndarray | None = None) -> MatrixPlan | None:
+                    shifts: np.ndarray | None = None) -> MatrixPlan:
     """Paper 1, Algorithm 1 step 4 as the engine's :class:`~derender.engine.plans.MatrixPlan`.
 
     Image ``j`` contributes ``H'_j L_j(z) / t_j`` with the per-channel table
@@ -52,8 +52,8 @@ def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = Tru
     channels: the smallest channel weight where some exposure has all channels usable,
     else the weight of the brightest channel; with ``noise_weighting`` times
     ``t_j^2 / mean_c (dL_j/dJ)^2`` (the reference engine also divides by the per-pixel
-    maximum over images, a common factor that cancels). None when there is no table form
-    (noise weighting without per-image curves)."""
+    maximum over images, a common factor that cancels). :class:`NotStreamable` when there is
+    no table form (noise weighting without per-image curves)."""
     times = np.asarray(stab.times, dtype=np.float64)
     n = times.shape[0]
     z3 = np.repeat(code_values()[:, None], 3, axis=1)
@@ -72,7 +72,7 @@ def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = Tru
         mats.append(m / times[j])
         if noise_weighting:
             if not curves:
-                return None
+                raise NotStreamable("noise weighting needs per-image curves")
             d2 = np.asarray(curves[j].dlin(z3), dtype=np.float64) ** 2
             ivs.append(d2.astype(np.float32) / np.float32(3.0))
             iks.append(times[j] ** 2 / t2max)          # common 1/t2max keeps float32 in range
@@ -93,19 +93,17 @@ def _merge_info(stab, weight: Any, noise_weighting: bool) -> dict:
 
 
 def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                           threads: int | None = None) -> HDRResult | None:
+                           threads: int | None = None) -> HDRResult:
     """:func:`stabilized_merge` of an in-memory :class:`Stabilization` on the engine's matrix
     kernel (:func:`~derender.engine.matrix.merge_matrix_frames`): one compiled pass per pixel,
     float32 sums (2e-7 to 4e-7 relative to the float64 reference engine), the registration
-    mask applied. None when the aligned images are not 8-bit codes (sub-pixel warps) or
-    there is no table form, so the caller keeps the reference engine."""
+    mask applied. :class:`NotStreamable` when the aligned images are not 8-bit codes
+    (sub-pixel warps) or there is no table form, so the caller keeps the reference engine."""
     al = stab.alignment
     codes = stack_codes_exact(al.images)
     if codes is None:
-        return None
+        raise NotStreamable("the aligned images are not 8-bit codes")
     plan = stabilized_plan(stab, weight, noise_weighting)
-    if plan is None:
-        return None
     valid = getattr(al, "valid", None)
     if valid is not None:
         valid = np.asarray(valid)
@@ -214,7 +212,7 @@ class LazyAlignment:
     info: dict
 
 
-class StabilizedMethod:
+class StabilizedMethod(MethodDefaults):
     """Paper 1's stabilised merge on the engine (methods ``"stabilized"`` and ``"stabilized-joint"``).
 
     Every frame is held once as 8-bit codes (72 MB per 24 MP frame, a quarter of the
@@ -228,7 +226,7 @@ class StabilizedMethod:
     """
 
     holds_frames = True
-    wants_histograms = False
+    output_bytes = staticmethod(matrix_output_bytes)
 
     def __init__(self, name: str, opts: dict):
         align = opts.get("align", "mtb")
@@ -236,7 +234,6 @@ class StabilizedMethod:
             raise NotStreamable(f"align={align!r} warps frames")
         self.name, self.opts, self.align = name, opts, align
         self.seed = int(opts.get("seed", 0))
-        self.output_bytes = matrix_output_bytes
         warm_up_kernels()
 
     def derive(self):
@@ -309,10 +306,7 @@ class StabilizedMethod:
                                  calibrate=calibrate, exposure_rounds=opts.get("exposure_rounds"))
         self.stab = stab
         self.align_s = t1 - t0
-        plan = stabilized_plan(stab, opts["weight"], opts["noise_weighting"], shifts=shifts)
-        if plan is None:
-            raise NotStreamable("no table form for these curves")
-        return plan
+        return stabilized_plan(stab, opts["weight"], opts["noise_weighting"], shifts=shifts)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update(_merge_info(self.stab, self.opts["weight"], self.opts["noise_weighting"]))
@@ -515,9 +509,11 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     from derender.engine.reference import merge_linear
     from derender.engine.weights import get_weight
 
-    fast = merge_stabilized_table(stab, weight, noise_weighting) if pixel_weights is None else None
-    if fast is not None:
-        return fast
+    if pixel_weights is None:
+        try:
+            return merge_stabilized_table(stab, weight, noise_weighting)
+        except NotStreamable:
+            pass
 
     wfun = get_weight(weight)
     al = stab.alignment
@@ -570,22 +566,37 @@ def stabilization_info(stab: Stabilization) -> dict:
     return info
 
 
-def _register(name: str):
-    from derender.hdr.registry import register_method
+def stabilized_engine(opts: dict) -> StabilizedMethod:
+    """The engine form of :func:`merge_stabilized` (its registry entry's factory)."""
+    return StabilizedMethod("stabilized", opts)
 
-    return register_method(name, engine=lambda opts: StabilizedMethod(name, opts))
+
+def stabilized_joint_engine(opts: dict) -> StabilizedMethod:
+    """The engine form of :func:`merge_stabilized_joint` (its registry entry's factory)."""
+    return StabilizedMethod("stabilized-joint", opts)
 
 
-def _on_engine(name: str, stack: Stack, opts: dict) -> HDRResult | None:
-    """The merge of an 8-bit stack on the engine (None: warped alignment or no 8-bit codes)."""
+def _merge_stabilized(name: str, stack: Stack, opts: dict) -> HDRResult:
+    """Both stabilised merges: on the engine for 8-bit stacks with translation-only alignment,
+    else (:class:`NotStreamable`) :func:`stabilize` + :func:`stabilized_merge` on the float
+    reference engine."""
     try:
-        method = StabilizedMethod(name, opts)
+        return run_stack(StabilizedMethod(name, opts), stack)
     except NotStreamable:
-        return None
-    return run_stack(method, stack)
+        pass
+    t0 = time.perf_counter()
+    stab = stabilize(stack, reference=opts["reference"], align=opts["align"],
+                     mode="joint" if name == "stabilized-joint" else "reference", response=opts["response"],
+                     gammas=opts["gammas"], use_times=opts["use_times"], path=opts.get("path", "auto"),
+                     block=opts["block"], max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"],
+                     seed=opts["seed"], exposure_rounds=opts["exposure_rounds"])
+    t1 = time.perf_counter()
+    res = stabilized_merge(stab, weight=opts["weight"], noise_weighting=opts["noise_weighting"])
+    res.info.update({"method": name, "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
+                                                     total_s=time.perf_counter() - t0)})
+    return res
 
 
-@_register("stabilized")
 def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "mtb", response: str = "auto",
                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
@@ -598,24 +609,12 @@ def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "m
     8-bit stacks with translation-only alignment run on the engine
     (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
     reference engine (:func:`stabilize` + :func:`stabilized_merge`), same numbers to 1e-5."""
-    res = _on_engine("stabilized", stack, dict(reference=reference, align=align, response=response, gammas=gammas,
-                                               use_times=use_times, path=path, weight=weight,
-                                               noise_weighting=noise_weighting, block=block, max_blocks=max_blocks,
-                                               ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds))
-    if res is not None:
-        return res
-    t0 = time.perf_counter()
-    stab = stabilize(stack, reference=reference, align=align, mode="reference", response=response, gammas=gammas,
-                     use_times=use_times, path=path, block=block, max_blocks=max_blocks,
-                     ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds)
-    t1 = time.perf_counter()
-    res = stabilized_merge(stab, weight=weight, noise_weighting=noise_weighting)
-    res.info.update({"method": "stabilized", "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
-                                                             total_s=time.perf_counter() - t0)})
-    return res
+    return _merge_stabilized("stabilized", stack, dict(
+        reference=reference, align=align, response=response, gammas=gammas, use_times=use_times, path=path,
+        weight=weight, noise_weighting=noise_weighting, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter,
+        seed=seed, exposure_rounds=exposure_rounds))
 
 
-@_register("stabilized-joint")
 def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: str = "mtb",
                            response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
                            weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
@@ -624,20 +623,7 @@ def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: st
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
     (:func:`joint_color_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
-    res = _on_engine("stabilized-joint", stack, dict(reference=reference, align=align, response=response,
-                                                     gammas=gammas, use_times=use_times, weight=weight,
-                                                     noise_weighting=noise_weighting, block=block,
-                                                     max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed,
-                                                     exposure_rounds=exposure_rounds))
-    if res is not None:
-        return res
-    t0 = time.perf_counter()
-    stab = stabilize(stack, reference=reference, align=align, mode="joint", response=response, gammas=gammas,
-                     use_times=use_times, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter,
-                     seed=seed, exposure_rounds=exposure_rounds)
-    t1 = time.perf_counter()
-    res = stabilized_merge(stab, weight=weight, noise_weighting=noise_weighting)
-    res.info.update({"method": "stabilized-joint",
-                     "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
-                                     total_s=time.perf_counter() - t0)})
-    return res
+    return _merge_stabilized("stabilized-joint", stack, dict(
+        reference=reference, align=align, response=response, gammas=gammas, use_times=use_times, weight=weight,
+        noise_weighting=noise_weighting, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed,
+        exposure_rounds=exposure_rounds))
