@@ -282,7 +282,7 @@ def test_select_reference_fewest_badly_exposed():
         S.stabilize(st, reference=7)
 
 
-def test_fit_color_matrix_recovers_matrix_despite_outliers():
+def test_fit_frame_matrix_recovers_matrix_despite_outliers():
     rng = np.random.default_rng(0)
     lin_src = rng.uniform(0.01, 0.4, size=(400, 3))      # keeps every destination code below 1
     h_true = np.array([[1.9, 0.15, -0.05], [0.1, 2.1, 0.05], [0.0, 0.2, 1.7]])
@@ -291,12 +291,12 @@ def test_fit_color_matrix_recovers_matrix_despite_outliers():
     dst = np.clip(lin_src @ h_true.T, 1e-6, None) ** (1 / g_dst)
     bad = rng.choice(400, 60, replace=False)
     dst[bad] = rng.uniform(0.1, 0.9, size=(60, 3))
-    h, inl = S.fit_color_matrix(src, dst, g_src, g_dst, seed=3, ridge=0.0)
+    h, inl = S.fit_frame_matrix(src, dst, g_src, g_dst, seed=3, ridge=0.0)
     np.testing.assert_allclose(h, h_true, atol=1e-3)
     assert inl[bad].sum() <= 2 and inl.sum() >= 330             # a random "outlier" may fall on the model
-    h2, _ = S.fit_color_matrix(src, dst, g_src, g_dst, seed=3, ridge=0.0)
+    h2, _ = S.fit_frame_matrix(src, dst, g_src, g_dst, seed=3, ridge=0.0)
     np.testing.assert_array_equal(h, h2)                            # seeded: byte-identical
-    h3, _ = S.fit_color_matrix(src, dst, g_src, g_dst, seed=3)      # default ridge: small bias
+    h3, _ = S.fit_frame_matrix(src, dst, g_src, g_dst, seed=3)      # default ridge: small bias
     np.testing.assert_allclose(h3, h_true, atol=0.03)
 
 
@@ -344,7 +344,7 @@ def test_blocks_gathered_without_full_copies_match_block_view():
     np.testing.assert_array_equal(blocks.valid, vfull[:, keep])
 
 
-def test_fit_color_matrix_scores_hypotheses_on_a_subset():
+def test_fit_frame_matrix_scores_hypotheses_on_a_subset():
     """Preemptive RANSAC: ranking on 300 of 3000 correspondences still finds H and all inliers."""
     rng = np.random.default_rng(6)
     lin_src = rng.uniform(0.01, 0.4, size=(3000, 3))
@@ -353,10 +353,10 @@ def test_fit_color_matrix_scores_hypotheses_on_a_subset():
     dst = np.clip(lin_src @ h_true.T, 1e-6, None) ** (1 / 2.4)
     bad = rng.choice(3000, 600, replace=False)
     dst[bad] = rng.uniform(0.1, 0.9, size=(600, 3))
-    h, inl = S.fit_color_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=300)
+    h, inl = S.fit_frame_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=300)
     np.testing.assert_allclose(h, h_true, atol=3e-3)      # a few random "outliers" fall on the model
     assert inl[bad].sum() <= 10 and inl.sum() >= 2350
-    h_all, inl_all = S.fit_color_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=3000)
+    h_all, inl_all = S.fit_frame_matrix(src, dst, 2.2, 2.4, seed=1, ridge=0.0, max_score=3000)
     np.testing.assert_allclose(h, h_all, atol=1e-6)       # same answer as ranking on all of them
     np.testing.assert_array_equal(inl, inl_all)
 

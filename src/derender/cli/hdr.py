@@ -26,6 +26,7 @@ from derender.cli.app import (
     read_stack_from_cli,
 )
 from derender.core.errors import InputError
+from derender.core.types import HDRResult
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
 
@@ -160,7 +161,6 @@ def merge_cmd(
 
     Every output is checked before any work and written as one transaction: on an error or
     an interruption none of them is left behind."""
-    import inspect
 
     import numpy as np
 
@@ -259,8 +259,8 @@ def merge_cmd(
             write_preview(preview_tmp, result.radiance, inputs=inputs)
         if mask_tmp is not None:
             m = np.zeros(result.mask.shape, np.uint8)
-            m[result.mask == 1] = 128
-            m[result.mask == 2] = 255
+            m[result.mask == HDRResult.MASK_BRIGHT] = 128
+            m[result.mask == HDRResult.MASK_DARK] = 255
             write_png(mask_tmp, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
         if ghost_tmp is not None:
             write_png(ghost_tmp, _ghost_png(result.ghosts, len(images)), inputs=inputs)
@@ -271,8 +271,8 @@ def merge_cmd(
         if report_tmp is not None:
             _merge_report(report_tmp, result, images, method, spot_reading is not None, view, inputs,
                           times=(parse_times(times) if times is not None else None, times_file, times_inverse))
-    n_bright = int((result.mask == 1).sum())
-    n_dark = int((result.mask == 2).sum())
+    n_bright = int((result.mask == HDRResult.MASK_BRIGHT).sum())
+    n_dark = int((result.mask == HDRResult.MASK_DARK).sum())
     n_clipped = result.info.get("n_clipped")
     clipped = f"{n_clipped} px clipped even in the shortest exposure; " if n_clipped is not None else ""
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "

@@ -110,9 +110,9 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
     group = plan.band_rows * nthreads        # a chunk: whole rounds of bands over the threads
     step = group * max(1, OVERLAP_ROWS // group)
-    rng = None
+    out_ring = None
     if ring and write is not None and fused is not None:
-        rng = OutputRing(h, w, step, lambda: (populated_zeros((step, w, 3), np.float32),
+        out_ring = OutputRing(h, w, step, lambda: (populated_zeros((step, w, 3), np.float32),
                                               populated_zeros((step, w, 3), np.float32)), writers=ring,
                          planar=False)
         radiance = variance = None
@@ -141,8 +141,8 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
 
     def run(y0: int, y1: int) -> None:
         if fused is not None:    # sums and moments in one compiled pass, no float64 band arrays
-            if rng is not None:
-                (rad, var), row0 = rng.slot(y0)
+            if out_ring is not None:
+                (rad, var), row0 = out_ring.slot(y0)
             else:
                 rad, var, row0 = radiance, variance, 0
             gaussian_moments_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
@@ -164,6 +164,6 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
         def chunk(c0: int, c1: int) -> None:
             run_bands(ex, nthreads, run, [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)])
 
-        merge_writing(h, step, chunk, res, write, ring=rng)
+        merge_writing(h, step, chunk, res, write, ring=out_ring)
     res.info["merge_seconds"] = time.perf_counter() - t0
     return res

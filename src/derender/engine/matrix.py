@@ -115,9 +115,9 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     bright = code_values() >= np.float32(0.5)
     if valid is None:
         valid = np.ones((n, 1, 1), dtype=np.uint8)
-    rng = None
+    out_ring = None
     if ring and write is not None:
-        rng = OutputRing(h, w, OVERLAP_ROWS, lambda: (populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32),))
+        out_ring = OutputRing(h, w, OVERLAP_ROWS, lambda: (populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32),))
         radiance = None
         mask = (buffer.reshape(-1)[:h * w].reshape(h, w) if buffer is not None and buffer.nbytes >= h * w
                 else populated_zeros((h, w), dtype=np.uint8))
@@ -138,15 +138,15 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
             use_iv, colour_w, use_cw, int(np.argmin(times)), int(np.argmax(times)), bright)
 
     def band(y0: int, y1: int) -> None:
-        if rng is not None:
-            (dst,), row0 = rng.slot(y0)
+        if out_ring is not None:
+            (dst,), row0 = out_ring.slot(y0)
         else:
             dst, row0 = radiance, 0
         with KERNEL_LOCK:
             set_numba_threads(threads)
             stabilized_merge_rows(*args, y0, y1, row0, dst, mask)
 
-    merge_writing(h, OVERLAP_ROWS, band, res, write, ring=rng)
+    merge_writing(h, OVERLAP_ROWS, band, res, write, ring=out_ring)
     info.update({"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
             "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
             "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),

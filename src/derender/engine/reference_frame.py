@@ -9,7 +9,7 @@ channel at or above :data:`REF_HIGH` (over-exposed) or at or below :data:`REF_LO
 bracket. The result depends on that choice (paper 1, Fig. 5): :func:`reasonable_references`
 lists the images usable as one, for
 :func:`derender.evaluation.table1.reference_spread` and the reference-free joint variant
-(:func:`derender.hdr.stabilize.colour_matrices.joint_color_matrices`).
+(:func:`derender.hdr.stabilize.colour_matrices.joint_colour_matrices`).
 """
 
 from __future__ import annotations

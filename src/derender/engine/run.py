@@ -212,9 +212,9 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
     br = plan.block_rows if plan.block_rows is not None else max(1, (1 << 16) // max(w, 1))
     # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
     step = max(br, (OVERLAP_ROWS // br) * br)
-    rng = None
+    out_ring = None
     if ring and write is not None:
-        rng = OutputRing(h, w, step, lambda: (populated_zeros((3, step, w), dtype=np.float32),))
+        out_ring = OutputRing(h, w, step, lambda: (populated_zeros((3, step, w), dtype=np.float32),))
         out = None
     else:
         out = populated_zeros((3, h, w), dtype=np.float32)
@@ -223,13 +223,13 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
     independent = plan.channel_weights == "independent"
     info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "engine": "table",
             "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
-    res = HDRResult(radiance=None if rng is not None else out.transpose(1, 2, 0), mask=mask, variance=None,
+    res = HDRResult(radiance=None if out_ring is not None else out.transpose(1, 2, 0), mask=mask, variance=None,
                     info=info)
     nthreads = thread_count(threads)
     with opencv_single_thread(), ThreadPoolExecutor(max(1, nthreads), thread_name_prefix="derender-exp") as ex:
         def band(y0: int, y1: int) -> None:
-            if rng is not None:
-                (dst,), row0 = rng.slot(y0)
+            if out_ring is not None:
+                (dst,), row0 = out_ring.slot(y0)
             else:
                 dst, row0 = out, 0
 
@@ -247,7 +247,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
                                  values[n - 1], 0, n - 1, bright, y0, y1, row0, dst, mask)
             run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
 
-        merge_writing(h, step, band, res, write, ring=rng)
+        merge_writing(h, step, band, res, write, ring=out_ring)
     info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
     info["n_dark"] = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
     return res

@@ -22,7 +22,6 @@ the shortest frame are reported on their own: their value is a bound, not a meas
 
 from __future__ import annotations
 
-import inspect
 from typing import Any
 
 import numpy as np

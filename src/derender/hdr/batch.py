@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from derender.core.errors import DerenderError, InputError
+from derender.core.types import HDRResult
 
 __all__ = [
     "stack_files",
@@ -49,8 +50,8 @@ def merge_one_stack(folder: str, outdir: str, method: str, seed: int = 0, half: 
     except DerenderError as exc:
         return {"stack": name, "ok": False, "error": str(exc)}
     return {"stack": name, "ok": True, "output": str(out), "seconds": time.perf_counter() - t0,
-            "shape": list(result.mask.shape[:2]), "over_exposed_px": int((result.mask == 1).sum()),
-            "under_exposed_px": int((result.mask == 2).sum())}
+            "shape": list(result.mask.shape[:2]), "over_exposed_px": int((result.mask == HDRResult.MASK_BRIGHT).sum()),
+            "under_exposed_px": int((result.mask == HDRResult.MASK_DARK).sum())}
 
 
 def merge_batch(folders: Sequence[str | os.PathLike], outdir: str | os.PathLike, method: str = "debevec",

@@ -27,9 +27,9 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
+from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
-from derender.engine.frames import NotStreamable
 from derender.engine.run import run_stack
 from derender.engine.tables import curve_value_tables, weight_table
 from derender.response.curves import (
@@ -81,8 +81,8 @@ class DebevecMethod(MethodDefaults):
         check_usable_samples(samples, access.histograms)
         curves = self.curves
         if curves is None:
-            curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, self.lam,
-                                                    self.n_samples, self.sampling, self.seed,
+            curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, lam=self.lam,
+                                                    n_samples=self.n_samples, sampling=self.sampling, seed=self.seed,
                                                     balance=self.sampling == "grid", tie=self.tie)
         self.fitted = curves
         return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
@@ -138,32 +138,33 @@ class RobertsonMethod(MethodDefaults):
 ROBERTSON_CHANNEL_WEIGHTS = "independent"
 
 
-def robertson_weight_table(curves, weight: Any) -> np.ndarray:
-    """(256, 3) float32 weights of the ML merge on 8-bit codes: ``noise_weights`` of ``curves`` at the codes."""
-    from derender.engine.tables import code_values
+def _robertson_level_weights(curves, weight: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The ML merge's weights at the curves' levels: ``(levels in [0, 1], (L, 3) weights)``
+    (:func:`~derender.response.robertson2003.noise_weights`)."""
     from derender.response.curves import level_weights
     from derender.response.robertson2003 import noise_weights
 
     w = noise_weights(curves.log_inverse, level_weights(weight, curves.n_levels))
-    lv = np.linspace(0.0, 1.0, curves.n_levels)
+    return np.linspace(0.0, 1.0, curves.n_levels), w
+
+
+def robertson_weight_table(curves, weight: Any) -> np.ndarray:
+    """(256, 3) float32 weights of the ML merge on 8-bit codes: ``noise_weights`` of ``curves`` at the codes."""
+    from derender.engine.tables import code_values
+
+    lv, w = _robertson_level_weights(curves, weight)
     z = code_values().astype(np.float64)
     return np.ascontiguousarray(np.stack([np.interp(z, lv, w[:, c]) for c in range(3)], -1), dtype=np.float32)
 
 
 def _robertson_weight_fn(curves, weight: Any) -> Callable[[int, np.ndarray], np.ndarray]:
-    """``(j, block) -> weights`` of the ML merge for :func:`merge_linear` (any bit depth)."""
-    from derender.response.curves import level_weights
-    from derender.response.robertson2003 import noise_weights
-
-    w = noise_weights(curves.log_inverse, level_weights(weight, curves.n_levels))
-    lv = np.linspace(0.0, 1.0, curves.n_levels)
+    """``(j, block) -> weights`` of the ML merge for :func:`merge_linear` (any bit depth; the
+    channels share them or not as :data:`ROBERTSON_CHANNEL_WEIGHTS` tells the merge)."""
+    lv, w = _robertson_level_weights(curves, weight)
 
     def fn(j: int, block: np.ndarray) -> np.ndarray:
         b = np.clip(np.asarray(block, dtype=np.float64), 0.0, 1.0)
-        out = np.stack([np.interp(b[..., c], lv, w[:, c]) for c in range(3)], -1)
-        if ROBERTSON_CHANNEL_WEIGHTS == "mean":
-            out = np.repeat(out.mean(axis=-1, keepdims=True), 3, axis=-1)
-        return out.astype(np.float32)
+        return np.stack([np.interp(b[..., c], lv, w[:, c]) for c in range(3)], -1).astype(np.float32)
 
     return fn
 
@@ -294,5 +295,5 @@ def merge_robertson(
         curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed,
                                      tie=method.tie)
     return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
-                            weight_fn=_robertson_weight_fn(curves, weight), channel_weights="independent",
+                            weight_fn=_robertson_weight_fn(curves, weight), channel_weights=ROBERTSON_CHANNEL_WEIGHTS,
                             domain="linear")

@@ -25,7 +25,7 @@ from derender.core.errors import InputError
 from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import NotStreamable
 from derender.engine.run import FileFrames, run, write_outputs
-from derender.hdr.registry import method_options, method_spec, merge_seeded
+from derender.hdr.registry import merge_seeded, method_options, method_spec
 from derender.io.exif import file_times
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from derender.core.errors import InputError
+from derender.core.types import HDRResult
 from derender.photometry.illuminance import luminance_cd_m2
 
 __all__ = ["Spot", "parse_spot", "SpotCalibration", "spot_factor"]
@@ -73,8 +74,8 @@ def spot_factor(radiance: np.ndarray, spot: Spot, primaries=None, mask: np.ndarr
         raise InputError(f"--spot rectangle {spot.x},{spot.y},{spot.width},{spot.height} lies outside the "
                          f"{w}x{h} image")
     ys, xs = slice(spot.y, spot.y + spot.height), slice(spot.x, spot.x + spot.width)
-    if mask is not None and np.any(np.asarray(mask)[ys, xs] == 1):
-        n = int(np.count_nonzero(np.asarray(mask)[ys, xs] == 1))
+    if mask is not None and np.any(np.asarray(mask)[ys, xs] == HDRResult.MASK_BRIGHT):
+        n = int(np.count_nonzero(np.asarray(mask)[ys, xs] == HDRResult.MASK_BRIGHT))
         raise InputError(f"--spot rectangle holds {n} pixel(s) over-exposed in every frame; a photometric "
                          "factor needs a well-exposed region")
     lum = luminance_cd_m2(rad[ys, xs], primaries)

@@ -42,33 +42,45 @@ __all__ = [
 ]
 
 
-def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray],
-                            lam: float, n_samples: int, sampling: str, seed: int, balance: bool = False,
-                            tie: float = 0.0):
-    """:func:`derender.response.calibrate_debevec` (hat weights, monotonic) from pre-drawn samples.
+def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray], *,
+                                   lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
+                                   sampling: str = "grid", seed: int = 0, balance: bool = False,
+                                   tie: float = 0.0) -> ResponseCurves:
+    """:func:`calibrate_debevec` (hat weights, monotonic) from pre-drawn samples (N, P, 3).
 
-    ``balance``: offset R and B so that neutral colours stay neutral
+    ``hists_fn()`` gives the per-image code histograms (N, 3, 256), read only when some channel
+    has no usable code among the samples (histogram samples are then added). ``balance``:
+    offset R and B so that neutral colours stay neutral
     (:func:`~derender.response.curves.balance_channels` on ``samples``; needs grid samples:
     every channel of a sample from the same pixel). ``tie``: weight of the channel tie of
     :func:`solve_debevec_tied` (0: channels solved independently, the paper).
     """
-    from derender.response.curves import ResponseCurves, make_monotonic
+    return _calibrate(samples, times, lambda: histogram_samples(hists_fn(), n_samples), lam=lam,
+                      n_samples=n_samples, sampling=sampling, seed=seed, weights="hat", n_levels=N_CODES,
+                      monotonic=True, balance=balance, tie=tie)
 
+
+def _calibrate(samples: np.ndarray, times: np.ndarray, extra_fn: Callable[[], np.ndarray], *, lam: float,
+               n_samples: int, sampling: str, seed: int, weights: Any, n_levels: int, monotonic: bool,
+               balance: bool, tie: float) -> ResponseCurves:
+    """The one body of :func:`calibrate_debevec` and :func:`calibrate_debevec_from_samples`:
+    ``extra_fn()`` gives histogram samples for a channel the samples miss."""
     if lam < 0 or not np.isfinite(lam):
         raise InputError(f"lambda must be a non-negative number, got {lam}")
     log_t = np.log(times)
     per_channel = []
     for c in range(3):
         zc = samples[:, :, c]
-        if not np.any((zc > 0) & (zc < N_CODES - 1)):
-            extra = histogram_samples(hists_fn(), n_samples)[:, :, c]
-            zc = np.concatenate([zc, extra], axis=1)
+        if not np.any((zc > 0) & (zc < n_levels - 1)):
+            zc = np.concatenate([zc, extra_fn()[:, :, c]], axis=1)
         per_channel.append(zc)
-    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights="hat", n_levels=N_CODES, tie=tie)
+    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
     fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
-    g = make_monotonic(g)
+    if monotonic:
+        g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
-              "weights": "hat", "monotonic_fixed": fixed, "tie": float(tie)}
+              "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed,
+              "tie": float(tie)}
     if balance:
         g, info = balance_channels(g, samples, mode="grey-axis" if tie > 0 else "neutral")
         params.update(info)
@@ -221,22 +233,7 @@ def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int 
         raise InputError(f"lambda must be a non-negative number, got {lam}")
     check_usable(stack, n_levels)
     samples = sample_pixels(stack, n_samples=n_samples, method=sampling, seed=seed, n_levels=n_levels)
-    log_t = np.log(stack.times)
-    per_channel = []
-    for c in range(3):
-        zc = samples[:, :, c]
-        if not np.any((zc > 0) & (zc < n_levels - 1)):
-            extra = sample_pixels(stack, n_samples=n_samples, method="histogram", n_levels=n_levels)[:, :, c]
-            zc = np.concatenate([zc, extra], axis=1)
-        per_channel.append(zc)
-    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
-    fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
-    if monotonic:
-        g = make_monotonic(g)
-    params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
-              "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed,
-              "tie": float(tie)}
-    if balance:
-        g, info = balance_channels(g, samples, mode="grey-axis" if tie > 0 else "neutral")
-        params.update(info)
-    return ResponseCurves(log_inverse=g, method="debevec", params=params)
+    return _calibrate(samples, stack.times,
+                      lambda: sample_pixels(stack, n_samples=n_samples, method="histogram", n_levels=n_levels),
+                      lam=lam, n_samples=n_samples, sampling=sampling, seed=seed, weights=weights, n_levels=n_levels,
+                      monotonic=monotonic, balance=balance, tie=tie)

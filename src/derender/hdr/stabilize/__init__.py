@@ -21,7 +21,7 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   pixels (:func:`unclipped_debevec`; beyond Debevec & Malik, per-frame exposure offsets
   re-estimated with the curve, :data:`CURVE_EXPOSURE_ROUNDS`). A quick search runs first and sends clearly filmic
   brackets to the curve straight away (:data:`SCREEN_TREND`).
-* Step 3.2, :mod:`.colour_matrices` -- :func:`fit_color_matrix` / :func:`color_matrices_to_reference`:
+* Step 3.2, :mod:`.colour_matrices` -- :func:`fit_frame_matrix` / :func:`colour_matrices_to_reference`:
   H_j by weighted least squares inside a seeded RANSAC, clipped and dark pixels left out
   (eq. 9-10). **The exposure ratio is absorbed in H_j** (as the paper does after eq. 9):
   H_j maps image j's linear values onto the reference's, so the stabilised images
@@ -40,7 +40,7 @@ matrices use, are in :mod:`.pair_fit`; the scalar searches (Brent's methods) in
 :mod:`.solvers`.
 
 Beyond the paper (its Fig. 5: the result depends on the reference):
-:func:`joint_color_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
+:func:`joint_colour_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
 all (method ``"stabilized-joint"``). Pipelines that render a sensor-clipped pixel below
@@ -53,7 +53,7 @@ from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "blocks": ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"],
-    "colour_matrices": ["fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices"],
+    "colour_matrices": ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
     "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"],

@@ -3,8 +3,8 @@
 Linearised images are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
 ``H_j = A_ref A_j^-1``. The paper solves the overdetermined system of corresponding pixels
 by least squares, "discarding over and under-exposed pixels", inside RANSAC:
-:func:`fit_color_matrix` (weighted least squares in a seeded RANSAC, code-domain error,
-block means of :mod:`.blocks`). :func:`color_matrices_to_reference` fits every image
+:func:`fit_frame_matrix` (weighted least squares in a seeded RANSAC, code-domain error,
+block means of :mod:`.blocks`). :func:`colour_matrices_to_reference` fits every image
 against the reference directly, or composes neighbouring pairs towards it when the pair
 shares too few well-exposed blocks. **The exposure ratio is absorbed in H_j** (as the
 paper does after eq. 9): the stabilised images ``I'_j = H_j L_j`` (eq. 10) are all in the
@@ -12,7 +12,7 @@ reference's exposure and colour rendering, and the merge divides by ``t_ref``; w
 times and gain changes therefore do not bias the colours.
 
 Beyond the paper (its Fig. 5: the result depends on the reference):
-:func:`joint_color_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
+:func:`joint_colour_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
 all (method ``"stabilized-joint"``).
@@ -30,13 +30,13 @@ from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve, as_curve
 from derender.hdr.stabilize.pair_fit import RIDGE, effective_codes, fit_pair, pair_weights, predict_codes
 
-__all__ = ["fit_color_matrix", "color_matrices_to_reference", "joint_color_matrices"]
+__all__ = ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"]
 
 
 _W = LUMINANCE_WEIGHTS_REC709
 
 
-def fit_color_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "float | Curve",
+def fit_frame_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "float | Curve",
                      gamma_dst: "float | Curve",
                      n_iter: int = 100, sample: int = 4, threshold: float | None = None,
                      seed: int = 0, ridge: float | None = None,
@@ -123,7 +123,7 @@ def _neighbour_matrix(blocks: Blocks, j: int, a: int, gammas, low: float, high: 
     jj, ja = _pair_effective(blocks, j, a, gammas, low, high, floor)
     if jj.shape[0] < 8:
         return None
-    h, _ = fit_color_matrix(jj, ja, gammas[j], gammas[a], n_iter=n_iter, seed=seed + 101 * j + a)
+    h, _ = fit_frame_matrix(jj, ja, gammas[j], gammas[a], n_iter=n_iter, seed=seed + 101 * j + a)
     return h if _plausible_matrix(h) else None
 
 
@@ -156,12 +156,12 @@ def _pair_graph(blocks: Blocks, gammas: np.ndarray, n: int, low: float, high: fl
             jj, jk = _pair_effective(blocks, j, k, gammas, low, high, floor)
             if jj.shape[0] < min_blocks:
                 continue
-            h, inl = fit_color_matrix(jj, jk, gammas[j], gammas[k], n_iter=n_iter, seed=seed + 31 * j + k)
+            h, inl = fit_frame_matrix(jj, jk, gammas[j], gammas[k], n_iter=n_iter, seed=seed + 31 * j + k)
             out[(j, k)] = (h, jj[inl], jk[inl])
     return out
 
 
-def color_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int, low: float = FIT_LOW,
+def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int, low: float = FIT_LOW,
                                 high: float = FIT_HIGH, floor: float = FIT_FLOOR, min_blocks: int = 12,
                                 path: str = "auto", seed: int = 0, n_iter: int = 100,
                                 times: np.ndarray | None = None) -> tuple[np.ndarray, list]:
@@ -192,7 +192,7 @@ def color_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int
             else:
                 need = max(4 * min_blocks, int(0.5 * blocks.pair(j, a, low, high, floor).sum()))
             if jj.shape[0] >= need:
-                h, _ = fit_color_matrix(jj, jr, gammas[j], gammas[reference], n_iter=n_iter,
+                h, _ = fit_frame_matrix(jj, jr, gammas[j], gammas[reference], n_iter=n_iter,
                                         seed=seed + 101 * j + reference)
                 if path == "direct" or _plausible_matrix(h):
                     mats[j] = h
@@ -215,7 +215,7 @@ def color_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int
     return mats, how
 
 
-def joint_color_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray, low: float = FIT_LOW,
+def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray, low: float = FIT_LOW,
                          high: float = FIT_HIGH, floor: float = FIT_FLOOR, min_blocks: int = 12,
                          max_gap: int = 2, seed: int = 0, n_iter: int = 100) -> np.ndarray:
     """Reference-free colour matrices: K_j (N, 3, 3) such that ``K_j L_j / t_j`` agree on every

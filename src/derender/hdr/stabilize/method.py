@@ -23,7 +23,7 @@ from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
-from derender.hdr.stabilize.colour_matrices import color_matrices_to_reference, joint_color_matrices
+from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference, joint_colour_matrices
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
 from derender.hdr.stabilize.filmic import (
@@ -296,8 +296,8 @@ class StabilizedMethod(MethodDefaults):
             def aligned_hists() -> np.ndarray:
                 return np.stack([code_histograms(np.ascontiguousarray(view.codes(j))) for j in range(n)])
 
-            return calibrate_debevec_from_samples(samples, t, aligned_hists, DEFAULT_LAMBDA, DEFAULT_SAMPLES, "grid",
-                                                  seed, tie=CURVE_TIE)
+            return calibrate_debevec_from_samples(samples, t, aligned_hists, lam=DEFAULT_LAMBDA,
+                                                  n_samples=DEFAULT_SAMPLES, sampling="grid", seed=seed, tie=CURVE_TIE)
 
         mode = "joint" if self.name == "stabilized-joint" else "reference"
         stab = stabilize_aligned(al, t, mode=mode, response=opts["response"], gammas=opts["gammas"],
@@ -474,10 +474,10 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
             info["response"] = "curve"
     t2 = time.perf_counter()
     if mode == "reference":
-        mats, how = color_matrices_to_reference(blocks, curves, ref, low=low, high=high, floor=floor,
+        mats, how = colour_matrices_to_reference(blocks, curves, ref, low=low, high=high, floor=floor,
                                                 path=path, seed=seed, n_iter=ransac_iter, times=times)
     else:
-        mats = joint_color_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
+        mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
                                     n_iter=ransac_iter)
         how = ["joint"] * n
     t3 = time.perf_counter()
@@ -621,7 +621,7 @@ def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: st
                            max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
                            exposure_rounds: int | None = None) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
-    (:func:`joint_color_matrices`); ``reference`` only chooses the registration target.
+    (:func:`joint_colour_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
     return _merge_stabilized("stabilized-joint", stack, dict(
         reference=reference, align=align, response=response, gammas=gammas, use_times=use_times, weight=weight,
