@@ -1,6 +1,7 @@
 """De-rendering models, common part: p(raw camera colour | 8-bit rendered colour).
 
-Paper 2 (``papers/probabilistic-color-derendering.txt``), Sec. 2.2 and 4.1, learns from
+Paper 2 (Xiong et al., CVPR 2012, "From pixels to physics: probabilistic color
+de-rendering"), Sec. 2.2 and 4.1, learns from
 calibration pairs (rendered code ``y``, raw camera colour ``x``) a predictive
 distribution of ``x`` given ``y``. One module per published method, each a
 :class:`DerenderModel`:

@@ -1,6 +1,7 @@
 """The offline local Gaussian process of paper 2 (Sec. 2.2 and 4): method ``"gp"``.
 
-Paper 2 (``papers/probabilistic-color-derendering.txt``), Sec. 4: k-means (k = 10) on
+Paper 2 (Xiong et al., CVPR 2012, "From pixels to physics: probabilistic color
+de-rendering"), Sec. 4: k-means (k = 10) on
 the rendered inputs ``y = code / 255``, one GP per cluster and output channel (eq. 1,
 ``x^c = z^c(y) + eps``), squared-exponential kernel with automatic relevance
 determination (one length-scale per input channel) plus white noise,
@@ -282,36 +283,57 @@ def _map_threads(fn, items: list, n_jobs: int) -> list:
 class LocalGPModel(DerenderModel):
     """Offline local GP de-rendering (paper 2, Sec. 2.2 and 4): k-means + per-cluster ARD-SE GPs.
 
-    Target ``t = log(max(raw, 0) + eps)`` per channel, standardised per cluster. Each
-    GP has an ARD squared-exponential kernel (length-scale per input channel) and
-    white noise, hyper-parameters by maximum likelihood. With ``heteroscedastic=True``
-    (default) the noise variance varies with the input colour (most-likely
-    heteroscedastic GP, Kersting et al. 2007): leave-one-out residuals of the first
-    ML fit give a GP over log noise variance, and the hyper-parameters are refitted by
-    maximum likelihood with that noise shape. This keeps clipped colours (which are
-    one-to-many, paper 2 Sec. 2.1) from inflating the noise of well-determined ones.
+    Target ``t = log(max(raw, 0) + eps)`` per channel, standardised per cluster. Each GP has an
+    ARD squared-exponential kernel (a length-scale per input channel) and white noise,
+    hyper-parameters by maximum likelihood. With ``heteroscedastic=True`` the noise variance
+    varies with the input colour (most-likely heteroscedastic GP, Kersting et al. 2007):
+    leave-one-out residuals of the first ML fit give a GP over log noise variance, and the
+    hyper-parameters are refitted by maximum likelihood with that noise shape, so clipped
+    colours (one-to-many, paper 2 Sec. 2.1) do not inflate the noise of well-determined ones.
+    Why each default is what it is, with the measurements, is in ``docs/paper2.md``
+    ("Models").
 
-    Parameters: ``n_clusters`` (k = 10), ``n_train`` (5000 pairs, random subset if more),
-    ``max_cluster_points`` (cap on a cluster's GP size; a larger cluster is subsampled),
-    ``opt_points`` (random subset per cluster used for the maximum-likelihood search;
-    the final GP uses all its cluster points; 500 covers every clipped cluster of a chart
-    session -- with 300 the ML search on a subset of a nearly uninformative clipped
-    cluster sometimes picked a 1-code length-scale and the relative RMSE of the clipped
-    colours varied from 0.48 to 0.54 with the seed), ``eps_rel`` (log offset relative to
-    ``raw_white``), ``table_size`` (nodes per axis of the prediction table, see
-    :func:`table_nodes`; 0 = always exact), ``heteroscedastic``, ``clip_code`` (colours
-    whose largest code is >= this form their own clusters; the share of the k clusters
-    follows their share of the data), ``clip_patterns`` (off by default: clipped colours
-    clustered per clip pattern, at least one cluster per pattern with 20+ training colours,
-    rarer patterns training with the nearest clipped cluster; measured with 5000 chart
-    pairs: derender-table S90 relative RMSE 0.233 on vs 0.232 off, 5D II and D5100
-    unchanged, but photometric stereo on the S90 sphere 5.17 vs 4.84 degrees), ``input_warp`` (0: inputs ``code / 255`` as
-    in the paper; ``a > 0``: inputs ``log(1 + srgb_decode(code/255) / a)``, normalised,
-    which spreads near-black codes -- measured on the S90 chart with a = 3e-3: relative
-    RMSE of near-black colours 0.40 -> 0.34, all colours 0.233 -> 0.230, but on the unit
-    tests' synthetic camera the noise GP then gave log-variances above 30 near
-    near-zero raw channels, so it is off by default), ``n_jobs`` (threads for fitting), ``seed``.
-    Defaults fit 5000 pairs in about 5 s of CPU time (2-3 s wall on 2 idle cores).
+    Parameters
+    ----------
+    n_clusters : int
+        k of the k-means (paper 2: 10).
+    n_train : int
+        Training pairs (a random subset when there are more).
+    max_cluster_points : int
+        A cluster's GP size at most (a larger cluster is subsampled).
+    opt_points : int
+        Points per cluster for the maximum-likelihood search (the final GP uses all its
+        cluster's points).
+    eps_rel : float
+        The log offset ``eps``, relative to the raw white level.
+    table_size : int
+        Nodes per axis of the prediction table (:func:`table_nodes`; 0: always exact).
+    heteroscedastic : bool
+        Input-dependent noise (above).
+    clip_code : float
+        Colours whose largest code is at least this form their own clusters, their share of
+        the k clusters following their share of the data.
+    clip_patterns : bool
+        Clipped colours clustered per clip pattern (at least one cluster per pattern with 20+
+        training colours; rarer patterns train with the nearest clipped cluster).
+    input_warp : float
+        0: inputs ``code / 255`` as in the paper; ``a > 0``: inputs
+        ``log(1 + srgb_decode(code / 255) / a)``, normalised (spreads near-black codes).
+    n_jobs : int, optional
+        Threads for fitting (None: every CPU).
+    seed : int
+        Seeds the subsets and the k-means.
+    metadata : dict, optional
+        Stored with the model (camera, illuminants, matrices).
+
+    References
+    ----------
+    .. [1] Y. Xiong, K. Saenko, T. Darrell, T. Zickler, "From pixels to physics: Probabilistic
+       color de-rendering", CVPR 2012, Sec. 2.2 and 4.
+    .. [2] C. E. Rasmussen, C. K. I. Williams, "Gaussian Processes for Machine Learning", MIT
+       Press 2006, eqs. 2.25-2.26, 2.30, 5.8-5.9.
+    .. [3] K. Kersting, C. Plagemann, P. Pfaff, W. Burgard, "Most likely heteroscedastic
+       Gaussian process regression", ICML 2007. doi:10.1145/1273496.1273546
     """
 
     method = "gp"

@@ -584,27 +584,54 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     """Merge ``source`` with ``method`` (see the module docstring); optionally write the
     radiance to ``output`` and the variance to ``variance_output`` (OpenEXR).
 
-    ``hold_outputs=False`` (with ``output``): where the merge writes while merging (held
-    frames merged by a compiled kernel), the outputs go through a ring of band buffers
-    (:class:`~derender.engine.overlap.OutputRing`) straight into the files and are never
-    held whole: the result's ``radiance`` (and ``variance``) are then None, its mask and
-    info as usual (9 x 24 MP: 288 MB less memory per output). Elsewhere the outputs are
-    held as usual.
-
-    ``order_hint`` (for user input): check while decoding that the images brighten with
-    their exposure times (:func:`derender.core.types.check_brightness_order`), the hint
-    ending the error message.
-
-    ``motion`` (:class:`~derender.engine.motion.MotionOptions`): a reference frame, alignment
-    or ghost removal; when it asks for any, every frame is held and
-    :func:`derender.engine.motion.run_motion` merges (``info["engine_path"]`` ``"motion"``).
-
     Streamed methods hold every frame (decoded once, merged by a compiled kernel:
-    :func:`_run_streamed_held`) when ``keep_frames`` is None and the bracket's codes fit
-    in ``hold_bytes`` (and, with the outputs, in half the available memory); otherwise they
-    stream in two passes, ``keep_frames`` frames held between the passes (default: as many
-    as fit in ``keep_bytes``, at least 1). Raises
-    :class:`~derender.engine.frames.NotStreamable` for inputs without 8-bit codes.
+    :func:`_run_streamed_held`) when ``keep_frames`` is None and the bracket's codes fit in
+    ``hold_bytes`` (and, with the outputs, in half the available memory); otherwise they
+    stream in two passes. Held methods (:attr:`EngineMethod.holds_frames`) read every frame
+    once (:func:`_run_held`).
+
+    Parameters
+    ----------
+    method : EngineMethod
+        What to merge with: its plan (tables, matrices or Gaussians) from the frames.
+    source : FileFrames or ArrayFrames
+        The bracket's 8-bit frames and exposure times.
+    threads : int, optional
+        Decoding and merging threads (None: every CPU).
+    keep_frames, keep_bytes : int
+        Frames a two-pass stream keeps between its passes (default: as many as fit in
+        ``keep_bytes``, at least 1).
+    hold_bytes : int
+        The largest bracket of codes a streamed method holds whole.
+    output, variance_output : path-like, optional
+        OpenEXR files for the radiance and the variance (``half``, ``compression``), written
+        atomically and never over one of ``inputs``.
+    order_hint : str, optional
+        For user input: check while decoding that the images brighten with their exposure
+        times (:func:`derender.core.types.check_brightness_order`); the hint ends the error.
+    hold_outputs : bool
+        False (with ``output``): where the merge writes while merging (held frames merged by a
+        compiled kernel), the outputs go through a ring of band buffers
+        (:class:`~derender.engine.overlap.OutputRing`) straight into the files and are never
+        held whole (9 x 24 MP: 288 MB less memory per output); the result's ``radiance``
+        (and ``variance``) are then None.
+    motion : MotionOptions, optional
+        A reference frame, alignment or ghost removal
+        (:class:`~derender.engine.motion.MotionOptions`); when it asks for any, every frame
+        is held and :func:`derender.engine.motion.run_motion` merges
+        (``info["engine_path"]`` ``"motion"``).
+
+    Returns
+    -------
+    HDRResult
+        Radiance, mask, variance (Gaussian plans), info (timings, ``n_clipped``, the
+        method's own entries).
+
+    Raises
+    ------
+    NotStreamable
+        Inputs without 8-bit codes, or a method with no engine form for them: the caller
+        falls back to the float reference engine.
     """
     t0 = time.perf_counter()
     if motion is not None and motion.active:

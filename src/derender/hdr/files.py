@@ -42,21 +42,56 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 **options: Any) -> HDRResult:
     """Merge image files into a radiance map; optionally write ``output`` (and ``variance_output``), .exr.
 
-    A folder among ``paths`` stands for the images in it
-    (:func:`derender.io.files.expand_image_paths`).
-    Times as :func:`derender.io.images.read_stack` (``times`` in the order of ``paths``,
-    else ``times_file``, else EXIF). ``options`` are the method's (as
-    :func:`derender.hdr.registry.merge` takes them); ``threads``, ``keep_frames`` and
-    ``keep_bytes`` go to the engine, as do ``reference`` (an index among ``paths`` as given,
-    from 0), ``align`` and ``deghost`` (:func:`derender.hdr.registry.split_motion`,
-    :mod:`derender.engine.motion`). Every file's header is read before any pixel
-    (:func:`derender.io.headers.probe_images`: truncated files, sizes above
-    ``max_megapixels`` megapixels and stacks that need more memory than is available are
-    refused first). The result equals ``merge(read_stack(paths), method,
-    ...)``. The radiance may be an (H, W, 3) view of planar float32 memory.
-    ``hold_outputs=False`` (with ``output``): the outputs may go from the merge straight into
-    the files through band buffers, never held whole (:func:`derender.engine.run.run`); the
-    result's ``radiance`` and ``variance`` are then None (``info["outputs_held"]`` False).
+    Every file's header is read before any pixel (:func:`derender.io.headers.probe_images`):
+    truncated files, sizes above ``max_megapixels`` and stacks that need more memory than is
+    available are refused first. Methods with an engine form run on the engine
+    (:func:`derender.engine.run.run`: 8-bit frames decoded in threads, streamed or held);
+    others read the stack into memory and call :func:`derender.hdr.registry.merge`. The
+    result equals ``merge(read_stack(paths), method, ...)``.
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The bracket's images (JPEG, PNG, TIFF, HEIC, AVIF); a folder stands for the images in
+        it (:func:`derender.io.files.expand_image_paths`).
+    times : sequence of float, optional
+        Exposure times in seconds, in the order of ``paths``; else ``times_file``, else EXIF
+        (``t S / N^2`` relative to the first frame when aperture or ISO vary).
+    method : str
+        A name of :data:`~derender.hdr.registry.METHODS`.
+    times_file, times_file_inverse
+        A text file of times (one per image), or of ``1/t`` with ``times_file_inverse``.
+    output, variance_output : path-like, optional
+        OpenEXR files for the radiance and (methods that give one) its variance, written
+        atomically; ``half`` stores half floats, ``compression`` names the EXR compression.
+    inputs : iterable of path-like
+        Further input files the outputs must not overwrite.
+    threads, keep_frames, keep_bytes
+        The engine's decoding threads, and the frames a streamed method keeps between its
+        two passes (default: as many as fit in ``keep_bytes``).
+    max_megapixels : float or None
+        The largest frame accepted (None: no limit).
+    hold_outputs : bool
+        False (with ``output``): the outputs may go from the merge straight into the files
+        through band buffers, never held whole; the result's ``radiance`` and ``variance``
+        are then None (``info["outputs_held"]`` False).
+    **options
+        The method's own options (as :func:`derender.hdr.registry.merge` takes them), and the
+        engine's ``reference`` (an index among ``paths`` as given, from 0, or ``"auto"``),
+        ``align``, ``deghost``, ``ghost_threshold``, ``ghost_fill``
+        (:func:`derender.hdr.registry.split_motion`, :mod:`derender.engine.motion`).
+
+    Returns
+    -------
+    HDRResult
+        As :func:`derender.hdr.registry.merge`; the radiance may be an (H, W, 3) view of
+        planar float32 memory.
+
+    Raises
+    ------
+    InputError
+        Unreadable or inconsistent files, times that disagree with the images' brightness,
+        an output that would overwrite an input, an unknown method or option.
     """
     t_start = time.perf_counter()
     from derender.io.files import expand_image_paths
