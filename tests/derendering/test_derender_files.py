@@ -318,14 +318,14 @@ def test_fused_gaussian_pass_matches_the_numpy_moments(model_file):
 
     from derender.engine.gaussian import merge_gaussian_frames
     from derender.engine.plans import FrameAccess
-    from derender.hdr.probabilistic import ProbabilisticMethod
+    from derender.hdr.probabilistic import ProbabilisticMethod, ProbabilisticOptions
 
     frames = np.random.default_rng(7).integers(0, 256, size=(3, 40, 37, 3)).astype(np.uint8)
     frames[:, :4] = 255
     frames[:, 4:8, :, 0] = 250
     opts = {"model": load_model(model_file), "target_time": 1.0, "colour_space": "linear_srgb", "censor": True,
-            "space": None, "floor": 0.0, "clip_code": 245, "code_noise": 2.0}
-    method = ProbabilisticMethod(opts)
+            "domain": None, "floor": 0.0, "clip_code": 245, "code_noise": 2.0}
+    method = ProbabilisticMethod(ProbabilisticOptions(**opts))
     access = FrameAccess(frames=frames, times=np.array([0.01, 0.04, 0.16]), shape=frames.shape[1:3], threads=2)
     plan = method.plan(access)
     assert plan.table is not None and plan.lognormal is not None

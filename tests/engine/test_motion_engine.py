@@ -34,7 +34,7 @@ def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     with the same plan (table, matrix and Gaussian plans)."""
     from derender.engine.motion import _access, _merge
     from derender.engine.run import ArrayFrames
-    from derender.hdr.classic import DebevecMethod
+    from derender.hdr.classic import DebevecMethod, DebevecOptions
     from derender.hdr.registry import method_options
     from derender.hdr.stabilize.method import StabilizedMethod
 
@@ -47,7 +47,7 @@ def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     valid = np.ones((n, h, w), np.uint8)
     valid[j, :, : w // 2] = 0                          # frame j out of the left half
     keep = [k for k in range(n) if k != j]
-    methods = [DebevecMethod(), StabilizedMethod("stabilized", {**method_options("stabilized", {}), "align": "none"})]
+    methods = [DebevecMethod(DebevecOptions()), StabilizedMethod("stabilized", method_options("stabilized", {"align": "none"}))]
     for method in methods:
         plan = method.plan(_access(method, src, frames, None, n // 2, 1))
         full = _merge(plan, frames, t, valid, 1)
@@ -246,10 +246,10 @@ def test_motion_errors_are_clear():
 def test_callers_frames_are_not_modified():
     from derender.engine.motion import MotionOptions
     from derender.engine.run import ArrayFrames, run
-    from derender.hdr.classic import DebevecMethod
+    from derender.hdr.classic import DebevecMethod, DebevecOptions
 
     b = _bracket(setting="handheld", size=(64, 48))
     codes = np.ascontiguousarray(b.jpeg_codes)
     before = codes.copy()
-    run(DebevecMethod(), ArrayFrames(codes, b.times), motion=MotionOptions(align="translation", deghost=True))
+    run(DebevecMethod(DebevecOptions()), ArrayFrames(codes, b.times), motion=MotionOptions(align="translation", deghost=True))
     np.testing.assert_array_equal(codes, before)

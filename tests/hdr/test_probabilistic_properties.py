@@ -61,7 +61,7 @@ def _check(res, shape: tuple) -> None:
 @given(seed=st.integers(0, 10_000), n=st.integers(2, 5), h=st.integers(12, 32), w=st.integers(12, 32),
        mix=st.floats(0.0, 0.5), wb=st.floats(0.0, 0.3), dark=st.floats(0.0, 0.2),
        model=st.sampled_from(["gp", "poly", "rbf"]),
-       path=st.sampled_from([{}, {"censor": False}, {"space": "linear"}, {"colour_space": "camera_rgb"}]))
+       path=st.sampled_from([{}, {"censor": False}, {"domain": "linear"}, {"colour_space": "camera_rgb"}]))
 def test_probabilistic_is_finite_and_non_negative(seed, n, h, w, mix, wb, dark, model, path):
     from derender.hdr.registry import merge
 
@@ -95,14 +95,14 @@ def test_compiled_pass_is_non_negative_for_any_matrix(seed, scale):
     gives the NumPy moments (``finite_outputs``), finite and >= 0."""
     from derender.engine.gaussian import merge_gaussian_frames
     from derender.engine.plans import FrameAccess
-    from derender.hdr.probabilistic import ProbabilisticMethod
+    from derender.hdr.probabilistic import ProbabilisticMethod, ProbabilisticOptions
 
     rng = np.random.default_rng(seed)
     frames = rng.integers(0, 256, size=(3, 9, 11, 3)).astype(np.uint8)
     opts = {"model": _model("gp"), "target_time": 1.0, "colour_space": "linear_srgb", "censor": True,
-            "space": None, "floor": 0.0, "clip_code": 245, "code_noise": 2.0}
-    method = ProbabilisticMethod(opts)
-    method.a = scale * rng.normal(0.0, 1.0, (3, 3))
+            "domain": None, "floor": 0.0, "clip_code": 245, "code_noise": 2.0}
+    method = ProbabilisticMethod(ProbabilisticOptions(**opts))
+    method.camera_to_srgb = scale * rng.normal(0.0, 1.0, (3, 3))
     access = FrameAccess(frames=frames, times=np.array([0.01, 0.04, 0.16]), shape=frames.shape[1:3], threads=1)
     plan = method.plan(access)
     assert plan.table is not None and plan.lognormal is not None     # the compiled fused pass

@@ -7,9 +7,9 @@ from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "batch": ["stack_files", "merge_one_stack", "merge_batch"],
-    "classic": ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"],
+    "classic": ["DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson", "debevec_engine", "robertson_engine"],
     "files": ["merge_files"],
-    "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
-    "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
-    "registry": ["MethodSpec", "METHODS", "method_spec", "register_method", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options"],
+    "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "ProbabilisticOptions", "probabilistic_engine", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
+    "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "StabilizedProbabilisticOptions", "stabilized_probabilistic_engine", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
+    "registry": ["MethodSpec", "METHODS", "record_values", "method_spec", "register_method", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options"],
 })

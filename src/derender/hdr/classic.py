@@ -21,6 +21,7 @@ also what the table engine is tested against.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -32,6 +33,7 @@ from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
 from derender.engine.run import run_stack
 from derender.engine.tables import curve_value_tables, weight_table
+from derender.hdr.registry import record_values
 from derender.response.curves import (
     DEFAULT_LAMBDA,
     DEFAULT_SAMPLES,
@@ -42,33 +44,63 @@ from derender.response.curves import (
     histogram_samples,
 )
 
-__all__ = ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson"]
+__all__ = ["DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
+           "debevec_engine", "robertson_engine"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class DebevecOptions:
+    """The options of :func:`merge_debevec` (each described there), as its engine method and
+    ``derender merge --option`` read them. Invalid values are refused when the record is made."""
+
+    curves: Any = None
+    lam: float | None = None
+    n_samples: int | None = None
+    sampling: str = "grid"
+    seed: int = 0
+    weight: str = "gaussian"
+    domain: str = "log"
+    channel_weights: str = "mean"
+    block_rows: int | None = None
+    engine: str = "auto"
+    tie: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.sampling not in ("grid", "histogram"):
+            raise InputError(f"unknown sampling method {self.sampling!r}; use 'grid' or 'histogram'")
+        if self.n_samples is not None and int(self.n_samples) < 1:
+            raise InputError(f"n_samples must be positive, got {self.n_samples}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RobertsonOptions:
+    """The options of :func:`merge_robertson` (each described there)."""
+
+    curves: Any = None
+    n_iter: int = 30
+    max_pixels: int = 40_000
+    weight: str = "gaussian"
+    seed: int = 0
+    block_rows: int | None = None
+    engine: str = "auto"
+    tie: float | None = None
 
 
 class DebevecMethod(MethodDefaults):
     """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables."""
 
     name = "debevec"
-    holds_frames = False
 
-    def __init__(self, curves=None, lam: float | None = None, n_samples: int | None = None, sampling: str = "grid",
-                 seed: int = 0, weight: Any = "gaussian", domain: str = "log", channel_weights: str = "mean",
-                 block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
-        self.curves = curves
-        self.tie = DEFAULT_TIE if tie is None else float(tie)
-        self.lam = DEFAULT_LAMBDA if lam is None else float(lam)
-        self.n_samples = DEFAULT_SAMPLES if n_samples is None else int(n_samples)
-        self.sampling, self.seed = sampling, int(seed)
-        if sampling not in ("grid", "histogram"):
-            raise InputError(f"unknown sampling method {sampling!r}; use 'grid' or 'histogram'")
-        if self.n_samples < 1:
-            raise InputError(f"n_samples must be positive, got {self.n_samples}")
-        self.weight, self.domain, self.channel_weights = weight, domain, channel_weights
-        self.block_rows = block_rows
-        self.wants_histograms = sampling == "histogram"
-
-    def derive(self) -> None:
-        return None
+    def __init__(self, options: DebevecOptions):
+        self.options = options
+        self.curves = options.curves
+        self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
+        self.lam = DEFAULT_LAMBDA if options.lam is None else float(options.lam)
+        self.n_samples = DEFAULT_SAMPLES if options.n_samples is None else int(options.n_samples)
+        self.sampling, self.seed = options.sampling, int(options.seed)
+        self.weight, self.domain, self.channel_weights = options.weight, options.domain, options.channel_weights
+        self.block_rows = options.block_rows
+        self.wants_histograms = self.sampling == "histogram"
 
     def sample_positions(self, h: int, w: int):
         return grid_positions(h, w, self.n_samples, self.seed) if self.sampling == "grid" else None
@@ -98,17 +130,12 @@ class RobertsonMethod(MethodDefaults):
     """Robertson et al. (2003) on the engine: grid samples, iterative curves, the ML merge in tables."""
 
     name = "robertson"
-    holds_frames = False
-    wants_histograms = False
 
-    def __init__(self, curves=None, n_iter: int = 30, max_pixels: int = 40_000, weight: Any = "gaussian",
-                 seed: int = 0, block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
-        self.tie = DEFAULT_TIE if tie is None else float(tie)
-        self.curves, self.n_iter, self.max_pixels = curves, int(n_iter), int(max_pixels)
-        self.weight, self.seed, self.block_rows = weight, int(seed), block_rows
-
-    def derive(self) -> None:
-        return None
+    def __init__(self, options: RobertsonOptions):
+        self.options = options
+        self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
+        self.curves, self.n_iter, self.max_pixels = options.curves, int(options.n_iter), int(options.max_pixels)
+        self.weight, self.seed, self.block_rows = options.weight, int(options.seed), options.block_rows
 
     def sample_positions(self, h: int, w: int):
         from derender.response.robertson2003 import robertson_positions
@@ -193,18 +220,19 @@ def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], An
     return res
 
 
-def debevec_engine(opts: dict) -> DebevecMethod:
+def debevec_engine(options: DebevecOptions) -> DebevecMethod:
     """The engine form of :func:`merge_debevec` (its registry entry's factory)."""
-    return DebevecMethod(**opts)
+    return DebevecMethod(options)
 
 
-def robertson_engine(opts: dict) -> RobertsonMethod:
+def robertson_engine(options: RobertsonOptions) -> RobertsonMethod:
     """The engine form of :func:`merge_robertson` (its registry entry's factory)."""
-    return RobertsonMethod(**opts)
+    return RobertsonMethod(options)
 
 
 def merge_debevec(
     stack: Stack,
+    *,
     curves=None,
     lam: float | None = None,
     n_samples: int | None = None,
@@ -245,8 +273,7 @@ def merge_debevec(
     the reference to ~1e-6 relative; ``block_rows`` then sets the engine's row blocks),
     ``"table"`` insists on it, ``"reference"`` always uses :func:`merge_linear`.
     """
-    method = DebevecMethod(curves, lam, n_samples, sampling, seed, weight, domain, channel_weights, block_rows, engine,
-                           tie)
+    method = DebevecMethod(record_values(DebevecOptions, locals()))
     try:
         return run_stack(method, stack, engine)
     except NotStreamable:
@@ -262,6 +289,7 @@ def merge_debevec(
 
 def merge_robertson(
     stack: Stack,
+    *,
     curves=None,
     n_iter: int = 30,
     max_pixels: int = 40_000,
@@ -284,7 +312,7 @@ def merge_robertson(
 
     ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
-    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine, tie)
+    method = RobertsonMethod(record_values(RobertsonOptions, locals()))
     try:
         return run_stack(method, stack, engine)
     except NotStreamable:

@@ -25,7 +25,7 @@ from derender.core.errors import InputError
 from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import NotStreamable
 from derender.engine.run import FileFrames, run, write_outputs
-from derender.hdr.registry import merge_seeded, method_options, method_spec
+from derender.hdr.registry import merge, method_options, method_spec
 from derender.io.exif import file_times
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
@@ -113,9 +113,9 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
 
     motion, options = split_motion(method, {**options, "seed": seed}, engine_reference=True)
     options.pop("seed", None)
-    opts = method_options(method, options)
     if "seed" in inspect.signature(fn).parameters:
-        opts["seed"] = seed
+        options["seed"] = seed
+    opts = method_options(method, options)
     if times is not None:
         hint = "check the order of the times (one per image, in the order the images are given)"
     elif times_file is not None:
@@ -125,10 +125,11 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         hint = "the EXIF exposure times disagree with the images; give the times with --times"
     res = None
     factory = spec.engine_factory()
-    if motion is not None and (factory is None or opts.get("engine", "auto") == "reference"):
+    on_reference = getattr(opts, "engine", "auto") == "reference"
+    if motion is not None and (factory is None or on_reference):
         raise InputError(f"merge method {method!r} with these options runs outside the engine: reference, "
                          "align and deghost need the engine")
-    if factory is not None and opts.get("engine", "auto") != "reference":
+    if factory is not None and not on_reference:
         try:
             res = run(factory(opts), FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
                       keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
@@ -146,7 +147,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         names = [paths[i].name for i in np.argsort(t, kind="stable")]
         check_brightness_order(stack.times, [255.0 * float(im[::8, ::8].mean()) for im in stack.images],
                                names, hint)
-        res = merge_seeded(stack, method, seed, **options)
+        res = merge(stack, method=method, **options)        # options carry the seed when the method takes one
         shortest = stack.images[int(np.argmin(stack.times))]
         res.info["n_clipped"] = int(np.count_nonzero(np.any(shortest >= 1.0, axis=-1)))   # as the engine counts
         res.info.setdefault("engine", "stack")

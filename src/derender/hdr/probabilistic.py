@@ -7,11 +7,11 @@ exposures the posterior is the normalised product of these Gaussians:
 
     1 / s_0^2 = sum_i 1 / s_i'^2,     mu_0 = s_0^2 sum_i mu_i' / s_i'^2.
 
-``censor=False`` (``space="linear"``) is the paper's eq. 3 literally: no pixel is thrown away
+``censor=False`` (``domain="linear"``) is the paper's eq. 3 literally: no pixel is thrown away
 by a threshold, a saturated JPEG value contributes through its (large) variance.
 
-Default (``censor=True``, ``space="log"``), beyond the paper, for log-space models (the GP,
-which has ``predict_log``; others fall back to ``space="linear"``):
+Default (``censor=True``, ``domain="log"``), beyond the paper, for log-space models (the GP,
+which has ``predict_log``; others fall back to ``domain="linear"``):
 
 * **Log-space product.** The GP's own Gaussian is over ``t = log(raw + eps)``. Each
   exposure gives a Gaussian over ``log x_0``: mean ``log(exp(mu_i) - eps) + log s_i``
@@ -58,7 +58,7 @@ which has ``predict_log``; others fall back to ``space="linear"``):
   clip (measured, 192x128 brackets below: relative variance 1.72 on every channel
   censored in all exposures, <= 0.17 on every other channel with a code < 245 somewhere).
 
-``space="linear", censor=True`` is the previous default (raw-space product, a colour with
+``domain="linear", censor=True`` is the previous default (raw-space product, a colour with
 any channel at 255 censored as a whole, bound ``q_0.023 t_0 / t_i``, conflicts -> variance B^2).
 
 Measured (simulated nikon-d5100, GP on 5000 chart pairs (seed 0), ``simulate_bracket(kind,
@@ -139,6 +139,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -150,12 +151,15 @@ from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults
 from derender.engine.run import ArrayFrames, run
+from derender.hdr.registry import record_values
 
 __all__ = [
     "CODE_NOISE",
     "product_of_gaussians",
     "as_model",
     "merge_probabilistic",
+    "ProbabilisticOptions",
+    "probabilistic_engine",
     "saturation_mask",
     "finite_outputs",
     "check_options",
@@ -263,52 +267,63 @@ def as_model(model: Any):
     return model
 
 
-def probabilistic_engine(opts: dict) -> "ProbabilisticMethod":
+@dataclass(frozen=True, kw_only=True)
+class ProbabilisticOptions:
+    """The options of :func:`merge_probabilistic` (each described there), as its engine method and
+    ``derender merge --option`` read them."""
+
+    model: Any
+    target_time: float = 1.0
+    colour_space: str = "linear_srgb"
+    censor: bool = True
+    domain: str | None = None
+    floor: float = 0.0
+    clip_code: int = 245
+    code_noise: float = CODE_NOISE
+
+
+def probabilistic_engine(options: ProbabilisticOptions) -> "ProbabilisticMethod":
     """The engine form of :func:`merge_probabilistic` (its registry entry's factory); the
-    raw-space product (``space="linear"``) has none (:class:`NotStreamable`)."""
-    method = ProbabilisticMethod(opts)
-    if method.space != "log":
+    raw-space product (``domain="linear"``) has none (:class:`NotStreamable`)."""
+    method = ProbabilisticMethod(options)
+    if method.domain != "log":
         raise NotStreamable("raw-space product")
     return method
 
 
-def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colour_space: str = "linear_srgb",
-                        censor: bool = True, seed: int = 0, space: str | None = None, floor: float = 0.0,
+def merge_probabilistic(stack: Stack, model: Any, *, target_time: float = 1.0, colour_space: str = "linear_srgb",
+                        censor: bool = True, domain: str | None = None, floor: float = 0.0,
                         clip_code: int = 245, code_noise: float = CODE_NOISE) -> HDRResult:
     """Probabilistic HDR merge (paper 2 eq. 3) with a de-rendering model; returns mean and variance.
 
     ``target_time`` is alpha_0 in seconds (the result is radiance x t_0); ``colour_space``
     is ``"linear_srgb"`` (needs the model's camera metadata) or ``"camera_rgb"``.
-    ``space="log"`` (log-space product, per-channel censoring, joint weights, model-error
+    ``domain="log"`` (log-space product, per-channel censoring, joint weights, model-error
     ``floor`` in log variance) or ``"linear"`` (raw-space product; with ``censor=False``
     eq. 3 literally); ``None`` (default) means ``"log"`` with ``censor=True`` and the
     paper's eq. 3 with ``censor=False``; see the module docstring. ``clip_code``: codes at or above it are censored.
     ``code_noise``: per-pixel code standard deviation (8-bit codes) propagated through the
     model's curve into each observation's log variance (log space only; 0 = off).
-    ``seed`` is unused (the merge is deterministic) and accepted for a uniform interface.
+    The merge is deterministic (it takes no seed).
     """
     model = as_model(model)
     if stack.bit_depth == 16:
         raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
-    opts = dict(model=model, target_time=target_time, colour_space=colour_space, censor=censor, seed=seed,
-                space=space, floor=floor, clip_code=clip_code, code_noise=code_noise)
-    method = ProbabilisticMethod(opts)
-    if method.space == "log":
+    method = ProbabilisticMethod(record_values(ProbabilisticOptions, locals()))
+    if method.domain == "log":
         return run(method, ArrayFrames(stack.codes(), stack.times))
     t0 = time.perf_counter()
     codes = stack.codes()
     mean0, var0 = _product_linear(model, codes, stack.times, float(target_time), censor)
-    radiance, variance = finite_outputs(mean0, var0, method.a)
+    radiance, variance = finite_outputs(mean0, var0, method.camera_to_srgb)
     return HDRResult(radiance=radiance, mask=saturation_mask(codes[0], codes[-1]), variance=variance,
-                     info=_info(model, colour_space, target_time, "linear", censor, floor, time.perf_counter() - t0,
-                                code_noise))
+                     info=_info(method.options, "linear", time.perf_counter() - t0))
 
 
-def _info(model, colour_space: str, target_time: float, space: str, censor: bool, floor: float,
-          seconds: float, code_noise: float = 0.0) -> dict:
-    return {"method": "probabilistic", "colour_space": colour_space, "target_time": target_time, "space": space,
-            "censor": bool(censor), "floor": float(floor),
-            "code_noise": float(code_noise) if space == "log" else 0.0, "model": getattr(model, "method", "?"),
+def _info(o: ProbabilisticOptions, domain: str, seconds: float) -> dict:
+    return {"method": "probabilistic", "colour_space": o.colour_space, "target_time": o.target_time,
+            "domain": domain, "censor": bool(o.censor), "floor": float(o.floor),
+            "code_noise": float(o.code_noise) if domain == "log" else 0.0, "model": getattr(o.model, "method", "?"),
             "merge_seconds": seconds}
 
 
@@ -348,32 +363,35 @@ def finite_outputs(mean0: np.ndarray, var0: np.ndarray, a: np.ndarray | None) ->
     return radiance, variance
 
 
-def check_options(model, target_time: float, colour_space: str, censor: bool, space: str | None, floor: float,
-                   clip_code: int, code_noise: float = 0.0) -> tuple[str, np.ndarray | None]:
-    """Validated ``space`` and the camera -> linear sRGB matrix (None for camera RGB output)."""
-    if not (np.isfinite(target_time) and target_time > 0):
+def check_options(model, options: ProbabilisticOptions) -> tuple[str, np.ndarray | None]:
+    """The validated product domain (``"log"`` or ``"linear"``) and the camera -> linear sRGB
+    matrix ``camera_to_srgb`` (None for camera RGB output) of ``options`` with ``model``."""
+    o = options
+    if not (np.isfinite(o.target_time) and o.target_time > 0):
         raise InputError("target_time must be a positive number of seconds")
-    if space is None:
-        space = "log" if censor else "linear"
-    if space not in ("log", "linear"):
-        raise InputError(f"space must be 'log' or 'linear', got {space!r}")
-    if not (np.isfinite(floor) and floor >= 0):
+    domain = o.domain
+    if domain is None:
+        domain = "log" if o.censor else "linear"
+    if domain not in ("log", "linear"):
+        raise InputError(f"domain must be 'log' or 'linear', got {domain!r}")
+    if not (np.isfinite(o.floor) and o.floor >= 0):
         raise InputError("floor must be a non-negative log variance")
-    if not (np.isfinite(code_noise) and 0 <= code_noise <= 64):
+    if not (np.isfinite(o.code_noise) and 0 <= o.code_noise <= 64):
         raise InputError("code_noise must be a standard deviation in 8-bit codes, 0 .. 64")
-    if not 1 <= int(clip_code) <= 255:
+    if not 1 <= int(o.clip_code) <= 255:
         raise InputError("clip_code must be in 1..255")
-    a = None
+    colour_space = o.colour_space
+    camera_to_srgb = None
     if colour_space == "linear_srgb":
-        a = model_camera_to_srgb(model)
-        if a is None:
+        camera_to_srgb = model_camera_to_srgb(model)
+        if camera_to_srgb is None:
             raise InputError("the model has no camera colour metadata (camera_to_srgb, wb); "
                              "use colour_space='camera_rgb' or calibrate from chart-pairs files")
     elif colour_space != "camera_rgb":
         raise InputError(f"colour_space must be 'linear_srgb' or 'camera_rgb', got {colour_space!r}")
-    if space == "log" and not hasattr(model, "predict_log"):
-        space = "linear"   # deterministic / raw-space models: eq. 3 in raw space
-    return space, a
+    if domain == "log" and not hasattr(model, "predict_log"):
+        domain = "linear"   # deterministic / raw-space models: eq. 3 in raw space
+    return domain, camera_to_srgb
 
 
 class ProbabilisticMethod(MethodDefaults):
@@ -391,28 +409,20 @@ class ProbabilisticMethod(MethodDefaults):
 
     name = "probabilistic"
     holds_frames = True
-    wants_histograms = False
     warm_up = "gaussian"          # the engine loads its compiled kernel while the frames decode
 
-    def __init__(self, opts: dict):
-        self.model = as_model(opts.get("model"))
-        self.opts = opts
-        self.space, self.a = check_options(self.model, opts["target_time"], opts["colour_space"], opts["censor"],
-                                           opts["space"], opts["floor"], opts["clip_code"], opts["code_noise"])
-
-    def derive(self) -> None:
-        return None
-
-    def sample_positions(self, h: int, w: int) -> None:
-        return None
+    def __init__(self, options: ProbabilisticOptions):
+        self.model = as_model(options.model)
+        self.options = options
+        self.domain, self.camera_to_srgb = check_options(self.model, options)
 
     def plan(self, access: FrameAccess) -> GaussianPlan:
         from derender.derendering.apply import ColourIndexBuilder
         from derender.engine.gaussian import mark_colours_held
 
-        if self.space != "log":
+        if self.domain != "log":
             raise NotStreamable("raw-space product")
-        opts, a = self.opts, self.a
+        opts, a = self.options, self.camera_to_srgb
         t0 = time.perf_counter()
         builder = ColourIndexBuilder()
         if not mark_colours_held(access.frames, builder.present, access.threads):   # compiled, in threads
@@ -424,10 +434,10 @@ class ProbabilisticMethod(MethodDefaults):
         # has a look-up table; NumPy's serial (threads measured no faster under load)
         compiled = _compiled_tables(self.model, colours) is not None
         fused = compiled and getattr(index, "lut", None) is not None
-        planes = _log_planes(self.model, colours, float(opts["floor"]), int(opts["clip_code"]),
-                             opts["censor"], code_noise=float(opts["code_noise"]),
+        planes = _log_planes(self.model, colours, float(opts.floor), int(opts.clip_code),
+                             opts.censor, code_noise=float(opts.code_noise),
                              threads=access.threads if compiled else 1, colour_major=fused)
-        censor = bool(opts["censor"])
+        censor = bool(opts.censor)
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
 
@@ -435,14 +445,12 @@ class ProbabilisticMethod(MethodDefaults):
             return finite_outputs(*log_product_moments(prec, acc, bound, censor), a)
 
         return GaussianPlan(planes=None if fused else planes, table=planes if fused else None, index=index,
-                            log_scales=np.array([np.log(opts["target_time"] / t) for t in access.times]),
+                            log_scales=np.array([np.log(opts.target_time / t) for t in access.times]),
                             moments=moments, mask=saturation_mask,
                             lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a))
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
-        o = self.opts
-        info = _info(self.model, o["colour_space"], o["target_time"], self.space, o["censor"], o["floor"],
-                     time.perf_counter() - self.t_plan, o["code_noise"])
+        info = _info(self.options, self.domain, time.perf_counter() - self.t_plan)
         info["distinct_colours"] = self.distinct
         result.info.update(info)
 

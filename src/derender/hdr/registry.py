@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, field, fields, make_dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -27,6 +27,7 @@ from derender.core.types import HDRResult, Stack
 __all__ = [
     "MethodSpec",
     "METHODS",
+    "record_values",
     "method_spec",
     "register_method",
     "get_method",
@@ -68,6 +69,11 @@ class MethodSpec:
         default filled in), or its ``"module:name"``; None for a method that runs only in
         memory. A factory that has no engine form for some options raises
         :class:`~derender.engine.frames.NotStreamable`.
+    options : str or type or None
+        The method's options record: a frozen, keyword-only dataclass (or its
+        ``"module:name"``) whose fields are the merge function's keywords; the engine factory
+        takes one. None (a method defined outside the package): a record is made from the
+        function's signature.
     gives_variance, gives_curves : bool
         Its results carry a per-pixel variance (``--variance``) / response curves
         (``result.info["curves"]``, what ``derender merge --plot`` draws).
@@ -78,6 +84,7 @@ class MethodSpec:
     name: str
     function: Any
     engine: Any = None
+    options: Any = None
     gives_variance: bool = False
     gives_curves: bool = False
     output_space: str = "not stated"
@@ -86,9 +93,16 @@ class MethodSpec:
         """The merge function (its module imported on first use)."""
         return _resolve(self.function)
 
-    def engine_factory(self) -> Callable[[dict], Any] | None:
-        """The engine factory, or None."""
+    def engine_factory(self) -> Callable[[Any], Any] | None:
+        """The engine factory (``factory(options_record) -> EngineMethod``), or None."""
         return _resolve(self.engine)
+
+    def options_class(self) -> type:
+        """The options record's class (made from the merge function's signature when the
+        method names none)."""
+        if self.options is not None:
+            return _resolve(self.options)
+        return _signature_record(self.name, self.load())
 
     @property
     def module(self) -> str:
@@ -112,40 +126,70 @@ _RENDERED = ("linear RGB of the images' own rendering (their primaries and white
              "in-camera JPEGs), relative units")
 _CLASSIC = "derender.hdr.classic"
 _STABILIZED = "derender.hdr.stabilize.method"
+_PROBABILISTIC = "derender.hdr.probabilistic"
+_BOTH = "derender.hdr.stabilized_probabilistic"
 
 #: Every merge method by name. The built-in ones are listed here, one line each, and imported on
 #: first use; a method defined elsewhere joins with :func:`register_method`.
 METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
-    MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:debevec_engine", gives_curves=True,
-               output_space=_RENDERED),
-    MethodSpec("robertson", f"{_CLASSIC}:merge_robertson", f"{_CLASSIC}:robertson_engine", gives_curves=True,
-               output_space=_RENDERED),
+    MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:debevec_engine", f"{_CLASSIC}:DebevecOptions",
+               gives_curves=True, output_space=_RENDERED),
+    MethodSpec("robertson", f"{_CLASSIC}:merge_robertson", f"{_CLASSIC}:robertson_engine",
+               f"{_CLASSIC}:RobertsonOptions", gives_curves=True, output_space=_RENDERED),
     MethodSpec("stabilized", f"{_STABILIZED}:merge_stabilized", f"{_STABILIZED}:stabilized_engine",
+               f"{_STABILIZED}:StabilizedOptions",
                output_space=_RENDERED + ", in the reference frame's white balance"),
     MethodSpec("stabilized-joint", f"{_STABILIZED}:merge_stabilized_joint", f"{_STABILIZED}:stabilized_joint_engine",
-               output_space=_RENDERED + ", in the bracket's average rendering"),
-    MethodSpec("probabilistic", "derender.hdr.probabilistic:merge_probabilistic",
-               "derender.hdr.probabilistic:probabilistic_engine", gives_variance=True,
+               f"{_STABILIZED}:StabilizedOptions", output_space=_RENDERED + ", in the bracket's average rendering"),
+    MethodSpec("probabilistic", f"{_PROBABILISTIC}:merge_probabilistic", f"{_PROBABILISTIC}:probabilistic_engine",
+               f"{_PROBABILISTIC}:ProbabilisticOptions", gives_variance=True,
                output_space=("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix (option "
                              "colour_space='camera_rgb' keeps camera RGB); scaled to exposure time 1 s")),
-    MethodSpec("stabilized-probabilistic", "derender.hdr.stabilized_probabilistic:merge_stabilized_probabilistic",
-               "derender.hdr.stabilized_probabilistic:stabilized_probabilistic_engine",
+    MethodSpec("stabilized-probabilistic", f"{_BOTH}:merge_stabilized_probabilistic",
+               f"{_BOTH}:stabilized_probabilistic_engine", f"{_BOTH}:StabilizedProbabilisticOptions",
                output_space=_RENDERED + ", in the reference frame's white balance"),
 )}
 
 
-def register_method(name: str, gives_variance: bool = False, engine: Callable[[dict], Any] | None = None,
-                    gives_curves: bool = False,
+def register_method(name: str, *, gives_variance: bool = False, engine: Callable[[Any], Any] | None = None,
+                    options: type | None = None, gives_curves: bool = False,
                     output_space: str | None = None) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
     """Decorator adding ``fn(stack, **options) -> HDRResult`` to :data:`METHODS` as ``name``
     (a method defined outside the package; the fields are those of :class:`MethodSpec`)."""
 
     def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
-        METHODS[name] = MethodSpec(name, fn, engine, gives_variance=bool(gives_variance),
+        METHODS[name] = MethodSpec(name, fn, engine, options, gives_variance=bool(gives_variance),
                                    gives_curves=bool(gives_curves), output_space=output_space or "not stated")
         return fn
 
     return deco
+
+
+_RECORDS: dict[tuple[str, int], type] = {}
+
+
+def _signature_record(name: str, fn: Callable[..., HDRResult]) -> type:
+    """A frozen, keyword-only dataclass of ``fn``'s keywords (after the stack), for a method that
+    names no options record (cached per function)."""
+    key = (name, id(fn))
+    cls = _RECORDS.get(key)
+    if cls is None:
+        specs = []
+        for k, p in list(inspect.signature(fn).parameters.items())[1:]:
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                continue
+            ann = Any if p.annotation is inspect.Parameter.empty else p.annotation
+            specs.append((k, ann) if p.default is inspect.Parameter.empty else (k, ann, field(default=p.default)))
+        cls = make_dataclass(f"{name.title().replace('-', '')}Options", specs, frozen=True, kw_only=True)
+        cls.__module__ = getattr(fn, "__module__", __name__)
+        _RECORDS[key] = cls
+    return cls
+
+
+def record_values(cls: type, values: dict) -> Any:
+    """``cls(**{name: values[name] for every field})``: a merge function's options record from
+    its ``locals()`` (its keywords are the record's fields, :meth:`MethodSpec.options_class`)."""
+    return cls(**{f.name: values[f.name] for f in fields(cls)})
 
 
 def method_summary(fn: Callable[..., HDRResult]) -> str:
@@ -173,20 +217,21 @@ def get_method(method: str) -> Callable[..., HDRResult]:
     return method_spec(method).load()
 
 
-def method_options(method: str, options: dict) -> dict:
-    """Options of merge ``method`` with its defaults filled in; an unknown option is an :class:`InputError`."""
-    params = inspect.signature(get_method(method)).parameters
-    names = [p for p in params][1:]
+def method_options(method: str, options: dict) -> Any:
+    """The options record of merge ``method`` (:meth:`MethodSpec.options_class`) made from
+    ``options``, its defaults filled in. An unknown option is an :class:`InputError` naming the
+    method and listing its options; so is a missing required one."""
+    cls = method_spec(method).options_class()
+    names = [f.name for f in fields(cls)]
     bad = [k for k in options if k not in names]
     if bad:
         raise InputError(f"merge method {method!r} does not accept option(s) {', '.join(bad)}; "
                          f"accepted: {', '.join(names)}")
-    missing = [k for k in names if params[k].default is inspect.Parameter.empty and k not in options]
+    missing = [f.name for f in fields(cls)
+               if f.default is MISSING and f.default_factory is MISSING and f.name not in options]
     if missing:
         raise InputError(_missing_message(method, missing))
-    out = {k: params[k].default for k in names}
-    out.update(options)
-    return out
+    return cls(**options)
 
 
 def _missing_message(method: str, missing: list[str]) -> str:
@@ -331,28 +376,29 @@ def merge_seeded(stack: Stack, method: str, seed: int = 0, **options: Any) -> HD
 # --------------------------------------------------------------------------- options from text
 def settable_options(method: str) -> dict[str, tuple[Any, Any]]:
     """The options of ``method`` a user can set as text (``derender merge --option NAME=VALUE``):
-    ``{name: (type, default)}``, the type from the merge function's annotation."""
-    fn = get_method(method)
-    params = list(inspect.signature(fn).parameters.items())[1:]
+    ``{name: (type, default)}``, the type from the options record's field."""
+    cls = method_spec(method).options_class()
     out = {}
-    for k, p in params:
-        if k in _NOT_SETTABLE or p.annotation is inspect.Parameter.empty:
+    for f in fields(cls):
+        if f.name in _NOT_SETTABLE or f.type is Any or f.default is MISSING:
             continue
-        tp = _annotation(fn, p.annotation)
-        if tp is not None:
-            out[k] = (tp, p.default)
+        tp = _annotation(cls, f.type)
+        if tp is not None and tp is not Any:
+            out[f.name] = (tp, f.default)
     return out
 
 
-def _annotation(fn, ann: Any) -> Any:
-    """A parameter's annotation as a type (string annotations evaluated in the function's module;
-    None when that fails, e.g. a name imported only inside a function)."""
+def _annotation(cls: type, ann: Any) -> Any:
+    """A field's annotation as a type (string annotations evaluated in the record's module;
+    None when that fails)."""
+    import sys
     import typing
 
     if not isinstance(ann, str):
         return ann
+    module = sys.modules.get(cls.__module__)
     try:
-        return eval(ann, {**vars(typing), **getattr(fn, "__globals__", {})})  # noqa: S307 - our own annotations
+        return eval(ann, {**vars(typing), **(vars(module) if module else {})})  # noqa: S307 - our own annotations
     except Exception:  # noqa: BLE001
         return None
 

@@ -23,6 +23,7 @@ holds per-pixel float64 weights and float images (9 x 24 MP: ~12 GB).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -32,13 +33,15 @@ from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess
 from derender.hdr.probabilistic import as_model
-from derender.hdr.registry import method_options
-from derender.hdr.stabilize.method import StabilizedMethod
+from derender.hdr.registry import record_values
+from derender.hdr.stabilize.method import StabilizedMethod, StabilizedOptions
 
 __all__ = [
     "colour_reliability",
     "colour_weight_table",
     "StabilizedProbabilisticMethod",
+    "StabilizedProbabilisticOptions",
+    "stabilized_probabilistic_engine",
     "merge_stabilized_probabilistic",
     "stabilized_probabilistic_stack",
 ]
@@ -85,11 +88,11 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
     in-memory path computed the same weights per pixel as an (N, H, W) float64 array (9 x 24
     MP: 1.7 GB, the whole merge ~12 GB); here they are one 64 MB table."""
 
-    def __init__(self, opts: dict):
-        self.model = as_model(opts.get("model"))
+    def __init__(self, options: "StabilizedProbabilisticOptions"):
+        self.model = as_model(options.model)
         # the stabilised merge's own defaults, without noise weighting: the model's variances replace it
-        full = method_options("stabilized", dict(reference=opts.get("reference"), align=opts.get("align", "mtb"),
-                                                 seed=opts.get("seed", 0), noise_weighting=False))
+        full = StabilizedOptions(reference=options.reference, align=options.align, seed=options.seed,
+                                 noise_weighting=False)
         super().__init__("stabilized-probabilistic", full)
 
     def plan(self, access: FrameAccess):
@@ -106,12 +109,22 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
         result.info.setdefault("timings", {})["colour_weights_s"] = self.colour_s
 
 
-def stabilized_probabilistic_engine(opts: dict) -> StabilizedProbabilisticMethod:
+@dataclass(frozen=True, kw_only=True)
+class StabilizedProbabilisticOptions:
+    """The options of :func:`merge_stabilized_probabilistic` (each described there)."""
+
+    model: Any
+    reference: int | None = None
+    align: str = "mtb"
+    seed: int = 0
+
+
+def stabilized_probabilistic_engine(options: StabilizedProbabilisticOptions) -> StabilizedProbabilisticMethod:
     """The engine form of :func:`merge_stabilized_probabilistic` (its registry entry's factory)."""
-    return StabilizedProbabilisticMethod(opts)
+    return StabilizedProbabilisticMethod(options)
 
 
-def merge_stabilized_probabilistic(stack: Stack, model: Any, reference: int | None = None, align: str = "mtb",
+def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int | None = None, align: str = "mtb",
                                    seed: int = 0) -> HDRResult:
     """Both papers together: paper 1's stabilised merge weighted by paper 2's de-rendering variances.
 
@@ -135,8 +148,7 @@ def merge_stabilized_probabilistic(stack: Stack, model: Any, reference: int | No
 
     t0 = time.perf_counter()
     try:
-        res = run_stack(StabilizedProbabilisticMethod(dict(model=model, reference=reference, align=align, seed=seed)),
-                        stack)
+        res = run_stack(StabilizedProbabilisticMethod(record_values(StabilizedProbabilisticOptions, locals())), stack)
     except NotStreamable:
         return stabilized_probabilistic_stack(stack, model, reference=reference, align=align, seed=seed)
     res.info["merge_seconds"] = time.perf_counter() - t0

@@ -22,6 +22,7 @@ from derender.engine.plans import FrameAccess, MatrixPlan, MethodDefaults
 from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
+from derender.hdr.registry import record_values
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
 from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference, joint_colour_matrices
 from derender.hdr.stabilize.curves import Curve
@@ -39,7 +40,8 @@ from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fracti
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
-           "StabilizedMethod", "ShiftedFrames", "ShiftedValid", "LazyAlignment"]
+           "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "ShiftedFrames",
+           "ShiftedValid", "LazyAlignment"]
 
 
 def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
@@ -228,12 +230,12 @@ class StabilizedMethod(MethodDefaults):
     holds_frames = True
     output_bytes = staticmethod(matrix_output_bytes)
 
-    def __init__(self, name: str, opts: dict):
-        align = opts.get("align", "mtb")
+    def __init__(self, name: str, options: "StabilizedOptions"):
+        align = options.align
         if align not in ("mtb", "none"):
             raise NotStreamable(f"align={align!r} warps frames")
-        self.name, self.opts, self.align = name, opts, align
-        self.seed = int(opts.get("seed", 0))
+        self.name, self.options, self.align = name, options, align
+        self.seed = int(options.seed)
         warm_up_kernels()
 
     def derive(self):
@@ -243,15 +245,12 @@ class StabilizedMethod(MethodDefaults):
 
         return lambda frame, out: grey8_codes(frame, out=out)
 
-    def sample_positions(self, h: int, w: int) -> None:
-        return None
-
     def plan(self, access: FrameAccess) -> MatrixPlan:
         from derender.engine.align import chain_transforms, transforms_to_shifts
         from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, check_usable_samples, grid_positions
         from derender.response.debevec1997 import calibrate_debevec_from_samples
 
-        opts, seed, frames, t = self.opts, self.seed, access.frames, access.times
+        opts, seed, frames, t = self.options, self.seed, access.frames, access.times
         n = access.n
         h, w = access.shape
         # response.check_usable: grid samples settle it, unless some channel shows no usable code there
@@ -260,12 +259,12 @@ class StabilizedMethod(MethodDefaults):
         t0 = time.perf_counter()
         if access.aligned:
             ref = int(access.reference)            # the engine chose it and registered the frames
-        elif opts.get("reference") is None:
+        elif opts.reference is None:
             ref = select_reference(frames)         # counts 8-bit codes against the code thresholds
         else:
-            ref = int(opts["reference"])
+            ref = int(opts.reference)
             if not 0 <= ref < n:
-                raise InputError(f"reference image {opts['reference']} is out of range 0..{n - 1}")
+                raise InputError(f"reference image {opts.reference} is out of range 0..{n - 1}")
         if self.align == "mtb" and not access.aligned:
             transforms, ainfo = chain_transforms(access.planes, "mtb", ref, seed=seed, threads=access.threads)
             access.release_planes()      # Ward's grey images (N bytes per pixel) are done with
@@ -283,7 +282,7 @@ class StabilizedMethod(MethodDefaults):
 
         def calibrate():
             cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed,
-                                    exposure_rounds=opts.get("exposure_rounds"),
+                                    exposure_rounds=opts.exposure_rounds,
                                     valid_at=None if access.valid is None else valid_view.pixels)
             if cur is not None:
                 return cur
@@ -300,16 +299,16 @@ class StabilizedMethod(MethodDefaults):
                                                   n_samples=DEFAULT_SAMPLES, sampling="grid", seed=seed, tie=CURVE_TIE)
 
         mode = "joint" if self.name == "stabilized-joint" else "reference"
-        stab = stabilize_aligned(al, t, mode=mode, response=opts["response"], gammas=opts["gammas"],
-                                 use_times=opts["use_times"], path=opts.get("path", "auto"), block=opts["block"],
-                                 max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"], seed=seed,
-                                 calibrate=calibrate, exposure_rounds=opts.get("exposure_rounds"))
+        stab = stabilize_aligned(al, t, mode=mode, response=opts.response, gammas=opts.gammas,
+                                 use_times=opts.use_times, path=opts.path, block=opts.block,
+                                 max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=seed,
+                                 calibrate=calibrate, exposure_rounds=opts.exposure_rounds)
         self.stab = stab
         self.align_s = t1 - t0
-        return stabilized_plan(stab, opts["weight"], opts["noise_weighting"], shifts=shifts)
+        return stabilized_plan(stab, opts.weight, opts.noise_weighting, shifts=shifts)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
-        result.info.update(_merge_info(self.stab, self.opts["weight"], self.opts["noise_weighting"]))
+        result.info.update(_merge_info(self.stab, self.options.weight, self.options.noise_weighting))
         result.info["method"] = self.name
         timings = result.info.setdefault("timings", {})
         timings.update({"align_s": self.align_s, **self.stab.info["timings"]})
@@ -566,17 +565,38 @@ def stabilization_info(stab: Stabilization) -> dict:
     return info
 
 
-def stabilized_engine(opts: dict) -> StabilizedMethod:
+@dataclass(frozen=True, kw_only=True)
+class StabilizedOptions:
+    """The options of :func:`merge_stabilized` and :func:`merge_stabilized_joint` (each described
+    there and at :func:`stabilize`), as their engine method and ``derender merge --option``
+    read them."""
+
+    reference: int | None = None
+    align: str = "mtb"
+    response: str = "auto"
+    gammas: Sequence[float] | None = None
+    use_times: bool = True
+    path: str = "auto"
+    weight: str = "trapezoid"
+    noise_weighting: bool = True
+    block: int = 2
+    max_blocks: int = 20000
+    ransac_iter: int = 100
+    seed: int = 0
+    exposure_rounds: int | None = None
+
+
+def stabilized_engine(options: StabilizedOptions) -> StabilizedMethod:
     """The engine form of :func:`merge_stabilized` (its registry entry's factory)."""
-    return StabilizedMethod("stabilized", opts)
+    return StabilizedMethod("stabilized", options)
 
 
-def stabilized_joint_engine(opts: dict) -> StabilizedMethod:
+def stabilized_joint_engine(options: StabilizedOptions) -> StabilizedMethod:
     """The engine form of :func:`merge_stabilized_joint` (its registry entry's factory)."""
-    return StabilizedMethod("stabilized-joint", opts)
+    return StabilizedMethod("stabilized-joint", options)
 
 
-def _merge_stabilized(name: str, stack: Stack, opts: dict) -> HDRResult:
+def _merge_stabilized(name: str, stack: Stack, opts: StabilizedOptions) -> HDRResult:
     """Both stabilised merges: on the engine for 8-bit stacks with translation-only alignment,
     else (:class:`NotStreamable`) :func:`stabilize` + :func:`stabilized_merge` on the float
     reference engine."""
@@ -585,45 +605,39 @@ def _merge_stabilized(name: str, stack: Stack, opts: dict) -> HDRResult:
     except NotStreamable:
         pass
     t0 = time.perf_counter()
-    stab = stabilize(stack, reference=opts["reference"], align=opts["align"],
-                     mode="joint" if name == "stabilized-joint" else "reference", response=opts["response"],
-                     gammas=opts["gammas"], use_times=opts["use_times"], path=opts.get("path", "auto"),
-                     block=opts["block"], max_blocks=opts["max_blocks"], ransac_iter=opts["ransac_iter"],
-                     seed=opts["seed"], exposure_rounds=opts["exposure_rounds"])
+    stab = stabilize(stack, reference=opts.reference, align=opts.align,
+                     mode="joint" if name == "stabilized-joint" else "reference", response=opts.response,
+                     gammas=opts.gammas, use_times=opts.use_times, path=opts.path, block=opts.block,
+                     max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=opts.seed,
+                     exposure_rounds=opts.exposure_rounds)
     t1 = time.perf_counter()
-    res = stabilized_merge(stab, weight=opts["weight"], noise_weighting=opts["noise_weighting"])
+    res = stabilized_merge(stab, weight=opts.weight, noise_weighting=opts.noise_weighting)
     res.info.update({"method": name, "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
                                                      total_s=time.perf_counter() - t0)})
     return res
 
 
-def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "mtb", response: str = "auto",
+def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str = "mtb", response: str = "auto",
                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                      max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
                      exposure_rounds: int | None = None) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
-    ``exposure_rounds``: see :func:`stabilize`.
+    The options are those of :func:`stabilize`.
 
     8-bit stacks with translation-only alignment run on the engine
     (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
     reference engine (:func:`stabilize` + :func:`stabilized_merge`), same numbers to 1e-5."""
-    return _merge_stabilized("stabilized", stack, dict(
-        reference=reference, align=align, response=response, gammas=gammas, use_times=use_times, path=path,
-        weight=weight, noise_weighting=noise_weighting, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter,
-        seed=seed, exposure_rounds=exposure_rounds))
+    return _merge_stabilized("stabilized", stack, record_values(StabilizedOptions, locals()))
 
 
-def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: str = "mtb",
+def merge_stabilized_joint(stack: Stack, *, reference: int | None = None, align: str = "mtb",
                            response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
-                           weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
-                           max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
+                           path: str = "auto", weight: str = "trapezoid", noise_weighting: bool = True,
+                           block: int = 2, max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
                            exposure_rounds: int | None = None) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
     (:func:`joint_colour_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
-    return _merge_stabilized("stabilized-joint", stack, dict(
-        reference=reference, align=align, response=response, gammas=gammas, use_times=use_times, weight=weight,
-        noise_weighting=noise_weighting, block=block, max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed,
-        exposure_rounds=exposure_rounds))
+    return _merge_stabilized("stabilized-joint", stack, record_values(StabilizedOptions, locals()))
