@@ -1,8 +1,8 @@
 """Motion between exposures: moving objects and camera shake, with exact truth and zone maps.
 
 Real brackets are taken by hand and of scenes that move. This module makes the simulator's
-brackets do both, so that ghost removal and alignment can be scored against exact truth
-(issue 23): the scene is rendered on a canvas ``margin`` pixels larger on every side; frame
+brackets do both, so that ghost removal and alignment can be scored against exact truth:
+the scene is rendered on a canvas ``margin`` pixels larger on every side; frame
 ``j`` sees
 
 * **camera shake**: the crop of the canvas at integer offset ``shift_j = (dy_j, dx_j)``

@@ -33,7 +33,7 @@ def command():
     """The click command of :data:`app`, with flags shown as flags in ``--help``.
 
     Typer 0.29 with click 8.5 prints every boolean flag with a ``<bool>`` metavar
-    (``--times-inverse <bool>``) although it takes no value (issue 15); an empty metavar on
+    (``--times-inverse <bool>``) although it takes no value; an empty metavar on
     each flag (including ``--help``) restores ``--times-inverse``."""
     import typer.main
 

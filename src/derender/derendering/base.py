@@ -439,8 +439,7 @@ class DerenderModel:
         models ignore ``point``. ``"mean"`` stays the exact mean of the log-normal, so it grows
         as ``exp(s2/2)`` with the spread: the GP bounds ``s2`` where it extrapolates (its latent
         variance is capped at its cluster's target variance, :mod:`~derender.derendering.local_gp`),
-        and the tables score ``"map"`` (issue 27: mean / median / MAP relative RMSE 0.45 / 0.34 /
-        0.27 on the simulated camera family).
+        and the tables score ``"map"`` (``docs/paper2.md`` compares the three).
         """
         if point not in ("mean", "median", "map"):
             raise InputError(f"point must be 'mean', 'median' or 'map', got {point!r}")

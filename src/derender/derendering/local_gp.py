@@ -24,8 +24,7 @@ variance of the cluster's own targets (1), so where the GP extrapolates (clipped
 colours far from every training colour) it says "as uncertain as the whole cluster" instead of
 tending to the ML signal variance sf^2 (up to 15 measured). The predictive mean
 ``exp(mu + s2/2) - eps`` is then at most ``exp(t_std^2 (1 + sn^2 r_max) / 2)`` times the median
-``exp(mu) - eps`` (issue 27: before the cap one such colour, 25 codes from the training codes, had a
-mean 36x its truth and 11.9 % of the squared relative error of the simulated camera family).
+``exp(mu) - eps`` (``docs/paper2.md`` gives what the cap changed).
 
 Two departures from the paper's plain local GP, both to keep the variance calibrated
 where the rendering is one-to-many (paper 2, Sec. 2.1 and Fig. 2): colours with a

@@ -1,4 +1,4 @@
-"""Let the user's own pairs pick the de-rendering model (``derender calibrate --method auto``, issue 27).
+"""Let the user's own pairs pick the de-rendering model (``derender calibrate --method auto``).
 
 Neither paper 2's local GP nor its baselines is best on every camera pipeline, and whoever
 calibrates their own camera cannot know which to use. :func:`select_model` scores each

@@ -1,4 +1,4 @@
-"""Reference frame, alignment and ghost removal, one step of the engine for every method (issue 23).
+"""Reference frame, alignment and ghost removal, one step of the engine for every method.
 
 Real brackets are shot by hand and things move in them. :func:`run_motion` is the engine's
 path for such brackets, whatever the method (its plan says how codes become radiance and

@@ -15,7 +15,7 @@ Per (family, split, method): relative RMSE (MAP point estimate, as in
 channel clipped at 255 and over those outside the sRGB gamut, and the 95 % interval coverage
 per channel (predictive mean and variance), the relative RMSE of the predictive *mean* as a
 point estimate, and for both points the largest share one test colour has of the squared
-relative error (:func:`~derender.evaluation.derendering_metrics.max_colour_share`; issue 27). A ``floor`` row per (family, split) gives the
+relative error (:func:`~derender.evaluation.derendering_metrics.max_colour_share`). A ``floor`` row per (family, split) gives the
 smallest relative RMSE *any* function of the JPEG code can reach on the same test colours
 (:func:`derender.evaluation.derendering_metrics.code_floor_errors`): where it rises with the
 family, the rendering itself has become one-to-many, not the model worse. The RAW side (the truth) of every family is the

@@ -37,8 +37,8 @@ __all__ = [
 def max_colour_share(pred, truth) -> float:
     """Largest share one colour has of the squared relative error ``sum_i ||x_hat_i - x_i||^2 / ||x_i||^2``
     (colours with ``||x_i|| > 0``; 0 when the error is 0). A share near 1 means one colour decides
-    :func:`~derender.derendering.model_selection.relative_rmse` (issue 27: one extrapolated colour whose predictive mean was 36x its truth
-    held 11.9 % of a family's squared error)."""
+    :func:`~derender.derendering.model_selection.relative_rmse` (an extrapolated colour with a
+    predictive mean far above its truth can hold most of a family's squared error)."""
     p, t = pair_arrays(pred, truth)
     n2 = (t * t).sum(1)
     ok = n2 > 0

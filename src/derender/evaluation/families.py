@@ -1,4 +1,4 @@
-"""Every HDR method on every camera-pipeline family, beside the oracle and OpenCV (issues 16, 18).
+"""Every HDR method on every camera-pipeline family, beside the oracle and OpenCV.
 
 ``derender experiment families`` simulates brackets through each pipeline family of
 :mod:`derender.camera.families` (scene kinds x seeds), merges the *same* 8-bit codes with

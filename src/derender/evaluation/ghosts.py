@@ -12,8 +12,8 @@ its median:
 * ``swept``: covered in some frame but not in the reference (the background must win);
 * ``object``: covered in the reference (the object as it was at that instant must win).
 
-The ratio ``moving / still`` per zone is what ghost removal must bring towards 1 (issue 23:
-static <= 1.10, swept <= 1.25, object <= 1.5). A handheld bracket's still twin is the
+The ratio ``moving / still`` per zone is what ghost removal must bring towards 1 (the
+targets, ``docs/ghosts.md``: static <= 1.10, swept <= 1.25, object <= 1.5). A handheld bracket's still twin is the
 tripod one (no shake): its ratio also measures what alignment loses.
 """
 
@@ -59,8 +59,8 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                      camera: str = "nikon-d5100", kind: str = "outdoor", options: dict | None = None,
                      progress: Callable[[str], None] | None = None, model: Any = None) -> list[dict[str, Any]]:
     """One row per (family, setting, seed, method): zone medians on the moving bracket and on
-    its still twin, and their ratios. ``shake`` defaults to 2 % of the width (issue 23's
-    handheld case); ``options`` go to every merge (e.g. ``deghost=True, align="translation"``).
+    its still twin, and their ratios. ``shake`` defaults to 2 % of the width (a handheld
+    bracket); ``options`` go to every merge (e.g. ``deghost=True, align="translation"``).
     Every method gets the truth's reference frame (the middle frame, an engine option of every
     method), so that the table measures ghosts and alignment, not the choice of instant. Paper 2's
     methods get ``model`` (default: the GP of :func:`derender.evaluation.uncertainty.chart_model`)."""

@@ -14,7 +14,7 @@ the plane (over the evaluated pixels). Identical planes (MSE = 0) score
 :data:`PSNR_CAP` dB so that every output stays finite (JSON-safe).
 
 PSNR on radiance only sees the highlights: on HDR scenes the brightest few per cent of
-the pixels carry nearly all of the squared error (issue 18). Two measures in which every
+the pixels carry nearly all of the squared error. Two measures in which every
 pixel counts alike are reported beside it:
 
 * :func:`relative_errors` -- per-pixel relative error ``e_i = ||M r_i - g_i|| / ||g_i||``

@@ -1,4 +1,4 @@
-"""Neutral axis: do pixels a frame renders grey stay grey in the merged radiance? (issue 27)
+"""Neutral axis: do pixels a frame renders grey stay grey in the merged radiance?
 
 A camera's white balance renders neutral surfaces with equal codes ``R = G = B``. A merge
 that recovers linear radiance without a colour model should keep such pixels neutral at

@@ -12,7 +12,7 @@ per channel common to all images (:func:`curve_model`), fitted on samples away f
 clipped pixels (:func:`unclipped_debevec`), with the per-image 3x3 matrices H_j of eq. 9-10
 on top: ``L_j = G(J_j)`` takes the place of ``J_j ** gamma_j``.
 
-Beyond paper 1 and Debevec & Malik (the default since issue 16's third session):
+Beyond paper 1 and Debevec & Malik (the default):
 **exposures re-estimated** (:func:`_debevec_with_exposures`, :data:`CURVE_EXPOSURE_ROUNDS`,
 ``exposure_rounds=`` of :func:`derender.hdr.stabilize.method.merge_stabilized`; 0 turns it
 off). Debevec & Malik fit ``g(Z_pj) = ln E_p + ln t_j`` with the EXIF times; a camera that
@@ -222,7 +222,7 @@ def _debevec_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, ro
 def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, rounds: int,
                                  tie: float) -> tuple:
     """:func:`_debevec_with_exposures` for the three channels at once, their curves tied
-    (:func:`derender.response.curves.solve_tied`, weight ``tie``; issue 27): ``codes`` (N, P, 3).
+    (:func:`derender.response.curves.solve_tied`, weight ``tie``): ``codes`` (N, P, 3).
     The tied system is still linear in the per-channel log exposures, so one solve serves
     every round. Returns ``(g (256, 3), o (N, 3))``."""
     from derender.response.curves import solve_tied
@@ -264,7 +264,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 
 
 #: Weight of the channel tie in the curve model's Debevec fit (:func:`unclipped_debevec`); the
-#: classic merges tie their channels (:data:`derender.response.curves.DEFAULT_TIE`, issue 27),
+#: classic merges tie their channels (:data:`derender.response.curves.DEFAULT_TIE`),
 #: the curve model does not (0: independent channel curves, each anchored at ``g(128) = 0``).
 #: Measured with a tie of 1000 (``derender experiment families``, outdoor + indoor x seeds 0-1;
 #: PSNR L, stabilized / stabilized-joint): ``camera`` 43.54 / 42.79 -> 43.39 / 42.66 (tuning),
@@ -274,7 +274,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 #: 1e5) lowered ``camera``. What the tie would buy is neutral greys in the rendering: truly grey
 #: pixels of ``camera`` 0.22 -> 0.10 largest deviation per decade, the iPhone's mid-frame greys
 #: 0.21-0.29 -> 0.10-0.15. Against the exact radiance the tie loses on the tuning family, so it is
-#: off (an option of :func:`unclipped_debevec`); the greys are issue 27's open line.
+#: off (an option of :func:`unclipped_debevec`); the greys stay an open problem (``docs/paper1.md``, neutral axis).
 CURVE_TIE = 0.0
 
 
