@@ -202,7 +202,7 @@ def frankot_chellappa(normals: np.ndarray, mask: np.ndarray | None = None) -> np
     return depth
 
 
-def render_photometric_images(scene: PhotometricScene, camera, lights: np.ndarray, seed: int = 0,
+def render_photometric_images(scene: PhotometricScene, camera, lights: np.ndarray, *, seed: int = 0,
                               style: str = "camera", wb_preset: str = "D65", illuminant: str = "A",
                               peak: float = 1.6, albedo: str = "colorchecker"):
     """Render the object under each light through the simulator (sensor noise, JPEG engine).

@@ -140,7 +140,7 @@ class ChartPairs:
     family: str | None = None    # pipeline family of the JPEGs (None: ``style``'s fixed pipeline)
 
 
-def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", n_illuminants: int = 16, n_exposures: int = 22,
+def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", *, n_illuminants: int = 16, n_exposures: int = 22,
                 style: str = "camera", patch_px: int = 16, seed: int = 0, core: int = 4,
                 progress: Callable[[int, int], None] | None = None, family: str | None = None) -> ChartPairs:
     """Simulate the paper-2 calibration session for one camera (see module doc; ``family``

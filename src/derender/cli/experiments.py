@@ -65,7 +65,7 @@ def exp_derender_families(
 
     with OutputTransaction() as tx:
         json_tmp = tx.add(output, "--json", (".json",))
-        rows = derender_families(_cams(families), _cams(cameras), methods=[m.strip() for m in methods.split(",")],
+        rows = derender_families(_cams(families), cameras=_cams(cameras), methods=[m.strip() for m in methods.split(",")],
                                  n_train=n_train, seed=seed, progress=lambda msg: console().print(msg))
         if json_tmp is not None:
             json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")

@@ -339,7 +339,7 @@ class LocalGPModel(DerenderModel):
     _param_names = ("centroids", "cluster_group", "X", "T", "offsets", "theta", "theta_noise", "log_noise",
                     "t_mean", "t_std", "eps", "raw_white", "table_nodes", "table_values")
 
-    def __init__(self, n_clusters: int = 10, n_train: int = 5000, max_cluster_points: int = 1000,
+    def __init__(self, *, n_clusters: int = 10, n_train: int = 5000, max_cluster_points: int = 1000,
                  opt_points: int = 500, eps_rel: float = 1e-4, table_size: int = 40,
                  heteroscedastic: bool = True, clip_code: float = 254.5, clip_patterns: bool = False,
                  input_warp: float = 0.0, n_jobs: int | None = None, seed: int = 0, metadata: dict | None = None):

@@ -62,7 +62,7 @@ def _split(pairs, split: str, n_train: int, rng: np.random.Generator) -> tuple[n
     return np.sort(tr), np.flatnonzero(test)
 
 
-def derender_families(families: Sequence[str] | None = None, cameras: Sequence[str] | None = None,
+def derender_families(families: Sequence[str] | None = None, *, cameras: Sequence[str] | None = None,
                       methods: Sequence[str] = ("gp", "poly", "rbf"), splits: Sequence[str] = SPLITS,
                       n_train: int = 5000, seed: int = 0, n_illuminants: int = 16, n_exposures: int = 22,
                       floor: bool = True, progress: Callable[[str], None] | None = None) -> list[dict]:

@@ -191,7 +191,7 @@ def _scene_estimates(model, method: str, jpeg: np.ndarray, t_rel: np.ndarray, lo
     return (w * mean).sum(0) / np.maximum(w.sum(0), 1e-300)
 
 
-def threshold_sweep(cameras: Sequence[str] | None = None, methods: Sequence[str] = METHODS, n_train: int = 5000,
+def threshold_sweep(cameras: Sequence[str] | None = None, *, methods: Sequence[str] = METHODS, n_train: int = 5000,
                     holdouts: Sequence[int] | None = None, seed: int = 0, n_illuminants: int = 16,
                     n_exposures: int = 22, intervals: Sequence[tuple[int, int]] = JPEG_INTERVALS,
                     progress: Callable[[str], None] | None = None) -> list[dict]:
@@ -295,7 +295,7 @@ def plot_threshold_sweep(rows: list[dict], path: str | os.PathLike) -> Path:
     return path
 
 
-def photometric_stereo_experiment(camera: str = "canon-powershot-s90", n_lights: int = 20, size: int = 128,
+def photometric_stereo_experiment(camera: str = "canon-powershot-s90", *, n_lights: int = 20, size: int = 128,
                                   n_train: int = 5000, seed: int = 0, shapes: Sequence[str] = ("sphere", "bumps"),
                                   models: dict | None = None, plot: str | os.PathLike | None = None,
                                   progress: Callable[[str], None] | None = None) -> list[dict]:

@@ -101,7 +101,7 @@ def smooth_mask(truth: np.ndarray, sigma: float = 1.5, tol: float = 0.02, border
     return m
 
 
-def family_comparison(families: Sequence[str] | None = None, kinds: Sequence[str] = ("outdoor", "indoor"),
+def family_comparison(families: Sequence[str] | None = None, *, kinds: Sequence[str] = ("outdoor", "indoor"),
                       seeds: Sequence[int] = (0, 1), size: tuple[int, int] = (192, 128), exposures: int = 7,
                       camera: str = "nikon-d5100", methods: Sequence[str] = FAMILY_METHODS,
                       peers: Sequence[str] = PEERS, oracle: bool = True,

@@ -53,7 +53,7 @@ def zone_errors(result: np.ndarray, truth: np.ndarray, zones: np.ndarray) -> dic
     return out
 
 
-def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), settings: Sequence[str] = GHOST_SETTINGS,
+def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), *, settings: Sequence[str] = GHOST_SETTINGS,
                      seeds: Sequence[int] = (0,), size: tuple[int, int] = (192, 128), exposures: int = 7,
                      objects: int = 3, shake: int | None = None, methods: Sequence[str] = GHOST_METHODS,
                      camera: str = "nikon-d5100", kind: str = "outdoor", options: dict | None = None,

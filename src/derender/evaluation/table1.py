@@ -101,7 +101,7 @@ def resolve_cameras(names: Sequence[str] | None, search_dirs: Sequence[str | os.
     return cams
 
 
-def simulate_dataset(outdir: str | os.PathLike, scenes: int = 18, exposures: int = 9,
+def simulate_dataset(outdir: str | os.PathLike, *, scenes: int = 18, exposures: int = 9,
                      cameras: Sequence[str] | None = None, size: tuple[int, int] = (384, 256),
                      pipelines: Sequence[str] = ("auto", "fixed"), styles: Sequence[str] = ("camera",),
                      seed: int = 0, progress: Callable[[int, int], None] | None = None) -> list[dict]:
@@ -279,7 +279,7 @@ def write_benchmark_outputs(result: BenchmarkResult, outdir: str | os.PathLike) 
     return files
 
 
-def fusion_gain(styles: Sequence[str] = ("simple", "camera"), kinds: Sequence[str] = ("outdoor", "indoor", "night"),
+def fusion_gain(styles: Sequence[str] = ("simple", "camera"), *, kinds: Sequence[str] = ("outdoor", "indoor", "night"),
                 seeds: Sequence[int] = (0, 1, 2), size: tuple[int, int] = (192, 128), pipeline: str = "auto",
                 methods: Sequence[str] = ("stabilized",), camera: str = "nikon-d5100", exposures: int = 9,
                 progress: Callable[[str], None] | None = None) -> list[dict]:

@@ -210,7 +210,7 @@ def solve_dense(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return x
 
 
-def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
+def calibrate_debevec(stack: Stack, *, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
                       sampling: str = "grid", seed: int = 0, weights: Any = "hat", n_levels: int = 256,
                       monotonic: bool = True, balance: bool = False, tie: float = 0.0) -> ResponseCurves:
     """Recover ``g = ln f^-1`` per channel with :func:`solve_debevec` (Debevec & Malik 1997).

@@ -111,7 +111,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- Robertson
-def calibrate_robertson(stack: Stack, n_iter: int = 30, tol: float = 1e-6, max_pixels: int = 40_000,
+def calibrate_robertson(stack: Stack, *, n_iter: int = 30, tol: float = 1e-6, max_pixels: int = 40_000,
                         weight: Any = "gaussian", n_levels: int = 256, seed: int = 0,
                         lam: float | None = None, balance: bool = True, tie: float | None = None) -> ResponseCurves:
     """Iterative response recovery of Robertson, Borman & Stevenson (1999; JEI 2003, Sec. 3), made robust.
@@ -221,7 +221,7 @@ def _update_variance(y: np.ndarray, sq: np.ndarray, cnt: np.ndarray, ok: np.ndar
     return np.where(two, np.clip(var, VARIANCE_FLOOR * med, VARIANCE_CAP * med), med)
 
 
-def robertson_from_samples(z: np.ndarray, times: np.ndarray, n_iter: int = 30, tol: float = 1e-6,
+def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30, tol: float = 1e-6,
                            max_pixels: int = 40_000, weight: Any = "gaussian", n_levels: int = 256,
                            lam: float = ROBERTSON_LAMBDA, balance: bool = True,
                            tie: float | None = None) -> ResponseCurves:

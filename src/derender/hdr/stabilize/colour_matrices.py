@@ -38,7 +38,7 @@ _W = LUMINANCE_WEIGHTS_REC709
 
 def fit_frame_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "float | Curve",
                      gamma_dst: "float | Curve",
-                     n_iter: int = 100, sample: int = 4, threshold: float | None = None,
+                     *, n_iter: int = 100, sample: int = 4, threshold: float | None = None,
                      seed: int = 0, ridge: float | None = None,
                      max_score: int = 1000) -> tuple[np.ndarray, np.ndarray]:
     """H with ``dst_codes ** gamma_dst ~ H @ src_codes ** gamma_src`` (paper 1, eq. 9), by
@@ -116,7 +116,7 @@ def fit_frame_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
     return h, best
 
 
-def _neighbour_matrix(blocks: Blocks, j: int, a: int, gammas, low: float, high: float, floor: float,
+def _neighbour_matrix(blocks: Blocks, j: int, a: int, gammas, *, low: float, high: float, floor: float,
                       n_iter: int, seed: int) -> np.ndarray | None:
     """H (a <- j) fitted on the blocks images j and a share, or None when fewer than 8 blocks
     (too few to pin down 9 entries against noise) or the fit is implausible."""
@@ -147,7 +147,7 @@ def _pair_effective(blocks: Blocks, j: int, k: int, gammas: np.ndarray, low: flo
             effective_codes(blocks.codes[k][common], gammas[k]))
 
 
-def _pair_graph(blocks: Blocks, gammas: np.ndarray, n: int, low: float, high: float, floor: float,
+def _pair_graph(blocks: Blocks, gammas: np.ndarray, n: int, *, low: float, high: float, floor: float,
                 min_blocks: int, max_gap: int, seed: int, n_iter: int) -> dict:
     """RANSAC-fitted maps for pairs (j, k), k - j <= max_gap: {(j, k): (H_k<-j, jj_in, jk_in)}."""
     out = {}
@@ -161,7 +161,7 @@ def _pair_graph(blocks: Blocks, gammas: np.ndarray, n: int, low: float, high: fl
     return out
 
 
-def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int, low: float = FIT_LOW,
+def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int, *, low: float = FIT_LOW,
                                 high: float = FIT_HIGH, floor: float = FIT_FLOOR, min_blocks: int = 12,
                                 path: str = "auto", seed: int = 0, n_iter: int = 100,
                                 times: np.ndarray | None = None) -> tuple[np.ndarray, list]:
@@ -203,7 +203,7 @@ def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: in
                                  f"{reference}; use path='chain'")
         elif path != "chain":
             raise InputError(f"path must be 'auto', 'direct' or 'chain', got {path!r}")
-        h = _neighbour_matrix(blocks, j, a, gammas, low, high, floor, n_iter, seed)
+        h = _neighbour_matrix(blocks, j, a, gammas, low=low, high=high, floor=floor, n_iter=n_iter, seed=seed)
         if h is None:
             # nothing well exposed in common (exposure step too large, frame nearly black or
             # white): assume the neighbour's rendering, scaled by the exposure ratio
@@ -215,7 +215,7 @@ def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: in
     return mats, how
 
 
-def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray, low: float = FIT_LOW,
+def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray, *, low: float = FIT_LOW,
                          high: float = FIT_HIGH, floor: float = FIT_FLOOR, min_blocks: int = 12,
                          max_gap: int = 2, seed: int = 0, n_iter: int = 100) -> np.ndarray:
     """Reference-free colour matrices: K_j (N, 3, 3) such that ``K_j L_j / t_j`` agree on every
@@ -234,7 +234,8 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
     """
     n = blocks.codes.shape[0]
     t = np.asarray(times, dtype=np.float64).reshape(-1)
-    graph = _pair_graph(blocks, gammas, n, low, high, floor, min_blocks, max_gap, seed, n_iter)
+    graph = _pair_graph(blocks, gammas, n, low=low, high=high, floor=floor, min_blocks=min_blocks, max_gap=max_gap,
+                        seed=seed, n_iter=n_iter)
     # the joint fit runs over the largest connected run of images; the others are attached
     # afterwards to their nearest fitted neighbour (see the end)
     adj = np.zeros(n - 1, dtype=bool)
@@ -304,6 +305,6 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
         a = min(done, key=lambda d: (abs(d - j), d))
         rest.remove(j)
         done.add(j)
-        h = _neighbour_matrix(blocks, j, a, gammas, low, high, floor, n_iter, seed)
+        h = _neighbour_matrix(blocks, j, a, gammas, low=low, high=high, floor=floor, n_iter=n_iter, seed=seed)
         mats[j] = mats[a] @ (h * (t[j] / t[a]) if h is not None else np.eye(3))
     return mats

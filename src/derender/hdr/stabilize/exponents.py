@@ -131,7 +131,7 @@ def _run_pair_searches(items: list, max_lr: float, rounds: int, batched: bool) -
     return out
 
 
-def relative_exponents(blocks: Blocks, bases: list, low: float, high: float, floor: float, max_gap: int,
+def relative_exponents(blocks: Blocks, bases: list, *, low: float, high: float, floor: float, max_gap: int,
                        prior_sd: float, min_blocks: int, max_lr: float,
                        max_pair_blocks: int = 800, rounds: int = 2) -> tuple[np.ndarray, list, np.ndarray]:
     """Per-image log exponent corrections ``u`` (mean 0 over connected images) from the
@@ -253,7 +253,7 @@ def _per_image_log_scales(pairs: list, mats: list[np.ndarray], n: int) -> np.nda
     return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
-def estimate_gammas(images: Any, times: Sequence[float] | None = None, valid: np.ndarray | None = None,
+def estimate_gammas(images: Any, *, times: Sequence[float] | None = None, valid: np.ndarray | None = None,
                     block: int = 2, low: float = FIT_LOW, high: float = FIT_HIGH, floor: float = FIT_FLOOR,
                     max_blocks: int = 20000, max_gap: int = 2, prior_sd: float = 0.1,
                     min_blocks: int = 12, base: float = 2.2, bounds: tuple[float, float] = (1.0, 4.0),
@@ -301,7 +301,7 @@ def estimate_gammas(images: Any, times: Sequence[float] | None = None, valid: np
                                   info={"block": block, "max_blocks": max_blocks})
 
 
-def estimate_gammas_blocks(blocks: Blocks, tarr: np.ndarray | None, low: float, high: float, floor: float,
+def estimate_gammas_blocks(blocks: Blocks, tarr: np.ndarray | None, *, low: float, high: float, floor: float,
                            max_gap: int, prior_sd: float, min_blocks: int, base: float,
                            bounds: tuple[float, float], info: dict) -> GammaEstimate:
     """:func:`estimate_gammas` on blocks already gathered (:func:`make_blocks`); ``tarr`` the
@@ -309,8 +309,8 @@ def estimate_gammas_blocks(blocks: Blocks, tarr: np.ndarray | None, low: float, 
     n = blocks.codes.shape[0]
     t0 = time.perf_counter()
     max_lr = float(np.log(bounds[1] / bounds[0]))
-    u, pairs, connected = relative_exponents(blocks, [base] * n, low, high, floor, max_gap, prior_sd,
-                                             min_blocks, max_lr)
+    u, pairs, connected = relative_exponents(blocks, [base] * n, low=low, high=high, floor=floor, max_gap=max_gap,
+                                             prior_sd=prior_sd, min_blocks=min_blocks, max_lr=max_lr)
     rel = base * np.exp(u)
     lo_k = bounds[0] / rel.min()
     hi_k = bounds[1] / rel.max()

@@ -104,15 +104,16 @@ SCREEN_TREND = 0.6
 SCREEN_BLOCKS, SCREEN_ROUNDS = 200, 1
 
 
-def screen_gamma_trend(blocks: Blocks, times: Sequence[float], low: float = FIT_LOW, high: float = FIT_HIGH,
+def screen_gamma_trend(blocks: Blocks, times: Sequence[float], *, low: float = FIT_LOW, high: float = FIT_HIGH,
                        floor: float = FIT_FLOOR, max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12,
                        base: float = 2.2, bounds: tuple[float, float] = (1.0, 4.0)) -> float:
     """:func:`gamma_trend` of the relative exponents from a quick search (:data:`SCREEN_BLOCKS`
     blocks per pair, :data:`SCREEN_ROUNDS` round; the absolute level does not change a
     trend of log gammas), over the images the pairs connect; 0 with fewer than 3."""
     n = blocks.codes.shape[0]
-    u, _, connected = relative_exponents(blocks, [base] * n, low, high, floor, max_gap, prior_sd, min_blocks,
-                                         float(np.log(bounds[1] / bounds[0])), max_pair_blocks=SCREEN_BLOCKS,
+    u, _, connected = relative_exponents(blocks, [base] * n, low=low, high=high, floor=floor, max_gap=max_gap,
+                                         prior_sd=prior_sd, min_blocks=min_blocks,
+                                         max_lr=float(np.log(bounds[1] / bounds[0])), max_pair_blocks=SCREEN_BLOCKS,
                                          rounds=SCREEN_ROUNDS)
     if int(connected.sum()) < 3:
         return 0.0
@@ -278,7 +279,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 CURVE_TIE = 0.0
 
 
-def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, seed: int = 0,
+def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, *, seed: int = 0,
                       high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS,
                       exposure_rounds: int | None = None, tie: float | None = None, valid_at: Any = None) -> Any:
     """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
@@ -355,7 +356,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
 
 
 def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
-                 max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
+                 *, max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
                  seed: int = 0, calibrate: Any = None, exposure_rounds: int | None = None) -> tuple[list, dict]:
     """Response model ``L_j = G(J_j ** rho_j)``: one response table ``G`` per channel common to
     the bracket (Debevec & Malik 1997, on the exponent-warped codes) and a relative
@@ -386,7 +387,7 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
             return calibrate().log_inverse
         if np.all(r == 1.0):
             cur = unclipped_debevec(lambda j, ys, xs: to_codes(np.asarray(images[j])[ys, xs], 256), n,
-                                    images.shape[1:3], times, seed, exposure_rounds=exposure_rounds)
+                                    images.shape[1:3], times, seed=seed, exposure_rounds=exposure_rounds)
             if cur is not None:
                 return cur.log_inverse
         if np.all(r == 1.0) and images.min() >= 0.0 and images.max() <= 1.0:
@@ -398,8 +399,8 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
     table = table_for(rho)
     for _ in range(int(rounds)):
         bases = [Curve(rho[j], log_table=table) for j in range(n)]
-        u, pairs, _ = relative_exponents(blocks, bases, low, high, floor, max_gap, prior_sd, min_blocks,
-                                         max_lr=float(np.log(2.0)))
+        u, pairs, _ = relative_exponents(blocks, bases, low=low, high=high, floor=floor, max_gap=max_gap,
+                                         prior_sd=prior_sd, min_blocks=min_blocks, max_lr=float(np.log(2.0)))
         rho = rho * np.exp(u)
         rho = rho / np.exp(np.mean(np.log(rho)))
         table = table_for(rho)

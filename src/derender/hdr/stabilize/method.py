@@ -281,7 +281,7 @@ class StabilizedMethod(MethodDefaults):
         t1 = time.perf_counter()
 
         def calibrate():
-            cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed,
+            cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed=seed,
                                     exposure_rounds=opts.exposure_rounds,
                                     valid_at=None if access.valid is None else valid_view.pixels)
             if cur is not None:
@@ -364,7 +364,7 @@ class Stabilization:
         return np.ascontiguousarray(np.maximum(lin @ m.T, 0.0), dtype=np.float32)
 
 
-def stabilize(stack: Stack, reference: int | None = None, align: str = "mtb", mode: str = "reference",
+def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb", mode: str = "reference",
               response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
               path: str = "auto", block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW,
               high: float = FIT_HIGH, floor: float = FIT_FLOOR, ransac_iter: int = 100,
@@ -420,7 +420,7 @@ def _check_modes(mode: str, response: str) -> None:
         raise InputError(f"response must be 'auto', 'power' or 'curve', got {response!r}")
 
 
-def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", response: str = "auto",
+def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference", response: str = "auto",
                       gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                       block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW, high: float = FIT_HIGH,
                       floor: float = FIT_FLOOR, ransac_iter: int = 100, seed: int = 0,
@@ -451,7 +451,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], mode: str = "reference", 
         if response == "auto":
             # quick trend first: clearly filmic brackets skip the full exponent search, whose
             # gammas power_law_plausible would reject anyway
-            quick = screen_gamma_trend(blocks, times, low, high, floor)
+            quick = screen_gamma_trend(blocks, times, low=low, high=high, floor=floor)
             info["screen_trend"] = quick
             screened = abs(quick) > SCREEN_TREND
             if screened:
