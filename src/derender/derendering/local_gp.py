@@ -327,12 +327,12 @@ class LocalGPModel(DerenderModel):
 
     References
     ----------
-    .. [1] Y. Xiong, K. Saenko, T. Darrell, T. Zickler, "From pixels to physics: Probabilistic
-       color de-rendering", CVPR 2012, Sec. 2.2 and 4.
-    .. [2] C. E. Rasmussen, C. K. I. Williams, "Gaussian Processes for Machine Learning", MIT
-       Press 2006, eqs. 2.25-2.26, 2.30, 5.8-5.9.
-    .. [3] K. Kersting, C. Plagemann, P. Pfaff, W. Burgard, "Most likely heteroscedastic
-       Gaussian process regression", ICML 2007. doi:10.1145/1273496.1273546
+    * Y. Xiong, K. Saenko, T. Darrell, T. Zickler, "From pixels to physics: Probabilistic color
+      de-rendering", CVPR 2012, Sec. 2.2 and 4.
+    * C. E. Rasmussen, C. K. I. Williams, "Gaussian Processes for Machine Learning", MIT Press
+      2006, eqs. 2.25-2.26, 2.30, 5.8-5.9.
+    * K. Kersting, C. Plagemann, P. Pfaff, W. Burgard, "Most likely heteroscedastic Gaussian
+      process regression", ICML 2007. doi:10.1145/1273496.1273546
     """
 
     method = "gp"
