@@ -193,3 +193,78 @@ def test_factor_transfers_with_aperture_and_iso():
     assert factor_for_bracket(f, 5.6 / np.sqrt(2), 100) == pytest.approx(1.0)
     assert factor_for_bracket(f, 5.6, 400) == pytest.approx(0.5)
     assert factor_for_bracket(f, 5.6, 100) == pytest.approx(2.0)
+
+
+def test_absolute_exif_follows_the_meter_equation(brackets, capsys):
+    """--absolute exif: in every frame with 64 pixels rendered near mid-grey (luma code 118),
+    those pixels read K N^2 / (t S) cd/m2 (K = 12.5) in the stabilized map within 6 % (measured
+    0.97-1.01 on 4 frames), on the bracket whose aperture and ISO vary (f/2.8-16, ISO 100-1600):
+    a wrong power of N or S would spread the frames by up to 30x. (Debevec's map: 0.87-1.04,
+    its linearity error.) The header records the convention and its uncertainty."""
+    root, _, (bb, fb) = brackets
+    out = root / "exif.exr"
+    code, _, err = run_cli(["merge", *fb, "-o", out, "--absolute", "exif", "--method", "stabilized"], capsys)
+    assert code == 0, err
+    assert "nominal from EXIF" in err and "22 %" in err
+    from derender.io.exif import read_exif
+    from derender.io.exr import read_exr
+    from derender.io.images import read_codes
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.illuminance import luminance_cd_m2
+
+    lum = luminance_cd_m2(read_exr(out), SRGB_PRIMARIES)
+    checked = 0
+    for f in fb:
+        ex, c = read_exif(f), read_codes(f).astype(np.float32)
+        luma = c @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        sel = (np.abs(luma - 118) <= 6) & (c.max(-1) < 250)
+        if sel.sum() < 64:
+            continue
+        expected = 12.5 * ex["FNumber"] ** 2 / (ex["ExposureTime"] * ex["ISO"])
+        assert np.median(lum[sel]) == pytest.approx(expected, rel=0.06), f.name
+        checked += 1
+    assert checked >= 3
+    header = _exr_header(out)
+    assert "uncertainty 0.22" in header["derender:photometry"] and header["whiteLuminance"] == 179.0
+
+
+def test_relative_map_has_chromaticities_and_no_white_luminance(brackets, capsys):
+    """Every EXR the merge writes states its primaries (linear sRGB / Rec. 709, D65), read by
+    the OpenEXR package; a relative map has no whiteLuminance, nor has any variance file."""
+    root, (ba, fa), _ = brackets
+    out = root / "rel.exr"
+    assert run_cli(["merge", *fa, "-o", out], capsys)[0] == 0
+    h = _exr_header(out)
+    np.testing.assert_allclose(h["chromaticities"], (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290), atol=1e-6)
+    assert "whiteLuminance" not in h
+    code, _, err = run_cli(["merge", *fa, "-o", root / "abs.exr", "--method", "stabilized-joint", "--spot",
+                            _spot(ba)], capsys)
+    assert code == 0, err
+    assert _exr_header(root / "abs.exr")["whiteLuminance"] == 179.0
+    from derender.core.types import HDRResult
+    from derender.engine.run import write_outputs
+
+    ones = np.ones((8, 8, 3), np.float32)
+    res = HDRResult(radiance=ones, mask=np.zeros((8, 8), np.uint8), variance=ones,
+                    info={"white_luminance": 179.0, "colour_space": "camera_rgb"})
+    write_outputs(res, root / "r.exr", root / "v.exr")
+    assert _exr_header(root / "r.exr")["whiteLuminance"] == 179.0
+    assert "chromaticities" not in _exr_header(root / "r.exr")            # camera RGB states no primaries
+    assert "whiteLuminance" not in _exr_header(root / "v.exr")
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("{", "not JSON"),
+    ('{"format": "derender-camera-profile", "version": 7}', "version 7"),
+    ('{"format": "something-else", "version": 1}', "not a derender camera profile"),
+    ('{"format": "derender-camera-profile", "version": 1, "photometric": {"factor": -3}}', "not a readable"),
+    ('{"format": "derender-camera-profile", "version": 1, "response": {"log_inverse": [[0, 0, 0]]}}',
+     "not a readable"),
+])
+def test_malformed_profile_is_one_error_and_no_output(brackets, tmp_path, capsys, text, needle):
+    _, (ba, fa), _ = brackets
+    (tmp_path / "p.json").write_text(text)
+    code, _, err = run_cli(["merge", *fa, "-o", tmp_path / "o.exr", "--profile", tmp_path / "p.json"], capsys)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], err
+    assert not (tmp_path / "o.exr").exists()

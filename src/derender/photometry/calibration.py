@@ -20,7 +20,7 @@ calibration constant ``K = 12.5 cd s/m2``: the convention is that a surface the 
 correctly, rendered at the sRGB mid-grey code 118 (``0.461``, linear 0.18: an 18 % grey
 card), has luminance ``L = K N^2 / (t S)`` in a frame of time ``t``, f-number ``N`` and ISO
 speed ``S``. Each frame's pixels whose luma code ``0.2126 R + 0.7152 G + 0.0722 B`` is
-118 +- 6 (and not over-exposed in every frame) give a factor
+118 +- 6 (and not over-exposed in every frame; frames with at least 64 such pixels) give a factor
 ``k_j = K N_j^2 / (t_j S_j) / median(179 w·m)``; the median over frames is taken. It is a
 nominal figure: ISO 2720 allows ``K`` from 10.6 to 13.4, ISO 12232 lets a camera's stated
 speed differ by 1/3 EV, and cameras place mid-grey anywhere within about 1/3 EV of code
@@ -120,7 +120,7 @@ class ExifCalibration:
 
 
 def exif_factor(radiance: np.ndarray, frames, primaries=None, mask: np.ndarray | None = None,
-                tolerance: int = 6, min_pixels: int = 16) -> ExifCalibration:
+                tolerance: int = 6, min_pixels: int = 64) -> ExifCalibration:
     """The nominal EXIF factor of ``radiance`` (H, W, 3), the merge of ``frames``: an iterable
     of ``(codes, t, N, S)``, each frame's 8-bit codes (H, W, 3) on the map's grid, time (s),
     f-number and ISO speed (module docstring)."""
