@@ -268,3 +268,25 @@ def test_malformed_profile_is_one_error_and_no_output(brackets, tmp_path, capsys
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], err
     assert not (tmp_path / "o.exr").exists()
+
+
+def test_profile_view_and_factor_in_a_radiance_file(brackets, capsys):
+    """A profile saved with --view gives later .hdr maps its VIEW= line and their absolute scale,
+    as Radiance's getinfo and pvalue read them (within RGBE precision of the EXR)."""
+    from radiance_tools import getinfo, pvalue_pixels
+
+    from derender.io.exr import read_exr
+
+    root, (ba, fa), (bb, fb) = brackets
+    prof = root / "view.json"
+    code, _, err = run_cli(["merge", *fa, "-o", root / "v.hdr", "--spot", _spot(ba), "--view",
+                            "-vta -vh 180 -vv 180", "--save-profile", prof], capsys)
+    assert code == 0, err
+    assert json.loads(prof.read_text())["view"] == "-vta -vh 180 -vv 180"
+    for out in ("vb.hdr", "vb.exr"):
+        code, _, err = run_cli(["merge", *fb, "-o", root / out, "--profile", prof], capsys)
+        assert code == 0, err
+    info = getinfo(root / "vb.hdr")
+    assert "VIEW= -vta -vh 180 -vv 180" in info and "DERENDER_PHOTOMETRY= absolute" in info, info
+    exr, back = read_exr(root / "vb.exr"), pvalue_pixels(root / "vb.hdr")
+    assert np.all(np.abs(back - exr) <= exr.max(axis=-1, keepdims=True) / 128.0 + 1e-30)

@@ -180,7 +180,7 @@ def merge_cmd(
     images = expand_image_paths(images)
     spec = method_spec(method)
     method_opts = parse_options(method, option)
-    from derender.cli.profiles import apply_photometry, merge_photometry, profile_options
+    from derender.cli.profiles import apply_photometry, hdr_header_lines, merge_photometry, profile_options
 
     ph = merge_photometry(profile=profile, vignetting=vignetting, spot=spot, absolute=absolute, method=method,
                           image=images[0], strict=strict_camera)
@@ -245,7 +245,7 @@ def merge_cmd(
             from derender.io.rgbe import write_hdr
 
             write_hdr(out_tmp, result.radiance, view=view, software=f"derender merge --method {method}",
-                      inputs=inputs)
+                      inputs=inputs, header_lines=hdr_header_lines(result.info))
         if preview_tmp is not None:
             write_preview(preview_tmp, result.radiance, inputs=inputs)
         if mask_tmp is not None:

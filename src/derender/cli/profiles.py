@@ -199,6 +199,12 @@ def apply_photometry(ph: Photometry, result, images: list, method: str) -> str |
     return source
 
 
+def hdr_header_lines(info: dict) -> list[str]:
+    """The .hdr header line recording the photometric calibration (``DERENDER_PHOTOMETRY=``), if any."""
+    text = (info.get("exr_attributes") or {}).get("derender:photometry")
+    return [] if text is None else [f"DERENDER_PHOTOMETRY= {text}"]
+
+
 def _exif_factor(result, images: list) -> tuple[float, float]:
     from derender.io.exif import read_exif
     from derender.io.images import read_codes
