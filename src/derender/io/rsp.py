@@ -75,8 +75,10 @@ def read_rsp(path: str | os.PathLike) -> list[np.ndarray]:
 
 
 def write_rsp(path: str | os.PathLike, polys, inputs=()) -> Path:
-    """Write three polynomials (coefficients from ``c_0`` up, order <= 5) as an hdrgen ``.rsp``
-    file (atomically): one line per channel, ``order c_n ... c_0``, 17 significant digits."""
+    """Write three polynomials (coefficients from ``c_0`` up, order <= 5) as an hdrgen ``.rsp`` file, atomically.
+
+    One line per channel: the order, then the coefficients from the highest power down, 17
+    significant digits."""
     from derender.io.files import atomic_output
 
     if len(polys) != 3:
