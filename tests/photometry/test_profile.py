@@ -290,3 +290,26 @@ def test_profile_view_and_factor_in_a_radiance_file(brackets, capsys):
     assert "VIEW= -vta -vh 180 -vv 180" in info and "DERENDER_PHOTOMETRY= absolute" in info, info
     exr, back = read_exr(root / "vb.exr"), pvalue_pixels(root / "vb.hdr")
     assert np.all(np.abs(back - exr) <= exr.max(axis=-1, keepdims=True) / 128.0 + 1e-30)
+
+
+@pytest.mark.parametrize("method", ["debevec", "stabilized"])
+def test_factor_transfer_is_exact_across_aperture_and_iso(brackets, tmp_path, capsys, method):
+    """The transfer alone, without the spot's or the merge's error: bracket B's codes labelled at
+    A's settings (f/5.6, ISO 100, true times) and labelled with varying f-numbers and ISO speeds
+    (first frame f/16, ISO 400) merge with the same profile to the same absolute map (1e-4)."""
+    root, (ba, fa), (bb, fb) = brackets
+    prof = root / f"{method}.json"
+    if not prof.exists():
+        assert run_cli(["merge", *fa, "-o", tmp_path / "a.exr", "--method", method, "--spot", _spot(ba),
+                        "--save-profile", prof], capsys)[0] == 0
+    (tmp_path / "same").mkdir()
+    same = [_write(tmp_path / "same" / f"{j:02d}.jpg", c, float(t), 5.6, 100)
+            for j, (c, t) in enumerate(zip(bb.jpeg_codes, bb.times))]
+    for name, files in (("same", same), ("vary", fb)):
+        code, _, err = run_cli(["merge", *files, "-o", tmp_path / f"{name}.exr", "--method", method,
+                                "--profile", prof], capsys)
+        assert code == 0, err
+    from derender.io.exr import read_exr
+
+    np.testing.assert_allclose(read_exr(tmp_path / "vary.exr"), read_exr(tmp_path / "same.exr"), rtol=1e-4,
+                               atol=1e-6)

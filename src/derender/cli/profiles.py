@@ -240,7 +240,7 @@ def save_merge_profile(path: Path, ph: Photometry, result, images: list, method:
     curves = result.info.get("curves")
     prof = CameraProfile(make=ex.get("Make"), model=ex.get("Model"), lens=ex.get("Lens"),
                          curves=curves if isinstance(curves, ResponseCurves) else None,
-                         vignetting=ph.vignetting, view=view)
+                         vignetting=ph.vignetting, view=view if view is not None or ph.profile is None else ph.profile.view)
     if ph.profile is not None and prof.curves is None:
         prof.curves, prof.rsp = ph.profile.curves, ph.profile.rsp
     k = result.info.get("photometric_factor")
