@@ -313,3 +313,27 @@ def test_factor_transfer_is_exact_across_aperture_and_iso(brackets, tmp_path, ca
 
     np.testing.assert_allclose(read_exr(tmp_path / "vary.exr"), read_exr(tmp_path / "same.exr"), rtol=1e-4,
                                atol=1e-6)
+
+
+def test_profile_vignetting_is_divided_out(brackets, tmp_path, capsys):
+    """A profile's vignetting model acts as '--vignetting' does (the same map), and an explicit
+    --vignetting file takes precedence over the profile's."""
+    from derender.io.exr import read_exr
+    from derender.photometry.profile import CameraProfile, save_profile
+    from derender.photometry.vignetting import Vignetting, save_vignetting
+
+    _, (ba, fa), _ = brackets
+    vig = Vignetting((-0.35, 0.05, -0.1), (96.0, 64.0), (192, 128), 0.01)
+    save_vignetting(vig, tmp_path / "v.json")
+    save_profile(CameraProfile(make="Test", model="Camera", vignetting=vig), tmp_path / "p.json")
+    save_profile(CameraProfile(vignetting=Vignetting((-0.1, 0.0, 0.0), (96.0, 64.0), (192, 128), 0.01)),
+                 tmp_path / "q.json")
+    for name, extra in (("v", ["--vignetting", tmp_path / "v.json"]), ("p", ["--profile", tmp_path / "p.json"]),
+                        ("q", ["--profile", tmp_path / "q.json", "--vignetting", tmp_path / "v.json"]),
+                        ("n", [])):
+        code, _, err = run_cli(["merge", *fa, "-o", tmp_path / f"{name}.exr", *extra], capsys)
+        assert code == 0, err
+    v, p, q, n = (read_exr(tmp_path / f"{x}.exr") for x in "vpqn")
+    np.testing.assert_array_equal(p, v)
+    np.testing.assert_array_equal(q, v)
+    np.testing.assert_allclose(n[0, 0] / v[0, 0], vig.gain()[0, 0], rtol=1e-5)
