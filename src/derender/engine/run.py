@@ -572,8 +572,7 @@ def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
         res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
     if variance_output is not None:
         write_exr_fast(variance_output, res.variance, half=half, inputs=inputs + ([output] if output else []),
-                       compression=compression, threads=threads,
-                       attributes={k: v for k, v in attributes.items() if k != "whiteLuminance"})
+                       compression=compression, threads=threads, attributes=dict(attributes, whiteLuminance=None))
 
 
 def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,

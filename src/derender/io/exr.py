@@ -139,6 +139,8 @@ def _exr_header(w: int, h: int, channels: Sequence[str], pixel_type: int, compre
         _exr_attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
     ]
     for name, value in sorted((attributes or {}).items()):
+        if value is None:       # an attribute left out (e.g. a variance file's whiteLuminance)
+            continue
         if not name or "\0" in name or len(name) > 31:
             raise InputError(f"EXR attribute names are 1-31 characters, got {name!r}")
         if isinstance(value, Chromaticities):
@@ -195,7 +197,7 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
     (like :func:`derender.io.write_exr`); with ``half=True`` values beyond the half-float
     range are clipped to +-65504 instead of becoming inf. ``attributes``: extra string
     attributes of the header (e.g. ``derender:reference``): text, or a float (``float``
-    attribute), or :class:`Chromaticities` (:func:`colour_attributes`). See :func:`write_exr_lines`
+    attribute), or :class:`Chromaticities` (:func:`colour_attributes`); None leaves the name out. See :func:`write_exr_lines`
     for images produced block by block.
     """
     arr = image
