@@ -69,6 +69,11 @@ TIMES = ["--times", "1,2,4"]
     (["--ghost-mask", "g.png"], "--ghost-mask shows where --deghost or --align left frames out"),
     (["--deghost", "--ghost-mask", "g.exr"], "--ghost-mask must end in"),
     (["--align", "homography"], "no features"),
+    (["--profile", "nope.json"], "no such camera profile"),
+    (["--save-profile", "p.exr"], "--save-profile must end in"),
+    (["--absolute", "meter"], "--absolute takes 'exif'"),
+    (["--absolute", "exif", "--spot", "1,1,2,2=100"], "not both"),
+    (["--absolute", "exif"], "needs ExposureTime, FNumber and ISO in every frame's EXIF; in0.png"),
 ])
 def test_outputs_checked_before_any_work(tmp_path, capsys, monkeypatch, extra, needle):
     monkeypatch.chdir(tmp_path)
@@ -79,6 +84,23 @@ def test_outputs_checked_before_any_work(tmp_path, capsys, monkeypatch, extra, n
     code, _, err = run_cli(args, capsys)
     _assert_error(code, err, needle)
     assert _listing(tmp_path) == listing and _digest(ins) == before
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("not json", "not a camera profile (not JSON)"),
+    ('{"format": "derender-camera-profile", "version": 9}', "version 9; this derender reads version 1"),
+    ('{"format": "derender-camera-profile", "version": 1, "view": "-vq 3"}', "not a readable camera profile"),
+])
+def test_malformed_profile(tmp_path, capsys, monkeypatch, text, needle):
+    """A malformed camera profile (issue 28): one error line, exit 2, no output."""
+    monkeypatch.chdir(tmp_path)
+    ins = _bracket(tmp_path)
+    Path("bad.json").write_text(text)
+    listing = _listing(tmp_path)
+    code, _, err = run_cli(["merge", *ins, "-o", "o.exr", *TIMES, "--profile", "bad.json",
+                            "--save-profile", "p.json"], capsys)
+    _assert_error(code, err, needle)
+    assert _listing(tmp_path) == listing
 
 
 def test_deghost_outputs_and_summary(tmp_path, capsys, monkeypatch):

@@ -16,7 +16,7 @@ import sys
 
 import typer
 
-from derender.cli import derendering, experiments, hdr, photometry  # noqa: F401  (they register their commands)
+from derender.cli import derendering, experiments, hdr, photometry, profiles  # noqa: F401  (they register their commands)
 from derender.cli.app import app, click_exception_types, command, fast_exit_gc
 from derender.core.errors import DerenderError, Interrupted, interrupt_handler
 

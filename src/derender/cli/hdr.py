@@ -123,6 +123,12 @@ def merge_cmd(
     spot: Optional[str] = typer.Option(None, "--spot", help="X,Y,W,H=NITS: a luminance-meter reading (cd/m2) over "
                                        "that rectangle of the output; the map (and variance) are scaled to absolute "
                                        "units, luminance 179 (w·RGB) cd/m2 as Radiance reads it."),
+    absolute: Optional[str] = typer.Option(None, "--absolute", help="'exif': absolute units without a meter, the "
+                                           "nominal ISO 2720 constant K = 12.5 and EXIF t, N, S (+-22 %; docs)."),
+    profile: Optional[Path] = typer.Option(None, "--profile", help="Camera profile (.json): its response curves "
+                                           "(debevec, robertson), photometric factor, vignetting and view."),
+    save_profile: Optional[Path] = typer.Option(None, "--save-profile", help="Write this merge's camera profile "
+                                                "(.json): curves, the --spot factor, vignetting, view, camera."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
     variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
@@ -174,16 +180,10 @@ def merge_cmd(
     images = expand_image_paths(images)
     spec = method_spec(method)
     method_opts = parse_options(method, option)
-    vig = None
-    if vignetting is not None:
-        from derender.photometry.vignetting import load_vignetting
+    from derender.cli.profiles import apply_photometry, hdr_header_lines, merge_photometry, profile_options
 
-        vig = load_vignetting(vignetting)
-    spot_reading = None
-    if spot is not None:
-        from derender.photometry.calibration import parse_spot
-
-        spot_reading = parse_spot(spot)
+    ph = merge_photometry(profile=profile, vignetting=vignetting, spot=spot, absolute=absolute, method=method,
+                          image=images[0], strict=strict_camera)
     if variance is not None and not spec.gives_variance:
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
     if model is not None and not spec.needs_model:
@@ -194,11 +194,12 @@ def merge_cmd(
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     motion_opts = _motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
     t0 = time.perf_counter()
-    inputs = list(images) + ([times_file] if times_file else []) + ([model] if model else []) + \
-        ([vignetting] if vignetting else [])
+    inputs = list(images) + [p for p in (times_file, model, vignetting, profile) if p]
     with OutputTransaction(inputs) as tx:
         out_tmp = tx.add(output, "--output", (".exr", ".hdr"))
         as_hdr = output.suffix.lower() == ".hdr"
+        view = view if view is not None or not as_hdr or ph.profile is None else ph.profile.view
+        profile_tmp = tx.add(save_profile, "--save-profile", (".json",))
         if view is not None:
             if not as_hdr:
                 raise InputError("--view is written into a Radiance .hdr output; give -o MAP.hdr")
@@ -211,7 +212,7 @@ def merge_cmd(
         plot_tmp = tx.add(plot, "--plot", (".png", ".pdf", ".svg"))
         report_tmp = tx.add(report, "--report", (".html", ".htm"))
         ghost_tmp = tx.add(ghost_mask, "--ghost-mask", (".png", ".tif", ".tiff"))
-        extra = {**method_opts, **motion_opts}
+        extra = {**method_opts, **motion_opts, **profile_options(ph, method)}
         if model is not None:
             from derender.derendering.library import resolve_model
 
@@ -220,28 +221,18 @@ def merge_cmd(
             typer.echo(f"de-rendering model: {used}", err=True)
             extra["model"] = model_obj
         # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
-        direct = not as_hdr and spot_reading is None and vig is None   # the engine writes the EXR (band by band)
+        direct = not as_hdr and not ph.active and profile_tmp is None   # the engine writes the EXR (band by band)
         result = merge_files(images, parse_times(times) if times is not None else None, method,
                              times_file=times_file, times_file_inverse=times_inverse,
                              output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
                              half=half, inputs=inputs, seed=seed, max_megapixels=max_megapixels,
                              hold_outputs=preview_tmp is not None or report_tmp is not None or not direct,
                              **extra)
-        if vig is not None:
-            from derender.photometry.vignetting import correct_vignetting
+        absolute_source = apply_photometry(ph, result, images, method) if ph.active else None
+        if profile_tmp is not None:
+            from derender.cli.profiles import save_merge_profile
 
-            result.radiance, result.variance = correct_vignetting(result.radiance, vig, result.variance)
-        if spot_reading is not None:
-            from derender.io.rgbe import SRGB_PRIMARIES
-            from derender.photometry.calibration import spot_factor
-
-            cal = spot_factor(result.radiance, spot_reading, primaries=SRGB_PRIMARIES, mask=result.mask)
-            result.radiance *= np.float32(cal.factor)
-            if result.variance is not None:
-                result.variance *= np.float32(cal.factor ** 2)
-            result.info["photometric_factor"] = cal.factor
-            typer.echo(f"photometric factor {cal.factor:.6g} from the spot ({spot_reading.nits:g} cd/m2; luminance "
-                       f"spread in it {100 * cal.spread:.1f} %)", err=True)
+            save_merge_profile(profile_tmp, ph, result, images, method, view, inputs)
         if not direct and not as_hdr:
             from derender.engine.run import write_outputs
 
@@ -254,7 +245,7 @@ def merge_cmd(
             from derender.io.rgbe import write_hdr
 
             write_hdr(out_tmp, result.radiance, view=view, software=f"derender merge --method {method}",
-                      inputs=inputs)
+                      inputs=inputs, header_lines=hdr_header_lines(result.info))
         if preview_tmp is not None:
             write_preview(preview_tmp, result.radiance, inputs=inputs)
         if mask_tmp is not None:
@@ -269,7 +260,7 @@ def merge_cmd(
 
             plot_response(result.info["curves"], plot_tmp, inputs=inputs)
         if report_tmp is not None:
-            _merge_report(report_tmp, result, images, method, spot_reading is not None, view, inputs,
+            _merge_report(report_tmp, result, images, method, absolute_source is not None, view, inputs,
                           times=(parse_times(times) if times is not None else None, times_file, times_inverse))
     n_bright = int((result.mask == HDRResult.MASK_BRIGHT).sum())
     n_dark = int((result.mask == HDRResult.MASK_DARK).sum())

@@ -43,7 +43,7 @@ from derender.engine.motion import motion_attributes
 from derender.engine.overlap import OVERLAP_ROWS, OutputRing, RowsDone, merge_writing, run_bands
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
 from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
-from derender.io.exr import write_exr_fast
+from derender.io.exr import exr_attributes, write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
@@ -554,7 +554,7 @@ def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, hal
                 buf[ya - y0:yb - y0, kk, :] = view[:, :, c]
 
     write_exr_lines(output, w, h, bgr_lines, half=half, inputs=list(inputs), compression=compression, threads=threads,
-                    rows_read=None if ring is None else (lambda y: ring.read(k, y)))
+                    rows_read=None if ring is None else (lambda y: ring.read(k, y)), attributes=exr_attributes(res.info))
 
 
 def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
@@ -564,7 +564,7 @@ def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
     inputs = list(inputs)
     if variance_output is not None and res.variance is None:
         raise InputError(f"method {name!r} gives no variance")
-    attributes = motion_attributes(res.info)
+    attributes = {**exr_attributes(res.info), **motion_attributes(res.info)}
     if output is not None:
         tw = time.perf_counter()
         write_exr_fast(output, res.radiance, half=half, inputs=inputs, compression=compression, threads=threads,
@@ -572,7 +572,7 @@ def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
         res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
     if variance_output is not None:
         write_exr_fast(variance_output, res.variance, half=half, inputs=inputs + ([output] if output else []),
-                       compression=compression, threads=threads, attributes=attributes)
+                       compression=compression, threads=threads, attributes=dict(attributes, whiteLuminance=None))
 
 
 def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,

@@ -42,7 +42,7 @@ def _ratio_to_float(value) -> float | None:
 
 
 def read_exif(path: str | os.PathLike) -> dict:
-    """EXIF fields we use: ``ExposureTime`` (s), ``Make``, ``Model``, ``ISO``, ``FNumber``.
+    """EXIF fields we use: ``ExposureTime`` (s), ``Make``, ``Model``, ``Lens``, ``ISO``, ``FNumber``.
 
     Missing fields are absent from the dict; unreadable EXIF gives an empty dict. An
     ``ExposureTime`` that is present but not a positive number is reported as
@@ -65,11 +65,12 @@ def read_exif(path: str | os.PathLike) -> dict:
             "EXIF ISOSpeedRatings": "ISO",
             "Image Make": "Make",
             "Image Model": "Model",
+            "EXIF LensModel": "Lens",
         }
         for key, name in mapping.items():
             if key in tags and name not in info:
                 val = tags[key]
-                if name in ("Make", "Model"):
+                if name in ("Make", "Model", "Lens"):
                     info[name] = str(val.printable).strip().strip("\x00")
                 else:
                     v = _ratio_to_float(val.values[0] if getattr(val, "values", None) else val)
@@ -102,6 +103,8 @@ def read_exif(path: str | os.PathLike) -> dict:
                 if exif:
                     info.setdefault("Make", str(exif.get(0x010F, "")).strip("\x00 ") or None)
                     info.setdefault("Model", str(exif.get(0x0110, "")).strip("\x00 ") or None)
+                    if sub and 0xA434 in sub:
+                        info.setdefault("Lens", str(sub[0xA434]).strip("\x00 ") or None)
         except Exception:  # noqa: BLE001
             pass
     return {k: v for k, v in info.items() if v is not None}

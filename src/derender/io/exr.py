@@ -32,7 +32,39 @@ __all__ = [
     "EXR_COMPRESSION",
     "write_exr_fast",
     "write_exr_lines",
+    "SRGB_CHROMATICITIES",
+    "colour_attributes",
+    "exr_attributes",
 ]
+
+#: OpenEXR ``chromaticities`` of linear sRGB / Rec. 709 (x, y of red, green, blue, white D65).
+SRGB_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+
+def colour_attributes(colour_space: str | None = "linear_srgb", white_luminance: float | None = None) -> dict:
+    """The standard OpenEXR attributes that say what a map's RGB is: ``chromaticities`` (linear
+    sRGB / Rec. 709 primaries, D65 white; none for camera RGB, which has no stated primaries)
+    and ``whiteLuminance`` (cd/m2 of RGB = (1, 1, 1); for an absolute map in Radiance's units,
+    ``L = 179 w·RGB``, it is 179), as typed values for :func:`write_exr_fast`'s ``attributes``."""
+    out: dict = {}
+    if colour_space in (None, "linear_srgb"):
+        out["chromaticities"] = Chromaticities(SRGB_CHROMATICITIES)
+    if white_luminance is not None:
+        out["whiteLuminance"] = float(white_luminance)
+    return out
+
+
+def exr_attributes(info: dict) -> dict:
+    """A merge result's attributes from its ``info``: :func:`colour_attributes` (``chromaticities``
+    unless ``info["colour_space"]`` is camera RGB, ``whiteLuminance`` when ``info`` holds a
+    ``white_luminance``, set by an absolute calibration) and any ``info["exr_attributes"]``."""
+    return {**colour_attributes(info.get("colour_space", "linear_srgb"), info.get("white_luminance")),
+            **dict(info.get("exr_attributes") or {})}
+
+
+class Chromaticities(tuple):
+    """Eight floats written as an OpenEXR ``chromaticities`` attribute (red, green, blue, white x y)."""
+
 
 
 # --------------------------------------------------------------------------- EXR / HDR
@@ -107,9 +139,18 @@ def _exr_header(w: int, h: int, channels: Sequence[str], pixel_type: int, compre
         _exr_attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
     ]
     for name, value in sorted((attributes or {}).items()):
+        if value is None:       # an attribute left out (e.g. a variance file's whiteLuminance)
+            continue
         if not name or "\0" in name or len(name) > 31:
             raise InputError(f"EXR attribute names are 1-31 characters, got {name!r}")
-        attrs.append(_exr_attr(name, "string", str(value).encode("utf-8")))
+        if isinstance(value, Chromaticities):
+            if len(value) != 8:
+                raise InputError("chromaticities are 8 numbers")
+            attrs.append(_exr_attr(name, "chromaticities", struct.pack("<8f", *(float(v) for v in value))))
+        elif isinstance(value, float):
+            attrs.append(_exr_attr(name, "float", struct.pack("<f", value)))
+        else:
+            attrs.append(_exr_attr(name, "string", str(value).encode("utf-8")))
     return struct.pack("<ii", 20000630, 2) + b"".join(attrs) + b"\0"
 
 
@@ -155,7 +196,8 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
     ``compression="none"`` writes uncompressed lines. Non-finite values are refused
     (like :func:`derender.io.write_exr`); with ``half=True`` values beyond the half-float
     range are clipped to +-65504 instead of becoming inf. ``attributes``: extra string
-    attributes of the header (e.g. ``derender:reference``). See :func:`write_exr_lines`
+    attributes of the header (e.g. ``derender:reference``): text, or a float (``float``
+    attribute), or :class:`Chromaticities` (:func:`colour_attributes`); None leaves the name out. See :func:`write_exr_lines`
     for images produced block by block.
     """
     arr = image

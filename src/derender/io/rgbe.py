@@ -42,14 +42,15 @@ SRGB_PRIMARIES = (0.640, 0.330, 0.300, 0.600, 0.150, 0.060, 0.3127, 0.3290)
 
 def write_hdr(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 1.0, view: str | None = None,
               primaries: tuple[float, ...] | None = SRGB_PRIMARIES, software: str = "derender",
-              inputs=()) -> Path:
+              inputs=(), header_lines: tuple[str, ...] | list[str] = ()) -> Path:
     """Write a linear (H, W, 3) RGB image as a Radiance RGBE file (module docstring).
 
     Stored values are ``image * exposure`` and the header says ``EXPOSURE=exposure``;
     ``view`` is written as ``VIEW= <view>`` after a check that it only holds Radiance view
     options (``-vt?``, ``-vp``, ``-vd``, ``-vu``, ``-vh``, ``-vv``, ``-vo``, ``-va``,
     ``-vs``, ``-vl`` and numbers). Negative or non-finite values are refused: a radiance map
-    has neither. Written atomically (:func:`derender.io.files.atomic_output`)."""
+    has neither. ``header_lines``: more lines of the header (``NAME= value``: getinfo prints
+    them), one line each, printable ASCII. Written atomically (:func:`derender.io.files.atomic_output`)."""
     from derender.core.memory import import_cv2
     from derender.io.files import atomic_output
 
@@ -67,6 +68,10 @@ def write_hdr(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 1
         lines.append("PRIMARIES= " + " ".join(f"{v:.4f}" for v in primaries))
     if view is not None:
         lines.append("VIEW= " + check_view(view))
+    for line in header_lines:
+        if not line.isascii() or not line.isprintable() or not line.strip():
+            raise InputError(f"a Radiance header line is one line of printable ASCII, got {line!r}")
+        lines.append(line)
     cv2 = import_cv2()
     scaled = img * np.float32(exposure) if exposure != 1.0 else img
     ok, buf = cv2.imencode(".hdr", np.ascontiguousarray(scaled[:, :, ::-1]))

@@ -5,7 +5,8 @@ solid angle), :mod:`derender.photometry.illuminance` (luminance of a map, vertic
 illuminance Ev as Radiance's ``evalglare -V`` computes it), :mod:`derender.photometry.calibration`
 (the photometric factor from a luminance-meter spot reading), :mod:`derender.photometry.falsecolor`
 (falsecolor luminance with a legend), :mod:`derender.photometry.vignetting` (radial falloff
-from a flat field).
+from a flat field), :mod:`derender.photometry.profile` (camera profiles: curves, factor,
+vignetting, view, reused across brackets).
 """
 
 from derender.core.lazy import attach
@@ -15,7 +16,11 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "vignetting": ["VIGNETTING_FORMAT", "Vignetting", "fit_vignetting", "correct_vignetting", "save_vignetting",
                    "load_vignetting"],
     "falsecolor": ["falsecolor_figure", "scale_top"],
-    "calibration": ["Spot", "parse_spot", "SpotCalibration", "spot_factor"],
+    "calibration": ["Spot", "parse_spot", "SpotCalibration", "spot_factor", "ISO2720_K", "MID_GREY_CODE",
+                    "EXIF_FACTOR_UNCERTAINTY", "ExifCalibration", "exif_factor"],
+    "profile": ["PROFILE_FORMAT", "REFERENCE_EXPOSURE", "CameraProfile", "save_profile", "load_profile",
+                "factor_at_reference", "factor_for_bracket", "curves_from_rsp", "rsp_from_curves", "camera_mismatch",
+                "CURVE_METHODS"],
     "illuminance": ["RADIANCE_EFFICACY", "RADIANCE_LUMINANCE_WEIGHTS", "luminance_weights", "luminance_cd_m2",
                     "vertical_illuminance", "IlluminanceResult"],
 })

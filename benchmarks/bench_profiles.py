@@ -1,0 +1,152 @@
+"""Camera profiles across scenes: a profile saved on one bracket, reused without a spot on another.
+
+Issue 28's done-when line "a profile saved on one bracket, reused without a spot on another
+whose aperture and ISO vary: median <= 5 %". Bracket A (spot reading on the smoothest 8x8
+patch of the truth, labelled f/5.6 ISO 100 with its true times) is merged with ``--spot`` and
+``--save-profile``; bracket B (another scene, frames relabelled f/2.8-16 and ISO 100-1600 at
+the same ``t S / N^2``) with ``--profile`` only. Truth in cd/m2: the simulator's radiance per
+second times 317 (one scale for one camera). Scores: median and p90 of the relative
+luminance error on smooth pixels (as ``tests/photometry/test_spot.py``), B with its own spot
+for comparison, and the ratio of the profile's factor to B's own spot factor.
+
+    python benchmarks/bench_profiles.py                       # fixed pipeline, 5 scene pairs
+    python benchmarks/bench_profiles.py --families camera,paper,dslr-lut,phone-local,drift
+
+Tuning families: the fixed pipeline (``camera`` style), ``camera``, ``paper``; held out:
+``dslr-lut``, ``phone-local``, ``drift``. Results: docs/luminance.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+TRUTH_SCALE = 317.0
+APERTURES = [16.0, 5.6, 2.8, 8.0, 4.0, 11.0, 5.6]
+ISOS = [400, 100, 100, 200, 800, 1600, 200]
+PAIRS = [(7, 11, "outdoor", "indoor"), (21, 21, "outdoor", "indoor"), (22, 22, "outdoor", "indoor"),
+         (31, 32, "outdoor", "outdoor"), (41, 42, "indoor", "indoor")]
+
+
+def write_jpeg(path: Path, codes: np.ndarray, t: float, n: float, iso: int) -> Path:
+    from PIL import Image, TiffImagePlugin
+
+    ex = Image.Exif()
+    ex[0x010F], ex[0x0110] = "Test", "Camera"
+    sub = ex.get_ifd(0x8769)
+    f = Fraction(t).limit_denominator(1 << 30)
+    sub[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
+    g = Fraction(n).limit_denominator(1000)
+    sub[0x829D] = TiffImagePlugin.IFDRational(g.numerator, g.denominator)
+    sub[0x8827] = iso
+    Image.fromarray(codes).save(path, format="JPEG", quality=95, exif=ex.tobytes())
+    return path
+
+
+def bracket(folder: Path, family: str, seed: int, kind: str, vary: bool):
+    from derender.camera import simulate_bracket
+
+    opts = {"pipeline": "fixed"} if family == "fixed" else {"family": family}
+    b = simulate_bracket(size=(192, 128), exposures=7, seed=seed, kind=kind, **opts)
+    folder.mkdir(parents=True)
+    files = []
+    for j, (codes, t) in enumerate(zip(b.jpeg_codes, b.times)):
+        n, s = (APERTURES[j], ISOS[j]) if vary else (5.6, 100)
+        files.append(write_jpeg(folder / f"{j:02d}.jpg", codes, float(t) * (n / 5.6) ** 2 * (100 / s), n, s))
+    return b, files
+
+
+def truth_luminance(b):
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.illuminance import luminance_cd_m2
+
+    truth = b.truth_linear_srgb.astype(np.float64) * TRUTH_SCALE
+    return truth, luminance_cd_m2(truth, SRGB_PRIMARIES)
+
+
+def spot(b, size: int = 8) -> str:
+    _, lum = truth_luminance(b)
+    best, where = np.inf, (0, 0)
+    for y in range(8, lum.shape[0] - size - 8, 4):
+        for x in range(8, lum.shape[1] - size - 8, 4):
+            win = lum[y:y + size, x:x + size]
+            spread = win.std() / win.mean()
+            if spread < best and 0.05 * lum.max() > win.mean() > 1e-3 * lum.max():
+                best, where = spread, (x, y)
+    x, y = where
+    return f"{x},{y},{size},{size}={float(lum[y:y + size, x:x + size].mean()):.6f}"
+
+
+def score(path: Path, b) -> dict:
+    from derender.evaluation.families import smooth_mask
+    from derender.io.exr import read_exr
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.illuminance import luminance_cd_m2
+
+    truth, lum_true = truth_luminance(b)
+    lum = luminance_cd_m2(read_exr(path), SRGB_PRIMARIES)
+    ok = (lum_true > 1e-3 * lum_true.max()) & smooth_mask(truth)
+    ratio = lum[ok] / lum_true[ok]
+    err = np.abs(ratio - 1.0)
+    return {"median": float(np.median(err)), "p90": float(np.percentile(err, 90)), "ratio": float(np.median(ratio))}
+
+
+def merge(args: list) -> None:
+    from derender.cli import app
+
+    try:
+        app(args=[str(a) for a in args], standalone_mode=False)
+    except SystemExit as exc:
+        if exc.code:
+            raise RuntimeError(f"derender {' '.join(map(str, args))}: exit {exc.code}") from None
+
+
+def run(family: str, pairs, methods, work: Path) -> list[str]:
+    from derender.io.exr import read_exr
+
+    rows = []
+    for sa, sb, ka, kb in pairs:
+        ba, fa = bracket(work / f"{family}-{sa}a", family, sa, ka, False)
+        bb, fb = bracket(work / f"{family}-{sb}b{sa}", family, sb, kb, True)
+        for m in methods:
+            p, a, bp, bs = (work / f"{family}-{sa}-{m}{x}" for x in (".json", "a.exr", "b.exr", "bs.exr"))
+            merge(["merge", *fa, "-o", a, "--method", m, "--spot", spot(ba), "--save-profile", p])
+            merge(["merge", *fb, "-o", bp, "--method", m, "--profile", p])
+            merge(["merge", *fb, "-o", bs, "--method", m, "--spot", spot(bb)])
+            s_a, s_b, s_bs = score(a, ba), score(bp, bb), score(bs, bb)
+            k = float(np.median(read_exr(bp) / np.maximum(read_exr(bs), 1e-30)))
+            rows.append(f"| {family} | {sa}/{sb} {ka}/{kb} | {m} | {100 * s_a['median']:.1f} % | "
+                        f"{100 * s_bs['median']:.1f} % | {100 * s_b['median']:.1f} % | {100 * s_b['p90']:.1f} % | "
+                        f"{s_b['ratio']:.3f} | {k:.3f} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--families", default="fixed", help="fixed (fixed pipeline, camera style) and/or simulator "
+                                                          "families, comma separated")
+    ap.add_argument("--methods", default="debevec,stabilized")
+    ap.add_argument("--pairs", type=int, default=None, help="scene pairs per family (default: 5 fixed, 2 families)")
+    args = ap.parse_args(argv)
+    print("| pipeline | seeds A/B, scenes | method | A, spot | B, own spot | B, profile | p90 | ratio | "
+          "k profile / k own |\n| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    work = Path(tempfile.mkdtemp(prefix="bench-profiles-"))
+    try:
+        for fam in args.families.split(","):
+            n = args.pairs or (5 if fam == "fixed" else 2)
+            pairs = PAIRS[:n] if fam == "fixed" else [(s, s, "outdoor", "indoor") for s in (21, 22)][:n]
+            run(fam, pairs, args.methods.split(","), work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
