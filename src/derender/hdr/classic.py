@@ -38,6 +38,7 @@ from derender.response.curves import (
     DEFAULT_TIE,
     check_usable,
     check_usable_samples,
+    cluster_positions,
     grid_positions,
     histogram_samples,
 )
@@ -46,10 +47,17 @@ __all__ = ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson
 
 
 class DebevecMethod:
-    """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables."""
+    """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables.
+
+    Grid samples are drawn in uniform regions (:func:`~derender.response.curves.uniform_samples`,
+    the paper's "low intensity variance") and observations inconsistent with a first curve are
+    dropped before it is solved again
+    (:func:`~derender.response.debevec1997.solve_debevec_trimmed`); issue 28.
+    """
 
     name = "debevec"
     holds_frames = False
+    sample_cluster = 9          # grid samples come as 3x3 clusters (response.curves.cluster_positions)
 
     def __init__(self, curves=None, lam: float | None = None, n_samples: int | None = None, sampling: str = "grid",
                  seed: int = 0, weight: Any = "gaussian", domain: str = "log", channel_weights: str = "mean",
@@ -71,13 +79,14 @@ class DebevecMethod:
         return None
 
     def sample_positions(self, h: int, w: int):
-        return grid_positions(h, w, self.n_samples, self.seed) if self.sampling == "grid" else None
+        return cluster_positions(h, w, self.n_samples, self.seed) if self.sampling == "grid" else None
 
     def plan(self, access: FrameAccess) -> TablePlan:
+        from derender.response.curves import uniform_samples
         from derender.response.debevec1997 import calibrate_debevec_from_samples
 
-        samples = access.samples if self.sampling == "grid" else histogram_samples(access.histograms(),
-                                                                                   self.n_samples)
+        samples = (uniform_samples(access.samples, self.n_samples) if self.sampling == "grid"
+                   else histogram_samples(access.histograms(), self.n_samples))
         check_usable_samples(samples, access.histograms)
         curves = self.curves
         if curves is None:
