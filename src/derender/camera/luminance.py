@@ -51,6 +51,7 @@ __all__ = [
     "exif_triples",
     "simulate_luminance",
     "truth_luminance_cd_m2",
+    "simulate_to_folder_cli",
 ]
 
 LUMINANCE_MODES = ("time", "aperture-iso", "flat-field")
@@ -62,10 +63,12 @@ _APERTURES = (4.0, 5.6, 8.0, 11.0, 16.0)
 _ISOS = (100, 200, 400, 800)
 
 
-def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: bool = False):
-    """The family's :class:`~derender.camera.scene.SpectralScene` and its design luminance map
-    (cd/m2 of a 100 % reflector, before the camera's spectral integration sets the exact
-    truth). ``regions`` records ``grey_card`` ``[x, y, w, h]``, ``window`` and ``lamps``."""
+def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: bool = False,
+                    fisheye: bool = False):
+    """The family's :class:`~derender.camera.scene.SpectralScene` (``regions`` records ``grey_card``
+    ``[x, y, w, h]``, ``window`` and ``lamps``). ``fisheye``: a 180-degree circular fisheye
+    framing, the scene inside the image circle (diameter the shorter side) and black outside,
+    as a fisheye lens images it (Radiance view ``-vta -vh 180 -vv 180`` on a square image)."""
     from derender.camera.scene import SpectralScene, _soft, _texture_rgb
     from derender.camera.spectral import illuminant_spd, reflectance_library
 
@@ -115,6 +118,10 @@ def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: 
     lamp_mask = _soft((lamp_field > 0).astype(np.float32), 0.5 * sigma)
     room_part = room * (1.0 - win) * (1.0 - lamp_mask)
     illum = np.stack([room_part, sky * win * (1.0 - lamp_mask), lamp_field * lamp_mask], axis=-1)
+    if fisheye:
+        rad = min(w, h) / 2.0
+        outside = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) > rad * rad
+        illum[outside] = 0.0
     regions = {"grey_card": [cx, cy, cw, ch], "grey_card_reflectance": 0.18,
                "window": [wx0, wy0, wx1 - wx0, wy1 - wy0], "lamps": lamps}
     names = ("D50", "D65", "D50")
@@ -160,7 +167,7 @@ def exif_triples(exposures_e: np.ndarray, mode: str, rng: np.random.Generator) -
 
 def simulate_luminance(*, mode: str = "time", render: str = "gamma", size: tuple[int, int] = (192, 128),
                        exposures: int = 9, stops: float = 2.0, seed: int = 0, falloff: float | None = None,
-                       camera: Any = "nikon-d5100", noise: bool = True, progress=None):
+                       camera: Any = "nikon-d5100", noise: bool = True, progress=None, fisheye: bool = False):
     """A bracket of the luminance family (module docstring): a
     :class:`~derender.camera.bracket.SimulatedBracket` whose ``times`` are ``e_j = t S / N^2``,
     whose truth has luminance ``L / 120`` and whose ``params["luminance"]`` records the EXIF
@@ -178,7 +185,7 @@ def simulate_luminance(*, mode: str = "time", render: str = "gamma", size: tuple
     if exposures < 2:
         raise InputError("a luminance bracket needs at least 2 exposures")
     cam = load_camera(camera) if isinstance(camera, str) else camera
-    scene = luminance_scene(size, seed, flat=mode == "flat-field")
+    scene = luminance_scene(size, seed, flat=mode == "flat-field", fisheye=fisheye)
     from derender.camera.rendering import fit_xyz_to_camera, white_balance_for
     from derender.core.colorimetry import camera_to_linear_srgb_matrix
 
@@ -186,10 +193,12 @@ def simulate_luminance(*, mode: str = "time", render: str = "gamma", size: tuple
     m = camera_to_linear_srgb_matrix(fit_xyz_to_camera(cam))
     y_unit = truth_luminance_cd_m2((cam_unit * white_balance_for(cam, scene.key_illuminant)) @ m.T)
     design = (scene.illumination * scene.material_weight.mean(-1, keepdims=True)).sum(-1)
+    if fisheye:   # the scale and the bracket as for the unframed scene (the black corners hold no light)
+        design = np.where(design > 0, design, np.nan)
     # scale so that 120 times the truth's luminance (per unit e) is the design luminance in cd/m2
-    ok = design > 0
+    ok = np.isfinite(design) & (design > 0)
     scale = float(np.median(design[ok] / np.maximum(y_unit[ok], 1e-30)))
-    peak_l = float(np.percentile(design, 99.9 if mode != "flat-field" else 50.0))
+    peak_l = float(np.percentile(design[ok], 99.9 if mode != "flat-field" else 50.0))
     e_min = 0.5 * SATURATION_EXPOSURE / peak_l if mode != "flat-field" else 0.05 * SATURATION_EXPOSURE / peak_l
     step = stops if mode != "flat-field" else 1.0
     target = e_min * 2.0 ** (step * np.arange(exposures))
@@ -206,7 +215,7 @@ def simulate_luminance(*, mode: str = "time", render: str = "gamma", size: tuple
     spot = [card[0] + inset, card[1] + inset, card[2] - 2 * inset, card[3] - 2 * inset]
     x, y, cw, ch = spot
     b.params["luminance"] = ex | {
-        "mode": mode, "render": render, "role": "tuning" if render in TUNING_RENDERS else "held-out",
+        "mode": mode, "render": render, "framing": "fisheye -vta -vh 180 -vv 180" if fisheye else "rectilinear", "role": "tuning" if render in TUNING_RENDERS else "held-out",
         "truth_to_cd_m2": SATURATION_EXPOSURE,
         "truth": "absolute luminance = 120 * (0.2126 R + 0.7152 G + 0.0722 B) of truth.exr, cd/m2; Radiance RGB "
                  "= truth * 120 / 179; exposures e = t S / N^2 (ISO 12232 saturation: L e = 120 at white)",
@@ -225,3 +234,36 @@ def truth_luminance_cd_m2(truth_linear_srgb: np.ndarray) -> np.ndarray:
     from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709
 
     return SATURATION_EXPOSURE * (np.asarray(truth_linear_srgb, dtype=np.float64) @ LUMINANCE_WEIGHTS_REC709)
+
+
+def simulate_to_folder_cli(outdir, mode: str | None, render: str, size: tuple[int, int], exposures: int,
+                           stops: float | None, seed: int, camera: Any, falloff: float | None) -> None:
+    """``derender simulate OUTDIR --luminance MODE [--lens-falloff C]``: check the options, simulate, write."""
+    from pathlib import Path
+
+    import typer
+
+    from derender.camera.bracket import write_bracket
+
+    if mode is None:
+        raise InputError("--lens-falloff needs --luminance (time | aperture-iso | flat-field)")
+    if mode not in LUMINANCE_MODES:
+        raise InputError(f"--luminance must be one of {', '.join(LUMINANCE_MODES)}, got {mode!r}")
+    render = "gamma" if render == "simple" else render
+    if render not in RENDERS:
+        raise InputError(f"--render with --luminance must be one of {', '.join(RENDERS)}, got {render!r}")
+    if not 2 <= exposures <= 64:
+        raise InputError("--exposures must be between 2 and 64 with --luminance")
+    if falloff is not None:
+        radial_falloff(size, falloff)                  # checks the range before any work
+    outdir = Path(outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise InputError(f"{outdir} exists and is not a folder")
+    b = simulate_luminance(mode=mode, render=render, size=size, exposures=exposures,
+                           stops=2.0 if stops is None else float(stops), seed=seed, falloff=falloff, camera=camera)
+    outdir.mkdir(parents=True, exist_ok=True)
+    params = write_bracket(b, outdir)
+    lum = params["luminance"]
+    typer.echo(f"wrote {exposures} DNG + JPEG exposures (EXIF t, N, ISO), truth.exr and scene.json to {outdir}; "
+               f"luminance {lum['luminance_range_cd_m2'][0]:.3g}..{lum['luminance_range_cd_m2'][1]:.3g} cd/m2, "
+               f"grey-card spot --spot {lum['spot_option']} ({lum['role']} rendering {render})")
