@@ -54,8 +54,11 @@ __all__ = [
     "simulate_to_folder_cli",
 ]
 
+#: Brackets of the family: the time alone, time + aperture + ISO, a flat field.
 LUMINANCE_MODES = ("time", "aperture-iso", "flat-field")
+#: Renderings: ``gamma`` (fixed pure gamma 2.2) and the pipeline families.
 RENDERS = ("gamma", "paper", "camera", "dslr-lut", "phone-local", "drift")
+#: Renderings methods may be tuned on; the others are held out.
 TUNING_RENDERS = ("gamma", "paper", "camera")
 #: L t S / N^2 (cd s m^-2) that brings a neutral to the sensor's white level (ISO 12232: 78 / 0.65).
 SATURATION_EXPOSURE = 120.0
@@ -69,7 +72,7 @@ def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: 
     ``[x, y, w, h]``, ``window`` and ``lamps``). ``fisheye``: a 180-degree circular fisheye
     framing, the scene inside the image circle (diameter the shorter side) and black outside,
     as a fisheye lens images it (Radiance view ``-vta -vh 180 -vv 180`` on a square image)."""
-    from derender.camera.scene import SpectralScene, _soft, _texture_rgb
+    from derender.camera.scene import SpectralScene, soft_mask, texture_rgb
     from derender.camera.spectral import illuminant_spd, reflectance_library
 
     w, h = int(size[0]), int(size[1])
@@ -87,7 +90,7 @@ def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: 
         return SpectralScene(kind="flat-field", library=library, material_index=idx, material_weight=wts,
                              illuminant_names=("D65",), illuminant_spds=illuminant_spd("D65")[None],
                              illumination=illum, key_illuminant="D65", regions=regions)
-    tex = _texture_rgb((w, h), rng)
+    tex = texture_rgb((w, h), rng)
     tex = tex.mean(-1, keepdims=True) + 0.5 * (tex - tex.mean(-1, keepdims=True))   # room surfaces: muted colours
     wts = (0.03 + 0.87 * tex).astype(np.float32)
     sigma = max(1.0, w / 150)
@@ -102,7 +105,7 @@ def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: 
     wx0, wx1, wy0, wy1 = int(0.06 * w), int(0.36 * w), int(0.08 * h), int(0.50 * h)
     win = np.zeros((h, w), np.float32)
     win[wy0:wy1, wx0:wx1] = 1.0
-    win = _soft(win, sigma)
+    win = soft_mask(win, sigma)
     sky = 10.0 ** (5.0 - 1.0 * (yy - wy0) / max(wy1 - wy0, 1))
     wts[wy0:wy1, wx0:wx1] = 0.9                     # a bright, neutral sky seen through the glass
     # lamps: 1e5 .. 1e6 cd/m2 from the rim to the centre
@@ -115,7 +118,7 @@ def luminance_scene(size: tuple[int, int] = (192, 128), seed: int = 0, *, flat: 
         lamp_field = np.where(inside, 10.0 ** (6.0 - d), lamp_field)
         wts[inside] = 0.9
         lamps.append([float(lx), float(ly), float(r)])
-    lamp_mask = _soft((lamp_field > 0).astype(np.float32), 0.5 * sigma)
+    lamp_mask = soft_mask((lamp_field > 0).astype(np.float32), 0.5 * sigma)
     room_part = room * (1.0 - win) * (1.0 - lamp_mask)
     illum = np.stack([room_part, sky * win * (1.0 - lamp_mask), lamp_field * lamp_mask], axis=-1)
     if fisheye:

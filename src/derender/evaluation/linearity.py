@@ -28,6 +28,7 @@ __all__ = ["DECADES", "LINEARITY_METHODS", "linearity_scores", "linearity_experi
 
 #: Decade edges of the true luminance (cd/m2).
 DECADES = tuple(10.0 ** k for k in range(7))
+#: Methods scored by :func:`linearity_experiment` (issue 28, item 6).
 LINEARITY_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic")
 
 

@@ -49,10 +49,8 @@ __all__ = ["DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson
 class DebevecMethod:
     """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables.
 
-    Grid samples are drawn in uniform regions (:func:`~derender.response.curves.uniform_samples`,
-    the paper's "low intensity variance") and observations inconsistent with a first curve are
-    dropped before it is solved again
-    (:func:`~derender.response.debevec1997.solve_debevec_trimmed`); issue 28.
+    Grid samples that see a clipped neighbour while unclipped themselves are left out
+    (:func:`~derender.response.curves.uniform_samples`; issue 28).
     """
 
     name = "debevec"

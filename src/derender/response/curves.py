@@ -233,7 +233,7 @@ def grid_positions(h: int, w: int, n: int, seed: int, border: float = 0.05) -> t
 
 
 #: Neighbours of a uniform-region sample (:func:`cluster_positions`): offsets -R, 0, +R in y and x.
-CLUSTER_REACH = 3
+CLUSTER_REACH = 2
 
 
 def cluster_positions(h: int, w: int, n: int, seed: int, reach: int = CLUSTER_REACH) -> tuple[np.ndarray, np.ndarray]:
@@ -249,27 +249,27 @@ def cluster_positions(h: int, w: int, n: int, seed: int, reach: int = CLUSTER_RE
     return yy.ravel(), xx.ravel()
 
 
-def uniform_samples(cluster_codes: np.ndarray, n: int, tol: float = 0.05, tol_codes: float = 3.0) -> np.ndarray:
+def uniform_samples(cluster_codes: np.ndarray, n: int, clip_code: int = 250) -> np.ndarray:
     """The centres of at most ``n`` clusters (:func:`cluster_positions`; ``cluster_codes`` (N, 9 M, 3))
-    whose centre is the mean of its 8 neighbours in every frame and channel (within
-    ``max(tol_codes, tol * centre)``: a smooth gradient passes, a step within ``reach`` pixels
-    does not), evenly spread over the passing ones; if fewer than ``n / 4`` pass, the ``n / 4``
-    closest.
+    that never see a clipped neighbour while unclipped themselves: a cluster is dropped if in some
+    frame one of its 8 neighbours has a channel at ``clip_code`` or above while the centre's
+    channels are all below it. Kept clusters are spread evenly (``n`` of them); if fewer than
+    ``n / 4`` pass, the ``n / 4`` with the fewest such frames.
 
-    Debevec & Malik (1997, Sec. 2.1) take samples in regions of low intensity variance. A pixel
-    beside a much brighter one (the rim of a window or a lamp) receives part of its neighbour's
-    signal through demosaicing and chroma noise reduction, and once the neighbour clips its codes
-    stop following the exposure: such samples gave the curve's top codes their data and bent it
-    (issue 28, docs/luminance.md).
+    Why (issue 28): a pixel beside a much brighter one (the rim of a window or a lamp) receives
+    part of its neighbour's signal through demosaicing and chroma noise reduction, and once the
+    neighbour clips its codes stop following the exposure. Such samples gave the curve's top
+    codes their data and bent it (docs/luminance.md). Debevec & Malik (1997, Sec. 2.1) take
+    samples in regions of low intensity variance; elsewhere the samples are the plain grid's.
     """
     c = np.asarray(cluster_codes)
     n_img, p, _ = c.shape
-    c = c.reshape(n_img, p // 9, 9, 3).astype(np.float64)
+    c = c.reshape(n_img, p // 9, 9, 3)
     centre = c[:, :, 4, :]
-    others = (c.sum(axis=2) - centre) / 8.0
-    excess = np.abs(centre - others) / np.maximum(tol_codes, tol * centre)
-    worst = excess.max(axis=(0, 2))
-    ok = np.flatnonzero(worst <= 1.0)
+    nb = np.delete(c, 4, axis=2)
+    risky = (nb.max(axis=(2, 3)) >= clip_code) & (centre.max(axis=-1) < clip_code)     # (N, M)
+    worst = risky.sum(axis=0)
+    ok = np.flatnonzero(worst == 0)
     need = max(1, int(n) // 4)
     if ok.size < need:
         ok = np.sort(np.argsort(worst, kind="stable")[:need])

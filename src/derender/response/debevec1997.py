@@ -6,13 +6,10 @@ pixels, one channel at a time, with ``g(128) = 0``; solved as a sparse least-squ
 system. Hat weights, lambda 30 and 256 grid samples by default; a curve that is not
 monotonic is made so (isotonic regression).
 
-Samples are taken where the image is locally uniform (the paper's "regions with low intensity
-variance"; :func:`~derender.response.curves.uniform_samples`) and, after a first solve,
-observations whose residual ``g(Z_ij) - ln E_i - ln t_j`` is an outlier are dropped and the
-curve solved again (:func:`solve_debevec_trimmed`). Without both, pixels at the rim of a
-window or a lamp (whose codes stop following the exposure once their clipped neighbour
-leaks into them through demosaicing and chroma noise reduction) bent the curve's top end
-(issue 28; docs/luminance.md has the measurement).
+Grid samples that see a clipped neighbour while unclipped themselves are left out
+(:func:`~derender.response.curves.uniform_samples`): pixels at the rim of a window or a lamp,
+whose codes stop following the exposure once their clipped neighbour leaks into them through
+demosaicing and chroma noise reduction, bent the curve's top end (issue 28; docs/luminance.md).
 """
 
 from __future__ import annotations
@@ -47,16 +44,7 @@ __all__ = [
     "debevec_system",
     "solve_dense",
     "calibrate_debevec",
-    "drop_inconsistent",
-    "solve_debevec_trimmed",
 ]
-
-#: An observation whose log residual ``g(Z_ij) - ln E_i - ln t_j`` exceeds this many robust
-#: standard deviations (and :data:`TRIM_FLOOR`) is dropped before the curve is solved again.
-TRIM_SIGMAS = 4.0
-TRIM_FLOOR = 0.1
-#: Solve, drop, solve again: passes of :func:`solve_debevec_trimmed`.
-TRIM_PASSES = 2
 
 
 def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray],
@@ -81,7 +69,7 @@ def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists
             extra = histogram_samples(hists_fn(), n_samples)[:, :, c]
             zc = np.concatenate([zc, extra], axis=1)
         per_channel.append(zc)
-    g = solve_debevec_trimmed(per_channel, log_t, lam=lam, weights="hat", n_levels=N_CODES, tie=tie)
+    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights="hat", n_levels=N_CODES, tie=tie)
     fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
     g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
@@ -165,51 +153,6 @@ def solve_debevec_tied(codes: list[np.ndarray], log_times: np.ndarray, lam: floa
     return solve_tied(blocks, rhs, tie)
 
 
-def drop_inconsistent(codes: np.ndarray, log_times: np.ndarray, g: np.ndarray, n_levels: int = 256,
-                      sigmas: float = TRIM_SIGMAS, floor: float = TRIM_FLOOR) -> np.ndarray:
-    """``codes`` (N_img, P) with the observations inconsistent with the curve ``g`` (n_levels,)
-    set to 0 (hat weight 0): per sample ``ln E_i`` is the hat-weighted mean of ``g(Z_ij) - ln t_j``
-    over its usable frames, and an observation whose residual from it exceeds ``max(floor,
-    sigmas * 1.4826 MAD)`` of all residuals plus two codes' quantisation step of ``g`` is dropped.
-
-    Why (issue 28): a pixel next to a much brighter one (the rim of a window or a lamp) takes
-    part of its neighbour's signal through demosaicing and chroma noise reduction; once the
-    neighbour clips, the pixel's codes stop growing with the exposure. Such samples sit at
-    the bright sources' borders, precisely where the curve's top codes get their data, and
-    bent its top end (our Debevec read 0.85 and 0.77 of the truth in the two brightest decades).
-    Debevec & Malik (Sec. 2.1) choose samples in regions of low intensity variance; the
-    engine draws its samples before it reads the frames, so they are checked afterwards.
-    """
-    z = np.asarray(codes)
-    w = level_weights("hat", n_levels)[z]
-    v = g[z] - np.asarray(log_times, dtype=np.float64)[:, None]
-    wsum = w.sum(axis=0)
-    live = wsum > 0
-    ln_e = np.where(live, (w * v).sum(axis=0) / np.where(live, wsum, 1.0), 0.0)
-    r = np.abs(v - ln_e[None, :])
-    used = w > 0
-    if not used.any():
-        return z
-    mad = float(np.median(r[used]))
-    step = np.abs(np.gradient(np.asarray(g, dtype=np.float64)))      # one code's quantisation, in ln E
-    bad = used & (r > max(float(floor), float(sigmas) * 1.4826 * mad) + 2.0 * step[z])
-    out = z.copy()
-    out[bad] = 0
-    return out
-
-
-def solve_debevec_trimmed(codes: list[np.ndarray], log_times: np.ndarray, lam: float = DEFAULT_LAMBDA,
-                          weights: Any = "hat", n_levels: int = 256, tie: float = DEFAULT_TIE,
-                          passes: int = TRIM_PASSES) -> np.ndarray:
-    """:func:`solve_debevec_tied`, then ``passes`` times: drop the inconsistent observations
-    (:func:`drop_inconsistent`, per channel) and solve again."""
-    g = solve_debevec_tied(codes, log_times, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
-    for _ in range(int(passes)):
-        codes = [drop_inconsistent(zc, log_times, g[:, c], n_levels) for c, zc in enumerate(codes)]
-        g = solve_debevec_tied(codes, log_times, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
-    return g
-
-
 def debevec_system(codes: np.ndarray, lam: float, weights: Any = "hat",
                    n_levels: int = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Debevec & Malik's normal equations for one channel with the diagonal ``ln E`` block
@@ -291,7 +234,7 @@ def calibrate_debevec(stack: Stack, lam: float = DEFAULT_LAMBDA, n_samples: int 
             extra = sample_pixels(stack, n_samples=n_samples, method="histogram", n_levels=n_levels)[:, :, c]
             zc = np.concatenate([zc, extra], axis=1)
         per_channel.append(zc)
-    g = solve_debevec_trimmed(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
+    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
     fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
     if monotonic:
         g = make_monotonic(g)
