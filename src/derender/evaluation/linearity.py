@@ -123,7 +123,7 @@ def fisheye_maps(methods: Sequence[str] = ("debevec", "stabilized"), *, render: 
     """Issue 28's glare check: the luminance family framed as a 180-degree circular fisheye
     (``size`` x ``size``, :data:`FISHEYE_VIEW`), merged by each method and scaled on the grey
     card's spot, with the truth: ``{"truth": ..., method: ...}`` (H, W, 3) in Radiance units
-    (``179 w . RGB`` = cd/m2), ready for ``write_hdr(..., view=FISHEYE_VIEW)`` and ``evalglare -V``."""
+    (``179 w·RGB`` = cd/m2), ready for ``write_hdr(..., view=FISHEYE_VIEW)`` and ``evalglare -V``."""
     from derender.camera.luminance import SATURATION_EXPOSURE, simulate_luminance
     from derender.core.types import Stack
     from derender.hdr.registry import MERGE_METHODS, load_plugins, merge_seeded
@@ -163,5 +163,5 @@ def render_chart_model(camera: str, render: str, n_train: int = 5000, seed: int 
 
 
 def format_decades(values: Sequence[float]) -> str:
-    """``1.00, 0.99, ...`` (``-`` for an empty decade)."""
+    """Per-decade median ratios as text: three decimals each, a dash for an empty decade."""
     return ", ".join("-" if not np.isfinite(v) else f"{v:.3f}" for v in values)
