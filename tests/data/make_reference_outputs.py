@@ -50,7 +50,10 @@ after both changes were merged); then issue 27 part 3:
 three channel curves solved as one system whose curves share their shape, and the classic merges
 balanced along the grey axis, so that greys stay grey at every level: up to 0.9 relative on
 sim-simple (debevec), 2.2 on Memorial (robertson), 1.3 on sim-camera (stabilized); sim-simple's
-stabilised merges, on the power law, unchanged).
+stabilised merges, on the power law, unchanged); then ``debevec`` (issue 28: its grid samples
+leave out pixels that see a clipped neighbour while unclipped themselves, 3x3 clusters on a 4x
+denser grid: other samples, another curve; max relative change per pixel 0.39 sim-camera, 0.57
+sim-simple, 0.18 Memorial, 0.022 Frobisher).
 """
 
 from __future__ import annotations

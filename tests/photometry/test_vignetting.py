@@ -38,8 +38,9 @@ def _textured(w, h, seed=0):
 
 
 def test_flat_field_fit_recovers_the_falloff_and_corrects_a_scene(tmp_path, capsys):
-    """Measured: the fitted falloff within 2.7 % of the true one (corner 0.567 vs 0.558; the flat
-    field's own Debevec curve is the error), a vignetted scene's relative error (3x3 fit) from
+    """Measured: the fitted falloff within 3.1 % of the true one (corner 0.567 vs 0.558; the flat
+    field's own Debevec curve is the error: 2.7 % with the plain grid's samples, 3.1 % with the
+    cluster grid's of issue 28, which are other pixels of the same gradient), a vignetted scene's relative error (3x3 fit) from
     median 6.5 % / p90 22 % to 0.65 % / 1.7 % after --vignetting."""
     w, h = 160, 120
     v = _true_gain(w, h)
@@ -51,7 +52,7 @@ def test_flat_field_fit_recovers_the_falloff_and_corrects_a_scene(tmp_path, caps
 
     vig = load_vignetting(tmp_path / "v.json")
     fitted = vig.gain()
-    assert np.abs(fitted / v - 1).max() < 0.03 and abs(fitted[0, 0] - v[0, 0]) < 0.015     # corners 0.55
+    assert np.abs(fitted / v - 1).max() < 0.035 and abs(fitted[0, 0] - v[0, 0]) < 0.015     # corners 0.55
     assert json.loads((tmp_path / "v.json").read_text())["format"] == "derender-vignetting"
     scene = _textured(w, h)
     ins = _bracket(tmp_path / "scene", scene * v[..., None])

@@ -67,7 +67,8 @@ Modules: :mod:`derender.camera.spectral` (spectral data, cameras), :mod:`derende
 :mod:`derender.camera.stages` (per-frame settings and stages), :mod:`derender.camera.families` (pipeline
 families), :mod:`derender.camera.oracle` (their exact inverse),
 :mod:`derender.camera.bracket` (brackets and files), :mod:`derender.camera.motion` (moving objects, camera shake), :mod:`derender.camera.dng` (DNG writer),
-:mod:`derender.camera.chart` (calibration charts).
+:mod:`derender.camera.chart` (calibration charts), :mod:`derender.camera.luminance` (the luminance-truth family:
+absolute cd/m2 over 5 decades, EXIF t/N/ISO, a grey card, vignetting, flat fields).
 """
 
 from derender.core.lazy import attach
@@ -82,6 +83,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "motion": ["MotionSpec", "MotionPlan", "plan_motion", "compose_frames", "motion_zones", "ZONE_STATIC", "ZONE_SWEPT", "ZONE_OBJECT", "ZONE_NAMES"],
     "families": ["FAMILIES", "WB_PRESETS", "check_family", "family_settings", "random_gamut"],
     "oracle": ["invert_frame_codes", "invert_frame_values", "invert_curve"],
-    "scene": ["SCENE_KINDS", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz"],
+    "scene": ["SCENE_KINDS", "SpectralScene", "make_scene", "scene_camera_rgb", "scene_xyz", "texture_rgb", "soft_mask"],
     "sensor": ["CFA_PATTERN", "mosaic_signal", "expose_mosaic"],
+    "luminance": ["LUMINANCE_MODES", "RENDERS", "TUNING_RENDERS", "SATURATION_EXPOSURE", "luminance_scene", "radial_falloff", "exif_triples", "simulate_luminance", "truth_luminance_cd_m2"],
 })

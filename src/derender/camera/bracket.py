@@ -124,6 +124,8 @@ def simulate_bracket(
     peak_percentile: float = 99.9,
     family: str | None = None,
     motion=None,
+    exposure: tuple[np.ndarray, float] | None = None,
+    falloff: np.ndarray | None = None,
 ) -> SimulatedBracket:
     """Simulate a bracket: spectral scene -> noisy RAW mosaics -> in-camera 8-bit renderings.
 
@@ -143,6 +145,10 @@ def simulate_bracket(
     grid, ``motion_zones`` (H, W) labels its pixels static / swept / object and
     ``params["motion"]`` records the shifts and paths (:mod:`derender.camera.motion`). The
     scene is then rendered on a canvas larger by the motion's margin on every side.
+
+    ``exposure = (times, scale)`` replaces :func:`bracket_times` (the luminance family,
+    :mod:`derender.camera.luminance`, sets its exposures from EXIF t S / N^2); ``falloff``
+    (H, W) multiplies the sensor signal (lens vignetting) but not the truth.
     """
     if family is not None:
         from derender.camera.families import check_family
@@ -170,7 +176,12 @@ def simulate_bracket(
         if scene is None:
             scene = make_scene(kind, size, seed)
         cam_unit = scene_camera_rgb(scene, camera)
-    times, scale = bracket_times(cam_unit, exposures, stops=stops, peak_percentile=peak_percentile)
+    if exposure is None:
+        times, scale = bracket_times(cam_unit, exposures, stops=stops, peak_percentile=peak_percentile)
+    else:
+        times, scale = np.asarray(exposure[0], dtype=np.float64), float(exposure[1])
+        if times.shape != (exposures,):
+            raise InputError(f"exposure times {times.shape} do not match exposures={exposures}")
     cam_per_s = cam_unit * scale
     xyz_to_camera = fit_xyz_to_camera(camera)
     camera_to_srgb = camera_to_linear_srgb_matrix(xyz_to_camera)
@@ -187,7 +198,8 @@ def simulate_bracket(
         pipeline = "auto" if family in ("paper", "camera") else family
         style = frames[0].style
         tone_curve = False
-    signal = mosaic_signal(cam_per_s) if frames_unit is None else None
+    vig = 1.0 if falloff is None else np.asarray(falloff, dtype=np.float64)[..., None]
+    signal = mosaic_signal(cam_per_s * vig) if frames_unit is None else None
     h, w = cam_unit.shape[:2]
     mosaics = np.empty((exposures, h, w), dtype=np.uint16)
     codes = np.empty((exposures, h, w, 3), dtype=np.uint8)
@@ -195,7 +207,7 @@ def simulate_bracket(
     if family is not None:
         settings = [f.render_settings() if f.style in ("simple", "camera") else f for f in frames]
     for j, t in enumerate(times):
-        sig = signal if frames_unit is None else mosaic_signal(frames_unit[j] * scale)
+        sig = signal if frames_unit is None else mosaic_signal(frames_unit[j] * scale * vig)
         mosaics[j] = expose_mosaic(sig, camera, float(t), noise_rngs[j] if noise else None)
         if family is None:
             codes[j] = isp_render(mosaics[j], camera, camera_to_srgb, settings[j])
@@ -254,8 +266,9 @@ def simulate_bracket(
 
 # --------------------------------------------------------------------------- files
 def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float, make: str, model: str,
-               quality: int = 95) -> Path:
-    """Write 8-bit RGB codes as a JPEG (4:2:2, like most cameras) with EXIF Make/Model/ExposureTime."""
+               quality: int = 95, fnumber: float | None = None, iso: int | None = None) -> Path:
+    """Write 8-bit RGB codes as a JPEG (4:2:2, like most cameras) with EXIF Make/Model/ExposureTime
+    (and ``FNumber`` / ``ISOSpeedRatings`` when given)."""
     from PIL import Image, TiffImagePlugin
 
     from derender.io.files import atomic_output
@@ -267,6 +280,11 @@ def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float,
     exif[0x0131] = "derender simulator"
     f = Fraction(float(exposure_time)).limit_denominator(1_000_000)
     exif.get_ifd(0x8769)[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
+    if fnumber is not None:
+        fn = Fraction(float(fnumber)).limit_denominator(1000)
+        exif.get_ifd(0x8769)[0x829D] = TiffImagePlugin.IFDRational(fn.numerator, fn.denominator)
+    if iso is not None:
+        exif.get_ifd(0x8769)[0x8827] = int(iso)
     path = Path(path)
     with atomic_output(path) as tmp:
         img.save(tmp, format="JPEG", quality=quality, subsampling=1, exif=exif.tobytes(), optimize=False)
@@ -284,11 +302,14 @@ def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_qua
     cam = bracket.camera
     neutral = 1.0 / np.asarray(bracket.wb_true)
     files = {"raw": [], "jpeg": []}
+    lum = bracket.params.get("luminance") or {}
     for j, t in enumerate(bracket.times):
+        t_exif = float(lum["exif_times"][j]) if lum else float(t)
         dng = write_dng(outdir / "raw" / f"{j:02d}.dng", bracket.mosaics[j], CFA_PATTERN, cam.black_level,
-                        cam.white_level, bracket.xyz_to_camera, neutral, float(t), cam.make, cam.model, cam.bits)
-        jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j], float(t), cam.make, cam.model,
-                         quality=jpeg_quality)
+                        cam.white_level, bracket.xyz_to_camera, neutral, t_exif, cam.make, cam.model, cam.bits)
+        jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j],
+                         t_exif, cam.make, cam.model, quality=jpeg_quality,
+                         fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None)
         files["raw"].append(str(dng.relative_to(outdir)))
         files["jpeg"].append(str(jpg.relative_to(outdir)))
     write_exr(outdir / "truth.exr", bracket.truth_linear_srgb)

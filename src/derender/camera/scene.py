@@ -24,6 +24,8 @@ __all__ = [
     "make_scene",
     "scene_camera_rgb",
     "scene_xyz",
+    "texture_rgb",
+    "soft_mask",
 ]
 
 #: Scene kinds of :func:`make_scene` (``derender simulate --scene``).
@@ -54,7 +56,7 @@ class SpectralScene:
         return self.material_index.shape[:2]
 
 
-def _texture_rgb(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+def texture_rgb(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     """A natural texture (matplotlib's bundled photograph), randomly cropped/flipped, linear RGB in [0, 1]."""
     import cv2
     import matplotlib
@@ -89,7 +91,8 @@ def _smooth_noise(shape: tuple[int, int], rng: np.random.Generator, scale: float
     return up / max(float(up.std()), 1e-6)
 
 
-def _soft(mask: np.ndarray, sigma: float) -> np.ndarray:
+def soft_mask(mask: np.ndarray, sigma: float) -> np.ndarray:
+    """``mask`` blurred by a Gaussian of ``sigma`` pixels: a soft-edged region."""
     import cv2
 
     k = int(6 * sigma) | 1
@@ -115,7 +118,7 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
     names, library, groups = reflectance_library()
 
     # --- materials: texture via Mallett basis (3 weights = linear RGB), charts on top
-    tex = _texture_rgb((w, h), rng)
+    tex = texture_rgb((w, h), rng)
     tex = 0.03 + 0.87 * tex
     idx = np.empty((h, w, 3), dtype=np.int32)
     idx[:] = np.arange(groups["mallett"].start, groups["mallett"].stop, dtype=np.int32)
@@ -167,12 +170,12 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
     lamp_hard = lamp > 0.5
     idx[lamp_hard] = white_row
     wts[lamp_hard] = np.array([1.0, 0.0, 0.0], dtype=np.float32)
-    lamp = _soft(lamp, sigma * 0.7)
+    lamp = soft_mask(lamp, sigma * 0.7)
     glow = np.exp(-(((xx - lamp_x) ** 2 + (yy - lamp_y) ** 2) / (2 * (4 * lamp_r) ** 2)))
 
     if kind == "outdoor":
         illum_names = ("D75", "D50", "D55")
-        shadow = _soft((xx < w * rng.uniform(0.3, 0.42)).astype(np.float32), sigma * 3)
+        shadow = soft_mask((xx < w * rng.uniform(0.3, 0.42)).astype(np.float32), sigma * 3)
         sun = 1.0 - shadow
         base_shadow = 1.0 * shadow
         base_sun = 25.0 * sun
@@ -186,7 +189,7 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
         wy0, wy1 = int(h * 0.06), int(h * 0.42)
         win[wy0:wy1, wx0:wx1] = 1.0
         regions["window"] = [wx0, wy0, wx1 - wx0, wy1 - wy0]
-        win = _soft(win, sigma)
+        win = soft_mask(win, sigma)
         vignette = 0.25 + 0.75 * np.exp(-(((xx - w / 2) / (0.7 * w)) ** 2 + ((yy - h / 2) / (0.7 * h)) ** 2))
         room = 12.0 * vignette * (1 - win)
         fields = [room * shading, 500.0 * win * shading, glow * 300.0 + lamp * 1.5e4]
@@ -198,7 +201,7 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
         wx0, wy0 = int(w * 0.1), int(h * 0.15)
         win[wy0:wy0 + h // 5, wx0:wx0 + w // 6] = 1.0
         regions["window"] = [wx0, wy0, w // 6, h // 5]
-        win = _soft(win, sigma)
+        win = soft_mask(win, sigma)
         fields = [dark * shading + 150.0 * win, glow * 800.0 + 10.0 * glow ** 0.3, lamp * 3.0e4]
         key = "A"
     illumination = np.stack(fields, axis=-1).astype(np.float32)

@@ -264,3 +264,50 @@ def exp_uncertainty(
                                     ("median_abs_z", "median abs(z)", ".2f")]))
     if output is not None:
         output.write_text(json.dumps(rows, indent=2, default=float))
+
+
+@experiment_app.command("linearity")
+def exp_linearity(
+    renders: str = typer.Option("gamma,paper,camera,dslr-lut,phone-local,drift", "--renders",
+                                help="Renderings of the luminance family (gamma, paper, camera: tuning; dslr-lut, "
+                                     "phone-local, drift: held out)."),
+    modes: str = typer.Option("time", "--modes", help="EXIF brackets: time, aperture-iso (comma separated)."),
+    seeds: str = typer.Option("0", "--seeds", help="Seeds, comma separated."),
+    size: str = typer.Option("192x128", "--size", help="Image size WxH."),
+    exposures: int = typer.Option(9, "--exposures", help="Exposures per bracket (2 stops apart)."),
+    methods: str = typer.Option("debevec,robertson,stabilized,stabilized-joint,probabilistic", "--methods",
+                                help="derender methods (probabilistic: paper 2's GP from the camera's chart session)."),
+    n_train: int = typer.Option(5000, "--n-train", help="GP training pairs for probabilistic."),
+    output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
+) -> None:
+    """Issue 28: linearity over 5 decades. Each method's map, scaled on the grey card (--spot), against the
+    absolute truth: median and p90 relative error and the median ratio per decade 1..10, ..., 1e5..1e6 cd/m2."""
+    from derender.camera.luminance import LUMINANCE_MODES, RENDERS
+    from derender.evaluation.experiments import format_table
+    from derender.evaluation.linearity import LINEARITY_METHODS, format_decades, linearity_experiment
+    from derender.io.files import OutputTransaction
+
+    w, h = parse_size(size)
+    split = lambda s: [v.strip() for v in s.split(",") if v.strip()]
+    try:
+        seed_list = [int(v) for v in split(seeds)]
+    except ValueError:
+        raise InputError(f"--seeds must be integers separated by commas, got {seeds!r}") from None
+    for name, given, allowed in (("--renders", split(renders), RENDERS), ("--modes", split(modes), ("time", "aperture-iso")),
+                                 ("--methods", split(methods), LINEARITY_METHODS)):
+        bad = [v for v in given if v not in allowed]
+        if bad or not given:
+            raise InputError(f"{name} takes {', '.join(allowed)}; got {', '.join(bad) or 'nothing'}")
+    _ = LUMINANCE_MODES
+    with OutputTransaction() as tx:
+        json_tmp = tx.add(output, "--json", (".json",))
+        rows = linearity_experiment(split(renders), split(modes), seed_list, size=(w, h), exposures=exposures,
+                                    methods=split(methods), n_train=n_train, progress=lambda msg: console().print(msg))
+        if json_tmp is not None:
+            json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")
+    for r in rows:
+        r["decades_text"] = format_decades(r["decades"])
+    typer.echo(format_table(rows, [("render", "render", ""), ("role", "role", ""), ("mode", "EXIF", ""),
+                                   ("method", "method", ""), ("median_abs", "median abs err", ".2%"),
+                                   ("p90_abs", "p90", ".2%"),
+                                   ("decades_text", "median ratio per decade 1..1e6 cd/m2", "")]))

@@ -75,11 +75,23 @@ def simulate(
                                "bracket; the truth is then the middle frame's instant (docs/simulator.md)."),
     shake: int = typer.Option(0, "--shake", help="Camera shake: each frame offset by up to this many pixels "
                               "(handheld); the middle frame is the truth's grid."),
+    luminance: Optional[str] = typer.Option(None, "--luminance", help="time | aperture-iso | flat-field: the "
+                                            "luminance-truth family (1..1e6 cd/m2, grey card and its --spot in "
+                                            "scene.json, EXIF t/N/ISO; docs/luminance.md). --render: gamma (fixed "
+                                            "gamma 2.2) or a family; --stops default 2."),
+    lens_falloff: Optional[float] = typer.Option(None, "--lens-falloff", help="With --luminance: lens vignetting, "
+                                                 "the corner transmission (e.g. 0.55)."),
 ) -> None:
     """Simulate a bracket with a spectral camera model: real DNG and JPEG files plus exact truth."""
     from derender.camera import simulate_bracket, write_bracket
 
     w, h = parse_size(size)
+    if luminance is not None or lens_falloff is not None:
+        from derender.camera.luminance import simulate_to_folder_cli
+
+        simulate_to_folder_cli(outdir, luminance, render, (w, h), exposures, stops, seed,
+                               load_camera_cli(camera, camera_file).with_bits(bits), lens_falloff)
+        return
     check_choice("--pipeline", pipeline, ("fixed", "auto"))
     from derender.camera.families import FAMILIES
 

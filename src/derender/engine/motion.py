@@ -325,6 +325,9 @@ def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: i
             ys, xs = pos
             if valid is not None:
                 keep = np.all(valid[:, ys, xs] != 0, axis=0)
+                group = int(method.sample_cluster)       # positions come in clusters: keep whole ones
+                if group > 1:
+                    keep = np.repeat(keep.reshape(-1, group).all(axis=1), group)
                 ys, xs = ys[keep], xs[keep]
             samples = frames[:, ys, xs].astype(np.int32)
     return FrameAccess(times=source.times, shape=(h, w), samples=samples, frames=frames, threads=threads,

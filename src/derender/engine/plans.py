@@ -183,7 +183,8 @@ class EngineMethod(Protocol):
     ``output_bytes(h, w)``: the bytes of the plan's outputs, so that a held method's derived
     planes can be allocated large enough to be reused for them (None: not reused);
     ``refits_on_frames``: the plan is refitted without the pixels ghost removal rejects (the
-    motion-compensated fill then runs after the refit). :class:`MethodDefaults` gives the
+    motion-compensated fill then runs after the refit); ``sample_cluster``: the sample positions
+    come in clusters of this many (kept or left out whole). :class:`MethodDefaults` gives the
     defaults of all but ``name`` and :meth:`plan`.
 
     A method (or its factory) with no engine form for its options raises
@@ -197,6 +198,7 @@ class EngineMethod(Protocol):
     warm_up: str | None
     output_bytes: Callable[[int, int], int] | None
     refits_on_frames: bool
+    sample_cluster: int
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None: ...
 
@@ -217,6 +219,7 @@ class MethodDefaults:
     warm_up: str | None = None
     output_bytes: Callable[[int, int], int] | None = None
     refits_on_frames: bool = True
+    sample_cluster: int = 1
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None:
         return None

@@ -5,7 +5,8 @@ Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluati
 :mod:`derender.evaluation.families` (every HDR method on every camera-pipeline family), :mod:`derender.evaluation.metrics`,
 :mod:`derender.evaluation.neutral` (do greys stay grey at every brightness), :mod:`derender.evaluation.oracle` (merge by
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`, :mod:`derender.evaluation.uncertainty`
-(coverage of a variance against the truth), :mod:`derender.evaluation.ghosts` (moving brackets by zone).
+(coverage of a variance against the truth), :mod:`derender.evaluation.ghosts` (moving brackets by zone),
+:mod:`derender.evaluation.linearity` (absolute luminance over 5 decades, evalglare's fisheye maps).
 """
 
 from derender.core.lazy import attach
@@ -22,5 +23,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table", "uncertainty_experiment"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
     "neutral": ["NeutralAxis", "neutral_pixels", "neutral_axis", "neutral_axis_truth", "scale_gap"],
+    "linearity": ["DECADES", "LINEARITY_METHODS", "FISHEYE_VIEW", "linearity_scores", "linearity_experiment", "fisheye_maps", "render_chart_model", "format_decades"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })

@@ -40,7 +40,7 @@ from derender.response.curves import (
     DEFAULT_TIE,
     check_usable,
     check_usable_samples,
-    grid_positions,
+    cluster_positions,
     histogram_samples,
 )
 
@@ -87,9 +87,14 @@ class RobertsonOptions:
 
 
 class DebevecMethod(MethodDefaults):
-    """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables."""
+    """Debevec & Malik (1997) on the engine: grid (or histogram) samples, Sec. 2.1 curves, eq. 6 tables.
+
+    Grid samples that see a clipped neighbour while unclipped themselves are left out
+    (:func:`~derender.response.curves.uniform_samples`).
+    """
 
     name = "debevec"
+    sample_cluster = 9          # grid samples come as 3x3 clusters (response.curves.cluster_positions)
 
     def __init__(self, options: DebevecOptions):
         self.options = options
@@ -103,13 +108,14 @@ class DebevecMethod(MethodDefaults):
         self.wants_histograms = self.sampling == "histogram"
 
     def sample_positions(self, h: int, w: int):
-        return grid_positions(h, w, self.n_samples, self.seed) if self.sampling == "grid" else None
+        return cluster_positions(h, w, self.n_samples, self.seed) if self.sampling == "grid" else None
 
     def plan(self, access: FrameAccess) -> TablePlan:
+        from derender.response.curves import uniform_samples
         from derender.response.debevec1997 import calibrate_debevec_from_samples
 
-        samples = access.samples if self.sampling == "grid" else histogram_samples(access.histograms(),
-                                                                                   self.n_samples)
+        samples = (uniform_samples(access.samples, self.n_samples) if self.sampling == "grid"
+                   else histogram_samples(access.histograms(), self.n_samples))
         check_usable_samples(samples, access.histograms)
         curves = self.curves
         if curves is None:

@@ -232,6 +232,52 @@ def grid_positions(h: int, w: int, n: int, seed: int, border: float = 0.05) -> t
     return yy.ravel()[:n], xx.ravel()[:n]
 
 
+#: Neighbours of a uniform-region sample (:func:`cluster_positions`): offsets -R, 0, +R in y and x.
+CLUSTER_REACH = 2
+
+
+def cluster_positions(h: int, w: int, n: int, seed: int, reach: int = CLUSTER_REACH) -> tuple[np.ndarray, np.ndarray]:
+    """Candidates for :func:`uniform_samples`: ``4 n`` grid positions (:func:`grid_positions`), each
+    with its 8 neighbours at ``+-reach`` pixels, flattened as ``(4 n) x 9`` positions (centre 5th)."""
+    ys, xs = grid_positions(h, w, 4 * int(n), seed)
+    ys = np.clip(ys, reach, max(reach, h - 1 - reach))
+    xs = np.clip(xs, reach, max(reach, w - 1 - reach))
+    d = np.array([-reach, 0, reach])
+    dy, dx = np.meshgrid(d, d, indexing="ij")
+    yy = np.clip(ys[:, None] + dy.ravel()[None, :], 0, h - 1)
+    xx = np.clip(xs[:, None] + dx.ravel()[None, :], 0, w - 1)
+    return yy.ravel(), xx.ravel()
+
+
+def uniform_samples(cluster_codes: np.ndarray, n: int, clip_code: int = 250) -> np.ndarray:
+    """The centres of at most ``n`` clusters (:func:`cluster_positions`; ``cluster_codes`` (N, 9 M, 3))
+    that never see a clipped neighbour while unclipped themselves: a cluster is dropped if in some
+    frame one of its 8 neighbours has a channel at ``clip_code`` or above while the centre's
+    channels are all below it. Kept clusters are spread evenly (``n`` of them); if fewer than
+    ``n / 4`` pass, the ``n / 4`` with the fewest such frames.
+
+    Why (issue 28): a pixel beside a much brighter one (the rim of a window or a lamp) receives
+    part of its neighbour's signal through demosaicing and chroma noise reduction, and once the
+    neighbour clips its codes stop following the exposure. Such samples gave the curve's top
+    codes their data and bent it (docs/luminance.md). Debevec & Malik (1997, Sec. 2.1) take
+    samples in regions of low intensity variance; elsewhere the samples are the plain grid's.
+    """
+    c = np.asarray(cluster_codes)
+    n_img, p, _ = c.shape
+    c = c.reshape(n_img, p // 9, 9, 3)
+    centre = c[:, :, 4, :]
+    nb = np.delete(c, 4, axis=2)
+    risky = (nb.max(axis=(2, 3)) >= clip_code) & (centre.max(axis=-1) < clip_code)     # (N, M)
+    worst = risky.sum(axis=0)
+    ok = np.flatnonzero(worst == 0)
+    need = max(1, int(n) // 4)
+    if ok.size < need:
+        ok = np.sort(np.argsort(worst, kind="stable")[:need])
+    if ok.size > n:
+        ok = ok[np.linspace(0, ok.size - 1, int(n)).round().astype(int)]
+    return np.ascontiguousarray(centre[:, ok, :].astype(np.int32))
+
+
 def sample_pixels(stack_or_codes: Any, n_samples: int = DEFAULT_SAMPLES, method: str = "grid",
                   seed: int = 0, n_levels: int = 256) -> np.ndarray:
     """Samples for response recovery, (N_img, P, 3) int32 code levels.
@@ -251,8 +297,8 @@ def sample_pixels(stack_or_codes: Any, n_samples: int = DEFAULT_SAMPLES, method:
     if n_samples < 1:
         raise InputError(f"n_samples must be positive, got {n_samples}")
     if method == "grid":
-        ys, xs = grid_positions(h, w, n_samples, seed)
-        return np.ascontiguousarray(to_codes(arr[:, ys, xs, :], n_levels))
+        ys, xs = cluster_positions(h, w, n_samples, seed)
+        return uniform_samples(to_codes(arr[:, ys, xs, :], n_levels), n_samples)
     if method == "histogram":
         codes = to_codes(arr, n_levels)
         u = np.linspace(0.0, 1.0, int(n_samples))

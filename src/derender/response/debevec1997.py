@@ -5,6 +5,11 @@ Sec. 2.1, eq. 3: minimise ``sum_ij {w(Z_ij) [g(Z_ij) - ln E_i - ln t_j]}^2 + lam
 pixels, one channel at a time, with ``g(128) = 0``; solved as a sparse least-squares
 system. Hat weights, lambda 30 and 256 grid samples by default; a curve that is not
 monotonic is made so (isotonic regression).
+
+Grid samples that see a clipped neighbour while unclipped themselves are left out
+(:func:`~derender.response.curves.uniform_samples`): pixels at the rim of a window or a lamp,
+whose codes stop following the exposure once their clipped neighbour leaks into them through
+demosaicing and chroma noise reduction, bent the curve's top end (issue 28; docs/luminance.md).
 """
 
 from __future__ import annotations

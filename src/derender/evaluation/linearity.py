@@ -1,0 +1,163 @@
+"""Linearity over 5 decades: per-decade ratio of a spot-calibrated map to the absolute truth.
+
+On a bracket of the luminance family (:mod:`derender.camera.luminance`) the truth is in cd/m2.
+A merged map (relative linear sRGB) is scaled on the grey card as a luminance meter's spot
+reading would (:func:`derender.photometry.calibration.spot_factor`: ``k = L_card / mean_card
+(179 w . RGB)``), and at every scored pixel
+
+    rho = k 179 (w . RGB) / L_true,
+
+``w`` the Rec. 709 row (issue 28, item 6). Reported: the median and 90th percentile of
+``|rho - 1|`` over all scored pixels, and the median ``rho`` in each decade of the true
+luminance 1..10, ..., 1e5..1e6 cd/m2. Scored pixels are those where the in-camera demosaicing
+and chroma denoising keep the truth (:func:`derender.evaluation.families.smooth_mask`), off the
+grey card itself, and not over-exposed in every frame (the merge's mask: a bound, not a value).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from derender.core.errors import InputError
+
+__all__ = ["DECADES", "LINEARITY_METHODS", "linearity_scores", "linearity_experiment", "render_chart_model",
+           "format_decades", "fisheye_maps", "FISHEYE_VIEW"]
+
+#: Decade edges of the true luminance (cd/m2).
+DECADES = tuple(10.0 ** k for k in range(7))
+#: Methods scored by :func:`linearity_experiment` (issue 28, item 6).
+LINEARITY_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic")
+
+
+def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], *,
+                     score_mask: np.ndarray | None = None, merge_mask: np.ndarray | None = None) -> dict[str, Any]:
+    """Spot-calibrate ``radiance_srgb`` (H, W, 3, linear sRGB, relative) on ``card`` ``[x, y, w, h]`` (the
+    meter's spot: ``scene.json``'s ``luminance.spot``)
+    against ``truth_cd_m2`` (H, W) and score it (module docstring). ``score_mask`` (H, W bool)
+    selects pixels; ``merge_mask`` (``HDRResult.mask``, 1 = over-exposed in every frame) drops
+    those. Returns ``median_abs``, ``p90_abs``, ``median_ratio``, ``decades`` (median ratio per
+    decade, NaN for an empty one), ``counts`` and the ``factor``."""
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.calibration import Spot, spot_factor
+    from derender.photometry.illuminance import luminance_cd_m2
+
+    rad = np.asarray(radiance_srgb, dtype=np.float64)
+    lt = np.asarray(truth_cd_m2, dtype=np.float64)
+    if rad.shape[:2] != lt.shape or rad.ndim != 3:
+        raise InputError(f"map {rad.shape} and truth {lt.shape} differ in size")
+    x, y, w, h = (int(v) for v in card)
+    spot = Spot(x, y, w, h, float(lt[y:y + h, x:x + w].mean()))
+    cal = spot_factor(rad, spot, SRGB_PRIMARIES, mask=merge_mask)
+    lum = cal.factor * luminance_cd_m2(rad, SRGB_PRIMARIES)
+    sel = np.ones(lt.shape, bool) if score_mask is None else np.asarray(score_mask, bool).copy()
+    sel[y:y + h, x:x + w] = False
+    if merge_mask is not None:
+        sel &= np.asarray(merge_mask) != 1
+    sel &= lt >= DECADES[0]
+    ratio = lum[sel] / lt[sel]
+    lsel = lt[sel]
+    decades, counts = [], []
+    for lo, hi in zip(DECADES[:-1], DECADES[1:]):
+        d = (lsel >= lo) & (lsel < hi)
+        counts.append(int(d.sum()))
+        decades.append(float(np.median(ratio[d])) if d.any() else float("nan"))
+    err = np.abs(ratio - 1.0)
+    return {"median_abs": float(np.median(err)), "p90_abs": float(np.percentile(err, 90)),
+            "median_ratio": float(np.median(ratio)), "decades": decades, "counts": counts,
+            "factor": float(cal.factor), "n": int(ratio.size)}
+
+
+def linearity_experiment(renders: Sequence[str] = ("gamma", "paper", "camera", "dslr-lut", "phone-local", "drift"),
+                         modes: Sequence[str] = ("time",), seeds: Sequence[int] = (0,),
+                         size: tuple[int, int] = (192, 128), exposures: int = 9,
+                         methods: Sequence[str] = LINEARITY_METHODS, camera: str = "nikon-d5100",
+                         n_train: int = 5000, progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """``derender experiment linearity``: every method on luminance-family brackets of every
+    rendering, scored by :func:`linearity_scores`. ``probabilistic`` uses paper 2's GP from the
+    camera's chart session (:func:`derender.evaluation.uncertainty.chart_model`), as
+    ``derender experiment uncertainty`` does. Rows: render, role (tuning / held-out), mode,
+    seed, method and the scores."""
+    from derender.camera.luminance import TUNING_RENDERS, simulate_luminance, truth_luminance_cd_m2
+    from derender.core.types import Stack
+    from derender.evaluation.families import smooth_mask
+    from derender.hdr.registry import merge_seeded, method_spec
+
+    models: dict[str, Any] = {}
+    rows: list[dict[str, Any]] = []
+    for render in renders:
+        for mode in modes:
+            for seed in seeds:
+                if progress is not None:
+                    progress(f"{render} {mode} seed {seed}")
+                b = simulate_luminance(mode=mode, render=render, size=size, exposures=exposures, seed=int(seed),
+                                       camera=camera)
+                stack = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+                lt = truth_luminance_cd_m2(b.truth_linear_srgb)
+                smooth = smooth_mask(b.truth_linear_srgb)
+                card = b.params["luminance"]["spot"]
+                for m in methods:
+                    opts: dict[str, Any] = {}
+                    if method_spec(m).needs_model:
+                        if render not in models:
+                            models[render] = render_chart_model(camera, render, n_train)
+                        opts["model"] = models[render]
+                    res = merge_seeded(stack, m, int(seed), **opts)
+                    sc = linearity_scores(res.radiance, lt, card, score_mask=smooth, merge_mask=res.mask)
+                    rows.append({"render": render, "role": "tuning" if render in TUNING_RENDERS else "held-out",
+                                 "mode": mode, "seed": int(seed), "method": m} | sc)
+    return rows
+
+
+#: Radiance view of the family's fisheye framing (:func:`fisheye_maps`).
+FISHEYE_VIEW = "-vta -vh 180 -vv 180"
+
+
+def fisheye_maps(methods: Sequence[str] = ("debevec", "stabilized"), *, render: str = "gamma", size: int = 160,
+                 exposures: int = 9, seed: int = 0, camera: str = "nikon-d5100", n_train: int = 5000
+                 ) -> dict[str, np.ndarray]:
+    """Issue 28's glare check: the luminance family framed as a 180-degree circular fisheye
+    (``size`` x ``size``, :data:`FISHEYE_VIEW`), merged by each method and scaled on the grey
+    card's spot, with the truth: ``{"truth": ..., method: ...}`` (H, W, 3) in Radiance units
+    (``179 w·RGB`` = cd/m2), ready for ``write_hdr(..., view=FISHEYE_VIEW)`` and ``evalglare -V``."""
+    from derender.camera.luminance import SATURATION_EXPOSURE, simulate_luminance
+    from derender.core.types import Stack
+    from derender.hdr.registry import merge_seeded, method_spec
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.calibration import Spot, spot_factor
+
+    b = simulate_luminance(render=render, size=(size, size), exposures=exposures, seed=seed, camera=camera,
+                           fisheye=True)
+    lum = b.params["luminance"]
+    spot = Spot(*lum["spot"], lum["spot_cd_m2"])
+    out = {"truth": b.truth_linear_srgb.astype(np.float64) * (SATURATION_EXPOSURE / 179.0)}
+    stack = Stack(images=b.jpeg_codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+    for m in methods:
+        opts = ({"model": render_chart_model(camera, render, n_train)}
+                if method_spec(m).needs_model else {})
+        res = merge_seeded(stack, m, seed, **opts)
+        k = spot_factor(res.radiance, spot, SRGB_PRIMARIES, mask=res.mask).factor
+        out[m] = np.asarray(res.radiance, dtype=np.float64) * k
+    return out
+
+
+def render_chart_model(camera: str, render: str, n_train: int = 5000, seed: int = 0):
+    """Paper 2's GP for ``camera`` rendering as ``render`` (``gamma``: the fixed gamma-2.2 ``simple``
+    style; otherwise that pipeline family), calibrated on its simulated chart session (fixed white
+    balance), ``n_train`` pairs drawn with ``seed``, as :func:`derender.evaluation.uncertainty.chart_model`."""
+    from derender.camera.chart import chart_pairs
+    from derender.derendering.base import fit_model, model_metadata
+
+    pairs = (chart_pairs(camera, style="simple", seed=seed) if render == "gamma"
+             else chart_pairs(camera, seed=seed, family=render))
+    rng = np.random.default_rng(seed)
+    sel = rng.choice(pairs.jpeg.shape[0], size=min(n_train, pairs.jpeg.shape[0]), replace=False)
+    model = fit_model("gp", pairs.jpeg[sel], pairs.raw[sel], seed=seed, n_train=n_train)
+    model.metadata.update(model_metadata(pairs))
+    return model
+
+
+def format_decades(values: Sequence[float]) -> str:
+    """Per-decade median ratios as text: three decimals each, a dash for an empty decade."""
+    return ", ".join("-" if not np.isfinite(v) else f"{v:.3f}" for v in values)

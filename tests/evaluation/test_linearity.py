@@ -1,0 +1,80 @@
+"""Linearity over 5 decades (issue 28): spot-calibrated maps against the absolute truth, and evalglare."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+from helpers import run_cli
+
+
+@pytest.fixture(scope="module")
+def gamma_rows():
+    from derender.evaluation.linearity import linearity_experiment
+
+    return linearity_experiment(renders=["gamma"], modes=["time"], seeds=[0], n_train=1500)
+
+
+@pytest.mark.parametrize("method", ["debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic"])
+def test_linearity_bound_on_the_tuning_family(gamma_rows, method):
+    """Issue 28's done-when line on the luminance family's fixed gamma-2.2 camera (a tuning
+    rendering), 192x128, 9 frames 2 stops apart, seed 0: after the spot on the grey card,
+    median abs error <= 3 %, p90 <= 10 % and every decade's median ratio within +-5 %.
+    Measured: debevec 1.8 % / 3.7 % (its two top decades 1.005, 1.013; before its samples left out
+    the rims of clipped sources 9.2 % / 19.6 %), stabilized 1.9 % / 3.0 %, probabilistic 0.8 % / 2.4 %."""
+    row = next(r for r in gamma_rows if r["method"] == method)
+    assert row["role"] == "tuning"
+    assert all(c > 300 for c in row["counts"]), row["counts"]
+    assert row["median_abs"] <= 0.03, row
+    assert row["p90_abs"] <= 0.10, row
+    assert np.all(np.abs(np.asarray(row["decades"]) - 1.0) <= 0.05), row["decades"]
+
+
+def test_linearity_scores_detect_a_nonlinear_map():
+    """The score is not blind: the truth itself scores 0, and the truth bent by a power 0.98
+    (2 % per decade) misses the decade bound at the ends."""
+    from derender.camera.luminance import simulate_luminance, truth_luminance_cd_m2
+    from derender.evaluation.linearity import linearity_scores
+
+    b = simulate_luminance(size=(96, 64), exposures=3, noise=False)
+    lt = truth_luminance_cd_m2(b.truth_linear_srgb)
+    card = b.params["luminance"]["spot"]
+    exact = linearity_scores(b.truth_linear_srgb * 7.0, lt, card)
+    assert exact["median_abs"] < 1e-4 and np.allclose(exact["decades"], 1.0, atol=1e-4)
+    bent = linearity_scores(np.power(b.truth_linear_srgb.astype(np.float64), 0.98), lt, card)
+    assert abs(bent["decades"][0] - 1.0) > 0.05 or abs(bent["decades"][-1] - 1.0) > 0.05
+
+
+def test_experiment_linearity_cli(tmp_path, capsys):
+    code, out, err = run_cli(["experiment", "linearity", "--renders", "gamma", "--methods", "debevec",
+                              "--size", "96x64", "--exposures", "7", "--json", tmp_path / "r.json"], capsys)
+    assert code == 0, err
+    assert "| gamma | tuning | time | debevec |" in out
+    code, _, err = run_cli(["experiment", "linearity", "--renders", "nope"], capsys)
+    assert code == 2 and err.strip().startswith("error:") and "--renders" in err
+
+
+def _evalglare_ev(path) -> float:
+    from radiance_tools import radiance_bin
+
+    run = subprocess.run([str(radiance_bin("evalglare")), "-V", str(path)], capture_output=True, text=True)
+    return float(run.stdout.split()[0])
+
+
+@pytest.mark.parametrize("method", ["debevec", "stabilized"])
+def test_evalglare_on_our_map_matches_the_truth(tmp_path, method):
+    """The family framed as a 180-degree circular fisheye (160x160, gamma-2.2 camera, seed 0),
+    merged, scaled on the grey card and written with ``VIEW= -vta -vh 180 -vv 180``: Radiance's
+    ``evalglare -V`` on our map within 5 % of ``evalglare -V`` on the truth map with the same
+    header. Measured: truth 41112 lx, debevec 40735 (-0.9 %), stabilized 41498 (+0.9 %)."""
+    from derender.evaluation.linearity import FISHEYE_VIEW, fisheye_maps
+    from derender.io.rgbe import write_hdr
+
+    maps = fisheye_maps([method])
+    for name, img in maps.items():
+        write_hdr(tmp_path / f"{name}.hdr", img, view=FISHEYE_VIEW)
+    truth = _evalglare_ev(tmp_path / "truth.hdr")
+    ours = _evalglare_ev(tmp_path / f"{method}.hdr")
+    assert truth > 1e4
+    assert ours == pytest.approx(truth, rel=0.05)
