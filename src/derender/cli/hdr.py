@@ -123,7 +123,8 @@ def merge_cmd(
                                        "that rectangle of the output; the map (and variance) are scaled to absolute "
                                        "units, luminance 179 (w·RGB) cd/m2 as Radiance reads it."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
-    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance of the radiance (.exr); every method "
+                                            "'derender methods' lists with a variance."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
@@ -186,6 +187,8 @@ def merge_cmd(
         spot_reading = parse_spot(spot)
     if variance is not None and not getattr(fn, "gives_variance", False):
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
+    if variance is not None and "variance" in inspect.signature(fn).parameters:
+        method_opts["variance"] = True      # the classic and stabilised merges compute it only when asked
     if model is not None and "model" not in inspect.signature(fn).parameters:
         from derender.hdr.registry import MERGE_METHODS, load_plugins
 
@@ -281,6 +284,10 @@ def merge_cmd(
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
                f"({time.perf_counter() - t0:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
                f"{n_dark} px from the longest (mask))")
+    sources = result.info.get("variance_sources")
+    if variance is not None and sources:
+        typer.echo("variance by source (median share of a pixel's): "
+                   + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
     motion_line = _motion_summary(result.info, images)
     if motion_line:
         typer.echo(motion_line)

@@ -85,7 +85,9 @@ class TablePlan:
 
     ``values`` (N, 256, 3) float32; ``weights`` (256, 3) or (N, 256, 3); ``image_weights``
     (N,) multiplies frame j's weights; ``channel_weights`` and ``domain`` as
-    :class:`~derender.engine.tables.TableMerge`.
+    :class:`~derender.engine.tables.TableMerge`. ``variance`` (a
+    :class:`~derender.engine.variance.VarianceModel`): the engine also gives the result's
+    variance (held frames, compiled kernel).
     """
 
     values: np.ndarray
@@ -94,6 +96,7 @@ class TablePlan:
     channel_weights: str = "mean"
     domain: str = "log"
     block_rows: int | None = None
+    variance: Any = None
 
     def weight_of(self, j: int) -> np.ndarray:
         w = np.asarray(self.weights)
@@ -108,7 +111,9 @@ class MatrixPlan:
     frame j is read at ``(y + dy, x + dx)``; outside the frame it does not take part.
     ``colour_weights`` (optional, (2**24,) float32, positive where read): a factor on the
     weight of every observation by its colour, indexed ``R << 16 | G << 8 | B`` (64 MB; e.g.
-    the inverse relative variance of a de-rendering model, ``stabilized-probabilistic``)."""
+    the inverse relative variance of a de-rendering model, ``stabilized-probabilistic``).
+    ``variance`` (a :class:`~derender.engine.variance.VarianceModel` of ``values``): the engine
+    also gives the result's variance."""
 
     values: np.ndarray
     matrices: np.ndarray
@@ -117,6 +122,7 @@ class MatrixPlan:
     inverse_variance: np.ndarray | None = None
     inverse_variance_k: np.ndarray | None = None
     colour_weights: np.ndarray | None = None
+    variance: Any = None
 
 
 @dataclass

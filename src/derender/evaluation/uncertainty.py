@@ -149,6 +149,8 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
                                        "method": m, "gives_variance": bool(getattr(fn, "gives_variance", False))}
                 if row["gives_variance"]:
                     opts = {"model": model} if "model" in inspect.signature(fn).parameters else {}
+                    if "variance" in inspect.signature(fn).parameters:
+                        opts["variance"] = True     # the classic and stabilised merges give it when asked
                     res = merge_seeded(stack, m, int(seed), **opts)
                     table = coverage_table(res.radiance, res.variance, b.truth_linear_srgb, merge_mask=res.mask)
                     for part, d in table.items():

@@ -31,6 +31,7 @@ from derender.engine.plans import FrameAccess, TablePlan
 from derender.engine.reference import merge_linear
 from derender.engine.run import run_stack
 from derender.engine.tables import curve_value_tables, weight_table
+from derender.engine.variance import variance_tables
 from derender.hdr.registry import register_method
 from derender.response.curves import (
     DEFAULT_LAMBDA,
@@ -53,8 +54,10 @@ class DebevecMethod:
 
     def __init__(self, curves=None, lam: float | None = None, n_samples: int | None = None, sampling: str = "grid",
                  seed: int = 0, weight: Any = "gaussian", domain: str = "log", channel_weights: str = "mean",
-                 block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
+                 block_rows: int | None = None, engine: str = "auto", tie: float | None = None,
+                 variance: bool = False):
         self.curves = curves
+        self.variance = bool(variance)
         self.tie = DEFAULT_TIE if tie is None else float(tie)
         self.lam = DEFAULT_LAMBDA if lam is None else float(lam)
         self.n_samples = DEFAULT_SAMPLES if n_samples is None else int(n_samples)
@@ -85,9 +88,10 @@ class DebevecMethod:
                                                     self.n_samples, self.sampling, self.seed,
                                                     balance=self.sampling == "grid", tie=self.tie)
         self.fitted = curves
-        return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
-                         weights=weight_table(self.weight), channel_weights=self.channel_weights,
-                         domain=self.domain, block_rows=self.block_rows)
+        values = curve_value_tables(curves, access.times, self.domain)
+        return TablePlan(values=values, weights=weight_table(self.weight), channel_weights=self.channel_weights,
+                         domain=self.domain, block_rows=self.block_rows,
+                         variance=variance_tables(values, self.domain, "debevec") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "debevec", "curves": self.fitted,
@@ -102,7 +106,9 @@ class RobertsonMethod:
     wants_histograms = False
 
     def __init__(self, curves=None, n_iter: int = 30, max_pixels: int = 40_000, weight: Any = "gaussian",
-                 seed: int = 0, block_rows: int | None = None, engine: str = "auto", tie: float | None = None):
+                 seed: int = 0, block_rows: int | None = None, engine: str = "auto", tie: float | None = None,
+                 variance: bool = False):
+        self.variance = bool(variance)
         self.tie = DEFAULT_TIE if tie is None else float(tie)
         self.curves, self.n_iter, self.max_pixels = curves, int(n_iter), int(max_pixels)
         self.weight, self.seed, self.block_rows = weight, int(seed), block_rows
@@ -124,9 +130,10 @@ class RobertsonMethod:
             curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
                                             max_pixels=self.max_pixels, weight=self.weight, tie=self.tie)
         self.fitted = curves
-        return TablePlan(values=curve_value_tables(curves, access.times, "linear"),
-                         weights=robertson_weight_table(curves, self.weight),
-                         channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear")
+        values = curve_value_tables(curves, access.times, "linear")
+        return TablePlan(values=values, weights=robertson_weight_table(curves, self.weight),
+                         channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear",
+                         variance=variance_tables(values, "linear", "robertson") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "robertson", "curves": self.fitted,
@@ -180,6 +187,8 @@ def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
 def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], Any], weight: Any,
                      block_rows: int | None, **merge_kw: Any) -> HDRResult:
     """A classic merge on the float reference engine (stacks without 8-bit codes)."""
+    if merge_kw.pop("variance", False):
+        raise InputError(f"{name}: a variance needs 8-bit images (every value a code / 255) on the engine")
     check_usable(stack)
     t0 = time.perf_counter()
     if curves is None:
@@ -200,7 +209,7 @@ def _robertson_engine(opts: dict) -> RobertsonMethod:
     return RobertsonMethod(**opts)
 
 
-@register_method("debevec", engine=_debevec_engine, gives_curves=True)
+@register_method("debevec", engine=_debevec_engine, gives_curves=True, gives_variance=True)
 def merge_debevec(
     stack: Stack,
     curves=None,
@@ -214,6 +223,7 @@ def merge_debevec(
     block_rows: int | None = None,
     engine: str = "auto",
     tie: float | None = None,
+    variance: bool = False,
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
@@ -239,12 +249,15 @@ def merge_debevec(
     other two: shared weights avoid trusting them; the Gaussian weight trusts codes near
     the ends of the range (toe and shoulder of the tone curve) less than the hat does.
 
+    ``variance``: also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`:
+    noise, quantisation, frame disagreement, shared model error; 8-bit stacks).
+
     ``engine``: ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to
     the reference to ~1e-6 relative; ``block_rows`` then sets the engine's row blocks),
     ``"table"`` insists on it, ``"reference"`` always uses :func:`merge_linear`.
     """
     method = DebevecMethod(curves, lam, n_samples, sampling, seed, weight, domain, channel_weights, block_rows, engine,
-                           tie)
+                           tie, variance)
     res = run_stack(method, stack, engine)
     if res is not None:
         return res
@@ -254,10 +267,10 @@ def merge_debevec(
         stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid",
         tie=method.tie),
         weight, block_rows,
-        channel_weights=channel_weights, domain=domain)
+        channel_weights=channel_weights, domain=domain, variance=variance)
 
 
-@register_method("robertson", engine=_robertson_engine, gives_curves=True)
+@register_method("robertson", engine=_robertson_engine, gives_curves=True, gives_variance=True)
 def merge_robertson(
     stack: Stack,
     curves=None,
@@ -268,6 +281,7 @@ def merge_robertson(
     block_rows: int | None = None,
     engine: str = "auto",
     tie: float | None = None,
+    variance: bool = False,
 ) -> HDRResult:
     """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
 
@@ -280,9 +294,9 @@ def merge_robertson(
     the longest frame's near-clipped codes decide: 33.7 dB PSNR L in ``derender demo``
     against 47.8 dB now (debevec 47.4).
 
-    ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
+    ``engine`` and ``variance`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
-    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine, tie)
+    method = RobertsonMethod(curves, n_iter, max_pixels, weight, seed, block_rows, engine, tie, variance)
     res = run_stack(method, stack, engine)
     if res is not None:
         return res
@@ -293,4 +307,4 @@ def merge_robertson(
                                      tie=method.tie)
     return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
                             weight_fn=_robertson_weight_fn(curves, weight), channel_weights="independent",
-                            domain="linear")
+                            domain="linear", variance=variance)

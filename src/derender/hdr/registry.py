@@ -35,8 +35,8 @@ __all__ = [
 ]
 
 #: Keywords of merge functions that are not user options: set by their own CLI flags
-#: (``model``: ``-m``; ``seed``: ``--seed``), arrays (``curves``), or the engine choice.
-_NOT_SETTABLE = ("model", "seed", "curves", "engine")
+#: (``model``: ``-m``; ``seed``: ``--seed``; ``variance``: ``--variance``), arrays (``curves``), or the engine choice.
+_NOT_SETTABLE = ("model", "seed", "curves", "engine", "variance")
 
 
 # --------------------------------------------------------------------------- registry

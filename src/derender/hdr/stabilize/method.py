@@ -236,6 +236,7 @@ class StabilizedMethod:
             raise NotStreamable(f"align={align!r} warps frames")
         self.name, self.opts, self.align = name, opts, align
         self.seed = int(opts.get("seed", 0))
+        self.variance = bool(opts.get("variance", False))
         self.output_bytes = matrix_output_bytes
         warm_up_kernels()
 
@@ -312,6 +313,10 @@ class StabilizedMethod:
         plan = stabilized_plan(stab, opts["weight"], opts["noise_weighting"], shifts=shifts)
         if plan is None:
             raise NotStreamable("no table form for these curves")
+        if self.variance:
+            from derender.engine.variance import matrix_variance_tables
+
+            plan.variance = matrix_variance_tables(plan.values, self.name)
         return plan
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
@@ -573,16 +578,20 @@ def stabilization_info(stab: Stabilization) -> dict:
 def _register(name: str):
     from derender.hdr.registry import register_method
 
-    return register_method(name, engine=lambda opts: StabilizedMethod(name, opts))
+    return register_method(name, engine=lambda opts: StabilizedMethod(name, opts), gives_variance=True)
 
 
 def _on_engine(name: str, stack: Stack, opts: dict) -> HDRResult | None:
     """The merge of an 8-bit stack on the engine (None: warped alignment or no 8-bit codes)."""
     try:
         method = StabilizedMethod(name, opts)
+        res = run_stack(method, stack)
     except NotStreamable:
-        return None
-    return run_stack(method, stack)
+        res = None
+    if res is None and opts.get("variance"):
+        raise InputError(f"{name}: a variance needs 8-bit images, translation-only alignment and no saturation "
+                         "below white (the engine's matrix kernel)")
+    return res
 
 
 @_register("stabilized")
@@ -590,10 +599,11 @@ def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "m
                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                      max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                     exposure_rounds: int | None = None) -> HDRResult:
+                     exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
-    ``exposure_rounds``: see :func:`stabilize`.
+    ``exposure_rounds``: see :func:`stabilize`. ``variance``: also give the per-pixel variance
+    (:mod:`derender.engine.variance`; engine path only).
 
     8-bit stacks with translation-only alignment run on the engine
     (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
@@ -601,7 +611,8 @@ def merge_stabilized(stack: Stack, reference: int | None = None, align: str = "m
     res = _on_engine("stabilized", stack, dict(reference=reference, align=align, response=response, gammas=gammas,
                                                use_times=use_times, path=path, weight=weight,
                                                noise_weighting=noise_weighting, block=block, max_blocks=max_blocks,
-                                               ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds))
+                                               ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds,
+                                               variance=variance))
     if res is not None:
         return res
     t0 = time.perf_counter()
@@ -620,7 +631,7 @@ def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: st
                            response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
                            weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                            max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                           exposure_rounds: int | None = None) -> HDRResult:
+                           exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
     (:func:`joint_color_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
@@ -628,7 +639,7 @@ def merge_stabilized_joint(stack: Stack, reference: int | None = None, align: st
                                                      gammas=gammas, use_times=use_times, weight=weight,
                                                      noise_weighting=noise_weighting, block=block,
                                                      max_blocks=max_blocks, ransac_iter=ransac_iter, seed=seed,
-                                                     exposure_rounds=exposure_rounds))
+                                                     exposure_rounds=exposure_rounds, variance=variance))
     if res is not None:
         return res
     t0 = time.perf_counter()
