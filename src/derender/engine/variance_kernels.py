@@ -28,6 +28,20 @@ __all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
 
 
 @njit(inline="always")
+def _acc(vs, c, t, wc, uc, nq, q, split):  # pragma: no cover - compiled
+    """Add one observation (weight ``wc``, value ``uc``, noise + quantisation variance ``nq``) to the sums."""
+    ww = wc * wc
+    wu = wc * uc
+    vs[0, c, t] += wc
+    vs[1, c, t] += wu
+    vs[2, c, t] += wu * uc
+    vs[3, c, t] += ww
+    vs[4, c, t] += ww * nq
+    if split:
+        vs[5, c, t] += ww * q
+
+
+@njit(inline="always")
 def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover - compiled
     """(noise, quant, disagreement, shared) variance of a merged value ``m`` (radiance) from its sums."""
     inv = 1.0 / s0
@@ -59,7 +73,9 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
     tile = MERGE_TILE
     f32max = np.float32(3.4028234663852886e38)
     big = np.float64(f32max) / 4.0
+    tnq = tn + tq      # noise and quantisation in one look-up; apart only on the sampled rows
     for y in prange(y0, y1):
+        split = y % stride == 0
         num64 = np.zeros((3, tile), dtype=np.float64)
         den64 = np.zeros((3, tile), dtype=np.float64)
         num32 = np.zeros((3, tile), dtype=np.float32)
@@ -109,18 +125,9 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         num32[0, t] = np.float32(np.float64(num32[0, t]) + np.float64(v0) * np.float64(w0))
                         num32[1, t] = np.float32(np.float64(num32[1, t]) + np.float64(v1) * np.float64(w1))
                         num32[2, t] = np.float32(np.float64(num32[2, t]) + np.float64(v2) * np.float64(w2))
-                    for c in range(3):
-                        zc = z0 if c == 0 else (z1 if c == 1 else z2)
-                        wc = np.float64(w0 if c == 0 else (w1 if c == 1 else w2))
-                        if wc > 0.0:
-                            uc = np.float64(v0 if c == 0 else (v1 if c == 1 else v2))
-                            ww = wc * wc
-                            vs[0, c, t] += wc
-                            vs[1, c, t] += wc * uc
-                            vs[2, c, t] += wc * uc * uc
-                            vs[3, c, t] += ww
-                            vs[4, c, t] += ww * tn[j, zc, c]
-                            vs[5, c, t] += ww * tq[j, zc, c]
+                    _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split)
+                    _acc(vs, 1, t, np.float64(w1), np.float64(v1), tnq[j, z1, 1], tq[j, z1, 1], split)
+                    _acc(vs, 2, t, np.float64(w2), np.float64(v2), tnq[j, z2, 2], tq[j, z2, 2], split)
             for x in range(x0, xe):
                 t = x - x0
                 nb = False
@@ -173,7 +180,7 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         m = np.float64(o)
                     if jj < 0 and vs[0, c, t] > 0.0:
                         pn, pq, pd, ps = _finish_var(vs[0, c, t], vs[1, c, t], vs[2, c, t], vs[3, c, t],
-                                                     vs[4, c, t], vs[5, c, t], k, log_domain, m)
+                                                     vs[4, c, t] - vs[5, c, t], vs[5, c, t], k, log_domain, m)
                     else:
                         if jj < 0:
                             jj = j_short if bright[frames[j_short, y, x, c]] else j_long
@@ -211,15 +218,18 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
     tiny = np.float32(1e-30)
     tile = MERGE_TILE
     big = np.float64(np.finfo(np.float32).max) / 4.0
+    tnq = tn + tq      # noise and quantisation in one look-up; apart only on the sampled rows
+    sqm = mats64 * mats64
     for y in prange(y0, y1):
+        split = y % stride == 0
         acc = np.empty((8, tile), dtype=np.float32)
         usable = np.empty(tile, dtype=np.bool_)
-        vs = np.empty((2, 14, tile), dtype=np.float64)   # per weight set: S0, W2, S1 (3), S2 (3), Qn (3), Qq (3)
+        vs = np.empty((11, tile), dtype=np.float64)   # S0, W2, sum w (v - mean)^2 (3), Qnq (3), Qq (3)
+        mu3 = np.zeros((3, tile), dtype=np.float64)
         for x0 in range(0, w, tile):
             xe = min(x0 + tile, w)
             acc[:, :] = zero
             usable[:] = False
-            vs[:, :, :] = 0.0
             for j in range(n):
                 yy = y + shifts[j, 0]
                 if yy < 0 or yy >= h:
@@ -235,6 +245,7 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                 a21 = mats32[j, 2, 1]
                 a22 = mats32[j, 2, 2]
                 ik = inv_k[j]
+                sq = sqm[j]
                 for x in range(max(x0, -sx), min(xe, w - sx)):
                     if not whole and valid[j, y, x] == 0:
                         continue
@@ -273,28 +284,60 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     acc[5, t] += v0 * wbright
                     acc[6, t] += v1 * wbright
                     acc[7, t] += v2 * wbright
-                    n0 = tn[j, z0, 0]
-                    n1 = tn[j, z1, 1]
-                    n2 = tn[j, z2, 2]
-                    q0 = tq[j, z0, 0]
-                    q1 = tq[j, z1, 1]
-                    q2 = tq[j, z2, 2]
-                    for s in range(2):
-                        ws = np.float64(wmin if s == 0 else wbright)
-                        if ws <= 0.0:
-                            continue
-                        ww = ws * ws
-                        vs[s, 0, t] += ws
-                        vs[s, 1, t] += ww
-                        for c in range(3):
-                            vc = np.float64(v0 if c == 0 else (v1 if c == 1 else v2))
-                            m0 = mats64[j, c, 0] * mats64[j, c, 0]
-                            m1 = mats64[j, c, 1] * mats64[j, c, 1]
-                            m2 = mats64[j, c, 2] * mats64[j, c, 2]
-                            vs[s, 2 + c, t] += ws * vc
-                            vs[s, 5 + c, t] += ws * vc * vc
-                            vs[s, 8 + c, t] += ww * (m0 * n0 + m1 * n1 + m2 * n2)
-                            vs[s, 11 + c, t] += ww * (m0 * q0 + m1 * q1 + m2 * q2)
+            # second look at the tile's frames: the spread around the merged mean, with the set it used
+            for x in range(x0, xe):
+                t = x - x0
+                kset = 0 if usable[t] else 4
+                dm = acc[kset, t]
+                if dm > zero:
+                    for c in range(3):
+                        mu3[c, t] = np.float64(acc[kset + 1 + c, t] / dm)
+            vs[:, :] = 0.0
+            for j in range(n):
+                yy = y + shifts[j, 0]
+                if yy < 0 or yy >= h:
+                    continue
+                sx = shifts[j, 1]
+                ik = inv_k[j]
+                sq = sqm[j]
+                m32 = mats32[j]
+                for x in range(max(x0, -sx), min(xe, w - sx)):
+                    if not whole and valid[j, y, x] == 0:
+                        continue
+                    t = x - x0
+                    xx = x + sx
+                    z0 = frames[j, yy, xx, 0]
+                    z1 = frames[j, yy, xx, 1]
+                    z2 = frames[j, yy, xx, 2]
+                    if usable[t]:
+                        ws = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
+                    else:
+                        ws = weights[max(max(z0, z1), z2), 0]
+                    if ws == zero:
+                        continue
+                    if use_inv_var:
+                        d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+                        d = d + inv_var[j, z2, 2]
+                        ws = ws * (ik / max(d, tiny))
+                    if use_colour_w:
+                        ws = ws * colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
+                    l0 = lin[j, z0, 0]
+                    l1 = lin[j, z1, 1]
+                    l2 = lin[j, z2, 2]
+                    wd = np.float64(ws)
+                    ww = wd * wd
+                    n0 = tnq[j, z0, 0]
+                    n1 = tnq[j, z1, 1]
+                    n2 = tnq[j, z2, 2]
+                    vs[0, t] += wd
+                    vs[1, t] += ww
+                    for c in range(3):
+                        vc = np.float64(max(l0 * m32[c, 0] + l1 * m32[c, 1] + l2 * m32[c, 2], zero)) - mu3[c, t]
+                        vs[2 + c, t] += wd * vc * vc
+                        vs[5 + c, t] += ww * (sq[c, 0] * n0 + sq[c, 1] * n1 + sq[c, 2] * n2)
+                        if split:
+                            vs[8 + c, t] += ww * (sq[c, 0] * tq[j, z0, 0] + sq[c, 1] * tq[j, z1, 1]
+                                                  + sq[c, 2] * tq[j, z2, 2])
             for x in range(x0, xe):
                 t = x - x0
                 kset = 0 if usable[t] else 4
@@ -304,11 +347,10 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     out[1, y - row0, x] = acc[kset + 2, t] / dm
                     out[2, y - row0, x] = acc[kset + 3, t] / dm
                     mask[y, x] = 0
-                    s = 0 if usable[t] else 1
                     for c in range(3):
                         m = np.float64(out[c, y - row0, x])
-                        pn, pq, pd, ps = _finish_var(vs[s, 0, t], vs[s, 2 + c, t], vs[s, 5 + c, t], vs[s, 1, t],
-                                                     vs[s, 8 + c, t], vs[s, 11 + c, t], k, False, m)
+                        pn, pq, pd, ps = _finish_var(vs[0, t], 0.0, vs[2 + c, t], vs[1, t],
+                                                     vs[5 + c, t] - vs[8 + c, t], vs[8 + c, t], k, False, m)
                         _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
                     continue
                 if whole or ref < 0:
