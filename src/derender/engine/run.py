@@ -42,15 +42,14 @@ from derender.engine.frames import FramePool, NotStreamable, prefetch, read_fram
 from derender.engine.motion import motion_attributes
 from derender.engine.overlap import RowsDone
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
-from derender.engine.table_kernel import _warm_up_kernel, table_kernel_merge
+from derender.engine.table_kernel import table_kernel_merge, warm_up_kernel
 from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
 __all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels",
-           "frame_brightness",
-           "table_kernel_merge", "ENGINES"]
+           "frame_brightness", "ENGINES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
 ENGINES = ("auto", "table", "reference")
@@ -182,7 +181,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
           else int(np.prod(source.codes.shape[1:3])))
     compiled = n * px >= KERNEL_MIN_PIXEL_FRAMES
     if compiled:
-        _warm_up_kernel("table")
+        warm_up_kernel("table")
     frames, _ = source.read_all(threads)
     h, w = frames.shape[1:3]
     n_clipped = clipped_pixels(frames[0])
@@ -349,7 +348,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
         return held["buffer"]
 
     if getattr(method, "warm_up", None) == "gaussian":
-        _warm_up_kernel("gaussian")
+        warm_up_kernel("gaussian")
     frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
     n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:

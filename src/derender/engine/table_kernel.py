@@ -18,7 +18,7 @@ from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing, run
 from derender.engine.plans import TablePlan
 from derender.engine.tables import F32_MAX, TableMerge
 
-__all__ = ["table_kernel_merge"]
+__all__ = ["table_kernel_merge", "warm_up_kernel"]
 
 
 def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -141,7 +141,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
     return res
 
 
-def _warm_up_kernel(which: str = "table") -> None:
+def warm_up_kernel(which: str = "table") -> None:
     """Import numba and load a kernel (``"table"``: :func:`table_merge_rows`, ``"gaussian"``:
     :func:`gaussian_band`, :func:`gaussian_moments_band`) from its cache in a background thread while the frames decode
     (0.5-1 s; the decoders release the GIL)."""

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares",
-           "SHOT", "READ", "SHARED", "INFLATE", "INFLATE_DIS", "CENSORED", "R_FLOOR", "SOURCE_STRIDE"]
+           "SHOT", "READ", "SHARED", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "CENSORED", "R_FLOOR", "SOURCE_STRIDE"]
 
 #: Shot noise of the sensor signal relative to white: ``Var x = SHOT x`` (a 24 000 e- full well
 #: times ~2.4 for white balance and colour-matrix gains).
