@@ -59,7 +59,7 @@ TIMES = ["--times", "1,2,4"]
     (["--mask", "{out}"], "--mask must end in"),
     (["--preview", "o.png", "--mask", "o.png"], "same file"),
     (["--plot", "c.png", "--method", "stabilized"], "no response curves"),
-    (["--variance", "v.exr"], "gives no variance"),
+    (["--variance", "v.txt"], "--variance must end in"),
     (["--times-inverse"], "--times-inverse applies to a --times-file"),
     (["--reference", "4"], "--reference 4 is out of range: 3 images given (1..3)"),
     (["--reference", "0"], "out of range"),

@@ -142,7 +142,8 @@ def merge_cmd(
     save_profile: Optional[Path] = typer.Option(None, "--save-profile", help="Write this merge's camera profile "
                                                 "(.json): curves, the --spot factor, vignetting, view, camera."),
     model: Optional[Path] = typer.Option(None, "--model", "-m", help="De-rendering model (.npz or folder) for --method probabilistic."),
-    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance (.exr), probabilistic methods."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance of the radiance (.exr); every method "
+                                            "'derender methods' lists with a variance."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
@@ -198,6 +199,8 @@ def merge_cmd(
                           image=images[0], strict=strict_camera)
     if variance is not None and not spec.gives_variance:
         raise InputError(f"method {method!r} gives no variance (drop --variance)")
+    if variance is not None and spec.has_option("variance"):
+        method_opts["variance"] = True      # the classic and stabilised merges compute it only when asked
     if model is not None and not spec.needs_model:
         users = sorted(n for n, s in METHODS.items() if s.needs_model)
         raise InputError(f"method {method!r} uses no de-rendering model (drop -m; the methods that use one: "
@@ -281,6 +284,10 @@ def merge_cmd(
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
                f"({time.perf_counter() - t0:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
                f"{n_dark} px from the longest (mask))")
+    sources = result.info.get("variance_sources")
+    if variance is not None and sources:
+        typer.echo("variance by source (median share of a pixel's): "
+                   + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
     motion_line = _motion_summary(result.info, images)
     if motion_line:
         typer.echo(motion_line)

@@ -90,6 +90,10 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     ``write(result, rows_done)``: written while merging (:func:`derender.engine.overlap.merge_writing`);
     with ``ring`` too the radiance goes through an :class:`~derender.engine.overlap.OutputRing` of
     band buffers into the file and the result's ``radiance`` is None (the mask is kept).
+    With ``plan.variance`` (:class:`~derender.engine.variance.VarianceModel`) the kernel is
+    :func:`~derender.engine.variance_kernels.stabilized_merge_var_rows`: the same radiance, its
+    variance in ``result.variance`` (a second ring buffer with ``ring`` 2) and
+    ``info["variance_sources"]``.
     """
     from derender.engine.kernels import stabilized_merge_rows
     from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing
@@ -115,9 +119,13 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     bright = code_values() >= np.float32(0.5)
     if valid is None:
         valid = np.ones((n, 1, 1), dtype=np.uint8)
+    vm = plan.variance
+    nout = 1 if vm is None else 2
+    var = None
     out_ring = None
     if ring and write is not None:
-        out_ring = OutputRing(h, w, OVERLAP_ROWS, lambda: (populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32),))
+        out_ring = OutputRing(h, w, OVERLAP_ROWS, lambda: tuple(populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32)
+                                                           for _ in range(nout)), writers=min(int(ring), nout))
         radiance = None
         mask = (buffer.reshape(-1)[:h * w].reshape(h, w) if buffer is not None and buffer.nbytes >= h * w
                 else populated_zeros((h, w), dtype=np.uint8))
@@ -128,10 +136,19 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     else:
         radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
         mask = populated_zeros((h, w), dtype=np.uint8)
+    if vm is not None:
+        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts
+        from derender.engine.variance_kernels import stabilized_merge_var_rows
+
+        parts = new_parts(h, w)
+        vargs = (np.ascontiguousarray(vm.noise, dtype=np.float32), np.ascontiguousarray(vm.quant, dtype=np.float32),
+                 vm.constants())
+        if out_ring is None:
+            var = populated_zeros((3, h, w), dtype=np.float32)
     t0 = time.perf_counter()
     info: dict = {}
-    res = HDRResult(radiance=None if radiance is None else radiance.transpose(1, 2, 0), mask=mask, variance=None,
-                    info=info)
+    res = HDRResult(radiance=None if radiance is None else radiance.transpose(1, 2, 0), mask=mask,
+                    variance=None if var is None else var.transpose(1, 2, 0), info=info)
     args = (np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
             np.ascontiguousarray(valid, dtype=np.uint8), int(ref), lin, mats64.astype(np.float32), mats64, wt, inv_var,
             inv_k,
@@ -139,16 +156,26 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
 
     def band(y0: int, y1: int) -> None:
         if out_ring is not None:
-            (dst,), row0 = out_ring.slot(y0)
+            bufs, row0 = out_ring.slot(y0)
+            dst, vdst = bufs[0], bufs[-1]
         else:
-            dst, row0 = radiance, 0
+            dst, vdst, row0 = radiance, var, 0
         with KERNEL_LOCK:
             set_numba_threads(threads)
-            stabilized_merge_rows(*args, y0, y1, row0, dst, mask)
+            if vm is None:
+                stabilized_merge_rows(*args, y0, y1, row0, dst, mask)
+            else:
+                stabilized_merge_var_rows(*args, y0, y1, row0, dst, mask, *vargs, vdst, parts, SOURCE_STRIDE)
+        if vm is not None:
+            add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0)
 
     merge_writing(h, OVERLAP_ROWS, band, res, write, ring=out_ring)
     info.update({"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
             "accumulator": "float32", "n_bright": int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT)),
             "n_dark": int(np.count_nonzero(mask == HDRResult.MASK_DARK)),
             "merge_seconds": time.perf_counter() - t0})
+    if vm is not None:
+        from derender.engine.variance import source_shares
+
+        info["variance_sources"] = source_shares(parts)
     return res

@@ -85,7 +85,9 @@ class TablePlan:
 
     ``values`` (N, 256, 3) float32; ``weights`` (256, 3) or (N, 256, 3); ``image_weights``
     (N,) multiplies frame j's weights; ``channel_weights`` and ``domain`` as
-    :class:`~derender.engine.tables.TableMerge`.
+    :class:`~derender.engine.tables.TableMerge`. ``variance`` (a
+    :class:`~derender.engine.variance.VarianceModel`): the engine also gives the result's
+    variance (held frames, compiled kernel).
     """
 
     values: np.ndarray
@@ -94,6 +96,7 @@ class TablePlan:
     channel_weights: str = "mean"
     domain: str = "log"
     block_rows: int | None = None
+    variance: Any = None
 
     def weight_of(self, j: int) -> np.ndarray:
         w = np.asarray(self.weights)
@@ -108,7 +111,9 @@ class MatrixPlan:
     frame j is read at ``(y + dy, x + dx)``; outside the frame it does not take part.
     ``colour_weights`` (optional, (2**24,) float32, positive where read): a factor on the
     weight of every observation by its colour, indexed ``R << 16 | G << 8 | B`` (64 MB; e.g.
-    the inverse relative variance of a de-rendering model, ``stabilized-probabilistic``)."""
+    the inverse relative variance of a de-rendering model, ``stabilized-probabilistic``).
+    ``variance`` (a :class:`~derender.engine.variance.VarianceModel` of ``values``): the engine
+    also gives the result's variance."""
 
     values: np.ndarray
     matrices: np.ndarray
@@ -117,6 +122,7 @@ class MatrixPlan:
     inverse_variance: np.ndarray | None = None
     inverse_variance_k: np.ndarray | None = None
     colour_weights: np.ndarray | None = None
+    variance: Any = None
 
 
 @dataclass
@@ -184,7 +190,8 @@ class EngineMethod(Protocol):
     planes can be allocated large enough to be reused for them (None: not reused);
     ``refits_on_frames``: the plan is refitted without the pixels ghost removal rejects (the
     motion-compensated fill then runs after the refit); ``sample_cluster``: the sample positions
-    come in clusters of this many (kept or left out whole). :class:`MethodDefaults` gives the
+    come in clusters of this many (kept or left out whole); ``variance``: the method asked for
+    the result's variance (the engine then holds the frames and merges with a compiled kernel). :class:`MethodDefaults` gives the
     defaults of all but ``name`` and :meth:`plan`.
 
     A method (or its factory) with no engine form for its options raises
@@ -199,6 +206,7 @@ class EngineMethod(Protocol):
     output_bytes: Callable[[int, int], int] | None
     refits_on_frames: bool
     sample_cluster: int
+    variance: bool
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None: ...
 
@@ -220,6 +228,7 @@ class MethodDefaults:
     output_bytes: Callable[[int, int], int] | None = None
     refits_on_frames: bool = True
     sample_cluster: int = 1
+    variance: bool = False
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None:
         return None

@@ -40,16 +40,16 @@ from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_
 from derender.core.types import HDRResult, Stack, check_brightness_order
 from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
 from derender.engine.motion import motion_attributes
-from derender.engine.overlap import OVERLAP_ROWS, OutputRing, RowsDone, merge_writing, run_bands
+from derender.engine.overlap import RowsDone
 from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
-from derender.engine.tables import F32_MAX, TableMerge, code_histograms, stack_codes_exact
+from derender.engine.table_kernel import table_kernel_merge, warm_up_kernel
+from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
 from derender.io.exr import exr_attributes, write_exr_fast
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
 from derender.io.images import read_codes
 
 __all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels",
-           "frame_brightness",
-           "table_kernel_merge", "ENGINES"]
+           "frame_brightness", "ENGINES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
 ENGINES = ("auto", "table", "reference")
@@ -165,127 +165,6 @@ def frame_brightness(codes: np.ndarray) -> float:
     return float(codes[::8, ::8].mean())
 
 
-def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame value and weight tables (N, 256, 3) float32 of a plan, the weights scaled
-    as :meth:`TableMerge.add` scales them (image weight, then 1/3 in the ``"mean"`` mode)."""
-    values = np.ascontiguousarray(plan.values, dtype=np.float32)
-    iw = np.ones(n) if plan.image_weights is None else np.asarray(plan.image_weights, dtype=np.float64)
-    weights = np.empty((n, N_CODES, 3), dtype=np.float32)
-    for j in range(n):
-        wt = TableMerge._table(plan.weight_of(j), "weight").astype(np.float64) * float(iw[j])
-        if plan.channel_weights == "mean":
-            wt = wt / 3.0
-        weights[j] = wt.astype(np.float32)
-    for j in range(n):
-        TableMerge._table(values[j], "value")
-    return values, weights
-
-
-def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
-                        bright_threshold: float = 0.5, write=None, ring: int = 0,
-                        valid: np.ndarray | None = None, ref: int = -1) -> HDRResult:
-    """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
-    kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of
-    :class:`TableMerge` (frames added in ``order``; the log domain's exponential by OpenCV
-    on the engine's row blocks), no accumulator planes.
-
-    ``write(result, rows_done)``, if given, runs in a thread while the kernel merges bands of
-    :data:`OVERLAP_ROWS` rows; it must read row ``y`` of the result only after
-    ``rows_done.wait(y + 1)`` (the EXR writer compresses finished bands meanwhile). ``ring``
-    (with ``write``): the radiance goes through an :class:`~derender.engine.overlap.OutputRing`
-    of band buffers into the file, the result's ``radiance`` is None. ``valid`` (N, H, W) uint8:
-    frame ``j`` takes part only where ``valid[j]`` is non-zero, and where none with weight does,
-    the reference frame ``ref`` decides the saturation policy (:mod:`derender.engine.motion`)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from derender.core.memory import import_cv2, opencv_single_thread
-    from derender.engine.kernels import table_merge_rows
-    from derender.engine.matrix import KERNEL_LOCK, set_numba_threads
-    from derender.engine.tables import code_values
-
-    cv2 = import_cv2()
-    n, h, w = frames.shape[:3]
-    values, weights = _table_kernel_tables(plan, n)
-    log = plan.domain == "log"
-    mask = populated_zeros((h, w), dtype=np.uint8)
-    bright = code_values() >= np.float32(bright_threshold)
-    br = plan.block_rows if plan.block_rows is not None else max(1, (1 << 16) // max(w, 1))
-    # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
-    step = max(br, (OVERLAP_ROWS // br) * br)
-    out_ring = None
-    if ring and write is not None:
-        out_ring = OutputRing(h, w, step, lambda: (populated_zeros((3, step, w), dtype=np.float32),))
-        out = None
-    else:
-        out = populated_zeros((3, h, w), dtype=np.float32)
-    order_a = np.asarray(order, dtype=np.int64)
-    valid_k = np.ones((n, 1, 1), dtype=np.uint8) if valid is None else np.ascontiguousarray(valid, dtype=np.uint8)
-    independent = plan.channel_weights == "independent"
-    info = {"channel_weights": plan.channel_weights, "domain": plan.domain, "engine": "table",
-            "accumulator": "float64" if log else "float32", "kernel": "table_merge_rows"}
-    res = HDRResult(radiance=None if out_ring is not None else out.transpose(1, 2, 0), mask=mask, variance=None,
-                    info=info)
-    nthreads = thread_count(threads)
-    with opencv_single_thread(), ThreadPoolExecutor(max(1, nthreads), thread_name_prefix="derender-exp") as ex:
-        def band(y0: int, y1: int) -> None:
-            if out_ring is not None:
-                (dst,), row0 = out_ring.slot(y0)
-            else:
-                dst, row0 = out, 0
-
-            def finish(r0: int, r1: int) -> None:
-                for c in range(3):
-                    r = dst[c, r0 - row0:r1 - row0]
-                    if log:
-                        cv2.exp(r, dst=r)
-                    if not cv2.checkRange(r)[0]:
-                        np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
-
-            with KERNEL_LOCK:
-                set_numba_threads(threads)
-                table_merge_rows(frames, valid_k, int(ref), order_a, values, weights, independent, log, values[0],
-                                 values[n - 1], 0, n - 1, bright, y0, y1, row0, dst, mask)
-            run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
-
-        merge_writing(h, step, band, res, write, ring=out_ring)
-    info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
-    info["n_dark"] = int(np.count_nonzero(mask == HDRResult.MASK_DARK))
-    return res
-
-
-def _warm_up_kernel(which: str = "table") -> None:
-    """Import numba and load a kernel (``"table"``: :func:`table_merge_rows`, ``"gaussian"``:
-    :func:`gaussian_band`, :func:`gaussian_moments_band`) from its cache in a background thread while the frames decode
-    (0.5-1 s; the decoders release the GIL)."""
-    import threading
-
-    def go() -> None:
-        try:
-            from derender.engine.kernels import gaussian_band, gaussian_moments_band, table_merge_rows
-            from derender.engine.matrix import KERNEL_LOCK
-
-            f32 = np.float32
-            if which == "gaussian":
-                z = np.zeros((3, 1, 1))
-                gaussian_band(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8),
-                              np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
-                              np.zeros(1), 0, 1, z, z.copy(), z.copy())
-                o = np.zeros((1, 1, 3), np.float32)
-                gaussian_moments_band(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8),
-                                      np.zeros(1 << 24, np.int32), np.zeros((9, 1)),
-                                      np.zeros(1), 0, 1, True, 80.0, 60.0, np.eye(3), True, 0, o, o.copy())
-                return
-            with KERNEL_LOCK:
-                table_merge_rows(np.zeros((1, 1, 1, 3), np.uint8), np.ones((1, 1, 1), np.uint8), -1, np.zeros(1, np.int64),
-                                 np.zeros((1, N_CODES, 3), f32), np.zeros((1, N_CODES, 3), f32), False, True,
-                                 np.zeros((N_CODES, 3), f32), np.zeros((N_CODES, 3), f32), 0, 0,
-                                 np.zeros(N_CODES, bool), 0, 1, 0, np.zeros((3, 1, 1), f32), np.zeros((1, 1), np.uint8))
-        except Exception:  # noqa: BLE001
-            pass
-
-    threading.Thread(target=go, name="derender-warm-up", daemon=True).start()
-
-
 def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_hint: str | None,
                        write=None, ring: int = 0) -> HDRResult:
     """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
@@ -302,7 +181,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
           else int(np.prod(source.codes.shape[1:3])))
     compiled = n * px >= KERNEL_MIN_PIXEL_FRAMES
     if compiled:
-        _warm_up_kernel("table")
+        warm_up_kernel("table")
     frames, _ = source.read_all(threads)
     h, w = frames.shape[1:3]
     n_clipped = clipped_pixels(frames[0])
@@ -323,7 +202,9 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
         raise TypeError(f"a streamed method must return a TablePlan, {method.name} returned {type(plan).__name__}")
     t2 = time.perf_counter()
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
-    if compiled and plan.channel_weights in ("mean", "independent"):
+    if plan.variance is not None and plan.channel_weights not in ("mean", "independent"):
+        raise InputError(f"a variance needs channel_weights 'mean' or 'independent', got {plan.channel_weights!r}")
+    if (compiled or plan.variance is not None) and plan.channel_weights in ("mean", "independent"):
         res = table_kernel_merge(frames, plan, order, threads, write=write, ring=ring)
         res.info["overlapped_write"] = write is not None
     else:
@@ -467,7 +348,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
         return held["buffer"]
 
     if method.warm_up == "gaussian":
-        _warm_up_kernel("gaussian")
+        warm_up_kernel("gaussian")
     frames, planes = source.read_all(threads, derive=method.derive(), derive_alloc=derive_alloc)
     n_clipped = clipped_pixels(frames[0])
     if order_hint is not None:
@@ -682,7 +563,7 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)
     if method.holds_frames:
         res = _run_held(method, source, threads, order_hint, write=write, ring=ring)
-    elif _hold(source, keep_frames, hold_bytes):
+    elif _hold(source, keep_frames, hold_bytes) or method.variance:   # a variance: held
         res = _run_streamed_held(method, source, threads, order_hint, write=write, ring=ring)
     else:
         res = _run_streamed(method, source, threads, keep_frames, keep_bytes, order_hint)

@@ -33,6 +33,7 @@ from derender.core.types import HDRResult, Stack
 
 __all__ = [
     "code_histograms",
+    "code_table",
     "F32_MAX",
     "code_values",
     "weight_table",
@@ -117,6 +118,19 @@ def stack_codes_exact(images: np.ndarray, tol: float = 1e-3) -> np.ndarray | Non
 
 # --------------------------------------------------------------------------- engine
 _ENGINE_MODES = ("mean", "min", "independent", "brightest", "min_else_brightest")
+
+
+def code_table(t: Any, what: str) -> np.ndarray:
+    """A per-code table as (256, 3) float32 (a (256,) table shared by the channels); an
+    :class:`InputError` naming ``what`` for another shape or a non-finite entry."""
+    t = np.asarray(t, dtype=np.float32)
+    if t.shape == (N_CODES,):
+        t = np.repeat(t[:, None], 3, axis=1)
+    if t.shape != (N_CODES, 3):
+        raise InputError(f"{what} table must have shape (256, 3), got {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise InputError(f"{what} table has non-finite entries")
+    return t
 
 
 class TableMerge:
@@ -210,17 +224,6 @@ class TableMerge:
             raise InputError(f"codes must be uint8 of shape {(*self.shape, 3)}, got {codes.dtype} {codes.shape}")
         return np.ascontiguousarray(codes)
 
-    @staticmethod
-    def _table(t: Any, what: str) -> np.ndarray:
-        t = np.asarray(t, dtype=np.float32)
-        if t.shape == (N_CODES,):
-            t = np.repeat(t[:, None], 3, axis=1)
-        if t.shape != (N_CODES, 3):
-            raise InputError(f"{what} table must have shape (256, 3), got {t.shape}")
-        if not np.all(np.isfinite(t)):
-            raise InputError(f"{what} table has non-finite entries")
-        return t
-
     def add(self, codes: np.ndarray, values: Any, weights: Any, image_weight: float = 1.0,
             matrix: Any = None, pixel_weights: np.ndarray | None = None,
             inverse_variance: tuple[Any, float] | None = None) -> None:
@@ -232,8 +235,8 @@ class TableMerge:
         """
         cv2 = import_cv2()
         codes = self._check_codes(codes)
-        vt = self._table(values, "value")
-        wt = self._table(weights, "weight").astype(np.float64) * float(image_weight)
+        vt = code_table(values, "value")
+        wt = code_table(weights, "weight").astype(np.float64) * float(image_weight)
         if self.mode == "mean":
             wt = wt / 3.0
         wt = wt.astype(np.float32)
@@ -254,7 +257,7 @@ class TableMerge:
             pw = np.ascontiguousarray(pw, dtype=np.float32)
         ivt = None
         if inverse_variance is not None:
-            itab = self._table(inverse_variance[0], "inverse-variance")
+            itab = code_table(inverse_variance[0], "inverse-variance")
             ivt = ([np.ascontiguousarray(itab[:, c] / np.float32(3.0)) for c in range(3)], float(inverse_variance[1]))
         num, den, mode, br = self.num, self.den, self.mode, self.block_rows
 
@@ -344,7 +347,7 @@ class TableMerge:
         if self.n_added == 0:
             raise InputError("no exposure was added")
         zs, zl = self._check_codes(short[0]), self._check_codes(long[0])
-        vs, vl = self._table(short[1], "value"), self._table(long[1], "value")
+        vs, vl = code_table(short[1], "value"), code_table(long[1], "value")
         ms, ml = (short[2] if len(short) > 2 else None), (long[2] if len(long) > 2 else None)
         bright_tab = code_values() >= np.float32(self.bright_threshold)
         h, w = self.shape

@@ -33,6 +33,7 @@ from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
 from derender.engine.run import run_stack
 from derender.engine.tables import curve_value_tables, weight_table
+from derender.engine.variance import variance_tables
 from derender.hdr.registry import record_values
 from derender.response.curves import (
     DEFAULT_LAMBDA,
@@ -64,6 +65,7 @@ class DebevecOptions:
     block_rows: int | None = None
     engine: str = "auto"
     tie: float | None = None
+    variance: bool = False
 
     def __post_init__(self) -> None:
         if self.sampling not in ("grid", "histogram"):
@@ -84,6 +86,7 @@ class RobertsonOptions:
     block_rows: int | None = None
     engine: str = "auto"
     tie: float | None = None
+    variance: bool = False
 
 
 class DebevecMethod(MethodDefaults):
@@ -99,6 +102,7 @@ class DebevecMethod(MethodDefaults):
     def __init__(self, options: DebevecOptions):
         self.options = options
         self.curves = options.curves
+        self.variance = bool(options.variance)
         self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
         self.lam = DEFAULT_LAMBDA if options.lam is None else float(options.lam)
         self.n_samples = DEFAULT_SAMPLES if options.n_samples is None else int(options.n_samples)
@@ -123,9 +127,10 @@ class DebevecMethod(MethodDefaults):
                                                     n_samples=self.n_samples, sampling=self.sampling, seed=self.seed,
                                                     balance=self.sampling == "grid", tie=self.tie)
         self.fitted = curves
-        return TablePlan(values=curve_value_tables(curves, access.times, self.domain),
-                         weights=weight_table(self.weight), channel_weights=self.channel_weights,
-                         domain=self.domain, block_rows=self.block_rows)
+        values = curve_value_tables(curves, access.times, self.domain)
+        return TablePlan(values=values, weights=weight_table(self.weight), channel_weights=self.channel_weights,
+                         domain=self.domain, block_rows=self.block_rows,
+                         variance=variance_tables(values, self.domain, "debevec") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "debevec", "curves": self.fitted,
@@ -139,6 +144,7 @@ class RobertsonMethod(MethodDefaults):
 
     def __init__(self, options: RobertsonOptions):
         self.options = options
+        self.variance = bool(options.variance)
         self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
         self.curves, self.n_iter, self.max_pixels = options.curves, int(options.n_iter), int(options.max_pixels)
         self.weight, self.seed, self.block_rows = options.weight, int(options.seed), options.block_rows
@@ -157,9 +163,10 @@ class RobertsonMethod(MethodDefaults):
             curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
                                             max_pixels=self.max_pixels, weight=self.weight, tie=self.tie)
         self.fitted = curves
-        return TablePlan(values=curve_value_tables(curves, access.times, "linear"),
-                         weights=robertson_weight_table(curves, self.weight),
-                         channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear")
+        values = curve_value_tables(curves, access.times, "linear")
+        return TablePlan(values=values, weights=robertson_weight_table(curves, self.weight),
+                         channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear",
+                         variance=variance_tables(values, "linear", "robertson") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "robertson", "curves": self.fitted,
@@ -214,6 +221,8 @@ def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
 def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], Any], weight: Any,
                      block_rows: int | None, **merge_kw: Any) -> HDRResult:
     """A classic merge on the float reference engine (stacks without 8-bit codes)."""
+    if merge_kw.pop("variance", False):
+        raise InputError(f"{name}: a variance needs 8-bit images (every value a code / 255) on the engine")
     check_usable(stack)
     t0 = time.perf_counter()
     if curves is None:
@@ -250,6 +259,7 @@ def merge_debevec(
     block_rows: int | None = None,
     engine: str = "auto",
     tie: float | None = None,
+    variance: bool = False,
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
@@ -275,6 +285,9 @@ def merge_debevec(
     other two: shared weights avoid trusting them; the Gaussian weight trusts codes near
     the ends of the range (toe and shoulder of the tone curve) less than the hat does.
 
+    ``variance``: also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`:
+    noise, quantisation, frame disagreement, shared model error; 8-bit stacks).
+
     ``engine``: ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to
     the reference to ~1e-6 relative; ``block_rows`` then sets the engine's row blocks),
     ``"table"`` insists on it, ``"reference"`` always uses :func:`merge_linear`.
@@ -290,7 +303,7 @@ def merge_debevec(
         stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid",
         tie=method.tie),
         weight, block_rows,
-        channel_weights=channel_weights, domain=domain)
+        channel_weights=channel_weights, domain=domain, variance=variance)
 
 
 def merge_robertson(
@@ -304,6 +317,7 @@ def merge_robertson(
     block_rows: int | None = None,
     engine: str = "auto",
     tie: float | None = None,
+    variance: bool = False,
 ) -> HDRResult:
     """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
 
@@ -316,7 +330,7 @@ def merge_robertson(
     the longest frame's near-clipped codes decide: 33.7 dB PSNR L in ``derender demo``
     against 47.8 dB now (debevec 47.4).
 
-    ``engine`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
+    ``engine`` and ``variance`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
     """
     method = RobertsonMethod(record_values(RobertsonOptions, locals()))
     try:
@@ -330,4 +344,4 @@ def merge_robertson(
                                      tie=method.tie)
     return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
                             weight_fn=_robertson_weight_fn(curves, weight), channel_weights=ROBERTSON_CHANNEL_WEIGHTS,
-                            domain="linear")
+                            domain="linear", variance=variance)

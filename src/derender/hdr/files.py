@@ -109,6 +109,8 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                 raise InputError(f"output must end in .exr, got {Path(out).name}")
             check_not_input(out, all_inputs)
     seed = options.pop("seed", 0)   # every caller may pass one; only methods that take a seed get it
+    if variance_output is not None and spec.has_option("variance"):
+        options["variance"] = True   # the classic and stabilised merges compute a variance only when asked
     from derender.hdr.registry import split_motion
 
     motion, options = split_motion(method, {**options, "seed": seed}, engine_reference=True)

@@ -39,8 +39,8 @@ __all__ = [
 ]
 
 #: Keywords of merge functions that are not user options: set by their own CLI flags
-#: (``model``: ``-m``; ``seed``: ``--seed``), arrays (``curves``), or the engine choice.
-_NOT_SETTABLE = ("model", "seed", "curves", "engine")
+#: (``model``: ``-m``; ``seed``: ``--seed``; ``variance``: ``--variance``), arrays (``curves``), or the engine choice.
+_NOT_SETTABLE = ("model", "seed", "curves", "engine", "variance")
 
 
 # --------------------------------------------------------------------------- registry
@@ -111,6 +111,10 @@ class MethodSpec:
             return self.function.partition(":")[0]
         return getattr(self.function, "__module__", "?")
 
+    def has_option(self, name: str) -> bool:
+        """Whether the method's options record has a field ``name``."""
+        return name in {f.name for f in fields(self.options_class())}
+
     @property
     def needs_model(self) -> bool:
         """Whether the method needs a de-rendering model (``-m MODEL.npz``)."""
@@ -133,14 +137,15 @@ _BOTH = "derender.hdr.stabilized_probabilistic"
 #: first use; a method defined elsewhere joins with :func:`register_method`.
 METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
     MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:debevec_engine", f"{_CLASSIC}:DebevecOptions",
-               gives_curves=True, output_space=_RENDERED),
+               gives_variance=True, gives_curves=True, output_space=_RENDERED),
     MethodSpec("robertson", f"{_CLASSIC}:merge_robertson", f"{_CLASSIC}:robertson_engine",
-               f"{_CLASSIC}:RobertsonOptions", gives_curves=True, output_space=_RENDERED),
+               f"{_CLASSIC}:RobertsonOptions", gives_variance=True, gives_curves=True, output_space=_RENDERED),
     MethodSpec("stabilized", f"{_STABILIZED}:merge_stabilized", f"{_STABILIZED}:stabilized_engine",
-               f"{_STABILIZED}:StabilizedOptions",
+               f"{_STABILIZED}:StabilizedOptions", gives_variance=True,
                output_space=_RENDERED + ", in the reference frame's white balance"),
     MethodSpec("stabilized-joint", f"{_STABILIZED}:merge_stabilized_joint", f"{_STABILIZED}:stabilized_joint_engine",
-               f"{_STABILIZED}:StabilizedOptions", output_space=_RENDERED + ", in the bracket's average rendering"),
+               f"{_STABILIZED}:StabilizedOptions", gives_variance=True,
+               output_space=_RENDERED + ", in the bracket's average rendering"),
     MethodSpec("probabilistic", f"{_PROBABILISTIC}:merge_probabilistic", f"{_PROBABILISTIC}:probabilistic_engine",
                f"{_PROBABILISTIC}:ProbabilisticOptions", gives_variance=True,
                output_space=("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix (option "

@@ -236,6 +236,7 @@ class StabilizedMethod(MethodDefaults):
             raise NotStreamable(f"align={align!r} warps frames")
         self.name, self.options, self.align = name, options, align
         self.seed = int(options.seed)
+        self.variance = bool(options.variance)
         warm_up_kernels()
 
     def derive(self):
@@ -305,7 +306,12 @@ class StabilizedMethod(MethodDefaults):
                                  calibrate=calibrate, exposure_rounds=opts.exposure_rounds)
         self.stab = stab
         self.align_s = t1 - t0
-        return stabilized_plan(stab, opts.weight, opts.noise_weighting, shifts=shifts)
+        plan = stabilized_plan(stab, opts.weight, opts.noise_weighting, shifts=shifts)
+        if self.variance:
+            from derender.engine.variance import matrix_variance_tables
+
+            plan.variance = matrix_variance_tables(plan.values, self.name)
+        return plan
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update(_merge_info(self.stab, self.options.weight, self.options.noise_weighting))
@@ -584,6 +590,7 @@ class StabilizedOptions:
     ransac_iter: int = 100
     seed: int = 0
     exposure_rounds: int | None = None
+    variance: bool = False
 
 
 def stabilized_engine(options: StabilizedOptions) -> StabilizedMethod:
@@ -603,7 +610,9 @@ def _merge_stabilized(name: str, stack: Stack, opts: StabilizedOptions) -> HDRRe
     try:
         return run_stack(StabilizedMethod(name, opts), stack)
     except NotStreamable:
-        pass
+        if opts.variance:
+            raise InputError(f"{name}: a variance needs 8-bit images, translation-only alignment and no saturation "
+                             "below white (the engine's matrix kernel)") from None
     t0 = time.perf_counter()
     stab = stabilize(stack, reference=opts.reference, align=opts.align,
                      mode="joint" if name == "stabilized-joint" else "reference", response=opts.response,
@@ -621,10 +630,11 @@ def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str =
                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                      max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                     exposure_rounds: int | None = None) -> HDRResult:
+                     exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
-    The options are those of :func:`stabilize`.
+    The options are those of :func:`stabilize`; ``variance``: also give the per-pixel variance
+    (:mod:`derender.engine.variance`; engine path only).
 
     8-bit stacks with translation-only alignment run on the engine
     (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
@@ -636,7 +646,7 @@ def merge_stabilized_joint(stack: Stack, *, reference: int | None = None, align:
                            response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
                            path: str = "auto", weight: str = "trapezoid", noise_weighting: bool = True,
                            block: int = 2, max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                           exposure_rounds: int | None = None) -> HDRResult:
+                           exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
     (:func:`joint_colour_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""

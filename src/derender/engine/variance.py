@@ -1,0 +1,200 @@
+"""The variance of the classic and stabilised merges: a noise model per frame, combined in the merge.
+
+A table or matrix plan (:class:`~derender.engine.plans.TablePlan`,
+:class:`~derender.engine.plans.MatrixPlan`) says what each code of frame ``j`` contributes,
+``u_j(z)`` (log radiance ``g(z) - ln t_j`` in Debevec's log domain; ``f^-1(z) / t_j``, or
+``M_j L_j(z)`` in the linear one), and with what weight ``w_j``. The merged value is the
+weighted mean ``u = sum w_j u_j / sum w_j``. Its variance, per pixel and channel, is the sum of
+
+* **noise** (independent between frames): shot and read noise of the sensor signal
+  ``x = L(z) / L(255)`` (the frame's linear value relative to its white),
+  ``Var x = SHOT x + READ^2``, through the frame's table;
+* **quantisation** (independent): the 8-bit step through the inverse response,
+  ``(dL/dz)^2 / 12`` (code units; derivative by central differences of the 256-entry table);
+* **frame disagreement** (pipeline changes, curve errors that differ between frames): the
+  weighted spread of the frames' own estimates around their mean,
+  ``D = sum w_j (u_j - u)^2 / sum w_j``, as the variance of the mean
+  ``D r / max(1 - r, R_FLOOR)`` with ``r = sum w_j^2 / (sum w_j)^2`` (1 / effective frames),
+  and, for the part of it that is systematic (a pipeline change does not average out),
+  ``D`` itself;
+* **shared model error** (the response curve's shape, the colour matrices: the same in every
+  frame, so it does not average out with their number): ``SHARED^2 r^2`` (relative);
+* **edges** (errors every frame shares at a pixel because of where it lies: demosaicing, JPEG's
+  chroma subsampling and sharpening move an edge by a fraction of a pixel): ``EDGE^2`` times
+  the variance of the merged radiance over the pixel's 3x3 neighbourhood, per channel (within
+  the engine's band of rows, its first and last rows repeated at the band's ends).
+
+The independent terms combine as ``sum w_j^2 s_j^2 / (sum w_j)^2``; in the matrix merge frame
+``j``'s channel ``c`` has ``s_jc^2 = sum_k M_jck^2 s_jk^2`` (channels mixed by ``M_j``). So
+
+    Var u = INFLATE (V_noise + V_quant) + INFLATE_DIS V_dis + INFLATE_SYS D      (u's own domain)
+    Var r = [r^2 if log domain else 1] Var u + SHARED^2 r^2 + EDGE^2 Var_3x3(r)
+
+Where no frame has weight (the saturation policy's bound from the shortest or longest frame)
+the value is a bound, not a measurement: ``Var r = CENSORED r^2`` plus that frame's own noise
+and quantisation. The constants were chosen on the tuning families (``paper``, ``camera``)
+only (docs/uncertainty.md, "The classic and stabilised merges"). The engine's compiled
+kernels (:mod:`derender.engine.variance_kernels`) accumulate ``sum w``, ``sum w u``,
+``sum w u^2``, ``sum w^2`` and ``sum w^2 s^2`` in the same pass as the radiance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares",
+           "SHOT", "READ", "SHARED", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "CENSORED", "R_FLOOR", "SOURCE_STRIDE"]
+
+#: Shot noise of the sensor signal relative to white: ``Var x = SHOT x`` (a 24 000 e- full well
+#: times ~2.4 for white balance and colour-matrix gains).
+SHOT = 1e-4
+#: Read noise relative to white (sd).
+READ = 3e-4
+#: Relative sd of the errors every frame shares (curve shape, colour matrices); tuned on
+#: ``paper`` and ``camera``.
+SHARED = 0.03
+#: Factor on the independent terms (noise, quantisation); tuned on ``paper`` and ``camera``.
+INFLATE = 1.0
+#: Factor on the disagreement term; tuned on ``paper`` and ``camera``.
+INFLATE_DIS = 1.0
+#: Factor (sd) on the 3x3 local variance of the radiance; tuned on ``paper`` and ``camera``.
+EDGE = 1.0
+#: Factor on the systematic disagreement ``D``; tuned on ``paper`` and ``camera``.
+INFLATE_SYS = 0.0
+#: Relative variance of a bound (a pixel no frame measures).
+CENSORED = 1.0
+#: Smallest ``1 - r`` in the disagreement term (bounds it at ``D r / R_FLOOR``).
+R_FLOOR = 0.25
+#: Every SOURCE_STRIDE-th row is split by source for ``info["variance_sources"]``.
+SOURCE_STRIDE = 16
+#: The sources, in the order of the kernels' ``parts`` planes.
+SOURCES = ("noise", "quantisation", "disagreement", "shared", "edges")
+
+_BIG = 1e12
+
+#: ``(INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS)`` per method, chosen on the tuning families ``paper`` and
+#: ``camera`` only (docs/uncertainty.md); a method not listed takes the module's defaults.
+#: Grid search minimising ``(cov50 - 0.5)^2 + 4 (cov95 - 0.95)^2`` over the pixel-channels of 6
+#: brackets (``paper``, ``camera`` x seeds 0-2, 192x128, 7 exposures, nikon-d5100), INFLATE >= 1.
+METHOD_CONSTANTS: dict[str, tuple[float, float, float, float, float]] = {
+    "debevec": (1.0, 0.0, 0.07, 0.85, 0.4),
+    "robertson": (16.0, 0.0, 0.07, 1.0, 0.05),
+    "stabilized": (16.0, 0.0, 0.0, 0.85, 0.8),
+    "stabilized-joint": (4.0, 2.0, 0.0, 0.85, 0.4),
+}
+
+
+def method_constants(method: str | None) -> dict:
+    """The :class:`VarianceModel` constants of ``method`` (:data:`METHOD_CONSTANTS`)."""
+    a, b, s, e, c = METHOD_CONSTANTS.get(method or "", (INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS))
+    return {"inflate": a, "inflate_dis": b, "shared": s, "edge": e, "inflate_sys": c}
+
+
+@dataclass
+class VarianceModel:
+    """What the engine needs to give a table or matrix plan's variance.
+
+    ``noise``, ``quant`` (N, 256, 3) float32: the variance of ``u_j(z)`` from sensor noise and
+    quantisation, in the plan's value domain (log domain: relative variance; linear: the
+    square of the value tables' units, before any matrix); the constants as the module's."""
+
+    noise: np.ndarray
+    quant: np.ndarray
+    inflate: float = INFLATE
+    inflate_dis: float = INFLATE_DIS
+    shared: float = SHARED
+    edge: float = EDGE
+    inflate_sys: float = INFLATE_SYS
+    censored: float = CENSORED
+    r_floor: float = R_FLOOR
+
+    def constants(self) -> np.ndarray:
+        """``[inflate, inflate_dis, shared^2, censored, r_floor, inflate_sys]`` float64, as the kernels take them."""
+        return np.array([self.inflate, self.inflate_dis, self.shared ** 2, self.censored, self.r_floor,
+                         self.inflate_sys], dtype=np.float64)
+
+
+def _noise_quant_linear(lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Noise and quantisation variance (N, 256, 3) of linear tables ``lin`` (N, 256, 3), in their units."""
+    lin = np.maximum(np.asarray(lin, dtype=np.float64), 0.0)
+    white = np.maximum(lin[:, -1:, :], 1e-30)
+    x = np.clip(lin / white, 0.0, 1.0)
+    noise = (SHOT * x + READ ** 2) * white ** 2
+    d = np.gradient(lin, axis=1)
+    quant = d * d / 12.0
+    return noise, quant
+
+
+def variance_tables(values: np.ndarray, domain: str, method: str | None = None) -> VarianceModel:
+    """The :class:`VarianceModel` of a table plan's ``values`` (N, 256, 3) (``domain`` ``"log"``:
+    ``g(z) - ln t_j``; ``"linear"``: ``f^-1(z) / t_j``)."""
+    v = np.asarray(values, dtype=np.float64)
+    if domain == "log":
+        lin = np.exp(np.minimum(v, 80.0))
+        noise, quant = _noise_quant_linear(lin)
+        l2 = np.maximum(lin * lin, 1e-300)
+        noise, quant = noise / l2, quant / l2           # variance of the log (relative variance)
+    else:
+        noise, quant = _noise_quant_linear(v)
+    return VarianceModel(noise=_f32(noise), quant=_f32(quant), **method_constants(method))
+
+
+def matrix_variance_tables(values: np.ndarray, method: str | None = None) -> VarianceModel:
+    """The :class:`VarianceModel` of a matrix plan's linearisation tables (N, 256, 3) (before the matrices)."""
+    noise, quant = _noise_quant_linear(values)
+    return VarianceModel(noise=_f32(noise), quant=_f32(quant), **method_constants(method))
+
+
+def _f32(a: np.ndarray) -> np.ndarray:
+    a = np.nan_to_num(np.asarray(a, dtype=np.float64), nan=_BIG, posinf=_BIG, neginf=0.0)
+    return np.ascontiguousarray(np.clip(a, 0.0, _BIG), dtype=np.float32)
+
+
+def add_edge_term(radiance: np.ndarray, var: np.ndarray, parts: np.ndarray, edge: float, y0: int, y1: int,
+                  row0: int) -> None:
+    """Add ``edge^2`` times the 3x3 local variance of ``radiance`` (3, rows, W) float32 (rows
+    ``y0:y1`` of the image, at ``y - row0``) to ``var`` (same layout), and write it as the
+    ``"edges"`` source of the sampled rows of ``parts``."""
+    if edge <= 0 or y1 <= y0:
+        return
+    from derender.core.memory import import_cv2
+
+    cv2 = import_cv2()
+    e2 = np.float32(edge * edge)
+    a, b = y0 - row0, y1 - row0
+    rows = [y for y in range(y0, y1) if y % SOURCE_STRIDE == 0]
+    for c in range(3):
+        r = np.ascontiguousarray(radiance[c, a:b])
+        mu = cv2.boxFilter(r, -1, (3, 3), borderType=cv2.BORDER_REPLICATE)
+        m2 = cv2.boxFilter(cv2.multiply(r, r), -1, (3, 3), borderType=cv2.BORDER_REPLICATE)
+        lv = cv2.subtract(m2, cv2.multiply(mu, mu))
+        np.maximum(lv, 0.0, out=lv)
+        lv *= e2
+        np.minimum(lv, np.float32(_F32_QUARTER), out=lv)
+        v = var[c, a:b]
+        v += lv
+        np.minimum(v, np.float32(_F32_QUARTER), out=v)
+        for y in rows:
+            parts[4, y // SOURCE_STRIDE, :, c] = lv[y - y0]
+
+
+_F32_QUARTER = float(np.finfo(np.float32).max) / 4.0
+
+
+def source_shares(parts: np.ndarray) -> dict[str, float]:
+    """Median share of each source (:data:`SOURCES`) of the variance over the sampled
+    pixel-channels ``parts`` (4, ...) with a positive total (``info["variance_sources"]``)."""
+    p = np.asarray(parts, dtype=np.float64).reshape(len(SOURCES), -1)
+    tot = p.sum(axis=0)
+    ok = np.isfinite(tot) & (tot > 0)
+    if not ok.any():
+        return {s: 0.0 for s in SOURCES}
+    share = p[:, ok] / tot[ok]
+    return {s: float(np.median(share[k])) for k, s in enumerate(SOURCES)}
+
+
+def new_parts(h: int, w: int) -> np.ndarray:
+    """The kernels' ``parts`` planes (5, rows, W, 3) float32 for every :data:`SOURCE_STRIDE`-th row."""
+    return np.zeros((len(SOURCES), -(-int(h) // SOURCE_STRIDE), int(w), 3), dtype=np.float32)
