@@ -27,7 +27,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod"]
+__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "SharedVariance", "EngineMethod"]
 
 
 @dataclass
@@ -143,6 +143,7 @@ class GaussianPlan:
     band_rows: int = 32
     lognormal: "LogNormalMoments | None" = None
     table: np.ndarray | None = None
+    shared: "SharedVariance | None" = None
 
     def rows_planes(self) -> np.ndarray:
         """``planes`` (9, M), or derived from ``table`` when only that is given."""
@@ -151,7 +152,27 @@ class GaussianPlan:
         t = self.table
         low = np.ascontiguousarray(t[:, 4:7].T)
         p = np.where(np.isneginf(low), t[:, 3], 0.0)
-        return np.concatenate([t[:, 0:3].T, p, low])
+        planes = [t[:, 0:3].T, p, low]
+        if self.shared is not None:       # [sm; vn]: the model's log sd and the noise's log variance
+            sm = t[:, 7]
+            with np.errstate(divide="ignore"):
+                vn = np.where(t[:, 3] > 0, np.maximum(1.0 / t[:, 3] - sm * sm, 0.0), 0.0)
+            planes += [sm[None], vn[None]]
+        return np.concatenate(planes)
+
+
+@dataclass
+class SharedVariance:
+    """A :class:`GaussianPlan` whose variance keeps the model's error shared across frames
+    (issue 29, :mod:`derender.engine.gaussian_kernels`): ``V = sum w^2 s2n + k_model (sum w
+    sm)^2 + k_pipe sum w (y - m)^2``. Its planes carry two more rows, ``[sm; vn]`` (the
+    colour's model log sd and noise log variance; the table's column 7 is ``sm``); ``moments``
+    then takes the extra sums ``(sq, shm, noi, hist)``."""
+
+    k_model: float
+    k_pipe: float
+    k_spatial: float = 0.0
+    floor_share: float = 0.01
 
 
 @dataclass

@@ -148,8 +148,9 @@ from derender.core.memory import thread_count
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
-from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments
+from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, SharedVariance
 from derender.engine.run import ArrayFrames, run
+from derender.hdr.probabilistic_variance import K_MODEL, K_PIPE, K_SPATIAL
 from derender.hdr.registry import register_method
 
 __all__ = [
@@ -272,7 +273,8 @@ def _engine(opts: dict) -> "ProbabilisticMethod | None":
 @register_method("probabilistic", gives_variance=True, engine=_engine)
 def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colour_space: str = "linear_srgb",
                         censor: bool = True, seed: int = 0, space: str | None = None, floor: float = 0.0,
-                        clip_code: int = 245, code_noise: float = CODE_NOISE) -> HDRResult:
+                        clip_code: int = 245, code_noise: float = CODE_NOISE, variance_model: str = "shared",
+                        k_model: float = K_MODEL, k_pipe: float = K_PIPE, k_spatial: float = K_SPATIAL) -> HDRResult:
     """Probabilistic HDR merge (paper 2 eq. 3) with a de-rendering model; returns mean and variance.
 
     ``target_time`` is alpha_0 in seconds (the result is radiance x t_0); ``colour_space``
@@ -283,13 +285,18 @@ def merge_probabilistic(stack: Stack, model: Any, target_time: float = 1.0, colo
     paper's eq. 3 with ``censor=False``; see the module docstring. ``clip_code``: codes at or above it are censored.
     ``code_noise``: per-pixel code standard deviation (8-bit codes) propagated through the
     model's curve into each observation's log variance (log space only; 0 = off).
+    ``variance_model``: ``"shared"`` (default; log space) keeps the model's error shared across
+    frames and adds the frames' spread for pipeline changes, ``k_model`` and ``k_pipe`` weighting
+    those terms (:mod:`derender.hdr.probabilistic_variance`; ``info["variance_sources"]``);
+    ``"independent"`` is eq. 3's ``1 / sum p``. The radiance is the same for both.
     ``seed`` is unused (the merge is deterministic) and accepted for a uniform interface.
     """
     model = as_model(model)
     if stack.bit_depth == 16:
         raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
     opts = dict(model=model, target_time=target_time, colour_space=colour_space, censor=censor, seed=seed,
-                space=space, floor=floor, clip_code=clip_code, code_noise=code_noise)
+                space=space, floor=floor, clip_code=clip_code, code_noise=code_noise, variance_model=variance_model,
+                k_model=k_model, k_pipe=k_pipe, k_spatial=k_spatial)
     method = ProbabilisticMethod(opts)
     if method.space == "log":
         return run(method, ArrayFrames(stack.codes(), stack.times))
@@ -397,6 +404,16 @@ class ProbabilisticMethod:
         self.opts = opts
         self.space, self.a = check_options(self.model, opts["target_time"], opts["colour_space"], opts["censor"],
                                            opts["space"], opts["floor"], opts["clip_code"], opts["code_noise"])
+        vm = opts.get("variance_model", "shared")
+        if vm not in ("shared", "independent"):
+            raise InputError(f"variance_model must be 'shared' or 'independent', got {vm!r}")
+        k_model, k_pipe = float(opts.get("k_model", K_MODEL)), float(opts.get("k_pipe", K_PIPE))
+        if not (np.isfinite(k_model) and np.isfinite(k_pipe) and k_model >= 0 and k_pipe >= 0):
+            raise InputError("k_model and k_pipe must be non-negative numbers")
+        k_spatial = float(opts.get("k_spatial", K_SPATIAL))
+        if not (np.isfinite(k_spatial) and k_spatial >= 0):
+            raise InputError("k_spatial must be a non-negative number")
+        self.shared = SharedVariance(k_model, k_pipe, k_spatial) if vm == "shared" else None
 
     def derive(self) -> None:
         return None
@@ -425,23 +442,40 @@ class ProbabilisticMethod:
         planes = _log_planes(self.model, colours, float(opts["floor"]), int(opts["clip_code"]),
                              opts["censor"], code_noise=float(opts["code_noise"]),
                              threads=access.threads if compiled else 1, colour_major=fused)
+        shared = self.shared
+        if shared is not None:      # the model's log sd per colour (shared-error variance)
+            from derender.hdr.probabilistic_variance import add_spatial, fill_model_sd, shared_log_moments
+
+            planes = fill_model_sd(self.model, colours, planes, float(opts["floor"]), int(opts["clip_code"]),
+                                   opts["censor"], fused, _compiled_tables(self.model, colours) if fused else None,
+                                   threads=access.threads)
         censor = bool(opts["censor"])
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
 
-        def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, extra=None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+            if extra is not None:        # shared-error variance, spatial term on the block's output
+                mean0, var0, terms = shared_log_moments(prec, acc, bound, extra, censor, shared.k_model,
+                                                        shared.k_pipe, _MAX_LOG, _MAX_V)
+                rad, var = finite_outputs(mean0, var0, a)
+                add_spatial(rad, var, terms, extra[4], shared.k_spatial, shared.floor_share)
+                return rad, var
             return finite_outputs(*log_product_moments(prec, acc, bound, censor), a)
 
         return GaussianPlan(planes=None if fused else planes, table=planes if fused else None, index=index,
                             log_scales=np.array([np.log(opts["target_time"] / t) for t in access.times]),
                             moments=moments, mask=saturation_mask,
-                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a))
+                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a), shared=shared)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         o = self.opts
         info = _info(self.model, o["colour_space"], o["target_time"], self.space, o["censor"], o["floor"],
                      time.perf_counter() - self.t_plan, o["code_noise"])
         info["distinct_colours"] = self.distinct
+        info["variance_model"] = "shared" if self.shared is not None else "independent"
+        if self.shared is not None:
+            info.update(k_model=self.shared.k_model, k_pipe=self.shared.k_pipe, k_spatial=self.shared.k_spatial)
         result.info.update(info)
 
 
