@@ -107,6 +107,56 @@ def _truncated(m, v, bd, max_log):  # pragma: no cover - compiled
 
 
 @njit(nogil=True, cache=True, error_model="numpy")
+def _spatial_row(r, y, nr, w, row0, lf, b3, radiance, variance, k_spatial, big, hist):  # pragma: no cover
+    """Add the spatial-mixing term to output row ``y`` (band row ``r``) from the floored log
+    output ``lf`` of rows ``r - 1 .. r + 1`` (rings of 3 rows; only rows of the band), and count
+    the sources' shares of row ``y`` (``b3``: ring of 2 rows of the log-space terms)."""
+    nb = hist.shape[2]
+    i0 = r % 3
+    im = (r + 2) % 3
+    ip = (r + 1) % 3
+    count = y % 4 == 0           # the sources' shares on a 1-in-4 grid of rows and columns
+    for x in range(w):
+        for c in range(3):
+            f = lf[i0, x, c]
+            d2 = np.float32(0.0)
+            nd = 0
+            if x > 0:
+                dd = f - lf[i0, x - 1, c]
+                d2 += dd * dd
+                nd += 1
+            if x + 1 < w:
+                dd = f - lf[i0, x + 1, c]
+                d2 += dd * dd
+                nd += 1
+            if r > 0:
+                dd = f - lf[im, x, c]
+                d2 += dd * dd
+                nd += 1
+            if r + 1 < nr:
+                dd = f - lf[ip, x, c]
+                d2 += dd * dd
+                nd += 1
+            rs = k_spatial * math.sqrt(np.float64(d2) / nd) if nd > 0 else 0.0        # relative variance
+            lo_ = np.float64(radiance[y - row0, x, c])
+            vo = np.float64(variance[y - row0, x, c])
+            if rs > 0.0 and lo_ > 0.0:
+                vo = min(vo + rs * (lo_ * lo_), big)
+                variance[y - row0, x, c] = np.float32(vo)
+            i1 = r % 2
+            if not count:
+                continue
+            t3 = b3[i1, x, c, 0] + b3[i1, x, c, 1] + b3[i1, x, c, 2]
+            if t3 > 0.0 and lo_ > 0.0 and x % 4 == 0:
+                rel = vo / (lo_ * lo_)              # total relative variance, spatial included
+                sh_s = min(rs / rel, 1.0) if rel > 0.0 else 0.0
+                rest = (1.0 - sh_s) / t3
+                for q in range(3):
+                    hist[y, q, min(int(b3[i1, x, c, q] * rest * nb), nb - 1)] += 1
+                hist[y, 3, min(int(sh_s * nb), nb - 1)] += 1
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
 def gaussian_variance_band(frames, valid, lut, table, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
                            row0, radiance, variance, k_model, k_pipe, k_spatial, floor_share,
                            hist):  # pragma: no cover - compiled
@@ -116,37 +166,38 @@ def gaussian_variance_band(frames, valid, lut, table, log_scales, y0, y1, censor
     ``V`` truncated below at the bound as the mean's ``v`` is), the mean's squared distance to the
     log-normal ``(m, V)``'s mean added; through ``a`` by its squares. Then, on the band's output,
     the spatial-mixing term ``k_spatial L_c^2 sqrt(D_c)``: ``D_c`` the mean squared difference of
-    ``log(L_c + floor_share mean_c L)`` to the four neighbours within the band (rows outside
-    ``y0:y1`` are not read: a band's result does not depend on the others). float32 outputs.
-    ``hist[y]`` (4, NBINS) int64 counts, per measured pixel-channel of row ``y``, the shares of
-    model / noise / pipeline change / spatial mixing in the relative variance. Releases the GIL."""
+    ``log(L_c + floor_share mean_c L)`` (float32) to the four neighbours within the band (rows outside
+    ``y0:y1`` are not read: a band's result does not depend on the others), added one row behind.
+    The noise sums need no division per frame: with ``1 / p = sm^2 + vn`` (joint means over the
+    same channels), ``sum p^2 vn = P - sum (p sm)^2`` and ``sum p vn = N - sum p sm^2``.
+    float32 outputs. ``hist[y]`` (4, NBINS) int64 counts, per measured pixel-channel of row
+    ``y`` on a 1-in-4 grid (rows and columns divisible by 4), the shares of model / noise / pipeline change / spatial mixing in the relative
+    variance. Releases the GIL."""
     n = frames.shape[0]
     w = frames.shape[2]
-    nb = hist.shape[2]
     nr = y1 - y0
     whole = valid.shape[1] == 1 and valid.shape[2] == 1
     prec = np.empty((3, w))
     acc = np.empty((3, w))
     bound = np.empty((3, w))
-    sq = np.empty((3, w))
-    shm = np.empty((3, w))
-    noi = np.empty((3, w))
-    nw = np.empty((3, w))
-    b3 = np.zeros((nr, w, 3, 3))    # the band's model / noise / pipeline terms of V (0: unmeasured)
-    lf = np.empty((nr, w, 3))       # floored log of the output, for the spatial term
+    # per pixel, one cache line: sum p y^2 (3 channels), then over frames with every channel measured
+    # sum p sm, sum (p sm)^2, sum p sm^2, their count
+    ex = np.empty((w, 8))
+    ct = np.empty((3, w, 4))        # the last four per channel, frames with a channel censored (zeroed on use)
+    b3 = np.empty((2, w, 3, 3))     # ring of 2 rows: model / noise / pipeline terms of V (0: unmeasured)
+    lf = np.empty((3, w, 3), dtype=np.float32)   # ring of 3 rows: floored log of the output (spatial term)
     big = np.float64(np.finfo(np.float32).max) / 4.0
     inf = np.inf
     mean0 = np.empty(3)
     var0 = np.empty(3)
     for y in range(y0, y1):
         r = y - y0
+        i1 = r % 2
         prec[:, :] = 0.0
         acc[:, :] = 0.0
         bound[:, :] = -inf
-        sq[:, :] = 0.0
-        shm[:, :] = 0.0
-        noi[:, :] = 0.0
-        nw[:, :] = 0.0
+        ex[:, :] = 0.0
+        cens = False
         for j in range(n):
             ls = log_scales[j]
             for x in range(w):
@@ -155,41 +206,66 @@ def gaussian_variance_band(frames, valid, lut, table, log_scales, y0, y1, censor
                 k = lut[(np.int64(frames[j, y, x, 0]) << 16) | (np.int64(frames[j, y, x, 1]) << 8)
                         | np.int64(frames[j, y, x, 2])]
                 pj = table[k, 3]
-                sm = table[k, 7]
-                vn = max(1.0 / pj - sm * sm, 0.0) if pj > 0.0 else 0.0
                 for c in range(3):
                     lo = table[k, 4 + c]
                     p = pj if lo == -inf else 0.0
                     prec[c, x] += p
                     yy = table[k, c] + ls
                     acc[c, x] += yy * p
+                    ex[x, c] += p * (yy * yy)
                     b = lo + ls
                     if b > bound[c, x]:
                         bound[c, x] = b
-                    if p > 0.0:
-                        sq[c, x] += p * (yy * yy)
-                        shm[c, x] += p * sm
-                        noi[c, x] += (p * p) * vn
-                        nw[c, x] += p * vn
+                sm = table[k, 7]
+                psm = pj * sm
+                if table[k, 4] == -inf and table[k, 5] == -inf and table[k, 6] == -inf:
+                    ex[x, 3] += psm
+                    ex[x, 4] += psm * psm
+                    ex[x, 5] += psm * sm
+                    ex[x, 6] += 1.0
+                else:
+                    if not cens:
+                        ct[:, :, :] = 0.0
+                        cens = True
+                    for c in range(3):
+                        if table[k, 4 + c] == -inf:
+                            ct[c, x, 0] += psm
+                            ct[c, x, 1] += psm * psm
+                            ct[c, x, 2] += psm * sm
+                            ct[c, x, 3] += 1.0
         for x in range(w):
             for c in range(3):
                 pr = prec[c, x]
                 if pr > 0.0:
                     v = 1.0 / pr
                     m = acc[c, x] * v
-                    vm = shm[c, x] * v
+                    s0 = ex[x, 3]
+                    s1 = ex[x, 4]
+                    s2 = ex[x, 5]
+                    s3 = ex[x, 6]
+                    if cens:
+                        s0 += ct[c, x, 0]
+                        s1 += ct[c, x, 1]
+                        s2 += ct[c, x, 2]
+                        s3 += ct[c, x, 3]
+                    vm = s0 * v
                     vm = k_model * (vm * vm)
-                    vnz = noi[c, x] * (v * v)
+                    noi = max(pr - s1, 0.0)                 # sum p^2 vn
+                    nw = max(s3 - s2, 0.0)                  # sum p vn
+                    vnz = noi * (v * v)
                     # the spread beyond what the independent noise explains: sum w vn - sum w^2 vn
-                    vp = k_pipe * max(sq[c, x] * v - m * m - (nw[c, x] * v - noi[c, x] * (v * v)), 0.0)
-                    b3[r, x, c, 0] = vm
-                    b3[r, x, c, 1] = vnz
-                    b3[r, x, c, 2] = vp
+                    vp = k_pipe * max(ex[x, c] * v - m * m - (nw * v - vnz), 0.0)
+                    b3[i1, x, c, 0] = vm
+                    b3[i1, x, c, 1] = vnz
+                    b3[i1, x, c, 2] = vp
                     vv = max(vm + vnz + vp, v)
                 else:
                     v = inf
                     m = 0.0
                     vv = inf
+                    b3[i1, x, c, 0] = 0.0
+                    b3[i1, x, c, 1] = 0.0
+                    b3[i1, x, c, 2] = 0.0
                 mv = m
                 if censor:
                     m, v = _truncated(m, v, bound[c, x], max_log)
@@ -223,37 +299,9 @@ def gaussian_variance_band(frames, valid, lut, table, log_scales, y0, y1, censor
                 variance[y - row0, x, c] = np.float32(min(max(vo, 0.0), big))
                 tot += np.float64(np.float32(mo))
             for c in range(3):
-                lf[r, x, c] = math.log(np.float64(radiance[y - row0, x, c]) + floor_share * tot / 3.0 + 1e-300)
-    for y in range(y0, y1):
-        r = y - y0
-        for x in range(w):
-            for c in range(3):
-                f = lf[r, x, c]
-                d2 = 0.0
-                nd = 0
-                if x > 0:
-                    d2 += (f - lf[r, x - 1, c]) ** 2
-                    nd += 1
-                if x + 1 < w:
-                    d2 += (f - lf[r, x + 1, c]) ** 2
-                    nd += 1
-                if r > 0:
-                    d2 += (f - lf[r - 1, x, c]) ** 2
-                    nd += 1
-                if r + 1 < nr:
-                    d2 += (f - lf[r + 1, x, c]) ** 2
-                    nd += 1
-                rs = k_spatial * math.sqrt(d2 / nd) if nd > 0 else 0.0        # relative variance
-                lo_ = np.float64(radiance[y - row0, x, c])
-                vo = np.float64(variance[y - row0, x, c])
-                if rs > 0.0 and lo_ > 0.0:
-                    vo = min(vo + rs * (lo_ * lo_), big)
-                    variance[y - row0, x, c] = np.float32(vo)
-                t3 = b3[r, x, c, 0] + b3[r, x, c, 1] + b3[r, x, c, 2]
-                if t3 > 0.0 and lo_ > 0.0:
-                    rel = vo / (lo_ * lo_)              # total relative variance, spatial included
-                    sh_s = min(rs / rel, 1.0) if rel > 0.0 else 0.0
-                    rest = 1.0 - sh_s
-                    for q in range(3):
-                        hist[y, q, min(int(b3[r, x, c, q] / t3 * rest * nb), nb - 1)] += 1
-                    hist[y, 3, min(int(sh_s * nb), nb - 1)] += 1
+                lf[r % 3, x, c] = math.log(np.float32(np.float64(radiance[y - row0, x, c]) + floor_share * tot / 3.0)
+                                           + np.float32(1e-30))
+        if r > 0:
+            _spatial_row(r - 1, y - 1, nr, w, row0, lf, b3, radiance, variance, k_spatial, big, hist)
+    if nr > 0:
+        _spatial_row(nr - 1, y1 - 1, nr, w, row0, lf, b3, radiance, variance, k_spatial, big, hist)

@@ -653,6 +653,8 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     inputs = list(inputs)
     # outputs streamed through band buffers: how many files read them (the variance's too if asked)
     ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)
+    if getattr(method, "holds_outputs", False):   # the method's finish() reads the merged radiance
+        ring = 0
     if method.holds_frames:
         res = _run_held(method, source, threads, order_hint, write=write, ring=ring)
     elif _hold(source, keep_frames, hold_bytes):

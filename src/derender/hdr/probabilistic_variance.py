@@ -116,7 +116,8 @@ def add_spatial(radiance: np.ndarray, variance: np.ndarray, terms: np.ndarray, h
     neighbours within the block; ``terms`` (rows, W, 3, 3) the log-space model / noise /
     pipeline terms, whose shares with the spatial one are counted in ``hist`` (rows, 4, NBINS)."""
     rad = radiance.astype(np.float64)
-    lf = np.log(rad + floor_share * rad.sum(axis=-1, keepdims=True) / 3.0 + 1e-300)
+    lf = np.log((rad + floor_share * rad.sum(axis=-1, keepdims=True) / 3.0).astype(np.float32) + np.float32(1e-30))
+    lf = lf.astype(np.float64)
     d2 = np.zeros(lf.shape)
     nd = np.zeros(lf.shape)
     for ax in (0, 1):
@@ -138,6 +139,8 @@ def add_spatial(radiance: np.ndarray, variance: np.ndarray, terms: np.ndarray, h
     variance[...] = vo.astype(np.float32)
     t3 = terms.sum(axis=-1)
     has = (t3 > 0) & (rad > 0)
+    has[1::4] = has[2::4] = has[3::4] = False       # shares on the kernel's 1-in-4 grid (bands start at
+    has[:, 1::4] = has[:, 2::4] = has[:, 3::4] = False   # multiples of 4 rows)
     nb = hist.shape[-1]
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(has, vo / np.where(has, rad * rad, 1.0), 0.0)

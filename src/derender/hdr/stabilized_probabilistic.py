@@ -18,6 +18,22 @@ the bracket and read by the matrix kernel (``MatrixPlan.colour_weights``) with t
 as codes: the memory of a stabilised merge plus that table. The float reference engine
 (:func:`stabilized_probabilistic_stack`, for homography alignment or saturation below white)
 holds per-pixel float64 weights and float images (9 x 24 MP: ~12 GB).
+
+**Variance** (issue 29). The merge's error has the probabilistic merge's sources (the model's
+error shared by the frames that see a colour, the pixels' code noise, the pipeline's spatial
+mixing; :mod:`derender.hdr.probabilistic_variance`), with the pipeline changes between frames
+corrected by H_j. Its variance is paper 2's posterior's *relative* variance for the same pixel
+(the probabilistic merge of the same frames with the shared-error variance), times the
+stabilised radiance squared:
+
+    Var L_c = k_stab r_c L_c^2,     r_c = Var_p,c / (L_p,c + s mean_c L_p)^2,
+
+``L_p``, ``Var_p`` the probabilistic merge's radiance and variance, ``s`` its floor share (0.01,
+so a channel projected to 0 keeps a finite relative variance); ``k_stab`` (:data:`K_STAB`) chosen
+on the tuning families (``docs/uncertainty.md``). It costs a probabilistic merge on the held
+frames (measured in the docs); the engine keeps this method's outputs whole (``holds_outputs``)
+since the variance needs the merged radiance. Frames aligned by the engine take part only where
+valid (the probabilistic pass reads the frames without the stabiliser's shifts).
 """
 
 from __future__ import annotations
@@ -36,12 +52,51 @@ from derender.hdr.registry import method_options, register_method
 from derender.hdr.stabilize.method import StabilizedMethod
 
 __all__ = [
+    "K_STAB",
+    "posterior_relative_variance",
     "colour_reliability",
     "colour_weight_table",
     "StabilizedProbabilisticMethod",
     "merge_stabilized_probabilistic",
     "stabilized_probabilistic_stack",
 ]
+
+
+#: Scale of the probabilistic posterior's relative variance (tuning families; docs/uncertainty.md).
+K_STAB = 1.5
+
+
+def posterior_relative_variance(model, frames: np.ndarray, times: np.ndarray, threads: int | None = None,
+                                valid: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """Relative variance (H, W, 3) float64 of paper 2's posterior for held frames (N, H, W, 3) uint8
+    sorted by ``times``: the probabilistic merge (shared-error variance) of the same frames,
+    ``Var_p / (L_p + 0.01 mean_c L_p)^2`` (module docstring), and its ``variance_sources``."""
+    from derender.derendering.base import model_camera_to_srgb
+    from derender.engine.gaussian import merge_gaussian_frames
+    from derender.hdr.probabilistic import ProbabilisticMethod
+    from derender.hdr.registry import method_options
+
+    space = "linear_srgb" if model_camera_to_srgb(model) is not None else "camera_rgb"
+    method = ProbabilisticMethod(method_options("probabilistic", {"model": model, "colour_space": space}))
+    n, h, w = frames.shape[:3]
+    access = FrameAccess(times=np.asarray(times, dtype=np.float64), shape=(h, w), frames=frames, threads=threads,
+                         valid=valid, aligned=valid is not None)
+    plan = method.plan(access)
+    res = merge_gaussian_frames(frames, plan, threads=threads, valid=valid)
+    rad = res.radiance.astype(np.float64)
+    share = method.shared.floor_share if method.shared is not None else 0.01
+    den = rad + share * rad.mean(axis=-1, keepdims=True)
+    rel = res.variance.astype(np.float64) / np.maximum(den * den, 1e-300)
+    return np.where(np.isfinite(rel), rel, 1e6), res.info.get("variance_sources", {})
+
+
+def _with_variance(res: HDRResult, rel: np.ndarray, sources: dict) -> None:
+    """``res.variance = K_STAB rel L^2`` (float32, finite) and the sources in its info."""
+    big = np.finfo(np.float32).max / 4
+    lin = res.radiance.astype(np.float64)
+    res.variance = np.clip(np.nan_to_num(K_STAB * rel * lin * lin, nan=big, posinf=big), 0.0, big).astype(np.float32)
+    res.info["variance_sources"] = dict(sources)
+    res.info["variance_model"] = "probabilistic posterior's relative variance x stabilised radiance^2"
 
 
 def colour_reliability(model, colours: np.ndarray) -> np.ndarray:
@@ -85,6 +140,8 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
     in-memory path computed the same weights per pixel as an (N, H, W) float64 array (9 x 24
     MP: 1.7 GB, the whole merge ~12 GB); here they are one 64 MB table."""
 
+    holds_outputs = True       # finish() reads the merged radiance for the variance
+
     def __init__(self, opts: dict):
         self.model = as_model(opts.get("model"))
         # the stabilised merge's own defaults, without noise weighting: the model's variances replace it
@@ -101,6 +158,12 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         super().finish(result, access)
+        if result.radiance is not None and access.frames is not None:
+            t0 = time.perf_counter()
+            rel, sources = posterior_relative_variance(self.model, access.frames, access.times, access.threads,
+                                                       access.valid)
+            _with_variance(result, rel, sources)
+            result.info.setdefault("timings", {})["variance_s"] = time.perf_counter() - t0
         result.info.update({"model": getattr(self.model, "method", "?"), "noise_weighting": False,
                             "pixel_weights": "inverse relative variance of the model (per colour)"})
         result.info.setdefault("timings", {})["colour_weights_s"] = self.colour_s
@@ -110,7 +173,7 @@ def _stabilized_probabilistic_engine(opts: dict):
     return StabilizedProbabilisticMethod(opts)
 
 
-@register_method("stabilized-probabilistic", engine=_stabilized_probabilistic_engine)
+@register_method("stabilized-probabilistic", gives_variance=True, engine=_stabilized_probabilistic_engine)
 def merge_stabilized_probabilistic(stack: Stack, model: Any, reference: int | None = None, align: str = "mtb",
                                    seed: int = 0) -> HDRResult:
     """Both papers together: paper 1's stabilised merge weighted by paper 2's de-rendering variances.
@@ -162,6 +225,8 @@ def stabilized_probabilistic_stack(stack: Stack, model: Any, reference: int | No
     for j in range(aligned.shape[0]):
         weights[j] = colour_reliability(model, aligned[j].reshape(-1, 3)).reshape(aligned.shape[1:3])
     res = stabilized_merge(stab, noise_weighting=False, pixel_weights=weights)
+    rel, sources = posterior_relative_variance(model, stack.codes(), stack.times)
+    _with_variance(res, rel, sources)
     res.info.update({"method": "stabilized-probabilistic", "model": getattr(model, "method", "?"),
                      "merge_seconds": time.perf_counter() - t0, "engine_path": "stack"})
     return res
