@@ -36,7 +36,26 @@ import math
 import numpy as np
 from numba import njit
 
-from derender.engine.kernels import _ndtr, _table_mu
+
+@njit(inline="always")
+def _ndtr(a):  # pragma: no cover - compiled
+    """Standard normal CDF (as :mod:`derender.engine.kernels`' copy: cephes' algorithm on erf / erfc)."""
+    x = a * 0.7071067811865476
+    z = abs(x)
+    if z < 0.7071067811865476:
+        return 0.5 + 0.5 * math.erf(x)
+    y = 0.5 * math.erfc(z)
+    return 1.0 - y if x > 0.0 else y
+
+
+@njit(inline="always")
+def _table_mu(tab, lut_lo, lut_w, c0, c1, c2, ch):  # pragma: no cover - compiled
+    """Channel ``ch`` of the GP's interpolation table at one colour (as :mod:`derender.engine.kernels`'
+    copy: float32 linear interpolation along R of the G/B table, as float64)."""
+    j = np.int64(lut_lo[c0]) * 65536 + np.int64(c1) * 256 + np.int64(c2)
+    v0 = tab[j, ch]
+    v1 = tab[j + 65536, ch]
+    return np.float64((v1 - v0) * lut_w[c0] + v0)
 
 __all__ = ["NBINS", "gaussian_variance_band", "model_sd_rows"]
 
@@ -118,26 +137,26 @@ def _spatial_row(r, y, nr, w, row0, lf, b3, radiance, variance, k_spatial, big, 
     count = y % 4 == 0           # the sources' shares on a 1-in-4 grid of rows and columns
     for x in range(w):
         for c in range(3):
-            f = lf[i0, x, c]
-            d2 = np.float32(0.0)
+            f = np.float64(lf[i0, x, c])
+            d2 = 0.0
             nd = 0
             if x > 0:
-                dd = f - lf[i0, x - 1, c]
+                dd = f - np.float64(lf[i0, x - 1, c])
                 d2 += dd * dd
                 nd += 1
             if x + 1 < w:
-                dd = f - lf[i0, x + 1, c]
+                dd = f - np.float64(lf[i0, x + 1, c])
                 d2 += dd * dd
                 nd += 1
             if r > 0:
-                dd = f - lf[im, x, c]
+                dd = f - np.float64(lf[im, x, c])
                 d2 += dd * dd
                 nd += 1
             if r + 1 < nr:
-                dd = f - lf[ip, x, c]
+                dd = f - np.float64(lf[ip, x, c])
                 d2 += dd * dd
                 nd += 1
-            rs = k_spatial * math.sqrt(np.float64(d2) / nd) if nd > 0 else 0.0        # relative variance
+            rs = k_spatial * math.sqrt(d2 / nd) if nd > 0 else 0.0        # relative variance
             lo_ = np.float64(radiance[y - row0, x, c])
             vo = np.float64(variance[y - row0, x, c])
             if rs > 0.0 and lo_ > 0.0:

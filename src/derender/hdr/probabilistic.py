@@ -163,6 +163,7 @@ __all__ = [
     "check_options",
     "ProbabilisticMethod",
     "log_product_moments",
+    "truncate_below_log",
 ]
 
 
@@ -252,6 +253,12 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
     out_m[nothing] = -_MAX_LOG   # no evidence at all (cannot happen with censoring; keeps outputs finite)
     out_v[nothing] = 1.0
     return out_m, out_v
+
+
+def truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Log-space moments of N(mean, var) truncated below at ``bound`` (the merge's censoring; public
+    for :mod:`derender.hdr.probabilistic_variance`)."""
+    return _truncate_below_log(mean, var, bound)
 
 
 def as_model(model: Any):

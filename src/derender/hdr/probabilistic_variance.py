@@ -158,7 +158,7 @@ def shared_log_moments(prec, acc, bound, extra, censor: bool, k_model: float, k_
     ``extra = (sum p y^2, sum p sm, sum p^2 vn, sum p vn)``, and the model / noise / pipeline terms of ``V``
     (rows, W, 3, 3) for :func:`add_spatial` (NumPy
     :func:`~derender.engine.gaussian_kernels.gaussian_variance_band`)."""
-    from derender.hdr.probabilistic import _truncate_below_log
+    from derender.hdr.probabilistic import truncate_below_log as _truncate_below_log
 
     sq, shm, noi, nw = extra[:4]
     with np.errstate(divide="ignore", invalid="ignore"):
