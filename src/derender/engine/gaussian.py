@@ -25,7 +25,7 @@ import numpy as np
 from derender.core.types import HDRResult
 from derender.engine.plans import GaussianPlan
 
-__all__ = ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held"]
+__all__ = ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held", "variance_sources"]
 
 
 def mark_colours_held(frames: np.ndarray, present: np.ndarray, threads: int | None = None) -> bool:
@@ -53,10 +53,13 @@ def mark_colours_held(frames: np.ndarray, present: np.ndarray, threads: int | No
 class LogGaussianProduct:
     """Accumulators of the log-space product (eq. 3) for a block of pixels, channel planes (3, ...)."""
 
-    def __init__(self, shape: tuple[int, ...]):
+    def __init__(self, shape: tuple[int, ...], shared: bool = False):
         self.prec = np.zeros((3, *shape), dtype=np.float64)
         self.acc = np.zeros((3, *shape), dtype=np.float64)
         self.bound = np.full((3, *shape), -np.inf)
+        # shared-error variance (planes (11, M), :class:`~derender.engine.plans.SharedVariance`):
+        # sum p y^2, sum p sm, sum p^2 vn, sum p vn
+        self.extra = tuple(np.zeros((3, *shape), dtype=np.float64) for _ in range(4)) if shared else None
 
     def add_rows(self, planes: np.ndarray, rows: np.ndarray, log_scale: float,
                  keep: np.ndarray | None = None) -> None:
@@ -79,6 +82,14 @@ class LogGaussianProduct:
             if keep is not None:
                 t[~keep] = -np.inf
             np.maximum(self.bound[c], t, out=self.bound[c])
+            if self.extra is not None:
+                sq, shm, noi, nw = self.extra
+                yy = np.take(planes[c], rows, mode="clip") + log_scale
+                vn = np.take(planes[10], rows, mode="clip")
+                sq[c] += p * yy * yy
+                shm[c] += p * np.take(planes[9], rows, mode="clip")
+                noi[c] += p * p * vn
+                nw[c] += p * vn
 
 
 def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int | None = None,
@@ -124,8 +135,14 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
         variance = populated_zeros((h, w, 3), np.float32)
     mask = np.empty((h, w), dtype=np.uint8)
     planes = None if fused is not None else plan.rows_planes()
-    compiled = (fused is not None or (lut is not None and planes.dtype == np.float64 and planes.flags.c_contiguous
-                                      and frames.flags.c_contiguous))
+    shared = plan.shared
+    compiled = (fused is not None or (shared is None and lut is not None and planes.dtype == np.float64
+                                      and planes.flags.c_contiguous and frames.flags.c_contiguous))
+    hist = None
+    if shared is not None:       # per-row counts of the variance sources' shares
+        from derender.engine.gaussian_kernels import NBINS
+
+        hist = np.zeros((h, 4, NBINS), dtype=np.int64)
     whole = valid is None
     valid_k = np.ones((n, 1, 1), dtype=np.uint8) if whole else np.ascontiguousarray(valid, dtype=np.uint8)
     if compiled:
@@ -136,6 +153,9 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     if fused is not None:
         from derender.engine.kernels import gaussian_moments_band
 
+        if shared is not None:
+            from derender.engine.gaussian_kernels import gaussian_variance_band
+
         use_a = fused.matrix is not None
         a = np.ascontiguousarray(fused.matrix if use_a else np.eye(3), dtype=np.float64)
 
@@ -145,18 +165,28 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
                 (rad, var), row0 = out_ring.slot(y0)
             else:
                 rad, var, row0 = radiance, variance, 0
-            gaussian_moments_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
-                                  float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var)
+            if shared is not None:
+                gaussian_variance_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
+                                       float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var,
+                                       float(shared.k_model), float(shared.k_pipe), float(shared.k_spatial),
+                                       float(shared.floor_share), hist)
+            else:
+                gaussian_moments_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
+                                      float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var)
             mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
             return
-        prod = LogGaussianProduct((y1 - y0, w))
+        prod = LogGaussianProduct((y1 - y0, w), shared=shared is not None)
         if compiled:
             gaussian_band(frames, valid_k, lut, planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
         else:
             for j in range(n):
                 prod.add_rows(planes, plan.index.rows(frames[j, y0:y1]), log_scales[j],
                               keep=None if whole else valid[j, y0:y1] != 0)
-        radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
+        if shared is not None:
+            radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound,
+                                                            (*prod.extra, hist[y0:y1]))
+        else:
+            radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
         mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
 
     res = HDRResult(radiance=radiance, mask=mask, variance=variance, info={"engine": "gaussian"})
@@ -165,5 +195,25 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
             run_bands(ex, nthreads, run, [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)])
 
         merge_writing(h, step, chunk, res, write, ring=out_ring)
+    if hist is not None:
+        res.info["variance_sources"] = variance_sources(hist)
     res.info["merge_seconds"] = time.perf_counter() - t0
     return res
+
+
+def variance_sources(hist: np.ndarray) -> dict:
+    """Median share of each source in the merged log variance (model shared, noise, pipeline
+    change, spatial mixing) from per-row histograms (H, 4, NBINS) of the shares
+    (:func:`~derender.engine.gaussian_kernels.gaussian_variance_band`), bin centres; with the
+    number of pixel-channels counted."""
+    tot = hist.sum(axis=0)                 # (4, NBINS)
+    nb = tot.shape[1]
+    n = int(tot[0].sum())
+    out: dict = {"n": n}
+    for k, name in enumerate(("model_shared", "noise", "pipeline_change", "spatial_mixing")):
+        if n == 0:
+            out[name] = float("nan")
+            continue
+        c = np.cumsum(tot[k])
+        out[name] = float((np.searchsorted(c, 0.5 * n) + 0.5) / nb)
+    return out

@@ -329,7 +329,9 @@ def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: i
                 if group > 1:
                     keep = np.repeat(keep.reshape(-1, group).all(axis=1), group)
                 ys, xs = ys[keep], xs[keep]
-            samples = frames[:, ys, xs].astype(np.int32)
+            samples = frames[:, ys, xs]
+            if method.sample_cluster == 1:
+                samples = samples.astype(np.int32)
     return FrameAccess(times=source.times, shape=(h, w), samples=samples, frames=frames, threads=threads,
                        histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]),
                        reference=ref, valid=valid, aligned=True)

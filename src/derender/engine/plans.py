@@ -27,14 +27,15 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod", "MethodDefaults"]
+__all__ = ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "SharedVariance", "EngineMethod", "MethodDefaults"]
 
 
 @dataclass
 class FrameAccess:
     """What a method's :meth:`~EngineMethod.plan` can read of the bracket (sorted by time).
 
-    ``samples``: (N, P, 3) int32 codes at the method's :meth:`~EngineMethod.sample_positions`
+    ``samples``: (N, P, 3) codes at the method's :meth:`~EngineMethod.sample_positions` (int32; uint8
+    for a method whose positions come in clusters, ``sample_cluster`` > 1)
     (streamed methods); ``frames``: (N, H, W, 3) uint8 (held methods); ``planes``: the
     per-frame uint8 planes of :meth:`~EngineMethod.derive` (held methods, else None).
     :meth:`histograms` gives the per-frame code histograms (N, 3, 256), computed on
@@ -149,6 +150,7 @@ class GaussianPlan:
     band_rows: int = 32
     lognormal: "LogNormalMoments | None" = None
     table: np.ndarray | None = None
+    shared: "SharedVariance | None" = None
 
     def rows_planes(self) -> np.ndarray:
         """``planes`` (9, M), or derived from ``table`` when only that is given."""
@@ -157,7 +159,27 @@ class GaussianPlan:
         t = self.table
         low = np.ascontiguousarray(t[:, 4:7].T)
         p = np.where(np.isneginf(low), t[:, 3], 0.0)
-        return np.concatenate([t[:, 0:3].T, p, low])
+        planes = [t[:, 0:3].T, p, low]
+        if self.shared is not None:       # [sm; vn]: the model's log sd and the noise's log variance
+            sm = t[:, 7]
+            with np.errstate(divide="ignore"):
+                vn = np.where(t[:, 3] > 0, np.maximum(1.0 / t[:, 3] - sm * sm, 0.0), 0.0)
+            planes += [sm[None], vn[None]]
+        return np.concatenate(planes)
+
+
+@dataclass
+class SharedVariance:
+    """A :class:`GaussianPlan` whose variance keeps the model's error shared across frames
+    (issue 29, :mod:`derender.engine.gaussian_kernels`): ``V = sum w^2 s2n + k_model (sum w
+    sm)^2 + k_pipe sum w (y - m)^2``. Its planes carry two more rows, ``[sm; vn]`` (the
+    colour's model log sd and noise log variance; the table's column 7 is ``sm``); ``moments``
+    then takes the extra sums ``(sq, shm, noi, hist)``."""
+
+    k_model: float
+    k_pipe: float
+    k_spatial: float = 0.0
+    floor_share: float = 0.01
 
 
 @dataclass
@@ -191,7 +213,9 @@ class EngineMethod(Protocol):
     ``refits_on_frames``: the plan is refitted without the pixels ghost removal rejects (the
     motion-compensated fill then runs after the refit); ``sample_cluster``: the sample positions
     come in clusters of this many (kept or left out whole); ``variance``: the method asked for
-    the result's variance (the engine then holds the frames and merges with a compiled kernel). :class:`MethodDefaults` gives the
+    the result's variance (the engine then holds the frames and merges with a compiled kernel);
+    ``holds_outputs``: :meth:`finish` reads the merged radiance, so the outputs are held whole
+    (never streamed into the files through band buffers). :class:`MethodDefaults` gives the
     defaults of all but ``name`` and :meth:`plan`.
 
     A method (or its factory) with no engine form for its options raises
@@ -207,6 +231,7 @@ class EngineMethod(Protocol):
     refits_on_frames: bool
     sample_cluster: int
     variance: bool
+    holds_outputs: bool
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None: ...
 
@@ -229,6 +254,7 @@ class MethodDefaults:
     refits_on_frames: bool = True
     sample_cluster: int = 1
     variance: bool = False
+    holds_outputs: bool = False
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None:
         return None

@@ -191,7 +191,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     pos = method.sample_positions(h, w)
     if pos is not None:
         ys, xs = pos
-        samples = np.empty((n, ys.size, 3), dtype=np.int32)
+        samples = np.empty((n, ys.size, 3), dtype=_sample_dtype(method))
         for j in range(n):
             samples[j] = frames[j][ys, xs]
     t1 = time.perf_counter()
@@ -222,6 +222,12 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
                      "n_clipped": n_clipped})
     method.finish(res, access)
     return res
+
+
+def _sample_dtype(method: EngineMethod) -> type:
+    """The codes at the sample positions: int32 as the calibrations take them, or uint8 for a
+    method whose positions come in clusters (many more of them; it keeps a few and converts)."""
+    return np.uint8 if method.sample_cluster > 1 else np.int32
 
 
 def _hold(source, keep_frames: int | None, hold_bytes: int) -> bool:
@@ -269,7 +275,7 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
             pos = method.sample_positions(h, w)
             if pos is not None:
                 ys, xs = pos
-                samples = np.empty((n, ys.size, 3), dtype=np.int32)
+                samples = np.empty((n, ys.size, 3), dtype=_sample_dtype(method))
         elif codes.shape != shape:
             raise _size_error(source, shape, j, codes.shape)
         if samples is not None:
@@ -561,6 +567,8 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     inputs = list(inputs)
     # outputs streamed through band buffers: how many files read them (the variance's too if asked)
     ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)
+    if method.holds_outputs:   # the method's finish() reads the merged radiance
+        ring = 0
     if method.holds_frames:
         res = _run_held(method, source, threads, order_hint, write=write, ring=ring)
     elif _hold(source, keep_frames, hold_bytes) or method.variance:   # a variance: held

@@ -149,8 +149,9 @@ from derender.core.memory import thread_count
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
-from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults
+from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults, SharedVariance
 from derender.engine.run import ArrayFrames, run
+from derender.hdr.probabilistic_variance import K_MODEL, K_PIPE, K_SPATIAL
 from derender.hdr.registry import record_values
 
 __all__ = [
@@ -165,6 +166,7 @@ __all__ = [
     "check_options",
     "ProbabilisticMethod",
     "log_product_moments",
+    "truncate_below_log",
 ]
 
 
@@ -256,6 +258,12 @@ def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
     return out_m, out_v
 
 
+def truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Log-space moments of N(mean, var) truncated below at ``bound`` (the merge's censoring; public
+    for :mod:`derender.hdr.probabilistic_variance`)."""
+    return _truncate_below_log(mean, var, bound)
+
+
 def as_model(model: Any):
     """A :class:`~derender.derendering.base.DerenderModel`: ``model`` itself, or loaded from its path."""
     from derender.derendering.base import DerenderModel, load_model
@@ -280,6 +288,10 @@ class ProbabilisticOptions:
     floor: float = 0.0
     clip_code: int = 245
     code_noise: float = CODE_NOISE
+    variance_model: str = "shared"
+    k_model: float = K_MODEL
+    k_pipe: float = K_PIPE
+    k_spatial: float = K_SPATIAL
 
 
 def probabilistic_engine(options: ProbabilisticOptions) -> "ProbabilisticMethod":
@@ -293,7 +305,8 @@ def probabilistic_engine(options: ProbabilisticOptions) -> "ProbabilisticMethod"
 
 def merge_probabilistic(stack: Stack, model: Any, *, target_time: float = 1.0, colour_space: str = "linear_srgb",
                         censor: bool = True, domain: str | None = None, floor: float = 0.0,
-                        clip_code: int = 245, code_noise: float = CODE_NOISE) -> HDRResult:
+                        clip_code: int = 245, code_noise: float = CODE_NOISE, variance_model: str = "shared",
+                        k_model: float = K_MODEL, k_pipe: float = K_PIPE, k_spatial: float = K_SPATIAL) -> HDRResult:
     """Probabilistic HDR merge (paper 2 eq. 3) with a de-rendering model; returns mean and variance.
 
     ``target_time`` is alpha_0 in seconds (the result is radiance x t_0); ``colour_space``
@@ -304,7 +317,12 @@ def merge_probabilistic(stack: Stack, model: Any, *, target_time: float = 1.0, c
     paper's eq. 3 with ``censor=False``; see the module docstring. ``clip_code``: codes at or above it are censored.
     ``code_noise``: per-pixel code standard deviation (8-bit codes) propagated through the
     model's curve into each observation's log variance (log space only; 0 = off).
-    The merge is deterministic (it takes no seed).
+    ``variance_model``: ``"shared"`` (default; log space) keeps the model's error shared across
+    frames and adds the frames' spread for pipeline changes and the spatial-mixing term,
+    ``k_model``, ``k_pipe`` and ``k_spatial`` weighting them
+    (:mod:`derender.hdr.probabilistic_variance`; ``info["variance_sources"]``);
+    ``"independent"`` is eq. 3's ``1 / sum p``. The radiance is the same for both. The merge is
+    deterministic (it takes no seed).
     """
     model = as_model(model)
     if stack.bit_depth == 16:
@@ -415,6 +433,13 @@ class ProbabilisticMethod(MethodDefaults):
         self.model = as_model(options.model)
         self.options = options
         self.domain, self.camera_to_srgb = check_options(self.model, options)
+        vm = options.variance_model
+        if vm not in ("shared", "independent"):
+            raise InputError(f"variance_model must be 'shared' or 'independent', got {vm!r}")
+        k_model, k_pipe, k_spatial = float(options.k_model), float(options.k_pipe), float(options.k_spatial)
+        if not all(np.isfinite(k) and k >= 0 for k in (k_model, k_pipe, k_spatial)):
+            raise InputError("k_model, k_pipe and k_spatial must be non-negative numbers")
+        self.shared = SharedVariance(k_model, k_pipe, k_spatial) if vm == "shared" else None
 
     def plan(self, access: FrameAccess) -> GaussianPlan:
         from derender.derendering.apply import ColourIndexBuilder
@@ -437,21 +462,38 @@ class ProbabilisticMethod(MethodDefaults):
         planes = _log_planes(self.model, colours, float(opts.floor), int(opts.clip_code),
                              opts.censor, code_noise=float(opts.code_noise),
                              threads=access.threads if compiled else 1, colour_major=fused)
+        shared = self.shared
+        if shared is not None:      # the model's log sd per colour (shared-error variance)
+            from derender.hdr.probabilistic_variance import add_spatial, fill_model_sd, shared_log_moments
+
+            planes = fill_model_sd(self.model, colours, planes, float(opts.floor), int(opts.clip_code),
+                                   opts.censor, fused, _compiled_tables(self.model, colours) if fused else None,
+                                   threads=access.threads)
         censor = bool(opts.censor)
         self.distinct = int(index.packed.shape[0])
         self.t_plan = t0
 
-        def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, extra=None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+            if extra is not None:        # shared-error variance, spatial term on the block's output
+                mean0, var0, terms = shared_log_moments(prec, acc, bound, extra, censor, shared.k_model,
+                                                        shared.k_pipe, _MAX_LOG, _MAX_V)
+                rad, var = finite_outputs(mean0, var0, a)
+                add_spatial(rad, var, terms, extra[4], shared.k_spatial, shared.floor_share)
+                return rad, var
             return finite_outputs(*log_product_moments(prec, acc, bound, censor), a)
 
         return GaussianPlan(planes=None if fused else planes, table=planes if fused else None, index=index,
                             log_scales=np.array([np.log(opts.target_time / t) for t in access.times]),
                             moments=moments, mask=saturation_mask,
-                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a))
+                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a), shared=shared)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         info = _info(self.options, self.domain, time.perf_counter() - self.t_plan)
         info["distinct_colours"] = self.distinct
+        info["variance_model"] = "shared" if self.shared is not None else "independent"
+        if self.shared is not None:
+            info.update(k_model=self.shared.k_model, k_pipe=self.shared.k_pipe, k_spatial=self.shared.k_spatial)
         result.info.update(info)
 
 

@@ -151,7 +151,7 @@ METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
                output_space=("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix (option "
                              "colour_space='camera_rgb' keeps camera RGB); scaled to exposure time 1 s")),
     MethodSpec("stabilized-probabilistic", f"{_BOTH}:merge_stabilized_probabilistic",
-               f"{_BOTH}:stabilized_probabilistic_engine", f"{_BOTH}:StabilizedProbabilisticOptions",
+               f"{_BOTH}:stabilized_probabilistic_engine", f"{_BOTH}:StabilizedProbabilisticOptions", gives_variance=True,
                output_space=_RENDERED + ", in the reference frame's white balance"),
 )}
 

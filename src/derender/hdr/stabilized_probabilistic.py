@@ -18,6 +18,22 @@ the bracket and read by the matrix kernel (``MatrixPlan.colour_weights``) with t
 as codes: the memory of a stabilised merge plus that table. The float reference engine
 (:func:`stabilized_probabilistic_stack`, for homography alignment or saturation below white)
 holds per-pixel float64 weights and float images (9 x 24 MP: ~12 GB).
+
+**Variance** (issue 29). The merge's error has the probabilistic merge's sources (the model's
+error shared by the frames that see a colour, the pixels' code noise, the pipeline's spatial
+mixing; :mod:`derender.hdr.probabilistic_variance`), with the pipeline changes between frames
+corrected by H_j. Its variance is paper 2's posterior's *relative* variance for the same pixel
+(the probabilistic merge of the same frames with the shared-error variance), times the
+stabilised radiance squared:
+
+    Var L_c = k_stab r_c L_c^2,     r_c = Var_p,c / (L_p,c + s mean_c L_p)^2,
+
+``L_p``, ``Var_p`` the probabilistic merge's radiance and variance, ``s`` its floor share (0.01,
+so a channel projected to 0 keeps a finite relative variance); ``k_stab`` (:data:`K_STAB`) chosen
+on the tuning families (``docs/uncertainty.md``). It costs a probabilistic merge on the held
+frames (measured in the docs); the engine keeps this method's outputs whole (``holds_outputs``)
+since the variance needs the merged radiance. Frames aligned by the engine take part only where
+valid (the probabilistic pass reads the frames without the stabiliser's shifts).
 """
 
 from __future__ import annotations
@@ -37,6 +53,8 @@ from derender.hdr.registry import record_values
 from derender.hdr.stabilize.method import StabilizedMethod, StabilizedOptions
 
 __all__ = [
+    "K_STAB",
+    "posterior_relative_variance",
     "colour_reliability",
     "colour_weight_table",
     "StabilizedProbabilisticMethod",
@@ -45,6 +63,43 @@ __all__ = [
     "merge_stabilized_probabilistic",
     "stabilized_probabilistic_stack",
 ]
+
+
+#: Scale of the probabilistic posterior's relative variance (tuning families; docs/uncertainty.md).
+K_STAB = 1.5
+
+
+def posterior_relative_variance(model, frames: np.ndarray, times: np.ndarray, threads: int | None = None,
+                                valid: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """Relative variance (H, W, 3) float64 of paper 2's posterior for held frames (N, H, W, 3) uint8
+    sorted by ``times``: the probabilistic merge (shared-error variance) of the same frames,
+    ``Var_p / (L_p + 0.01 mean_c L_p)^2`` (module docstring), and its ``variance_sources``."""
+    from derender.derendering.base import model_camera_to_srgb
+    from derender.engine.gaussian import merge_gaussian_frames
+    from derender.hdr.probabilistic import ProbabilisticMethod
+    from derender.hdr.registry import method_options
+
+    space = "linear_srgb" if model_camera_to_srgb(model) is not None else "camera_rgb"
+    method = ProbabilisticMethod(method_options("probabilistic", {"model": model, "colour_space": space}))
+    n, h, w = frames.shape[:3]
+    access = FrameAccess(times=np.asarray(times, dtype=np.float64), shape=(h, w), frames=frames, threads=threads,
+                         valid=valid, aligned=valid is not None)
+    plan = method.plan(access)
+    res = merge_gaussian_frames(frames, plan, threads=threads, valid=valid)
+    rad = res.radiance.astype(np.float64)
+    share = method.shared.floor_share if method.shared is not None else 0.01
+    den = rad + share * rad.mean(axis=-1, keepdims=True)
+    rel = res.variance.astype(np.float64) / np.maximum(den * den, 1e-300)
+    return np.where(np.isfinite(rel), rel, 1e6), res.info.get("variance_sources", {})
+
+
+def _with_variance(res: HDRResult, rel: np.ndarray, sources: dict) -> None:
+    """``res.variance = K_STAB rel L^2`` (float32, finite) and the sources in its info."""
+    big = np.finfo(np.float32).max / 4
+    lin = res.radiance.astype(np.float64)
+    res.variance = np.clip(np.nan_to_num(K_STAB * rel * lin * lin, nan=big, posinf=big), 0.0, big).astype(np.float32)
+    res.info["variance_sources"] = dict(sources)
+    res.info["variance_model"] = "probabilistic posterior's relative variance x stabilised radiance^2"
 
 
 def colour_reliability(model, colours: np.ndarray) -> np.ndarray:
@@ -90,6 +145,8 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
 
     def __init__(self, options: "StabilizedProbabilisticOptions"):
         self.model = as_model(options.model)
+        self.wants_variance = bool(options.variance)
+        self.holds_outputs = self.wants_variance      # finish() then reads the merged radiance
         # the stabilised merge's own defaults, without noise weighting: the model's variances replace it
         full = StabilizedOptions(reference=options.reference, align=options.align, seed=options.seed,
                                  noise_weighting=False)
@@ -104,6 +161,12 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         super().finish(result, access)
+        if self.wants_variance and result.radiance is not None and access.frames is not None:
+            t0 = time.perf_counter()
+            rel, sources = posterior_relative_variance(self.model, access.frames, access.times, access.threads,
+                                                       access.valid)
+            _with_variance(result, rel, sources)
+            result.info.setdefault("timings", {})["variance_s"] = time.perf_counter() - t0
         result.info.update({"model": getattr(self.model, "method", "?"), "noise_weighting": False,
                             "pixel_weights": "inverse relative variance of the model (per colour)"})
         result.info.setdefault("timings", {})["colour_weights_s"] = self.colour_s
@@ -117,6 +180,7 @@ class StabilizedProbabilisticOptions:
     reference: int | None = None
     align: str = "mtb"
     seed: int = 0
+    variance: bool = False
 
 
 def stabilized_probabilistic_engine(options: StabilizedProbabilisticOptions) -> StabilizedProbabilisticMethod:
@@ -125,7 +189,7 @@ def stabilized_probabilistic_engine(options: StabilizedProbabilisticOptions) -> 
 
 
 def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int | None = None, align: str = "mtb",
-                                   seed: int = 0) -> HDRResult:
+                                   seed: int = 0, variance: bool = False) -> HDRResult:
     """Both papers together: paper 1's stabilised merge weighted by paper 2's de-rendering variances.
 
     The stabilisation (reference, registration, gamma_j, H_j) is paper 1's; each image's
@@ -139,7 +203,9 @@ def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int |
     (:class:`StabilizedProbabilisticMethod`: the weight is a function of the pixel's colour,
     so one per-colour table replaces the per-pixel weights); others (``align="homography"``,
     saturation below white) on the float reference engine (:func:`stabilized_probabilistic_stack`),
-    the same numbers to 1e-5.
+    the same numbers to 1e-5. ``variance``: also give the per-pixel variance (paper 2's
+    posterior relative variance times the radiance squared, :func:`posterior_relative_variance`;
+    it costs a second, probabilistic pass over the frames).
     """
     model = as_model(model)
     if stack.bit_depth == 16:
@@ -150,13 +216,14 @@ def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int |
     try:
         res = run_stack(StabilizedProbabilisticMethod(record_values(StabilizedProbabilisticOptions, locals())), stack)
     except NotStreamable:
-        return stabilized_probabilistic_stack(stack, model, reference=reference, align=align, seed=seed)
+        return stabilized_probabilistic_stack(stack, model, reference=reference, align=align, seed=seed,
+                                              variance=variance)
     res.info["merge_seconds"] = time.perf_counter() - t0
     return res
 
 
-def stabilized_probabilistic_stack(stack: Stack, model: Any, reference: int | None = None, align: str = "mtb",
-                                   seed: int = 0) -> HDRResult:
+def stabilized_probabilistic_stack(stack: Stack, model: Any, *, reference: int | None = None, align: str = "mtb",
+                                   seed: int = 0, variance: bool = False) -> HDRResult:
     """:func:`merge_stabilized_probabilistic` on the float reference engine: :func:`stabilize`
     and :func:`~derender.hdr.stabilize.method.stabilized_merge` with per-pixel weights (N, H,
     W) float64 (any alignment; ~50 bytes per pixel and frame)."""
@@ -172,6 +239,9 @@ def stabilized_probabilistic_stack(stack: Stack, model: Any, reference: int | No
     for j in range(aligned.shape[0]):
         weights[j] = colour_reliability(model, aligned[j].reshape(-1, 3)).reshape(aligned.shape[1:3])
     res = stabilized_merge(stab, noise_weighting=False, pixel_weights=weights)
+    if variance:
+        rel, sources = posterior_relative_variance(model, stack.codes(), stack.times)
+        _with_variance(res, rel, sources)
     res.info.update({"method": "stabilized-probabilistic", "model": getattr(model, "method", "?"),
                      "merge_seconds": time.perf_counter() - t0, "engine_path": "stack"})
     return res

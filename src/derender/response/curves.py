@@ -266,9 +266,12 @@ def uniform_samples(cluster_codes: np.ndarray, n: int, clip_code: int = 250) -> 
     n_img, p, _ = c.shape
     c = c.reshape(n_img, p // 9, 9, 3)
     centre = c[:, :, 4, :]
-    nb = np.delete(c, 4, axis=2)
-    risky = (nb.max(axis=(2, 3)) >= clip_code) & (centre.max(axis=-1) < clip_code)     # (N, M)
-    worst = risky.sum(axis=0)
+    worst = np.zeros(p // 9, dtype=np.int64)
+    for j in range(n_img):      # one frame at a time: the temporaries stay one frame's size
+        top = c[j].max(axis=2)                                   # (M, 9) brightest channel per position
+        centre_top = top[:, 4].copy()
+        top[:, 4] = 0
+        worst += (top.max(axis=1) >= clip_code) & (centre_top < clip_code)
     ok = np.flatnonzero(worst == 0)
     need = max(1, int(n) // 4)
     if ok.size < need:
