@@ -100,12 +100,12 @@ def test_demo_runs_and_scores(tmp_path, capsys):
     names = [r["method"] for r in rows]
     from derender.hdr.registry import METHODS
 
-    assert names == ["raw-groundtruth (DNG)", "debevec", "robertson", "stabilized", "stabilized-joint",
-                     "probabilistic", "stabilized-probabilistic"]
-    assert set(names[1:]) == set(METHODS)                      # "every method" is every method
+    assert names[:2] == ["raw-groundtruth (DNG)", "debevec"]   # the ground truth, then the baseline
+    assert sorted(names[1:]) == sorted(METHODS)                # "every method" is every method, once
     for r in rows:
         assert all(np.isfinite(r[p]) for p in "RGBL")
         assert r["L"] > 30.0, r                                # against the simulator's exact radiance
-    assert rows[5]["calibration_seconds"] > 0 and (tmp_path / "demo" / "model-gp.npz").is_file()
+    assert next(r for r in rows if r["method"] == "probabilistic")["calibration_seconds"] > 0
+    assert (tmp_path / "demo" / "model-gp.npz").is_file()
     assert "calibrated" in e
     assert (tmp_path / "demo" / "merge-debevec.exr").is_file()

@@ -263,34 +263,47 @@ def merge_debevec(
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
-    ``curves`` (a :class:`~derender.response.curves.ResponseCurves`) skips the calibration
-    (which always uses the paper's hat weights). Merge defaults: eq. 6's log-domain
-    average, with a Gaussian weight shared by the three channels of a pixel (the mean of
-    the channel weights, as OpenCV's MergeDebevec shares them). ``weight="hat",
-    channel_weights="independent"`` is eq. 6 literally. Chosen by measurement (PSNR L vs
-    truth on simulator brackets 192x128, 7 exposures, seed 4; log-luminance correlation
-    with Debevec's memorial.hdr at half resolution):
+    The merge defaults are eq. 6's log-domain average with a Gaussian weight shared by the
+    three channels of a pixel (the mean of the channel weights, as OpenCV's MergeDebevec shares
+    them): a camera mixes channels (3x3 matrix), so a clipped or noisy sensor channel spoils the
+    other two, and the Gaussian weight trusts the toe and shoulder of the tone curve less than
+    the hat does (the measurements behind this choice: ``docs/paper1.md``, "Classic merges").
+    ``weight="hat", channel_weights="independent"`` is eq. 6 literally.
 
-    ======================  ==========  =========  ========
-    merge                   sim fixed   sim auto   Memorial
-    ======================  ==========  =========  ========
-    eq. 6 literal (hat)     38.0 dB     34.4 dB    0.985
-    hat, shared             39.6 dB     36.8 dB    0.986
-    gaussian, shared        41.7 dB     38.7 dB    0.995
-    linear domain, hat      41.6 dB     40.5 dB    0.810
-    OpenCV Calibrate+Merge  40.5 dB     36.5 dB    0.987
-    ======================  ==========  =========  ========
+    Parameters
+    ----------
+    stack : Stack
+        The bracket (8- or 16-bit images in [0, 1] and their exposure times).
+    curves : ResponseCurves, optional
+        Skip the calibration and merge with these curves (:class:`~derender.response.curves.ResponseCurves`,
+        e.g. a camera profile's).
+    lam, n_samples, sampling, seed, tie
+        The calibration (:func:`~derender.response.debevec1997.calibrate_debevec`, always with the
+        paper's hat weights): smoothness lambda, number of samples (``"grid"`` samples in
+        uniform regions, or ``"histogram"``), the grid's seed, the channel tie (None: the default).
+    weight, domain, channel_weights
+        The merge's weight (``"gaussian"``, ``"hat"``, ...), averaging domain (``"log"`` or
+        ``"linear"``) and how a pixel's channels share weights (``"mean"``, ``"independent"``,
+        ``"min"``).
+    block_rows : int, optional
+        The engine's row blocks.
+    engine : {"auto", "table", "reference"}
+        ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to the reference
+        to ~1e-6 relative), ``"table"`` insists on it, ``"reference"`` always uses
+        :func:`~derender.engine.reference.merge_linear`.
+    variance : bool
+        Also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`: noise,
+        quantisation, frame disagreement, shared model error; 8-bit stacks).
 
-    A camera mixes channels (3x3 matrix), so a clipped or noisy sensor channel spoils the
-    other two: shared weights avoid trusting them; the Gaussian weight trusts codes near
-    the ends of the range (toe and shoulder of the tone curve) less than the hat does.
+    Returns
+    -------
+    HDRResult
+        Radiance in the images' own linear RGB, relative units; ``info["curves"]`` the curves.
 
-    ``variance``: also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`:
-    noise, quantisation, frame disagreement, shared model error; 8-bit stacks).
-
-    ``engine``: ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to
-    the reference to ~1e-6 relative; ``block_rows`` then sets the engine's row blocks),
-    ``"table"`` insists on it, ``"reference"`` always uses :func:`merge_linear`.
+    References
+    ----------
+    P. E. Debevec, J. Malik, "Recovering high dynamic range radiance maps from photographs",
+    SIGGRAPH 1997, Sec. 2.1 and eq. 6. doi:10.1145/258734.258884
     """
     method = DebevecMethod(record_values(DebevecOptions, locals()))
     try:
@@ -326,11 +339,32 @@ def merge_robertson(
     ``sum w t I / sum w t^2`` with ``w`` the inverse variance of ``I(z)`` under a constant
     code noise, i.e. every frame's ``I(z_j) / t_j`` weighted by ``w(z_j) / g'(z_j)^2``
     (:func:`~derender.response.robertson2003.noise_weights`, the same weights as the
-    calibration), each channel with its own weight. The literal ``t^2``-weighted merge let
-    the longest frame's near-clipped codes decide: 33.7 dB PSNR L in ``derender demo``
-    against 47.8 dB now (debevec 47.4).
+    calibration), each channel with its own weight (the literal ``t^2``-weighted merge lets the
+    longest frame's near-clipped codes decide: ``docs/paper1.md``, "Classic merges").
 
-    ``engine`` and ``variance`` as in :func:`merge_debevec` (8-bit stacks run on the engine's tables by default).
+    Parameters
+    ----------
+    stack : Stack
+        The bracket.
+    curves : ResponseCurves, optional
+        Skip the calibration and merge with these curves.
+    n_iter, max_pixels, seed, tie
+        The calibration: iterations, pixels sampled (seeded), the channel tie (None: the default).
+    weight : str
+        The calibration's and the merge's level weight.
+    block_rows, engine, variance
+        As :func:`merge_debevec`.
+
+    Returns
+    -------
+    HDRResult
+        Radiance in the images' own linear RGB, relative units; ``info["curves"]`` the curves.
+
+    References
+    ----------
+    M. A. Robertson, S. Borman, R. L. Stevenson, "Estimation-theoretic approach to dynamic range
+    enhancement using multiple exposures", J. Electronic Imaging 12(2), 2003.
+    doi:10.1117/1.1557695
     """
     method = RobertsonMethod(record_values(RobertsonOptions, locals()))
     try:

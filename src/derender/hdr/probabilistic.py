@@ -309,20 +309,42 @@ def merge_probabilistic(stack: Stack, model: Any, *, target_time: float = 1.0, c
                         k_model: float = K_MODEL, k_pipe: float = K_PIPE, k_spatial: float = K_SPATIAL) -> HDRResult:
     """Probabilistic HDR merge (paper 2 eq. 3) with a de-rendering model; returns mean and variance.
 
-    ``target_time`` is alpha_0 in seconds (the result is radiance x t_0); ``colour_space``
-    is ``"linear_srgb"`` (needs the model's camera metadata) or ``"camera_rgb"``.
-    ``domain="log"`` (log-space product, per-channel censoring, joint weights, model-error
-    ``floor`` in log variance) or ``"linear"`` (raw-space product; with ``censor=False``
-    eq. 3 literally); ``None`` (default) means ``"log"`` with ``censor=True`` and the
-    paper's eq. 3 with ``censor=False``; see the module docstring. ``clip_code``: codes at or above it are censored.
-    ``code_noise``: per-pixel code standard deviation (8-bit codes) propagated through the
-    model's curve into each observation's log variance (log space only; 0 = off).
-    ``variance_model``: ``"shared"`` (default; log space) keeps the model's error shared across
-    frames and adds the frames' spread for pipeline changes and the spatial-mixing term,
-    ``k_model``, ``k_pipe`` and ``k_spatial`` weighting them
-    (:mod:`derender.hdr.probabilistic_variance`; ``info["variance_sources"]``);
-    ``"independent"`` is eq. 3's ``1 / sum p``. The radiance is the same for both. The merge is
-    deterministic (it takes no seed).
+    Parameters
+    ----------
+    stack : Stack
+        An 8-bit bracket.
+    model : DerenderModel or path
+        A de-rendering model (:func:`~derender.derendering.base.fit_model`, ``derender calibrate``).
+    target_time : float
+        alpha_0 in seconds: the result is radiance x t_0.
+    colour_space : {"linear_srgb", "camera_rgb"}
+        The output's space (linear sRGB needs the model's camera metadata).
+    censor : bool
+        Codes at or above ``clip_code`` are censored (a bound, not a value).
+    domain : {"log", "linear"} or None
+        ``"log"``: the log-space product (per-channel censoring, joint weights, model-error
+        ``floor`` in log variance); ``"linear"``: the raw-space product (with ``censor=False``
+        eq. 3 literally); None: ``"log"`` with ``censor=True``, eq. 3 with ``censor=False``
+        (module docstring).
+    floor, clip_code, code_noise
+        Model-error floor (log variance), the censoring code, and the per-pixel code standard
+        deviation propagated through the model's curve (log space only; 0 = off).
+    variance_model : {"shared", "independent"}
+        ``"shared"`` keeps the model's error shared across frames and adds the frames' spread
+        (pipeline changes) and the spatial-mixing term, weighted by ``k_model``, ``k_pipe`` and
+        ``k_spatial`` (:mod:`derender.hdr.probabilistic_variance`); ``"independent"`` is eq. 3's
+        ``1 / sum p``. The radiance is the same for both.
+
+    Returns
+    -------
+    HDRResult
+        Radiance and variance (finite, non-negative); ``info["variance_sources"]``. The merge is
+        deterministic (it takes no seed).
+
+    References
+    ----------
+    Y. Xiong, K. Saenko, T. Darrell, T. Zickler, "From pixels to physics: Probabilistic color
+    de-rendering", CVPR 2012, eq. 3 (``docs/paper2.md``).
     """
     model = as_model(model)
     if stack.bit_depth == 16:

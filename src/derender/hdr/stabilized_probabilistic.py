@@ -206,6 +206,20 @@ def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int |
     the same numbers to 1e-5. ``variance``: also give the per-pixel variance (paper 2's
     posterior relative variance times the radiance squared, :func:`posterior_relative_variance`;
     it costs a second, probabilistic pass over the frames).
+
+    Parameters
+    ----------
+    stack : Stack
+        An 8-bit bracket.
+    model : DerenderModel or path
+        A de-rendering model.
+    reference, align, seed
+        As :func:`~derender.hdr.stabilize.method.stabilize`.
+
+    Returns
+    -------
+    HDRResult
+        Radiance in the reference frame's linear rendering; with ``variance`` its variance.
     """
     model = as_model(model)
     if stack.bit_depth == 16:

@@ -378,17 +378,39 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb",
     """Paper 1, Algorithm 1 steps 1-3 (reference, registration, per-image linearisation and
     H_j), or the reference-free joint fit (``mode="joint"``).
 
-    ``response``: ``"power"`` -- paper 1's model, a display gamma per image
-    (:func:`estimate_gammas`; ``use_times=False`` estimates them blind); ``"curve"`` -- a
-    common non-parametric response (Debevec & Malik) with the per-image H_j on top
-    (:func:`curve_model`; for cameras whose tone curve is not a power law, e.g. film or
-    filmic picture styles); ``"auto"`` (default) -- the power model unless
-    :func:`power_law_plausible` rejects its gammas, then the curve model (the choice and
-    the gamma trend are in ``info``). ``gammas`` (display gammas, one per image) skips the
-    estimation. ``exposure_rounds`` (curve model; default
-    :data:`~derender.hdr.stabilize.filmic.CURVE_EXPOSURE_ROUNDS`): rounds of per-frame exposure
-    offsets re-estimated with the common curve (:func:`~derender.hdr.stabilize.filmic.unclipped_debevec`).
-    Randomness follows ``seed``.
+    Parameters
+    ----------
+    stack : Stack
+        The bracket.
+    reference : int, optional
+        The reference frame (index by exposure time); None: the best-exposed (paper 1's rule).
+    align : {"mtb", "homography", "none"}
+        Registration: Ward's median-threshold bitmaps (translation) or features (homography).
+    mode : {"reference", "joint"}
+        H_j to the reference frame, or all K_j fitted jointly to the bracket's average rendering.
+    response : {"auto", "power", "curve"}
+        ``"power"``: paper 1's model, a display gamma per image (:func:`estimate_gammas`);
+        ``"curve"``: a common non-parametric response (Debevec & Malik) with the per-image H_j
+        on top (:func:`curve_model`; tone curves that are not a power law); ``"auto"``: the power
+        model unless :func:`power_law_plausible` rejects its gammas (the choice and the gamma
+        trend are in ``info``).
+    gammas : sequence of float, optional
+        Display gammas, one per image: skips the estimation.
+    use_times : bool
+        False estimates the gammas blind (without the exposure times).
+    path, block, max_blocks, low, high, floor
+        The fitting path, the block size and number of blocks, and the code range the fits use.
+    ransac_iter, seed
+        RANSAC iterations of the H_j fits and the seed of every random step.
+    exposure_rounds : int, optional
+        Curve model: rounds of per-frame exposure offsets re-estimated with the common curve
+        (:func:`~derender.hdr.stabilize.filmic.unclipped_debevec`; default
+        :data:`~derender.hdr.stabilize.filmic.CURVE_EXPOSURE_ROUNDS`).
+
+    Returns
+    -------
+    Stabilization
+        The aligned frames, per-image linearisations, matrices and ``info``.
     """
     if not isinstance(stack, Stack):
         raise InputError(f"stabilize() needs a Stack, got {type(stack).__name__}")
@@ -633,12 +655,36 @@ def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str =
                      exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
-    The options are those of :func:`stabilize`; ``variance``: also give the per-pixel variance
-    (:mod:`derender.engine.variance`; engine path only).
 
     8-bit stacks with translation-only alignment run on the engine
     (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
-    reference engine (:func:`stabilize` + :func:`stabilized_merge`), same numbers to 1e-5."""
+    reference engine (:func:`stabilize` + :func:`stabilized_merge`), the same numbers to 1e-5.
+    :func:`merge_stabilized_joint` takes the same options.
+
+    Parameters
+    ----------
+    stack : Stack
+        The bracket.
+    reference, align, response, gammas, use_times, path, block, max_blocks, ransac_iter, seed, exposure_rounds
+        As :func:`stabilize`.
+    weight : str
+        The merge's weight (paper 1: ``"trapezoid"``).
+    noise_weighting : bool
+        Also weight each frame's estimate by its inverse variance for equal code noise,
+        ``t_j^2 / (dL_j/dJ)^2`` (:func:`stabilized_merge`).
+    variance : bool
+        Also give the per-pixel variance (:mod:`derender.engine.variance`; engine path only).
+
+    Returns
+    -------
+    HDRResult
+        Radiance in the reference frame's linear rendering (per second of its exposure);
+        ``info``: reference, gammas, matrices, alignment.
+
+    References
+    ----------
+    Paper 1 (``docs/paper1.md``): Algorithm 1, eqs. 4 and 9-10.
+    """
     return _merge_stabilized("stabilized", stack, record_values(StabilizedOptions, locals()))
 
 
