@@ -305,11 +305,11 @@ def test_compiled_log_tables_match_numpy(model_file):
     assert _compiled_tables(m, cols) is not None
     for censor, noise, per_channel in ((True, 2.0, True), (False, 0.0, True), (True, 0.0, False)):
         ref = np.concatenate([a.T for a in _log_tables(m, cols, 0.01, 245, censor, per_channel, noise)])
-        got = _log_planes(m, cols, 0.01, 245, censor, per_channel, code_noise=noise, threads=2, chunk=100)
+        got = _log_planes(m, cols, 0.01, 245, censor, per_channel=per_channel, code_noise=noise, threads=2, chunk=100)
         np.testing.assert_array_equal(np.isneginf(got), np.isneginf(ref))
         fin = np.isfinite(ref)
         np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-12, atol=0)
-        table = _log_planes(m, cols, 0.01, 245, censor, per_channel, code_noise=noise, colour_major=True)
+        table = _log_planes(m, cols, 0.01, 245, censor, per_channel=per_channel, code_noise=noise, colour_major=True)
         assert table.shape == (cols.shape[0], 8) and table.ctypes.data % 64 == 0
         from derender.engine.plans import GaussianPlan
 

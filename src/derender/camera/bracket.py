@@ -109,7 +109,7 @@ def bracket_times(camera_rgb_per_unit: np.ndarray, n: int, t_min: float = 1 / 20
 
 def simulate_bracket(
     camera: CameraSpectral | str = "nikon-d5100",
-    kind: str = "outdoor",
+    *, kind: str = "outdoor",
     size: tuple[int, int] = (384, 256),
     exposures: int = 9,
     pipeline: str = "auto",
@@ -305,8 +305,10 @@ def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_qua
     lum = bracket.params.get("luminance") or {}
     for j, t in enumerate(bracket.times):
         t_exif = float(lum["exif_times"][j]) if lum else float(t)
-        dng = write_dng(outdir / "raw" / f"{j:02d}.dng", bracket.mosaics[j], CFA_PATTERN, cam.black_level,
-                        cam.white_level, bracket.xyz_to_camera, neutral, t_exif, cam.make, cam.model, cam.bits)
+        dng = write_dng(outdir / "raw" / f"{j:02d}.dng", bracket.mosaics[j], cfa_pattern=CFA_PATTERN,
+                        black_level=cam.black_level, white_level=cam.white_level,
+                        xyz_to_camera=bracket.xyz_to_camera, as_shot_neutral=neutral, exposure_time=t_exif,
+                        make=cam.make, model=cam.model, bits=cam.bits)
         jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j],
                          t_exif, cam.make, cam.model, quality=jpeg_quality,
                          fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None)

@@ -40,7 +40,7 @@ def _srational_list(values) -> tuple[int, ...]:
     return tuple(out)
 
 
-def write_dng(path: str | os.PathLike, mosaic: np.ndarray, cfa_pattern: str, black_level: int,
+def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, cfa_pattern: str, black_level: int,
               white_level: int, xyz_to_camera: np.ndarray, as_shot_neutral: np.ndarray,
               exposure_time: float, make: str, model: str, bits: int = 14) -> Path:
     """Write ``mosaic`` (H, W) uint16 as an uncompressed single-IFD DNG, atomically."""

@@ -239,7 +239,7 @@ def truth_luminance_cd_m2(truth_linear_srgb: np.ndarray) -> np.ndarray:
     return SATURATION_EXPOSURE * (np.asarray(truth_linear_srgb, dtype=np.float64) @ LUMINANCE_WEIGHTS_REC709)
 
 
-def simulate_to_folder_cli(outdir, mode: str | None, render: str, size: tuple[int, int], exposures: int,
+def simulate_to_folder_cli(outdir, *, mode: str | None, render: str, size: tuple[int, int], exposures: int,
                            stops: float | None, seed: int, camera: Any, falloff: float | None) -> None:
     """``derender simulate OUTDIR --luminance MODE [--lens-falloff C]``: check the options, simulate, write."""
     from pathlib import Path

@@ -301,7 +301,7 @@ def exp_linearity(
     _ = LUMINANCE_MODES
     with OutputTransaction() as tx:
         json_tmp = tx.add(output, "--json", (".json",))
-        rows = linearity_experiment(split(renders), split(modes), seed_list, size=(w, h), exposures=exposures,
+        rows = linearity_experiment(split(renders), modes=split(modes), seeds=seed_list, size=(w, h), exposures=exposures,
                                     methods=split(methods), n_train=n_train, progress=lambda msg: console().print(msg))
         if json_tmp is not None:
             json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")

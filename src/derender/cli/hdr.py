@@ -89,8 +89,9 @@ def simulate(
     if luminance is not None or lens_falloff is not None:
         from derender.camera.luminance import simulate_to_folder_cli
 
-        simulate_to_folder_cli(outdir, luminance, render, (w, h), exposures, stops, seed,
-                               load_camera_cli(camera, camera_file).with_bits(bits), lens_falloff)
+        simulate_to_folder_cli(outdir, mode=luminance, render=render, size=(w, h), exposures=exposures,
+                               stops=stops, seed=seed, camera=load_camera_cli(camera, camera_file).with_bits(bits),
+                               falloff=lens_falloff)
         return
     check_choice("--pipeline", pipeline, ("fixed", "auto"))
     from derender.camera.families import FAMILIES

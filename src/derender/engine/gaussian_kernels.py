@@ -63,6 +63,7 @@ __all__ = ["NBINS", "gaussian_variance_band", "model_sd_rows"]
 NBINS = 50
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def model_sd_rows(colours, s0, s1, tab_lv, tab_mu, lut_lo, lut_w, eps, floor, clip_code, censor, per_channel,
                   max_log, table):  # pragma: no cover - compiled
@@ -125,6 +126,7 @@ def _truncated(m, v, bd, max_log):  # pragma: no cover - compiled
     return om, ov
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def _spatial_row(r, y, nr, w, row0, lf, b3, radiance, variance, k_spatial, big, hist):  # pragma: no cover
     """Add the spatial-mixing term to output row ``y`` (band row ``r``) from the floored log
@@ -175,6 +177,7 @@ def _spatial_row(r, y, nr, w, row0, lf, b3, radiance, variance, k_spatial, big, 
                 hist[y, 3, min(int(sh_s * nb), nb - 1)] += 1
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def gaussian_variance_band(frames, valid, lut, table, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
                            row0, radiance, variance, k_model, k_pipe, k_spatial, floor_share,

@@ -36,6 +36,7 @@ def _interval_gap(lo_j, hi_j, lo_r, hi_r):  # pragma: no cover - compiled
     return 0.0
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, edge_shift, cap, ok, out):  # pragma: no cover - compiled
     """Per pixel of the detection grid, :mod:`derender.engine.deghost`'s ``min(Q, cap)`` of frame j

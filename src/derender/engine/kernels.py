@@ -40,6 +40,7 @@ __all__ = [
 MERGE_TILE = 256
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_rows(frames, shifts, valid, ref, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
                           colour_w, use_colour_w, j_short, j_long, bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
@@ -226,6 +227,7 @@ def _shift_words(src, shift, dst):  # pragma: no cover - compiled
             dst[k] = (lo >> r) | (hi << (np.uint64(64) - r))
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True)
 def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margin, cand_y, cand_x,
                     out):  # pragma: no cover - compiled
@@ -291,6 +293,7 @@ def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margi
                 out[c, 1] += np.int64(nb)
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def table_merge_rows(frames, valid, ref, order, values, weights, independent, log_domain, v_short, v_long, j_short,
                      j_long, bright, y0, y1, row0, out, mask):  # pragma: no cover - compiled
@@ -420,6 +423,7 @@ def table_merge_rows(frames, valid, ref, order, values, weights, independent, lo
                 mask[y, x] = 1 if nb else (2 if ndk else 0)
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True)
 def gaussian_band(frames, valid, lut, planes, log_scales, y0, y1, prec, acc, bound):  # pragma: no cover - compiled
     """Rows ``y0:y1`` of the log-space Gaussian product (:class:`derender.engine.gaussian.LogGaussianProduct`)
@@ -468,6 +472,7 @@ def _ndtr(a):  # pragma: no cover - compiled
     return 1.0 - y if x > 0.0 else y
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor, max_log, max_v, a, use_a,
                           row0, radiance, variance):  # pragma: no cover - compiled
@@ -590,6 +595,7 @@ def _log_median(m, eps, max_log):  # pragma: no cover - compiled
     return math.log(max(math.exp(m) - eps, 1e-30))
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def log_tables_rows(colours, s0, s1, tab_mu, tab_lv, lut_lo, lut_w, eps, floor, clip_code, censor, per_channel,
                     code_noise, step, bound_sigmas, max_log, planes, colour_major):  # pragma: no cover - compiled

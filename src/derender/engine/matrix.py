@@ -75,7 +75,7 @@ def warm_up_kernels() -> threading.Thread:
     return th
 
 
-def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray, valid: np.ndarray | None = None,
+def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray, *, valid: np.ndarray | None = None,
                         threads: int | None = None, buffer: np.ndarray | None = None, write=None,
                         ring: int = 0, ref: int = -1) -> HDRResult:
     """Run a :class:`~derender.engine.plans.MatrixPlan` on held frames (N, H, W, 3) uint8.

@@ -38,7 +38,7 @@ def _table_kernel_tables(plan: TablePlan, n: int) -> tuple[np.ndarray, np.ndarra
 
 
 def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], threads: int | None,
-                        bright_threshold: float = 0.5, write=None, ring: int = 0,
+                        *, bright_threshold: float = 0.5, write=None, ring: int = 0,
                         valid: np.ndarray | None = None, ref: int = -1) -> HDRResult:
     """A table plan (modes ``"mean"`` / ``"independent"``) on held frames with the compiled
     kernel :func:`derender.engine.kernels.table_merge_rows`: the numbers of

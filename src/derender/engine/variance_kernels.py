@@ -41,6 +41,7 @@ def _acc(vs, c, t, wc, uc, nq, q, split):  # pragma: no cover - compiled
         vs[5, c, t] += ww * q
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(inline="always")
 def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover - compiled
     """(noise, quant, disagreement, shared) variance of a merged value ``m`` (radiance) from its sums."""
@@ -57,6 +58,7 @@ def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover -
     return vn, vq, vd, k[2] * m * m
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def table_merge_var_rows(frames, valid, ref, order, values, weights, independent, log_domain, v_short, v_long,
                          j_short, j_long, bright, y0, y1, row0, out, mask, tn, tq, k, var, parts,
@@ -203,6 +205,7 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                 mask[y, x] = 1 if nb else (2 if ndk else 0)
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
                               colour_w, use_colour_w, j_short, j_long, bright, y0, y1, row0, out, mask, tn, tq, k, var,
@@ -397,6 +400,7 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     _store(var, parts, y, row0, x, c, pn, pq, k[3] * m * m, k[2] * m * m, stride, big)
 
 
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(inline="always")
 def _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big):  # pragma: no cover - compiled
     tot = pn + pq + pd + ps

@@ -70,7 +70,7 @@ def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], 
 
 
 def linearity_experiment(renders: Sequence[str] = ("gamma", "paper", "camera", "dslr-lut", "phone-local", "drift"),
-                         modes: Sequence[str] = ("time",), seeds: Sequence[int] = (0,),
+                         *, modes: Sequence[str] = ("time",), seeds: Sequence[int] = (0,),
                          size: tuple[int, int] = (192, 128), exposures: int = 9,
                          methods: Sequence[str] = LINEARITY_METHODS, camera: str = "nikon-d5100",
                          n_train: int = 5000, progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:

@@ -498,8 +498,9 @@ class ProbabilisticMethod(MethodDefaults):
         def moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, extra=None
                     ) -> tuple[np.ndarray, np.ndarray]:
             if extra is not None:        # shared-error variance, spatial term on the block's output
-                mean0, var0, terms = shared_log_moments(prec, acc, bound, extra, censor, shared.k_model,
-                                                        shared.k_pipe, _MAX_LOG, _MAX_V)
+                mean0, var0, terms = shared_log_moments(prec, acc, bound, extra, censor=censor,
+                                                        k_model=shared.k_model, k_pipe=shared.k_pipe,
+                                                        max_log=_MAX_LOG, max_v=_MAX_V)
                 rad, var = finite_outputs(mean0, var0, a)
                 add_spatial(rad, var, terms, extra[4], shared.k_spatial, shared.floor_share)
                 return rad, var
@@ -639,7 +640,7 @@ def _compiled_tables(model, colours: np.ndarray) -> tuple | None:
 
 
 def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool,
-                per_channel: bool = True, chunk: int = 1 << 18, code_noise: float = 0.0,
+                *, per_channel: bool = True, chunk: int = 1 << 18, code_noise: float = 0.0,
                 threads: int | None = 1, colour_major: bool = False) -> np.ndarray:
     """:func:`_log_tables` as contiguous (9, M) planes ``[lg; p; low]`` for :meth:`_LogProduct.add_rows`,
     computed ``chunk`` colours at a time (72 bytes per colour, temporaries bounded), after the

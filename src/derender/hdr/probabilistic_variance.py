@@ -70,7 +70,7 @@ def model_sd(model, colours: np.ndarray, floor: float, clip_code: int, censor: b
 
 
 def fill_model_sd(model, colours: np.ndarray, planes: np.ndarray, floor: float, clip_code: int, censor: bool,
-                  colour_major: bool, compiled: tuple | None, threads: int | None = 1) -> np.ndarray:
+                  colour_major: bool, compiled: tuple | None, *, threads: int | None = 1) -> np.ndarray:
     """The model's log sd per colour into the probabilistic merge's planes: column 7 of the
     colour-major (M, 8) table (compiled :func:`~derender.engine.gaussian_kernels.model_sd_rows`
     on the GP's interpolation table, in ``threads`` threads), or two more rows ``[sm; vn]`` of
@@ -151,7 +151,7 @@ def add_spatial(radiance: np.ndarray, variance: np.ndarray, terms: np.ndarray, h
         np.add.at(hist[:, q, :], (rows, np.minimum((sh[has] * nb).astype(np.int64), nb - 1)), 1)
 
 
-def shared_log_moments(prec, acc, bound, extra, censor: bool, k_model: float, k_pipe: float,
+def shared_log_moments(prec, acc, bound, extra, *, censor: bool, k_model: float, k_pipe: float,
                        max_log: float, max_v: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera-RGB mean (eq. 3's, as :func:`~derender.hdr.probabilistic.log_product_moments`) and
     the shared-error variance (module docstring) (..., 3) from the log-space sums (3, ...) and

@@ -179,7 +179,7 @@ def _zip_chunk(raw: np.ndarray, deflate: Callable[[bytes], bytes]):
     return comp if len(comp) < n else raw
 
 
-def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = False,
+def write_exr_fast(path: str | os.PathLike, image: np.ndarray, *, half: bool = False,
                    inputs: Iterable[str | os.PathLike] = (), compression: str = "zip", level: int = 1,
                    threads: int | None = None, probe: int = 16, min_saving: float = 0.1,
                    attributes: dict[str, str] | None = None) -> Path:
@@ -214,7 +214,7 @@ def write_exr_fast(path: str | os.PathLike, image: np.ndarray, half: bool = Fals
 
 
 def write_exr_lines(path: str | os.PathLike, width: int, height: int,
-                    lines: Callable[[int, int, np.ndarray], None], half: bool = False,
+                    lines: Callable[[int, int, np.ndarray], None], *, half: bool = False,
                     inputs: Iterable[str | os.PathLike] = (), compression: str = "zip", level: int = 1,
                     threads: int | None = None, probe: int = 16, min_saving: float = 0.1,
                     rows_read: Callable[[int], None] | None = None,
