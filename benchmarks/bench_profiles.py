@@ -22,7 +22,6 @@ import argparse
 import shutil
 import sys
 import tempfile
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -35,18 +34,10 @@ PAIRS = [(7, 11, "outdoor", "indoor"), (21, 21, "outdoor", "indoor"), (22, 22, "
 
 
 def write_jpeg(path: Path, codes: np.ndarray, t: float, n: float, iso: int) -> Path:
-    from PIL import Image, TiffImagePlugin
+    """A JPEG with EXIF time, f-number and ISO (derender's own writer)."""
+    from derender.camera import write_jpeg as write
 
-    ex = Image.Exif()
-    ex[0x010F], ex[0x0110] = "Test", "Camera"
-    sub = ex.get_ifd(0x8769)
-    f = Fraction(t).limit_denominator(1 << 30)
-    sub[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
-    g = Fraction(n).limit_denominator(1000)
-    sub[0x829D] = TiffImagePlugin.IFDRational(g.numerator, g.denominator)
-    sub[0x8827] = iso
-    Image.fromarray(codes).save(path, format="JPEG", quality=95, exif=ex.tobytes())
-    return path
+    return write(path, codes, t, "Test", "Camera", quality=95, fnumber=n, iso=iso)
 
 
 def bracket(folder: Path, family: str, seed: int, kind: str, vary: bool):

@@ -34,3 +34,23 @@ def write_png_codes(path: Path, codes: np.ndarray) -> Path:
     arr = codes[..., ::-1] if codes.ndim == 3 and codes.shape[2] == 3 else codes
     assert cv2.imwrite(str(path), np.ascontiguousarray(arr))
     return path
+
+
+def write_exif_jpeg(path: Path, codes: np.ndarray, t: float, n: float, iso: int, model: str = "Camera") -> Path:
+    """A JPEG with EXIF Make "Test", Model, ExposureTime ``t``, FNumber ``n`` and ISOSpeedRatings
+    ``iso``, written with Pillow directly (independent of derender's own writer, so that tests of
+    derender's EXIF reading do not read what derender wrote)."""
+    from fractions import Fraction
+
+    from PIL import Image, TiffImagePlugin
+
+    ex = Image.Exif()
+    ex[0x010F], ex[0x0110] = "Test", model
+    sub = ex.get_ifd(0x8769)
+    f = Fraction(t).limit_denominator(1 << 30)
+    sub[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
+    g = Fraction(n).limit_denominator(1000)
+    sub[0x829D] = TiffImagePlugin.IFDRational(g.numerator, g.denominator)
+    sub[0x8827] = iso
+    Image.fromarray(codes).save(path, format="JPEG", quality=95, exif=ex.tobytes())
+    return path

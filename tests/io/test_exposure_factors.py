@@ -7,28 +7,9 @@ exposure ``t S / N^2``; both must read as the same relative exposures and merge 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-from helpers import run_cli
-
-
-def _write(path: Path, codes: np.ndarray, t: float, n: float, iso: int) -> Path:
-    from fractions import Fraction
-
-    from PIL import Image, TiffImagePlugin
-
-    ex = Image.Exif()
-    ex[0x010F], ex[0x0110] = "Test", "Camera"
-    sub = ex.get_ifd(0x8769)
-    f = Fraction(t).limit_denominator(1 << 30)
-    sub[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
-    g = Fraction(n).limit_denominator(1000)
-    sub[0x829D] = TiffImagePlugin.IFDRational(g.numerator, g.denominator)
-    sub[0x8827] = iso
-    Image.fromarray(codes).save(path, format="JPEG", quality=95, exif=ex.tobytes())
-    return path
+from helpers import run_cli, write_exif_jpeg
 
 
 def _two_labellings(tmp_path):
@@ -41,10 +22,10 @@ def _two_labellings(tmp_path):
     isos = [100, 400, 100, 200, 800]
     a, c = [], []
     for j, (codes, t) in enumerate(zip(b.jpeg_codes, b.times)):
-        a.append(_write(tmp_path / "a" / f"{j:02d}.jpg", codes, float(t), 5.6, 100))
+        a.append(write_exif_jpeg(tmp_path / "a" / f"{j:02d}.jpg", codes, float(t), 5.6, 100))
         # the same exposure t S / N^2 as frame j at f/5.6 and ISO 100
         t_label = float(t) * (apertures[j] / 5.6) ** 2 * (100 / isos[j])
-        c.append(_write(tmp_path / "b" / f"{j:02d}.jpg", codes, t_label, apertures[j], isos[j]))
+        c.append(write_exif_jpeg(tmp_path / "b" / f"{j:02d}.jpg", codes, t_label, apertures[j], isos[j]))
     return b, a, c
 
 

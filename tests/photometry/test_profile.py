@@ -16,28 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import run_cli, write_exif_jpeg
 
 TRUTH_SCALE = 317.0
 APERTURES = [16.0, 5.6, 2.8, 8.0, 4.0, 11.0, 5.6]
 ISOS = [400, 100, 100, 200, 800, 1600, 200]
-
-
-def _write(path: Path, codes: np.ndarray, t: float, n: float, iso: int, model: str = "Camera") -> Path:
-    from fractions import Fraction
-
-    from PIL import Image, TiffImagePlugin
-
-    ex = Image.Exif()
-    ex[0x010F], ex[0x0110] = "Test", model
-    sub = ex.get_ifd(0x8769)
-    f = Fraction(t).limit_denominator(1 << 30)
-    sub[0x829A] = TiffImagePlugin.IFDRational(f.numerator, f.denominator)
-    g = Fraction(n).limit_denominator(1000)
-    sub[0x829D] = TiffImagePlugin.IFDRational(g.numerator, g.denominator)
-    sub[0x8827] = iso
-    Image.fromarray(codes).save(path, format="JPEG", quality=95, exif=ex.tobytes())
-    return path
 
 
 def _bracket(folder: Path, seed: int, kind: str, vary: bool, model: str = "Camera"):
@@ -49,7 +32,7 @@ def _bracket(folder: Path, seed: int, kind: str, vary: bool, model: str = "Camer
     for j, (codes, t) in enumerate(zip(b.jpeg_codes, b.times)):
         n, s = (APERTURES[j], ISOS[j]) if vary else (5.6, 100)
         t_label = float(t) * (n / 5.6) ** 2 * (100 / s)        # the same t S / N^2 as at f/5.6, ISO 100
-        files.append(_write(folder / f"{j:02d}.jpg", codes, t_label, n, s, model))
+        files.append(write_exif_jpeg(folder / f"{j:02d}.jpg", codes, t_label, n, s, model))
     return b, files
 
 
@@ -303,7 +286,7 @@ def test_factor_transfer_is_exact_across_aperture_and_iso(brackets, tmp_path, ca
         assert run_cli(["merge", *fa, "-o", tmp_path / "a.exr", "--method", method, "--spot", _spot(ba),
                         "--save-profile", prof], capsys)[0] == 0
     (tmp_path / "same").mkdir()
-    same = [_write(tmp_path / "same" / f"{j:02d}.jpg", c, float(t), 5.6, 100)
+    same = [write_exif_jpeg(tmp_path / "same" / f"{j:02d}.jpg", c, float(t), 5.6, 100)
             for j, (c, t) in enumerate(zip(bb.jpeg_codes, bb.times))]
     for name, files in (("same", same), ("vary", fb)):
         code, _, err = run_cli(["merge", *files, "-o", tmp_path / f"{name}.exr", "--method", method,
