@@ -67,15 +67,12 @@ def bracket(render: str, seed: int, size, exposures: int, work: Path, fisheye: b
 
 
 def evaluate(render: str, seed: int, args, work: Path, hdrgen: str | None, why: str) -> list[dict]:
-    import inspect
-
     from derender.camera.luminance import TUNING_RENDERS, truth_luminance_cd_m2
     from derender.core.types import Stack
     from derender.evaluation.families import smooth_mask
     from derender.evaluation.linearity import linearity_scores, render_chart_model
-    from derender.hdr.registry import MERGE_METHODS, load_plugins, merge_seeded
+    from derender.hdr.registry import merge_seeded, method_spec
 
-    load_plugins()
     b, jpegs = bracket(render, seed, args.size, args.exposures, work)
     lt = truth_luminance_cd_m2(b.truth_linear_srgb)
     smooth = smooth_mask(b.truth_linear_srgb)
@@ -85,7 +82,7 @@ def evaluate(render: str, seed: int, args, work: Path, hdrgen: str | None, why: 
     rows, mask = [], None
     for m in args.methods:
         opts = ({"model": render_chart_model("nikon-d5100", render, args.n_train)}
-                if "model" in inspect.signature(MERGE_METHODS[m]).parameters else {})
+                if method_spec(m).needs_model else {})
         res = merge_seeded(stack, m, seed, **opts)
         mask = res.mask if mask is None else mask
         rows.append({"render": render, "role": role, "seed": seed, "method": m}
