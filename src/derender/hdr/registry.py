@@ -354,19 +354,7 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     motion, options = split_motion(method, options)
     if motion is not None:
         return _merge_motion(stack, method, fn, motion, options)
-    try:
-        inspect.signature(fn).bind(stack, **options)
-    except TypeError:
-        sig = inspect.signature(fn).parameters
-        params = [p for p in sig][1:]
-        bad = [k for k in options if k not in params]
-        missing = [k for k in params if sig[k].default is inspect.Parameter.empty and k not in options]
-        if not bad and missing:
-            raise InputError(_missing_message(method, missing)) from None
-        raise InputError(
-            f"merge method {method!r} does not accept option(s) {', '.join(bad) or '?'}; "
-            f"accepted: {', '.join(params)}"
-        ) from None
+    method_options(method, options)          # unknown or missing options: one error listing them
     return fn(stack, **options)
 
 
