@@ -27,11 +27,12 @@ alike, so the two give the same numbers by construction:
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -132,8 +133,6 @@ class ArrayFrames:
         return self.codes[j]
 
     def read_all(self, threads: int | None, derive=None, derive_alloc=None) -> tuple[np.ndarray, np.ndarray | None]:
-        if self.n < 2:
-            raise StackError("an exposure stack needs at least two images")
         frames = np.ascontiguousarray(self.codes)
         planes = None
         if derive is not None:
@@ -165,17 +164,65 @@ def frame_brightness(codes: np.ndarray) -> float:
     return float(codes[::8, ::8].mean())
 
 
+class _FirstPass:
+    """The first pass of a streamed method, frame by frame (both streamed paths): the codes at
+    the method's sample positions, the histograms it wants, the frames' brightness for the
+    order check and the clipped pixels of the shortest exposure; :meth:`plan` then makes the
+    method's :class:`TablePlan`."""
+
+    def __init__(self, method: EngineMethod, source, order_hint: str | None):
+        self.method, self.source, self.order_hint = method, source, order_hint
+        n = source.n
+        self.shape: tuple | None = None
+        self.samples = self.positions = None
+        self.hists = np.zeros((n, 3, N_CODES), dtype=np.int64) if method.wants_histograms else None
+        self.brightness = np.zeros(n)
+        self.n_clipped = 0
+
+    def add(self, j: int, codes: np.ndarray) -> None:
+        """Read frame ``j`` (any order; the first one read sets the shape)."""
+        if self.shape is None:
+            self.shape = codes.shape
+            self.positions = self.method.sample_positions(*codes.shape[:2])
+            if self.positions is not None:
+                size = self.positions[0].size
+                self.samples = np.empty((self.source.n, size, 3), dtype=_sample_dtype(self.method))
+        elif codes.shape != self.shape:
+            raise _size_error(self.source, self.shape, j, codes.shape)
+        if self.samples is not None:
+            self.samples[j] = codes[self.positions]
+        if j == 0:
+            self.n_clipped = clipped_pixels(codes)
+        if self.order_hint is not None:
+            self.brightness[j] = frame_brightness(codes)
+        if self.hists is not None:
+            self.hists[j] = code_histograms(codes)
+
+    def plan(self, histogram_fn: Callable[[], np.ndarray], threads: int | None) -> tuple[FrameAccess, TablePlan]:
+        """The order check, then the method's plan from what the pass read (``histogram_fn``
+        gives the histograms the pass did not keep)."""
+        source, n = self.source, self.source.n
+        if self.order_hint is not None:
+            check_brightness_order(source.times, self.brightness, [source.name(j) for j in range(n)],
+                                   self.order_hint)
+        hists = self.hists
+        access = FrameAccess(times=source.times, shape=self.shape[:2], samples=self.samples, threads=threads,
+                             histogram_fn=(lambda: hists) if hists is not None else histogram_fn)
+        plan = self.method.plan(access)
+        if not isinstance(plan, TablePlan):
+            raise TypeError(f"a streamed method must return a TablePlan, {self.method.name} returned "
+                            f"{type(plan).__name__}")
+        return access, plan
+
+
 def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_hint: str | None,
                        write=None, ring: int = 0) -> HDRResult:
     """A streamed method's merge when the bracket's codes fit in memory: every frame decoded
-    once into one (N, H, W, 3) array, the calibration samples (and histograms) read from it,
-    and the merge in one compiled pass per pixel (:func:`table_kernel_merge`) from
+    once into one (N, H, W, 3) array, the first pass read from it (:class:`_FirstPass`), and
+    the merge in one compiled pass per pixel (:func:`table_kernel_merge`) from
     :data:`KERNEL_MIN_PIXEL_FRAMES` on; smaller brackets, and modes the kernel lacks, run
     :class:`TableMerge` on the held frames. Same numbers as the two-pass stream."""
     n = source.n
-    if n < 2:
-        raise StackError("an exposure stack needs at least two images")
-    t = source.times
     t0 = time.perf_counter()
     px = (source.infos[0].width * source.infos[0].height if isinstance(source, FileFrames)
           else int(np.prod(source.codes.shape[1:3])))
@@ -184,22 +231,11 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
         warm_up_kernel("table")
     frames, _ = source.read_all(threads)
     h, w = frames.shape[1:3]
-    n_clipped = clipped_pixels(frames[0])
-    if order_hint is not None:
-        check_brightness_order(t, [frame_brightness(f) for f in frames], [source.name(j) for j in range(n)], order_hint)
-    samples = None
-    pos = method.sample_positions(h, w)
-    if pos is not None:
-        ys, xs = pos
-        samples = np.empty((n, ys.size, 3), dtype=_sample_dtype(method))
-        for j in range(n):
-            samples[j] = frames[j][ys, xs]
+    first = _FirstPass(method, source, order_hint)
+    for j in range(n):
+        first.add(j, frames[j])
     t1 = time.perf_counter()
-    access = FrameAccess(times=t, shape=(h, w), samples=samples, threads=threads,
-                         histogram_fn=lambda: np.stack([code_histograms(f) for f in frames]))
-    plan = method.plan(access)
-    if not isinstance(plan, TablePlan):
-        raise TypeError(f"a streamed method must return a TablePlan, {method.name} returned {type(plan).__name__}")
+    access, plan = first.plan(lambda: np.stack([code_histograms(f) for f in frames]), threads)
     t2 = time.perf_counter()
     order = list(range(n - 1, -1, -1))      # the stream's order: longest exposure first
     if plan.variance is not None and plan.channel_weights not in ("mean", "independent"):
@@ -219,7 +255,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
                                                "finish_s": 0.0})
     res.info.update({"merge_seconds": t3 - t2,
                      "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0},
-                     "n_clipped": n_clipped})
+                     "n_clipped": first.n_clipped})
     method.finish(res, access)
     return res
 
@@ -250,61 +286,34 @@ def _hold(source, keep_frames: int | None, hold_bytes: int) -> bool:
 
 def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames: int | None,
                   keep_bytes: int, order_hint: str | None = None) -> HDRResult:
+    """A streamed method's merge in two passes: the first (:class:`_FirstPass`) keeps
+    ``keep_frames`` frames (default: as many as fit in ``keep_bytes``), the second decodes the
+    others again and adds every frame to a :class:`TableMerge`."""
     n = source.n
-    if n < 2:
-        raise StackError("an exposure stack needs at least two images")
-    t = source.times
     t0 = time.perf_counter()
-    shape = None
-    samples = None
-    hists = np.zeros((n, 3, N_CODES), dtype=np.int64) if method.wants_histograms else None
     kept: dict[int, np.ndarray] = {}
     keep = keep_frames
-    ys = xs = None
     nthreads = thread_count(threads)
     pool = FramePool()
-    brightness = np.zeros(n)
+    first = _FirstPass(method, source, order_hint)
     for j, codes in enumerate(prefetch(lambda i: source.read(i, out=pool.get()), range(n), depth=nthreads,
                                        workers=nthreads)):
-        if shape is None:
-            shape = pool.shape = codes.shape
-            h, w = shape[:2]
+        if first.shape is None:
+            pool.shape = codes.shape
             if keep is None:
                 keep = int(keep_bytes // max(codes.nbytes, 1))
             keep = int(min(max(keep, 1), n))
-            pos = method.sample_positions(h, w)
-            if pos is not None:
-                ys, xs = pos
-                samples = np.empty((n, ys.size, 3), dtype=_sample_dtype(method))
-        elif codes.shape != shape:
-            raise _size_error(source, shape, j, codes.shape)
-        if samples is not None:
-            samples[j] = codes[ys, xs]
-        if j == 0:
-            n_clipped = clipped_pixels(codes)
-        if order_hint is not None:
-            brightness[j] = frame_brightness(codes)
-        if hists is not None:
-            hists[j] = code_histograms(codes)
+        first.add(j, codes)
         if j >= n - keep:
             kept[j] = codes
         else:
             pool.put(codes)
         del codes
     t1 = time.perf_counter()
-    if order_hint is not None:
-        check_brightness_order(t, brightness, [source.name(j) for j in range(n)], order_hint)
-
-    def histograms() -> np.ndarray:
-        if hists is not None:
-            return hists
-        return np.stack([code_histograms(kept[j] if j in kept else source.read(j)) for j in range(n)])
-
-    access = FrameAccess(times=t, shape=shape[:2], samples=samples, histogram_fn=histograms, threads=threads)
-    plan = method.plan(access)
-    if not isinstance(plan, TablePlan):
-        raise TypeError(f"a streamed method must return a TablePlan, {method.name} returned {type(plan).__name__}")
+    access, plan = first.plan(lambda: np.stack([code_histograms(kept[j] if j in kept else source.read(j))
+                                                for j in range(n)]), threads)
     t2 = time.perf_counter()
+    shape = first.shape
     h, w = shape[:2]
     order = list(range(n - 1, -1, -1))      # longest exposure first: kept frames need no decoding
     long_codes = short_codes = None
@@ -334,7 +343,7 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
         "merge_seconds": t4 - t2,
         "timings": {"pass1_s": t1 - t0, "calibrate_s": t2 - t1, "merge_s": t3 - t2, "finish_s": t4 - t3},
         "streaming": {"frames_kept": keep, "decodes": n + n - keep},
-        "n_clipped": n_clipped,
+        "n_clipped": first.n_clipped,
     })
     method.finish(res, access)
     return res
@@ -444,6 +453,39 @@ def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, hal
                     rows_read=None if ring is None else (lambda y: ring.read(k, y)), attributes=exr_attributes(res.info))
 
 
+def _write_while_merging(res: HDRResult, done: RowsDone, *, output, variance_output, half: bool, compression: str,
+                         inputs: list, threads: int | None) -> None:
+    """The writer a compiled merge runs in a thread (``write(result, rows_done)``): the radiance
+    to ``output`` band by band as rows are done and, when the result has a variance from the
+    start (or the ring carries one), the variance to ``variance_output`` in a second thread."""
+    tw = time.perf_counter()
+    var_thread, var_error = None, []
+    has_variance = res.variance is not None or (done.ring is not None and len(done.ring.rows_read) > 1)
+    if variance_output is not None and has_variance:
+        def write_variance() -> None:
+            try:
+                _write_radiance_while_merging(res, done, variance_output, half=half, compression=compression,
+                                              inputs=inputs + [output], threads=threads, arr=res.variance, k=1)
+            except BaseException as exc:  # noqa: BLE001 - re-raised below, after the radiance's writer
+                var_error.append(exc)
+                if done.ring is not None:
+                    done.ring.fail()      # the merge waits for this writer's rows
+
+        var_thread = threading.Thread(target=write_variance, name="derender-exr-variance", daemon=True)
+        var_thread.start()
+    try:
+        _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
+                                      threads=threads)
+    finally:
+        if var_thread is not None:
+            var_thread.join()
+    if var_error:
+        raise var_error[0]
+    if var_thread is not None:
+        res.info["overlapped_variance_write"] = True
+    res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
+
+
 def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
                   variance_output: str | os.PathLike | None = None, *, half: bool = False, compression: str = "zip",
                   inputs: Iterable[str | os.PathLike] = (), threads: int | None = None, name: str = "this method") -> None:
@@ -521,6 +563,8 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
         falls back to the float reference engine.
     """
     t0 = time.perf_counter()
+    if source.n < 2:
+        raise StackError("an exposure stack needs at least two images")
     if motion is not None and motion.active:
         from derender.engine.motion import run_motion
 
@@ -532,39 +576,11 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
                       threads=threads, name=method.name)
         res.info["total_seconds"] = time.perf_counter() - t0
         return res
+    inputs = list(inputs)
     write = None
     if output is not None:
-        def write(res: HDRResult, done: RowsDone) -> None:
-            tw = time.perf_counter()
-            var_thread, var_error = None, []
-            has_variance = res.variance is not None or (done.ring is not None and len(done.ring.rows_read) > 1)
-            if variance_output is not None and has_variance:
-                # a result with its variance array from the start (the Gaussian engine): the
-                # variance file is written while merging too, in a second writer thread
-                def write_variance() -> None:
-                    try:
-                        _write_radiance_while_merging(res, done, variance_output, half=half,
-                                                      compression=compression, inputs=inputs + [output],
-                                                      threads=threads, arr=res.variance, k=1)
-                    except BaseException as exc:  # noqa: BLE001
-                        var_error.append(exc)
-                        if done.ring is not None:
-                            done.ring.fail()      # the merge waits for this writer's rows
-
-                var_thread = threading.Thread(target=write_variance, name="derender-exr-variance", daemon=True)
-                var_thread.start()
-            try:
-                _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
-                                              threads=threads)
-            finally:
-                if var_thread is not None:
-                    var_thread.join()
-            if var_error:
-                raise var_error[0]
-            if var_thread is not None:
-                res.info["overlapped_variance_write"] = True
-            res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
-    inputs = list(inputs)
+        write = functools.partial(_write_while_merging, output=output, variance_output=variance_output, half=half,
+                                  compression=compression, inputs=inputs, threads=threads)
     # outputs streamed through band buffers: how many files read them (the variance's too if asked)
     ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)
     if method.holds_outputs:   # the method's finish() reads the merged radiance
