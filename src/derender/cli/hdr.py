@@ -182,13 +182,11 @@ def merge_cmd(
     Every output is checked before any work and written as one transaction: on an error or
     an interruption none of them is left behind."""
 
-    import numpy as np
-
     from derender.hdr.files import merge_files
     from derender.hdr.registry import METHODS, method_spec, parse_options
     from derender.io.exif import parse_times
     from derender.io.files import OutputTransaction, expand_image_paths
-    from derender.io.preview import IMAGE8_SUFFIXES, write_png, write_preview
+    from derender.io.preview import IMAGE8_SUFFIXES
 
     check_times_options(times, times_file, times_inverse)
     images = expand_image_paths(images)
@@ -249,44 +247,58 @@ def merge_cmd(
             from derender.cli.profiles import save_merge_profile
 
             save_merge_profile(profile_tmp, ph, result, images, method, view, inputs)
-        if not direct and not as_hdr:
+        if not direct:
             from derender.engine.run import write_outputs
 
-            write_outputs(result, out_tmp, var_tmp, half=half, inputs=inputs, name=method)
-        elif not direct:
-            from derender.engine.run import write_outputs
-
-            write_outputs(result, None, var_tmp, half=half, inputs=inputs, name=method)
+            write_outputs(result, None if as_hdr else out_tmp, var_tmp, half=half, inputs=inputs, name=method)
         if as_hdr:
             from derender.io.rgbe import write_hdr
 
             write_hdr(out_tmp, result.radiance, view=view, software=f"derender merge --method {method}",
                       inputs=inputs, header_lines=hdr_header_lines(result.info))
-        if preview_tmp is not None:
-            write_preview(preview_tmp, result.radiance, inputs=inputs)
-        if mask_tmp is not None:
-            m = np.zeros(result.mask.shape, np.uint8)
-            m[result.mask == HDRResult.MASK_BRIGHT] = 128
-            m[result.mask == HDRResult.MASK_DARK] = 255
-            write_png(mask_tmp, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
-        if ghost_tmp is not None:
-            write_png(ghost_tmp, _ghost_png(result.ghosts, len(images)), inputs=inputs)
-        if plot_tmp is not None:
-            from derender.response.curves import plot_response
-
-            plot_response(result.info["curves"], plot_tmp, inputs=inputs)
+        _side_outputs(result, images, inputs, preview=preview_tmp, mask=mask_tmp, ghost_mask=ghost_tmp,
+                      plot=plot_tmp)
         if report_tmp is not None:
             _merge_report(report_tmp, result, images, method, absolute_source is not None, view, inputs,
                           times=(parse_times(times) if times is not None else None, times_file, times_inverse))
+    _merge_summary(result, images, method, output, time.perf_counter() - t0, variance is not None)
+
+
+def _side_outputs(result: HDRResult, images: list, inputs: list, *, preview, mask, ghost_mask, plot) -> None:
+    """The merge's optional pictures (each None or a transaction's temporary path): the tone-mapped
+    preview, the saturation mask, the ghost mask and the response curves' plot."""
+    import numpy as np
+
+    from derender.io.preview import write_png, write_preview
+
+    if preview is not None:
+        write_preview(preview, result.radiance, inputs=inputs)
+    if mask is not None:
+        m = np.zeros(result.mask.shape, np.uint8)
+        m[result.mask == HDRResult.MASK_BRIGHT] = 128
+        m[result.mask == HDRResult.MASK_DARK] = 255
+        write_png(mask, np.repeat(m[:, :, None], 3, axis=2), inputs=inputs)
+    if ghost_mask is not None:
+        write_png(ghost_mask, _ghost_png(result.ghosts, len(images)), inputs=inputs)
+    if plot is not None:
+        from derender.response.curves import plot_response
+
+        plot_response(result.info["curves"], plot, inputs=inputs)
+
+
+def _merge_summary(result: HDRResult, images: list, method: str, output: Path, seconds: float,
+                   with_variance: bool) -> None:
+    """The lines ``derender merge`` prints when done: sizes, time, clipped and taken pixels, the
+    variance's sources, the motion path's reference, alignment and ghosts."""
     n_bright = int((result.mask == HDRResult.MASK_BRIGHT).sum())
     n_dark = int((result.mask == HDRResult.MASK_DARK).sum())
     n_clipped = result.info.get("n_clipped")
     clipped = f"{n_clipped} px clipped even in the shortest exposure; " if n_clipped is not None else ""
     typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
-               f"({time.perf_counter() - t0:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
+               f"({seconds:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
                f"{n_dark} px from the longest (mask))")
     sources = result.info.get("variance_sources")
-    if variance is not None and sources:
+    if with_variance and sources:
         typer.echo("variance by source (median share of a pixel's): "
                    + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
     motion_line = _motion_summary(result.info, images)

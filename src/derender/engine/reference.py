@@ -39,6 +39,60 @@ def _combine_channels(w: np.ndarray, mode: str) -> np.ndarray:
     raise InputError(f"channel_weights must be 'independent', 'mean' or 'min', got {mode!r}")
 
 
+def _checked_inputs(images, times, linear, domain: str, channel_weights: str, image_weights):
+    """:func:`merge_linear`'s inputs checked: ``(images, times, linear array or None, image weights)``."""
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise InputError(f"images must have shape (N, H, W, 3), got {images.shape}")
+    n = images.shape[0]
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size != n:
+        raise InputError(f"{t.size} exposure time(s) for {n} image(s)")
+    if not np.all(np.isfinite(t)) or np.any(t <= 0):
+        raise InputError(f"exposure times must be positive finite seconds, got {t.tolist()}")
+    lin_arr = None
+    if not callable(linear):
+        lin_arr = np.asarray(linear)
+        if lin_arr.shape != images.shape:
+            raise InputError(f"linear images {lin_arr.shape} do not match images {images.shape}")
+    if domain not in ("linear", "log"):
+        raise InputError(f"domain must be 'linear' or 'log', got {domain!r}")
+    _combine_channels(np.zeros((1, 1, 3), np.float32), channel_weights)  # validate early
+    if image_weights is None:
+        return images, t, lin_arr, np.ones(n)
+    iw = np.asarray(image_weights, dtype=np.float64).reshape(-1)
+    if iw.size != n or not np.all(np.isfinite(iw)) or np.any(iw < 0):
+        raise InputError("image_weights must be N finite non-negative numbers")
+    return images, t, lin_arr, iw
+
+
+def _frame_values(j: int, lin: np.ndarray, shape: tuple, t: float, log_t: float, domain: str,
+                  log_input: bool) -> np.ndarray:
+    """Frame ``j``'s radiance estimates (float64) in the merge's domain from its linearised block."""
+    if lin.shape != shape:
+        raise ValueError(f"linearisation of image {j} has shape {lin.shape}, expected {shape}")
+    if domain == "linear":
+        return np.exp(lin.astype(np.float64) - log_t) if log_input else lin.astype(np.float64) * (1.0 / t)
+    if log_input:
+        return lin.astype(np.float64) - log_t
+    lin64 = lin.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(lin64 > 0, np.log(lin64), np.nan) - log_t
+
+
+def _frame_weights(j: int, zj: np.ndarray, weight_fn, wfun, channel_weights: str) -> np.ndarray:
+    """Frame ``j``'s float32 weights of a block (custom ``weight_fn(j, block)`` or the named
+    weight), shared between channels as ``channel_weights`` says."""
+    if weight_fn is not None:
+        wj = np.asarray(weight_fn(j, zj), dtype=np.float32)
+        wj = np.where(np.isfinite(wj) & (wj > 0), wj, np.float32(0))
+    else:
+        wj = np.asarray(wfun(zj), dtype=np.float32)
+    if wj.shape not in (zj.shape, zj.shape[:2]):
+        raise ValueError(f"weights of image {j} have shape {wj.shape}, expected {zj.shape}")
+    return _combine_channels(wj, channel_weights)
+
+
 def merge_linear(
     linear: np.ndarray | Callable[[int, np.ndarray], np.ndarray],
     times: Any,
@@ -91,29 +145,8 @@ def merge_linear(
     (default: ~256k pixels per block), never on full-size float64 temporaries.
     """
     t0 = time.perf_counter()
-    images = np.asarray(images)
-    if images.ndim != 4 or images.shape[-1] != 3:
-        raise InputError(f"images must have shape (N, H, W, 3), got {images.shape}")
+    images, t, lin_arr, iw = _checked_inputs(images, times, linear, domain, channel_weights, image_weights)
     n, h, w_, _ = images.shape
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    if t.size != n:
-        raise InputError(f"{t.size} exposure time(s) for {n} image(s)")
-    if not np.all(np.isfinite(t)) or np.any(t <= 0):
-        raise InputError(f"exposure times must be positive finite seconds, got {t.tolist()}")
-    lin_arr = None
-    if not callable(linear):
-        lin_arr = np.asarray(linear)
-        if lin_arr.shape != images.shape:
-            raise InputError(f"linear images {lin_arr.shape} do not match images {images.shape}")
-    if domain not in ("linear", "log"):
-        raise InputError(f"domain must be 'linear' or 'log', got {domain!r}")
-    _combine_channels(np.zeros((1, 1, 3), np.float32), channel_weights)  # validate early
-    if image_weights is None:
-        iw = np.ones(n)
-    else:
-        iw = np.asarray(image_weights, dtype=np.float64).reshape(-1)
-        if iw.size != n or not np.all(np.isfinite(iw)) or np.any(iw < 0):
-            raise InputError("image_weights must be N finite non-negative numbers")
     wfun = get_weight(weight) if weight_fn is None else None
     j_short, j_long = int(np.argmin(t)), int(np.argmax(t))
     log_t = np.log(t)
@@ -132,25 +165,8 @@ def merge_linear(
         for j in range(n):
             zj = images[j, r0:r1]
             lin = linear(j, zj) if lin_arr is None else lin_arr[j, r0:r1]
-            lin = np.asarray(lin)
-            if lin.shape != zj.shape:
-                raise ValueError(f"linearisation of image {j} has shape {lin.shape}, expected {zj.shape}")
-            if domain == "linear":
-                v = np.exp(lin.astype(np.float64) - log_t[j]) if log_input else lin.astype(np.float64) * (1.0 / t[j])
-            elif log_input:
-                v = lin.astype(np.float64) - log_t[j]
-            else:
-                lin64 = lin.astype(np.float64)
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    v = np.where(lin64 > 0, np.log(lin64), np.nan) - log_t[j]
-            if weight_fn is not None:
-                wj = np.asarray(weight_fn(j, zj), dtype=np.float32)
-                wj = np.where(np.isfinite(wj) & (wj > 0), wj, np.float32(0))
-            else:
-                wj = np.asarray(wfun(zj), dtype=np.float32)
-            if wj.shape not in (zj.shape, zj.shape[:2]):
-                raise ValueError(f"weights of image {j} have shape {wj.shape}, expected {zj.shape}")
-            wj = _combine_channels(wj, channel_weights)
+            v = _frame_values(j, np.asarray(lin), zj.shape, t[j], log_t[j], domain, log_input)
+            wj = _frame_weights(j, zj, weight_fn, wfun, channel_weights)
             bad = ~np.isfinite(v)
             if bad.any():
                 v[bad] = 0.0
