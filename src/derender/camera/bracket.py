@@ -15,7 +15,7 @@ import os
 from dataclasses import asdict, dataclass, field
 from fractions import Fraction
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -105,6 +105,53 @@ def bracket_times(camera_rgb_per_unit: np.ndarray, n: int, t_min: float = 1 / 20
         ratio = 2.0 ** float(stops)
     times = np.array([_exif_time(t_min * ratio**j) for j in range(n)])
     return times, scale
+
+
+def _bracket_params(*, camera, scene, seed: int, size: tuple[int, int], pipeline: str, style: str, tone_curve: bool,
+                    noise: bool, times, scale: float, peak_percentile: float, xyz_to_camera, camera_to_srgb,
+                    wb_true, wb_preset, family, settings, frames, plan, motion) -> tuple[dict, Any]:
+    """What :func:`simulate_bracket` records of a bracket (``scene.json``), and the motion zones."""
+    params = {
+        "generator": "derender.camera.simulate_bracket",
+        "seed": int(seed),
+        "camera": {"name": camera.name, "make": camera.make, "model": camera.model, "source": camera.source,
+                   "bits": camera.bits, "black_level": camera.black_level, "white_level": camera.white_level,
+                   "full_well_electrons": camera.full_well, "read_noise_dn": camera.read_noise,
+                   "cfa_pattern": CFA_PATTERN},
+        "scene": {"kind": scene.kind, "size": list(size), "illuminants": list(scene.illuminant_names),
+                  "key_illuminant": scene.key_illuminant, "regions": scene.regions,
+                  "illumination_range": [float(np.percentile(scene.illumination.sum(-1), 1)),
+                                         float(scene.illumination.sum(-1).max())]},
+        "pipeline": pipeline,
+        "style": style,
+        "tone_curve": bool(tone_curve),
+        "noise": bool(noise),
+        "times": [float(t) for t in times],
+        "scene_scale": float(scale),
+        "peak_percentile": float(peak_percentile),
+        "xyz_to_camera": xyz_to_camera.tolist(),
+        "camera_to_linear_srgb": camera_to_srgb.tolist(),
+        "wb_as_shot": [float(v) for v in wb_true],
+        "wb_preset": wb_preset,
+        "family": family,
+        "exposures": ([asdict(s) | {"exponent": s.exponent} for s in settings] if family is None
+                      else [settings_to_dict(f) for f in frames]),
+        "frames": [settings_to_dict(f) for f in frames],
+        "truth": "linear sRGB (Rec. 709, D65) per second: camera_to_linear_srgb @ (wb_as_shot * camera_rgb), "
+                 "noise-free, unclipped",
+    }
+    zones = None
+    if plan is not None:
+        from derender.camera.motion import motion_zones
+
+        zones = motion_zones(plan)
+        params["motion"] = {"objects": int(motion.objects), "radius_px": plan.radius, "travel": float(motion.travel),
+                            "shake_px": int(motion.shake), "canvas_margin": plan.margin,
+                            "reference": plan.reference, "shifts_dy_dx": plan.shifts.tolist(),
+                            "object_paths_yx": plan.paths.tolist(),
+                            "truth": "the reference frame's instant, on its pixel grid; scene regions are in "
+                                     "canvas coordinates (frame = canvas shifted by margin + shift)"}
+    return params, zones
 
 
 def simulate_bracket(
@@ -217,46 +264,11 @@ def simulate_bracket(
             codes[j] = render_frame(rgb, frames[j])
         if progress is not None:
             progress(j + 1, exposures)
-    params = {
-        "generator": "derender.camera.simulate_bracket",
-        "seed": int(seed),
-        "camera": {"name": camera.name, "make": camera.make, "model": camera.model, "source": camera.source,
-                   "bits": camera.bits, "black_level": camera.black_level, "white_level": camera.white_level,
-                   "full_well_electrons": camera.full_well, "read_noise_dn": camera.read_noise,
-                   "cfa_pattern": CFA_PATTERN},
-        "scene": {"kind": scene.kind, "size": [w, h], "illuminants": list(scene.illuminant_names),
-                  "key_illuminant": scene.key_illuminant, "regions": scene.regions,
-                  "illumination_range": [float(np.percentile(scene.illumination.sum(-1), 1)),
-                                         float(scene.illumination.sum(-1).max())]},
-        "pipeline": pipeline,
-        "style": style,
-        "tone_curve": bool(tone_curve),
-        "noise": bool(noise),
-        "times": [float(t) for t in times],
-        "scene_scale": float(scale),
-        "peak_percentile": float(peak_percentile),
-        "xyz_to_camera": xyz_to_camera.tolist(),
-        "camera_to_linear_srgb": camera_to_srgb.tolist(),
-        "wb_as_shot": [float(v) for v in wb_true],
-        "wb_preset": wb_preset,
-        "family": family,
-        "exposures": ([asdict(s) | {"exponent": s.exponent} for s in settings] if family is None
-                      else [settings_to_dict(f) for f in frames]),
-        "frames": [settings_to_dict(f) for f in frames],
-        "truth": "linear sRGB (Rec. 709, D65) per second: camera_to_linear_srgb @ (wb_as_shot * camera_rgb), "
-                 "noise-free, unclipped",
-    }
-    zones = None
-    if plan is not None:
-        from derender.camera.motion import motion_zones
-
-        zones = motion_zones(plan)
-        params["motion"] = {"objects": int(motion.objects), "radius_px": plan.radius, "travel": float(motion.travel),
-                            "shake_px": int(motion.shake), "canvas_margin": plan.margin,
-                            "reference": plan.reference, "shifts_dy_dx": plan.shifts.tolist(),
-                            "object_paths_yx": plan.paths.tolist(),
-                            "truth": "the reference frame's instant, on its pixel grid; scene regions are in "
-                                     "canvas coordinates (frame = canvas shifted by margin + shift)"}
+    params, zones = _bracket_params(camera=camera, scene=scene, seed=seed, size=(w, h), pipeline=pipeline,
+                                    style=style, tone_curve=tone_curve, noise=noise, times=times, scale=scale,
+                                    peak_percentile=peak_percentile, xyz_to_camera=xyz_to_camera,
+                                    camera_to_srgb=camera_to_srgb, wb_true=wb_true, wb_preset=wb_preset,
+                                    family=family, settings=settings, frames=frames, plan=plan, motion=motion)
     return SimulatedBracket(camera=camera, scene=scene, times=times, mosaics=mosaics, jpeg_codes=codes,
                             settings=settings, truth_linear_srgb=truth.astype(np.float32),
                             camera_rgb_per_s=cam_per_s, xyz_to_camera=xyz_to_camera, wb_true=wb_true,
