@@ -99,7 +99,7 @@ def test_hdrgen_merges_with_our_exported_rsp(tmp_path, capsys):
     with the same curves (median deviation of the luminance ratio around its median 3.4 %,
     gamma-2.2 camera, 192x128, 7 frames, seed 7) far better than with a linear response
     file (15.8 %), so the file was read and used, not re-solved."""
-    from test_exposure_factors import _write
+    from helpers import write_exif_jpeg as _write
 
     from derender.camera import simulate_bracket
     from derender.io.exr import read_exr
@@ -137,7 +137,7 @@ def test_merge_with_a_response_hdrgen_solved(tmp_path, capsys):
     'merge --profile' merge with it: the map's luminance deviates from hdrgen's own map by a
     median 7.8 % around their median ratio, against 11.5 % for our own Debevec curves (gamma-2.2
     camera, 192x128, 7 frames, seed 7; the rest is hdrgen's weighting and exposure adjustment)."""
-    from test_exposure_factors import _write
+    from helpers import write_exif_jpeg as _write
 
     from derender.camera import simulate_bracket
     from derender.io.exr import read_exr
