@@ -1,4 +1,4 @@
-"""Compiled passes of the probabilistic merge's variance with shared model error (issue 29; paper 2, Sec. 3.1).
+"""Compiled passes of the probabilistic merge's variance with shared model error (paper 2, Sec. 3.1).
 
 Paper 2's eq. 3 multiplies the exposures' Gaussians as if their errors were independent,
 so the product's variance ``1 / sum_i p_i`` shrinks like ``1 / N`` with the number of frames

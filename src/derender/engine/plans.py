@@ -171,7 +171,7 @@ class GaussianPlan:
 @dataclass
 class SharedVariance:
     """A :class:`GaussianPlan` whose variance keeps the model's error shared across frames
-    (issue 29, :mod:`derender.engine.gaussian_kernels`): ``V = sum w^2 s2n + k_model (sum w
+    (:mod:`derender.engine.gaussian_kernels`): ``V = sum w^2 s2n + k_model (sum w
     sm)^2 + k_pipe sum w (y - m)^2``. Its planes carry two more rows, ``[sm; vn]`` (the
     colour's model log sd and noise log variance; the table's column 7 is ``sm``); ``moments``
     then takes the extra sums ``(sq, shm, noi, hist)``."""

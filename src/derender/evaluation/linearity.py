@@ -7,7 +7,7 @@ reading would (:func:`derender.photometry.calibration.spot_factor`: ``k = L_card
 
     rho = k 179 (w . RGB) / L_true,
 
-``w`` the Rec. 709 row (issue 28, item 6). Reported: the median and 90th percentile of
+``w`` the Rec. 709 row. Reported: the median and 90th percentile of
 ``|rho - 1|`` over all scored pixels, and the median ``rho`` in each decade of the true
 luminance 1..10, ..., 1e5..1e6 cd/m2. Scored pixels are those where the in-camera demosaicing
 and chroma denoising keep the truth (:func:`derender.evaluation.families.smooth_mask`), off the
@@ -27,7 +27,7 @@ __all__ = ["DECADES", "LINEARITY_METHODS", "linearity_scores", "linearity_experi
 
 #: Decade edges of the true luminance (cd/m2).
 DECADES = tuple(10.0 ** k for k in range(7))
-#: Methods scored by :func:`linearity_experiment` (issue 28, item 6).
+#: Methods scored by :func:`linearity_experiment`.
 LINEARITY_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic")
 
 

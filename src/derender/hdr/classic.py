@@ -7,7 +7,7 @@ estimate ``sum w t I / sum w t^2`` in the linear domain. Both stream: the calibr
 reads the codes of sampled pixels (pass 1), the merge adds one frame at a time (pass 2),
 through 256-entry tables (:class:`~derender.engine.plans.TablePlan`).
 
-Colour balance (issue 16): each channel's curve is known only up to its own offset; the
+Colour balance: each channel's curve is known only up to its own offset; the
 merges keep ``g_G(128) = 0`` and offset R and B so that neutral colours stay neutral
 (:func:`derender.response.curves.balance_channels`: the median log difference between
 channels over the near-neutral, well-exposed sampled pixels of every frame, else along

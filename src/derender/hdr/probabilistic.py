@@ -116,7 +116,7 @@ pairs); with the camera's white balance and colour matrix stored in the model
 (``derender calibrate`` from ``chart-pairs`` files stores them) it is converted to linear
 sRGB, the variance propagated through the same 3x3 map (diagonal of ``A S A^T``).
 
-**Non-negative output** (issue 27). The product's moments are positive in camera RGB, but
+**Non-negative output**. The product's moments are positive in camera RGB, but
 ``A`` has negative off-diagonals: a saturated colour's weak channel, or a colour outside the
 sRGB gamut, comes out below 0. The mean is projected onto the non-negative orthant where ``A``
 is applied (:func:`finite_outputs`, and the engine's compiled pass),
@@ -370,7 +370,7 @@ def _info(o: ProbabilisticOptions, domain: str, seconds: float) -> dict:
 def saturation_mask(shortest: np.ndarray, longest: np.ndarray) -> np.ndarray:
     """HDRResult mask from the codes of the shortest and longest exposure (information only:
     the probabilistic merge discards no pixel)."""
-    # channel by channel: NumPy's any/all over a last axis of 3 is ~10x slower (issue 17)
+    # channel by channel: NumPy's any/all over a last axis of 3 is ~10x slower
     sat_short = (shortest[..., 0] >= 255) | (shortest[..., 1] >= 255) | (shortest[..., 2] >= 255)
     dark_long = (longest[..., 0] <= 0) & (longest[..., 1] <= 0) & (longest[..., 2] <= 0)
     mask = np.zeros(shortest.shape[:-1], dtype=np.uint8)
@@ -384,7 +384,7 @@ def finite_outputs(mean0: np.ndarray, var0: np.ndarray, a: np.ndarray | None) ->
 
     Through ``a`` (camera -> linear sRGB) when given, variance by the diagonal of ``A S A^T``.
     The mean is then projected onto the non-negative orthant, ``max(A m, 0)``, the nearest
-    radiance that can exist (issue 27: a saturated colour's weak channel, or a colour outside
+    radiance that can exist (a saturated colour's weak channel, or a colour outside
     the sRGB gamut, comes out below 0 through the matrix's negative off-diagonals, as in the
     stabilised merges' kernel, :func:`~derender.engine.kernels.stabilized_merge_rows`); a
     projected channel's variance is the posterior's mean squared deviation about the value

@@ -1,4 +1,4 @@
-"""The probabilistic merge's variance with the model's error kept shared (issue 29; paper 2, Sec. 3.1, eq. 3).
+"""The probabilistic merge's variance with the model's error kept shared (paper 2, Sec. 3.1, eq. 3).
 
 Eq. 3 multiplies the exposures' Gaussians as if each frame's de-rendering error were
 independent: the product's log variance ``1 / sum_i p_i`` shrinks like ``1 / N`` when N

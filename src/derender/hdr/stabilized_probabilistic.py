@@ -19,7 +19,7 @@ as codes: the memory of a stabilised merge plus that table. The float reference 
 (:func:`stabilized_probabilistic_stack`, for homography alignment or saturation below white)
 holds per-pixel float64 weights and float images (9 x 24 MP: ~12 GB).
 
-**Variance** (issue 29). The merge's error has the probabilistic merge's sources (the model's
+**Variance**. The merge's error has the probabilistic merge's sources (the model's
 error shared by the frames that see a colour, the pixels' code noise, the pipeline's spatial
 mixing; :mod:`derender.hdr.probabilistic_variance`), with the pipeline changes between frames
 corrected by H_j. Its variance is paper 2's posterior's *relative* variance for the same pixel

@@ -2,7 +2,7 @@
 
 Every reader probes its files first (:func:`probe_image`), so that a decompression bomb, a
 forged header or a truncated file is refused with one line naming the file *before* any
-memory is committed to it (issue 15, "budget before work"):
+memory is committed to it ("budget before work"):
 
 * JPEG: the marker segments are walked from SOI to the first SOS; the frame header (SOFn)
   gives the size and precision, APP1 ``Exif`` the orientation (tag 0x0112). The file is

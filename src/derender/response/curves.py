@@ -256,7 +256,7 @@ def uniform_samples(cluster_codes: np.ndarray, n: int, clip_code: int = 250) -> 
     channels are all below it. Kept clusters are spread evenly (``n`` of them); if fewer than
     ``n / 4`` pass, the ``n / 4`` with the fewest such frames.
 
-    Why (issue 28): a pixel beside a much brighter one (the rim of a window or a lamp) receives
+    Why: a pixel beside a much brighter one (the rim of a window or a lamp) receives
     part of its neighbour's signal through demosaicing and chroma noise reduction, and once the
     neighbour clips its codes stop following the exposure. Such samples gave the curve's top
     codes their data and bent it (docs/luminance.md). Debevec & Malik (1997, Sec. 2.1) take
@@ -470,7 +470,7 @@ def balance_channels(g: np.ndarray, codes: np.ndarray, weights: Any = "hat",
 
 
 #: Weight ``mu`` of the channel tie (:func:`solve_tied`) in the classic calibrations: the curves of
-#: R, G and B share one shape unless the data insist (issue 27). Chosen on the tuning families
+#: R, G and B share one shape unless the data insist. Chosen on the tuning families
 #: (``paper``, ``camera``; outdoor + indoor x seeds 0-1, 192x128, 7 exposures): Debevec PSNR L
 #: 43.48 / 42.74 dB independent, 43.33 / 42.94 at 100, 43.54 / 42.95 at 1000, 43.63 / 42.93 at
 #: 10^4; the largest deviation of frame-grey pixels from grey 0.113 / 0.153, 0.104 / 0.097,

@@ -9,7 +9,7 @@ monotonic is made so (isotonic regression).
 Grid samples that see a clipped neighbour while unclipped themselves are left out
 (:func:`~derender.response.curves.uniform_samples`): pixels at the rim of a window or a lamp,
 whose codes stop following the exposure once their clipped neighbour leaks into them through
-demosaicing and chroma noise reduction, bent the curve's top end (issue 28; docs/luminance.md).
+demosaicing and chroma noise reduction, bent the curve's top end (docs/luminance.md).
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ def _debevec_normal(codes: np.ndarray, log_times: np.ndarray, lam: float, weight
 
 def solve_debevec_tied(codes: list[np.ndarray], log_times: np.ndarray, lam: float = DEFAULT_LAMBDA,
                        weights: Any = None, n_levels: int = 256, tie: float = DEFAULT_TIE) -> np.ndarray:
-    """The three channels' curves of :func:`solve_debevec` in one system, tied (issue 27).
+    """The three channels' curves of :func:`solve_debevec` in one system, tied.
 
     ``codes``: per channel an (N_img, P_c) array. Each channel keeps its own data rows,
     smoothness and ``g_c(mid) = 0``; added is ``tie * sum_{c < c'} sum_z [Delta (g_c - g_c')(z)]^2``

@@ -7,7 +7,7 @@ camera JPEGs: nothing ties neighbouring codes together, so the curve comes out a
 staircase (isotonic repairs of a noisy ``I(m)``: 100+ flat steps on simulator brackets,
 visible contour rings on a 3-frame bracket), and the ``t_j^2`` weights let the longest
 frame's near-clipped codes decide every pixel (-12 to -15 dB PSNR L against Debevec on
-simulator brackets). What is computed here (issue 16):
+simulator brackets). What is computed here:
 
 1. **Leave-one-out radiance.** Observation ``(i, j)`` is compared with ``E_i`` estimated
    from the *other* frames; with its own frame included, a code whose weight dominates
@@ -60,7 +60,7 @@ simulator brackets). What is computed here (issue 16):
    neutral (:func:`derender.response.curves.balance_channels`): ``g_G(128) = 0``, R and B
    shifted so that near-neutral, well-exposed sampled pixels come out grey; with tied curves
    (point 7) along the grey axis (equal codes give equal radiance).
-7. **Channels tied** (issue 27). The three Whittaker smoothers of point 3 (and the Debevec
+7. **Channels tied**. The three Whittaker smoothers of point 3 (and the Debevec
    start of point 4) are solved as one system with ``tie * sum_z [Delta (g_c - g_c')(z)]^2``
    (:func:`derender.response.curves.solve_tied`, default
    :data:`~derender.response.curves.DEFAULT_TIE`): the curves keep their own offsets but share
@@ -276,7 +276,7 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
             monos.append(np.where(ok, isotonic_weighted(y, q, MIN_STEP), 0.0))  # monotone projection, then smooth
             qs.append(q)
         if tie > 0 and all(live):
-            # the three Whittaker smoothers in one system, tied (issue 27): see solve_tied
+            # the three Whittaker smoothers in one system, tied: see solve_tied
             cols = solve_tied([np.diag(q + 1e-12) + smooth2 for q in qs], [q * m for q, m in zip(qs, monos)], tie)
         else:
             cols = np.stack([smooth_log_curve(m, q, lam) if lv else m for m, q, lv in zip(monos, qs, live)], axis=1)
