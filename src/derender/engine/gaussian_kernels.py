@@ -36,26 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
-
-@njit(inline="always")
-def _ndtr(a):  # pragma: no cover - compiled
-    """Standard normal CDF (as :mod:`derender.engine.kernels`' copy: cephes' algorithm on erf / erfc)."""
-    x = a * 0.7071067811865476
-    z = abs(x)
-    if z < 0.7071067811865476:
-        return 0.5 + 0.5 * math.erf(x)
-    y = 0.5 * math.erfc(z)
-    return 1.0 - y if x > 0.0 else y
-
-
-@njit(inline="always")
-def _table_mu(tab, lut_lo, lut_w, c0, c1, c2, ch):  # pragma: no cover - compiled
-    """Channel ``ch`` of the GP's interpolation table at one colour (as :mod:`derender.engine.kernels`'
-    copy: float32 linear interpolation along R of the G/B table, as float64)."""
-    j = np.int64(lut_lo[c0]) * 65536 + np.int64(c1) * 256 + np.int64(c2)
-    v0 = tab[j, ch]
-    v1 = tab[j + 65536, ch]
-    return np.float64((v1 - v0) * lut_w[c0] + v0)
+from derender.engine.kernels import _ndtr, _table_mu  # the same compiled helpers as the merge kernels
 
 __all__ = ["NBINS", "gaussian_variance_band", "model_sd_rows"]
 
