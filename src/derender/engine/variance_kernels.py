@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from derender.engine.kernels import MERGE_TILE
+from derender.engine.kernels import MERGE_TILE, _add_frame_to_tile
 
 __all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
 
@@ -237,56 +237,8 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                 yy = y + shifts[j, 0]
                 if yy < 0 or yy >= h:
                     continue
-                sx = shifts[j, 1]
-                a00 = mats32[j, 0, 0]
-                a01 = mats32[j, 0, 1]
-                a02 = mats32[j, 0, 2]
-                a10 = mats32[j, 1, 0]
-                a11 = mats32[j, 1, 1]
-                a12 = mats32[j, 1, 2]
-                a20 = mats32[j, 2, 0]
-                a21 = mats32[j, 2, 1]
-                a22 = mats32[j, 2, 2]
-                ik = inv_k[j]
-                sq = sqm[j]
-                for x in range(max(x0, -sx), min(xe, w - sx)):
-                    if not whole and valid[j, y, x] == 0:
-                        continue
-                    xx = x + sx
-                    z0 = frames[j, yy, xx, 0]
-                    z1 = frames[j, yy, xx, 1]
-                    z2 = frames[j, yy, xx, 2]
-                    wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
-                    wbright = weights[max(max(z0, z1), z2), 0]
-                    t = x - x0
-                    if wmin > zero:
-                        usable[t] = True
-                    elif wbright == zero:
-                        continue
-                    if use_inv_var:
-                        d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
-                        d = d + inv_var[j, z2, 2]
-                        f = ik / max(d, tiny)
-                        wmin = wmin * f
-                        wbright = wbright * f
-                    if use_colour_w:
-                        cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
-                        wmin = wmin * cw
-                        wbright = wbright * cw
-                    l0 = lin[j, z0, 0]
-                    l1 = lin[j, z1, 1]
-                    l2 = lin[j, z2, 2]
-                    v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
-                    v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
-                    v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
-                    acc[0, t] += wmin
-                    acc[1, t] += v0 * wmin
-                    acc[2, t] += v1 * wmin
-                    acc[3, t] += v2 * wmin
-                    acc[4, t] += wbright
-                    acc[5, t] += v0 * wbright
-                    acc[6, t] += v1 * wbright
-                    acc[7, t] += v2 * wbright
+                _add_frame_to_tile(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, inv_var,
+                                   inv_k[j], use_inv_var, colour_w, use_colour_w, lin, mats32, acc, usable)
             # second look at the tile's frames: the spread around the merged mean, with the set it used
             for x in range(x0, xe):
                 t = x - x0
