@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
-from derender.engine.kernels import _ndtr, _table_mu  # the same compiled helpers as the merge kernels
+from derender.engine.kernels import normal_cdf, table_mu  # the same compiled helpers as the merge kernels
 
 __all__ = ["NBINS", "gaussian_variance_band", "model_sd_rows"]
 
@@ -67,8 +67,8 @@ def model_sd_rows(colours, s0, s1, tab_lv, tab_mu, lut_lo, lut_w, eps, floor, cl
                 clipped = any_clipped
             if clipped:
                 continue
-            mu = _table_mu(tab_mu, lut_lo, lut_w, c0, c1, c2, ch)
-            s2 = math.exp(_table_mu(tab_lv, lut_lo, lut_w, c0, c1, c2, ch))
+            mu = table_mu(tab_mu, lut_lo, lut_w, c0, c1, c2, ch)
+            s2 = math.exp(table_mu(tab_lv, lut_lo, lut_w, c0, c1, c2, ch))
             if np.isnan(mu):
                 mu = 0.0
             mu = min(max(mu, -max_log), max_log)
@@ -94,7 +94,7 @@ def _truncated(m, v, bd, max_log):  # pragma: no cover - compiled
         sd = math.sqrt(v)
         alpha = (bd - m) / max(sd, 1e-300)
         if alpha < 3.0 and alpha > -8.0:
-            tail = max(1.0 - _ndtr(alpha), 1e-300)
+            tail = max(1.0 - normal_cdf(alpha), 1e-300)
             lam = math.exp(-0.5 * alpha * alpha) * (1.0 / math.sqrt(2.0 * math.pi)) / tail
             om = m + sd * lam
             ov = v * max(1.0 + alpha * lam - lam * lam, 1e-6)

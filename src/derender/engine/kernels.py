@@ -20,6 +20,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from derender.engine.merge_parts import add_frame_to_tile, add_table_observation
+
 __all__ = [
     "MERGE_TILE",
     "stabilized_merge_rows",
@@ -29,6 +31,8 @@ __all__ = [
     "gaussian_moments_band",
     "log_tables_rows",
     "mark_colours",
+    "normal_cdf",
+    "table_mu",
 ]
 
 
@@ -38,65 +42,6 @@ __all__ = [
 #: pixel at a time over all frames: 128 px -22 %, 256 -23 %, 512 -28 % (noisy), 2048 and
 #: whole rows -12 to -16 %; bit-identical results.
 MERGE_TILE = 256
-
-
-# Positional on purpose (as the kernels): an inlined part of them.
-@njit(inline="always")
-def _add_frame_to_tile(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, inv_var, ik, use_inv_var, colour_w,
-                       use_colour_w, lin, mats32, acc, usable):  # pragma: no cover - compiled
-    """Frame ``j``'s observations of row ``y`` (read at row ``yy``, shifted by ``sx``) added to a
-    tile's sums ``acc`` (8, tile) and ``usable`` (:func:`stabilized_merge_rows`; the variance
-    kernel's first pass adds them the same way)."""
-    zero = np.float32(0.0)
-    tiny = np.float32(1e-30)
-    a00 = mats32[j, 0, 0]
-    a01 = mats32[j, 0, 1]
-    a02 = mats32[j, 0, 2]
-    a10 = mats32[j, 1, 0]
-    a11 = mats32[j, 1, 1]
-    a12 = mats32[j, 1, 2]
-    a20 = mats32[j, 2, 0]
-    a21 = mats32[j, 2, 1]
-    a22 = mats32[j, 2, 2]
-    for x in range(max(x0, -sx), min(xe, w - sx)):
-        if not whole and valid[j, y, x] == 0:
-            continue
-        xx = x + sx
-        z0 = frames[j, yy, xx, 0]
-        z1 = frames[j, yy, xx, 1]
-        z2 = frames[j, yy, xx, 2]
-        wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
-        wbright = weights[max(max(z0, z1), z2), 0]
-        t = x - x0
-        if wmin > zero:
-            usable[t] = True
-        elif wbright == zero:
-            continue
-        if use_inv_var:
-            d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
-            d = d + inv_var[j, z2, 2]
-            f = ik / max(d, tiny)
-            wmin = wmin * f
-            wbright = wbright * f
-        if use_colour_w:
-            cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
-            wmin = wmin * cw
-            wbright = wbright * cw
-        l0 = lin[j, z0, 0]
-        l1 = lin[j, z1, 1]
-        l2 = lin[j, z2, 2]
-        # the frame's estimate, projected onto the non-negative orthant (radiance >= 0)
-        v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
-        v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
-        v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
-        acc[0, t] += wmin
-        acc[1, t] += v0 * wmin
-        acc[2, t] += v1 * wmin
-        acc[3, t] += v2 * wmin
-        acc[4, t] += wbright
-        acc[5, t] += v0 * wbright
-        acc[6, t] += v1 * wbright
-        acc[7, t] += v2 * wbright
 
 
 # Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
@@ -144,7 +89,7 @@ def stabilized_merge_rows(frames, shifts, valid, ref, lin, mats32, mats64, weigh
                 yy = y + shifts[j, 0]
                 if yy < 0 or yy >= h:
                     continue
-                _add_frame_to_tile(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, inv_var,
+                add_frame_to_tile(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, inv_var,
                                    inv_k[j], use_inv_var, colour_w, use_colour_w, lin, mats32, acc, usable)
             for x in range(x0, xe):
                 t = x - x0
@@ -352,38 +297,8 @@ def table_merge_rows(frames, valid, ref, order, values, weights, independent, lo
                 for x in range(x0, xe):
                     if not whole and valid[j, y, x] == 0:
                         continue
-                    t = x - x0
-                    z0 = frames[j, y, x, 0]
-                    z1 = frames[j, y, x, 1]
-                    z2 = frames[j, y, x, 2]
-                    w0 = weights[j, z0, 0]
-                    w1 = weights[j, z1, 1]
-                    w2 = weights[j, z2, 2]
-                    if not independent:
-                        s = w0 + w1
-                        s = s + w2
-                        w0 = s
-                        w1 = s
-                        w2 = s
-                    v0 = values[j, z0, 0]
-                    v1 = values[j, z1, 1]
-                    v2 = values[j, z2, 2]
-                    if log_domain:
-                        den64[0, t] += np.float64(w0)
-                        if independent:
-                            den64[1, t] += np.float64(w1)
-                            den64[2, t] += np.float64(w2)
-                        num64[0, t] += np.float64(v0) * np.float64(w0)
-                        num64[1, t] += np.float64(v1) * np.float64(w1)
-                        num64[2, t] += np.float64(v2) * np.float64(w2)
-                    else:
-                        den32[0, t] += w0
-                        if independent:
-                            den32[1, t] += w1
-                            den32[2, t] += w2
-                        num32[0, t] = np.float32(np.float64(num32[0, t]) + np.float64(v0) * np.float64(w0))
-                        num32[1, t] = np.float32(np.float64(num32[1, t]) + np.float64(v1) * np.float64(w1))
-                        num32[2, t] = np.float32(np.float64(num32[2, t]) + np.float64(v2) * np.float64(w2))
+                    add_table_observation(frames, j, y, x, x - x0, weights, values, independent, log_domain,
+                                           num64, den64, num32, den32)
             for x in range(x0, xe):
                 t = x - x0
                 nb = False
@@ -472,7 +387,7 @@ def gaussian_band(frames, valid, lut, planes, log_scales, y0, y1, prec, acc, bou
 
 
 @njit(inline="always")
-def _ndtr(a):  # pragma: no cover - compiled
+def normal_cdf(a):  # pragma: no cover - compiled
     """Standard normal CDF, the algorithm of cephes' (SciPy's) ``ndtr`` on libm's erf / erfc."""
     x = a * 0.7071067811865476
     z = abs(x)
@@ -551,7 +466,7 @@ def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor,
                         sd = math.sqrt(v)
                         alpha = (bd - m) / max(sd, 1e-300)
                         if alpha < 3.0 and alpha > -8.0:
-                            tail = max(1.0 - _ndtr(alpha), 1e-300)
+                            tail = max(1.0 - normal_cdf(alpha), 1e-300)
                             lam = math.exp(-0.5 * alpha * alpha) * rs2pi / tail
                             om = m + sd * lam
                             ov = v * max(1.0 + alpha * lam - lam * lam, 1e-6)
@@ -587,7 +502,7 @@ def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor,
 
 
 @njit(inline="always")
-def _table_mu(tab, lut_lo, lut_w, c0, c1, c2, ch):  # pragma: no cover - compiled
+def table_mu(tab, lut_lo, lut_w, c0, c1, c2, ch):  # pragma: no cover - compiled
     """Channel ``ch`` of :meth:`derender.derendering.base.LatentTable.at_codes` at one colour
     (float32 linear interpolation along R of the G/B-interpolated table, as float64)."""
     j = np.int64(lut_lo[c0]) * 65536 + np.int64(c1) * 256 + np.int64(c2)
@@ -635,8 +550,8 @@ def log_tables_rows(colours, s0, s1, tab_mu, tab_lv, lut_lo, lut_w, eps, floor, 
             for ch in range(3):
                 clipped[ch] = any_clipped
         for ch in range(3):
-            mu = _table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], cc[2], ch)
-            s2 = math.exp(_table_mu(tab_lv, lut_lo, lut_w, cc[0], cc[1], cc[2], ch))
+            mu = table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], cc[2], ch)
+            s2 = math.exp(table_mu(tab_lv, lut_lo, lut_w, cc[0], cc[1], cc[2], ch))
             if np.isnan(mu):
                 mu = 0.0
             mu = min(max(mu, -max_log), max_log)
@@ -652,14 +567,14 @@ def log_tables_rows(colours, s0, s1, tab_mu, tab_lv, lut_lo, lut_w, eps, floor, 
                 up = min(cc[ch] + step, 255)
                 dn = max(cc[ch] - step, 0)
                 if ch == 0:
-                    mu_u = _table_mu(tab_mu, lut_lo, lut_w, up, cc[1], cc[2], 0)
-                    mu_d = _table_mu(tab_mu, lut_lo, lut_w, dn, cc[1], cc[2], 0)
+                    mu_u = table_mu(tab_mu, lut_lo, lut_w, up, cc[1], cc[2], 0)
+                    mu_d = table_mu(tab_mu, lut_lo, lut_w, dn, cc[1], cc[2], 0)
                 elif ch == 1:
-                    mu_u = _table_mu(tab_mu, lut_lo, lut_w, cc[0], up, cc[2], 1)
-                    mu_d = _table_mu(tab_mu, lut_lo, lut_w, cc[0], dn, cc[2], 1)
+                    mu_u = table_mu(tab_mu, lut_lo, lut_w, cc[0], up, cc[2], 1)
+                    mu_d = table_mu(tab_mu, lut_lo, lut_w, cc[0], dn, cc[2], 1)
                 else:
-                    mu_u = _table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], up, 2)
-                    mu_d = _table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], dn, 2)
+                    mu_u = table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], up, 2)
+                    mu_d = table_mu(tab_mu, lut_lo, lut_w, cc[0], cc[1], dn, 2)
                 slope = (_log_median(mu_u, eps, max_log) - _log_median(mu_d, eps, max_log)) / np.float64(
                     max(up - dn, 1))
                 t = code_noise * slope

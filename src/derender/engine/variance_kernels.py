@@ -22,7 +22,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from derender.engine.kernels import MERGE_TILE, _add_frame_to_tile
+from derender.engine.kernels import MERGE_TILE
+from derender.engine.merge_parts import add_frame_to_tile, add_table_observation
 
 __all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
 
@@ -96,37 +97,8 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                     if not whole and valid[j, y, x] == 0:
                         continue
                     t = x - x0
-                    z0 = frames[j, y, x, 0]
-                    z1 = frames[j, y, x, 1]
-                    z2 = frames[j, y, x, 2]
-                    w0 = weights[j, z0, 0]
-                    w1 = weights[j, z1, 1]
-                    w2 = weights[j, z2, 2]
-                    if not independent:
-                        s = w0 + w1
-                        s = s + w2
-                        w0 = s
-                        w1 = s
-                        w2 = s
-                    v0 = values[j, z0, 0]
-                    v1 = values[j, z1, 1]
-                    v2 = values[j, z2, 2]
-                    if log_domain:
-                        den64[0, t] += np.float64(w0)
-                        if independent:
-                            den64[1, t] += np.float64(w1)
-                            den64[2, t] += np.float64(w2)
-                        num64[0, t] += np.float64(v0) * np.float64(w0)
-                        num64[1, t] += np.float64(v1) * np.float64(w1)
-                        num64[2, t] += np.float64(v2) * np.float64(w2)
-                    else:
-                        den32[0, t] += w0
-                        if independent:
-                            den32[1, t] += w1
-                            den32[2, t] += w2
-                        num32[0, t] = np.float32(np.float64(num32[0, t]) + np.float64(v0) * np.float64(w0))
-                        num32[1, t] = np.float32(np.float64(num32[1, t]) + np.float64(v1) * np.float64(w1))
-                        num32[2, t] = np.float32(np.float64(num32[2, t]) + np.float64(v2) * np.float64(w2))
+                    z0, z1, z2, w0, w1, w2, v0, v1, v2 = add_table_observation(
+                        frames, j, y, x, t, weights, values, independent, log_domain, num64, den64, num32, den32)
                     _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split)
                     _acc(vs, 1, t, np.float64(w1), np.float64(v1), tnq[j, z1, 1], tq[j, z1, 1], split)
                     _acc(vs, 2, t, np.float64(w2), np.float64(v2), tnq[j, z2, 2], tq[j, z2, 2], split)
@@ -237,7 +209,7 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                 yy = y + shifts[j, 0]
                 if yy < 0 or yy >= h:
                     continue
-                _add_frame_to_tile(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, inv_var,
+                add_frame_to_tile(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, inv_var,
                                    inv_k[j], use_inv_var, colour_w, use_colour_w, lin, mats32, acc, usable)
             # second look at the tile's frames: the spread around the merged mean, with the set it used
             for x in range(x0, xe):

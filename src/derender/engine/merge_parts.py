@@ -1,0 +1,113 @@
+"""Inlined parts shared by the compiled merge kernels (:mod:`derender.engine.kernels` and
+:mod:`derender.engine.variance_kernels`): one frame's observations added to a tile's sums, for
+the matrix merge (paper 1's stabilised merge) and the table merge (Debevec, Robertson). Numba
+inlines them (``inline="always"``), so the kernels compile as if the loop bodies were written
+in place: the radiance and its variance kernels share one copy of the arithmetic.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["add_frame_to_tile", "add_table_observation"]
+
+
+# Positional on purpose (as the kernels): an inlined part of them.
+@njit(inline="always")
+def add_frame_to_tile(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, inv_var, ik, use_inv_var, colour_w,
+                       use_colour_w, lin, mats32, acc, usable):  # pragma: no cover - compiled
+    """Frame ``j``'s observations of row ``y`` (read at row ``yy``, shifted by ``sx``) added to a
+    tile's sums ``acc`` (8, tile) and ``usable`` (:func:`stabilized_merge_rows`; the variance
+    kernel's first pass adds them the same way)."""
+    zero = np.float32(0.0)
+    tiny = np.float32(1e-30)
+    a00 = mats32[j, 0, 0]
+    a01 = mats32[j, 0, 1]
+    a02 = mats32[j, 0, 2]
+    a10 = mats32[j, 1, 0]
+    a11 = mats32[j, 1, 1]
+    a12 = mats32[j, 1, 2]
+    a20 = mats32[j, 2, 0]
+    a21 = mats32[j, 2, 1]
+    a22 = mats32[j, 2, 2]
+    for x in range(max(x0, -sx), min(xe, w - sx)):
+        if not whole and valid[j, y, x] == 0:
+            continue
+        xx = x + sx
+        z0 = frames[j, yy, xx, 0]
+        z1 = frames[j, yy, xx, 1]
+        z2 = frames[j, yy, xx, 2]
+        wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
+        wbright = weights[max(max(z0, z1), z2), 0]
+        t = x - x0
+        if wmin > zero:
+            usable[t] = True
+        elif wbright == zero:
+            continue
+        if use_inv_var:
+            d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+            d = d + inv_var[j, z2, 2]
+            f = ik / max(d, tiny)
+            wmin = wmin * f
+            wbright = wbright * f
+        if use_colour_w:
+            cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
+            wmin = wmin * cw
+            wbright = wbright * cw
+        l0 = lin[j, z0, 0]
+        l1 = lin[j, z1, 1]
+        l2 = lin[j, z2, 2]
+        # the frame's estimate, projected onto the non-negative orthant (radiance >= 0)
+        v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
+        v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
+        v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
+        acc[0, t] += wmin
+        acc[1, t] += v0 * wmin
+        acc[2, t] += v1 * wmin
+        acc[3, t] += v2 * wmin
+        acc[4, t] += wbright
+        acc[5, t] += v0 * wbright
+        acc[6, t] += v1 * wbright
+        acc[7, t] += v2 * wbright
+
+
+# Positional on purpose (as the kernels): an inlined part of them.
+@njit(inline="always")
+def add_table_observation(frames, j, y, x, t, weights, values, independent, log_domain, num64, den64, num32,
+                           den32):  # pragma: no cover - compiled
+    """Frame ``j``'s observation of pixel ``(y, x)`` added to the tile's sums at ``t``
+    (:func:`table_merge_rows`; the variance kernel adds them the same way and reads the codes,
+    weights and values back): returns ``(z0, z1, z2, w0, w1, w2, v0, v1, v2)``."""
+    z0 = frames[j, y, x, 0]
+    z1 = frames[j, y, x, 1]
+    z2 = frames[j, y, x, 2]
+    w0 = weights[j, z0, 0]
+    w1 = weights[j, z1, 1]
+    w2 = weights[j, z2, 2]
+    if not independent:
+        s = w0 + w1
+        s = s + w2
+        w0 = s
+        w1 = s
+        w2 = s
+    v0 = values[j, z0, 0]
+    v1 = values[j, z1, 1]
+    v2 = values[j, z2, 2]
+    if log_domain:
+        den64[0, t] += np.float64(w0)
+        if independent:
+            den64[1, t] += np.float64(w1)
+            den64[2, t] += np.float64(w2)
+        num64[0, t] += np.float64(v0) * np.float64(w0)
+        num64[1, t] += np.float64(v1) * np.float64(w1)
+        num64[2, t] += np.float64(v2) * np.float64(w2)
+    else:
+        den32[0, t] += w0
+        if independent:
+            den32[1, t] += w1
+            den32[2, t] += w2
+        num32[0, t] = np.float32(np.float64(num32[0, t]) + np.float64(v0) * np.float64(w0))
+        num32[1, t] = np.float32(np.float64(num32[1, t]) + np.float64(v1) * np.float64(w1))
+        num32[2, t] = np.float32(np.float64(num32[2, t]) + np.float64(v2) * np.float64(w2))
+    return z0, z1, z2, w0, w1, w2, v0, v1, v2
