@@ -8,7 +8,7 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "frames": ["NotStreamable", "prefetch", "FramePool", "read_frames"],
     "kernels": ["MERGE_TILE", "stabilized_merge_rows", "mtb_band_counts", "table_merge_rows", "gaussian_band", "mark_colours", "normal_cdf", "table_mu"],
-    "merge_parts": ["add_frame_to_tile", "add_table_observation"],
+    "merge_parts": ["add_frame_to_tile", "add_table_observation", "fallback_frame"],
     "compensation": ["FLOW_CHECK", "FLOW_PIXELS", "compensate_frames"],
     "matrix": ["merge_matrix_frames", "matrix_output_bytes", "KERNEL_LOCK", "set_numba_threads", "warm_up_kernels"],
     "reference": ["merge_linear"],

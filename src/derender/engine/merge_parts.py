@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["add_frame_to_tile", "add_table_observation"]
+__all__ = ["add_frame_to_tile", "add_table_observation", "fallback_frame"]
 
 
 # Positional on purpose (as the kernels): an inlined part of them.
@@ -111,3 +111,34 @@ def add_table_observation(frames, j, y, x, t, weights, values, independent, log_
         num32[1, t] = np.float32(np.float64(num32[1, t]) + np.float64(v1) * np.float64(w1))
         num32[2, t] = np.float32(np.float64(num32[2, t]) + np.float64(v2) * np.float64(w2))
     return z0, z1, z2, w0, w1, w2, v0, v1, v2
+
+
+@njit(inline="always")
+def fallback_frame(frames, valid, whole, ref, shifts, j_short, j_long, bright, y, x, h, w):  # pragma: no cover
+    """Where no frame has weight at ``(y, x)``: the frame the value comes from and the mask code
+    (1 over-exposed, 2 under-exposed). Without frames left out, the shortest exposure if its
+    largest code is ``bright``, else the longest; with frames left out (``valid``, ``ref >= 0``),
+    the reference decides the side and the tightest bound among the frames taking part gives
+    the value (the stabilised merge kernels)."""
+    n = frames.shape[0]
+    if whole or ref < 0:
+        ys = min(max(y + shifts[j_short, 0], 0), h - 1)
+        xs = min(max(x + shifts[j_short, 1], 0), w - 1)
+        zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
+        if bright[zmax]:
+            return j_short, 1
+        return j_long, 2
+    zr = max(max(frames[ref, y, x, 0], frames[ref, y, x, 1]), frames[ref, y, x, 2])
+    up = bright[zr]
+    jj = ref
+    for k in range(n):
+        jv = k if up else n - 1 - k
+        if valid[jv, y, x] == 0:
+            continue
+        yv = min(max(y + shifts[jv, 0], 0), h - 1)
+        xv = min(max(x + shifts[jv, 1], 0), w - 1)
+        zv = max(max(frames[jv, yv, xv, 0], frames[jv, yv, xv, 1]), frames[jv, yv, xv, 2])
+        if bright[zv] == up:
+            jj = jv
+            break
+    return jj, (1 if up else 2)

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit, prange
 
 from derender.engine.kernels import MERGE_TILE
-from derender.engine.merge_parts import add_frame_to_tile, add_table_observation
+from derender.engine.merge_parts import add_frame_to_tile, add_table_observation, fallback_frame
 
 __all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
 
@@ -280,30 +280,8 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                                                      vs[5 + c, t] - vs[8 + c, t], vs[8 + c, t], k, False, m)
                         _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
                     continue
-                if whole or ref < 0:
-                    ys = min(max(y + shifts[j_short, 0], 0), h - 1)
-                    xs = min(max(x + shifts[j_short, 1], 0), w - 1)
-                    zmax = max(max(frames[j_short, ys, xs, 0], frames[j_short, ys, xs, 1]), frames[j_short, ys, xs, 2])
-                    jj = j_short
-                    mask[y, x] = 1
-                    if not bright[zmax]:
-                        jj = j_long
-                        mask[y, x] = 2
-                else:
-                    zr = max(max(frames[ref, y, x, 0], frames[ref, y, x, 1]), frames[ref, y, x, 2])
-                    up = bright[zr]
-                    jj = ref
-                    for kk in range(n):
-                        jv = kk if up else n - 1 - kk
-                        if valid[jv, y, x] == 0:
-                            continue
-                        yv = min(max(y + shifts[jv, 0], 0), h - 1)
-                        xv = min(max(x + shifts[jv, 1], 0), w - 1)
-                        zv = max(max(frames[jv, yv, xv, 0], frames[jv, yv, xv, 1]), frames[jv, yv, xv, 2])
-                        if bright[zv] == up:
-                            jj = jv
-                            break
-                    mask[y, x] = 1 if up else 2
+                jj, code = fallback_frame(frames, valid, whole, ref, shifts, j_short, j_long, bright, y, x, h, w)
+                mask[y, x] = code
                 ys = min(max(y + shifts[jj, 0], 0), h - 1)
                 xs = min(max(x + shifts[jj, 1], 0), w - 1)
                 c0 = frames[jj, ys, xs, 0]
