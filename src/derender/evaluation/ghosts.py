@@ -65,20 +65,19 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
     method), so that the table measures ghosts and alignment, not the choice of instant. Paper 2's
     methods get ``model`` (default: the GP of :func:`derender.evaluation.uncertainty.chart_model`)."""
 
-    import inspect
 
     from derender.camera import simulate_bracket
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.motion import MotionSpec
     from derender.core.types import Stack
     from derender.evaluation.families import TUNING_FAMILIES
-    from derender.hdr.registry import get_method, merge_seeded
+    from derender.hdr.registry import merge_seeded, method_spec
 
     for s in settings:
         if s not in GHOST_SETTINGS:
             raise InputError(f"unknown motion setting {s!r}: use {', '.join(GHOST_SETTINGS)}")
     families = [check_family(f) for f in families] if families else list(FAMILIES)
-    if model is None and any("model" in inspect.signature(get_method(m)).parameters for m in methods):
+    if model is None and any(method_spec(m).needs_model for m in methods):
         from derender.evaluation.uncertainty import chart_model
 
         model = chart_model(camera)
@@ -92,8 +91,7 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
             ref = still_b.params["motion"]["reference"]
 
             def opts(m: str) -> dict:
-                fn = get_method(m)
-                extra = {"model": model} if "model" in inspect.signature(fn).parameters else {}
+                extra = {"model": model} if method_spec(m).needs_model else {}
                 return {"reference": ref, **extra, **(options or {})}
 
             still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), **opts(m)).radiance

@@ -13,7 +13,6 @@ on the float reference engine. ``info["engine_path"]`` says which ran.
 
 from __future__ import annotations
 
-import inspect
 import os
 import time
 from pathlib import Path
@@ -97,7 +96,6 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     from derender.io.files import expand_image_paths
 
     spec = method_spec(method)   # an unknown method is an error before any file is read
-    fn = spec.load()
     paths = expand_image_paths(paths)
     t = file_times(paths, times, times_file, times_file_inverse)
     all_inputs = list(paths) + list(inputs) + ([Path(times_file)] if times_file else [])
@@ -115,7 +113,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
 
     motion, options = split_motion(method, {**options, "seed": seed}, engine_reference=True)
     options.pop("seed", None)
-    if "seed" in inspect.signature(fn).parameters:
+    if spec.has_option("seed"):
         options["seed"] = seed
     opts = method_options(method, options)
     if times is not None:

@@ -360,8 +360,7 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
 
 def merge_seeded(stack: Stack, method: str, seed: int = 0, **options: Any) -> HDRResult:
     """:func:`merge`, passing ``seed`` to methods that take one."""
-    fn = get_method(method)
-    if "seed" in inspect.signature(fn).parameters:
+    if method_spec(method).has_option("seed"):
         options["seed"] = seed
     return merge(stack, method=method, **options)
 
