@@ -76,6 +76,8 @@ def test_ghost_experiment_sees_the_ghosts_and_deghost_removes_them():
     assert clean["swept_ratio"] < plain["swept_ratio"] - 0.3
     assert clean["static_ratio"] < 1.1
     assert not plain["held_out"]
+    assert 0 < clean["object_seen_pixels"] < sum(clean["zone_pixels"])
+    assert np.isfinite(clean["object_seen_ratio"])
 
 
 def test_bad_motion_is_refused():
@@ -105,3 +107,30 @@ def test_simulate_cli_writes_a_moving_bracket(tmp_path, capsys):
     assert len(list((tmp_path / "s" / "jpeg").glob("*.jpg"))) == 5
     code, _, err = run_cli(["simulate", tmp_path / "t", "--moving", "-1"], capsys)
     assert code == 2 and "--moving and --shake" in err and not (tmp_path / "t").exists()
+
+
+def test_zone_errors_split_the_object_by_what_the_reference_sees():
+    """``object_seen``: the object pixels that the reference renders unclipped, scored apart.
+    Exact answer: a result equal to the truth except 10 % too bright where the object is seen
+    and 50 % where it is clipped in the reference (the 3x3 fit stays the identity: the trimmed
+    fit leaves those minority pixels out)."""
+    from derender.evaluation.ghosts import seen_in_reference, zone_errors
+
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.1, 1.0, size=(64, 64, 3))
+    zones = np.zeros((64, 64), dtype=np.uint8)
+    zones[40:52, :] = 2
+    codes = np.full((64, 64, 3), 128, dtype=np.uint8)
+    codes[46:52, :, 1] = 255                          # clipped in the reference: not seen
+    codes[40:41, :, 0] = 2                            # too dark to be seen
+    seen = seen_in_reference(codes)
+    assert seen[41:46].all() and not seen[46:52].any() and not seen[40].any()
+    result = truth.copy()
+    result[41:46] *= 1.10
+    result[46:52] *= 1.50
+    result[40] *= 1.50
+    e = zone_errors(result, truth, zones, seen)
+    assert e["object_seen"] == pytest.approx(0.10, abs=1e-3)
+    assert e["object"] == pytest.approx(0.50, abs=1e-3)           # 7 of 12 rows are 50 % off
+    assert e["static"] == pytest.approx(0.0, abs=1e-3)
+    assert "object_seen" not in zone_errors(result, truth, zones)

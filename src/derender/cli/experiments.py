@@ -56,7 +56,7 @@ def exp_derender_families(
     seed: int = typer.Option(0, "--seed", help="Seed."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
-    """Issue 16: paper 2's de-rendering models on chart sessions rendered by every pipeline family
+    """Paper 2's de-rendering models on chart sessions rendered by every pipeline family
     (random split and 4 held-out illuminants); relative RMSE all / clipped / out-of-gamut, 95 % coverage;
     tuning families (paper, camera) vs held out."""
     from derender.evaluation.derendering_families import derender_families
@@ -204,9 +204,10 @@ def exp_ghosts(
                                         "method's own)."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
-    """Issue 23: every method on brackets where objects move (and the camera shakes), median
-    relative error per zone (static / swept / object) against the still twin's (the same
-    objects, frozen at the reference instant), with or without ``--deghost``."""
+    """Every method on brackets where objects move (and the camera shakes): median relative
+    error per zone (static / swept / object, and the object pixels the reference frame sees
+    unclipped) against the still twin's (the same objects, frozen at the reference instant),
+    with or without ``--deghost``."""
     from derender.evaluation.experiments import format_table
     from derender.evaluation.ghosts import ghost_comparison, summarise_ghosts
 
@@ -227,6 +228,7 @@ def exp_ghosts(
     for zone in ("static", "swept", "object"):
         cols += [(f"{zone}_moving", f"{zone} moving", ".3f"), (f"{zone}_still", "still", ".3f"),
                  (f"{zone}_ratio", "ratio", ".2f")]
+    cols += [("object_seen_ratio", "object seen unclipped: ratio", ".2f")]
     typer.echo(format_table(summary, cols))
     if output is not None:
         output.write_text(json.dumps(rows, indent=2, default=float))
@@ -241,7 +243,7 @@ def exp_uncertainty(
     exposures: int = typer.Option(7, "--exposures", help="Exposures per bracket."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
-    """Issue 29: does each method's variance cover the truth? Coverage of the 50/80/95/99 %
+    """Does each method's variance cover the truth? Coverage of the 50/80/95/99 %
     intervals and median abs(z) on a bracket of every family (GP calibrated on the camera's chart)."""
     from derender.evaluation.experiments import format_table
     from derender.evaluation.uncertainty import uncertainty_experiment
@@ -280,7 +282,7 @@ def exp_linearity(
     n_train: int = typer.Option(5000, "--n-train", help="GP training pairs for probabilistic."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
-    """Issue 28: linearity over 5 decades. Each method's map, scaled on the grey card (--spot), against the
+    """Linearity over 5 decades. Each method's map, scaled on the grey card (--spot), against the
     absolute truth: median and p90 relative error and the median ratio per decade 1..10, ..., 1e5..1e6 cd/m2."""
     from derender.camera.luminance import LUMINANCE_MODES, RENDERS
     from derender.evaluation.experiments import format_table

@@ -77,8 +77,8 @@ _LOG_CHI2_VAR = np.pi ** 2 / 2          # Var[log chi^2_1] = trigamma(1/2)
 _ML_FTOL = 1e-6
 #: Points of the first (homoscedastic) ML search of a heteroscedastic fit: it only seeds the
 #: leave-one-out residuals and the warm-started refit on ``opt_points`` (measured on the S90 and
-#: D5100 charts: relative RMSE within 0.002 of the search on all 500 points, ~1 s less CPU). Issue 27:
-#: the subsample moved a few extrapolated colours' variances (simulated drift family, held-out illuminants:
+#: D5100 charts: relative RMSE within 0.002 of the search on all 500 points, ~1 s less CPU). Measured
+#: further: the subsample moved a few extrapolated colours' variances (simulated drift family, held-out illuminants:
 #: one clipped colour 33 codes from the training codes had a predictive mean 6.8x / 15.7x / 9.0x / 7.2x /
 #: 9.0x its truth with 200 / 250 / 300 / 400 / all points); with the latent-variance cap below the
 #: families' relative RMSE (MAP) moves by <= 0.8 % over those sizes (tests/derendering/test_gp_extrapolation.py).

@@ -10,7 +10,11 @@ its median:
 
 * ``static``: pixels no object covers in any frame (in scene coordinates);
 * ``swept``: covered in some frame but not in the reference (the background must win);
-* ``object``: covered in the reference (the object as it was at that instant must win).
+* ``object``: covered in the reference (the object as it was at that instant must win);
+* ``object_seen``: the object pixels that the reference frame itself renders unclipped (every
+  channel's code within [:data:`SEEN_LOW`, :data:`SEEN_HIGH`]). Elsewhere in the object the
+  reference only bounds the radiance, and only a frame in which the object sits somewhere else
+  can fill it in (``docs/ghosts.md``, limits).
 
 The ratio ``moving / still`` per zone is what ghost removal must bring towards 1 (the
 targets, ``docs/ghosts.md``: static <= 1.10, swept <= 1.25, object <= 1.5). A handheld bracket's still twin is the
@@ -25,7 +29,7 @@ import numpy as np
 
 from derender.core.errors import InputError
 
-__all__ = ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"]
+__all__ = ["GHOST_METHODS", "GHOST_SETTINGS", "SEEN_LOW", "SEEN_HIGH", "seen_in_reference", "zone_errors", "ghost_comparison", "summarise_ghosts"]
 
 #: The methods the ghost experiment merges (paper 2's with the camera's chart GP).
 GHOST_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic")
@@ -34,8 +38,20 @@ GHOST_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "prob
 GHOST_SETTINGS = ("tripod", "handheld")
 
 
-def zone_errors(result: np.ndarray, truth: np.ndarray, zones: np.ndarray) -> dict[str, float]:
-    """Median relative error per zone (``static``, ``swept``, ``object``; NaN for an empty zone)."""
+#: Codes (of 255) between which a reference pixel counts as seen unclipped (``object_seen``).
+SEEN_LOW, SEEN_HIGH = 3, 250
+
+
+def seen_in_reference(ref_codes: np.ndarray) -> np.ndarray:
+    """(H, W) bool: every channel of the reference frame's 8-bit codes within [SEEN_LOW, SEEN_HIGH]."""
+    c = np.asarray(ref_codes)
+    return np.all((c >= SEEN_LOW) & (c <= SEEN_HIGH), axis=-1)
+
+
+def zone_errors(result: np.ndarray, truth: np.ndarray, zones: np.ndarray,
+                seen: np.ndarray | None = None) -> dict[str, float]:
+    """Median relative error per zone (``static``, ``swept``, ``object``; NaN for an empty zone),
+    and ``object_seen`` (the object pixels where ``seen``, (H, W) bool) when ``seen`` is given."""
     from derender.camera.motion import ZONE_NAMES
     from derender.evaluation.metrics import relative_errors
 
@@ -50,6 +66,9 @@ def zone_errors(result: np.ndarray, truth: np.ndarray, zones: np.ndarray) -> dic
     for code, name in enumerate(ZONE_NAMES):
         sel = (zones == code) & ok
         out[name] = float(np.median(e[sel])) if sel.any() else float("nan")
+    if seen is not None:
+        sel = (zones == ZONE_NAMES.index("object")) & ok & np.asarray(seen, dtype=bool)
+        out["object_seen"] = float(np.median(e[sel])) if sel.any() else float("nan")
     return out
 
 
@@ -102,14 +121,16 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                     progress(f"{family} {setting} seed {seed}")
                 b = simulate_bracket(camera, kind=kind, size=size, exposures=exposures, seed=int(seed),
                                      family=family, motion=spec)
+                seen = seen_in_reference(b.jpeg_codes[ref])
                 for m in methods:
                     moving = zone_errors(merge_seeded(_stack(b, Stack), m, int(seed), **opts(m)).radiance,
-                                         b.truth_linear_srgb, b.motion_zones)
-                    still = zone_errors(still_results[m], still_b.truth_linear_srgb, b.motion_zones)
+                                         b.truth_linear_srgb, b.motion_zones, seen)
+                    still = zone_errors(still_results[m], still_b.truth_linear_srgb, b.motion_zones, seen)
                     row = {"family": family, "held_out": family not in TUNING_FAMILIES, "setting": setting, "seed": int(seed),
                            "method": m, "shake_px": spec.shake,
-                           "zone_pixels": [int(np.sum(b.motion_zones == z)) for z in range(3)]}
-                    for zone in ("static", "swept", "object"):
+                           "zone_pixels": [int(np.sum(b.motion_zones == z)) for z in range(3)],
+                           "object_seen_pixels": int(np.sum((b.motion_zones == 2) & seen))}
+                    for zone in ("static", "swept", "object", "object_seen"):
                         row[f"{zone}_moving"] = moving[zone]
                         row[f"{zone}_still"] = still[zone]
                         row[f"{zone}_ratio"] = (moving[zone] / still[zone] if still[zone] > 0 else float("nan"))
