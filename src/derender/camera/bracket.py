@@ -278,9 +278,11 @@ def simulate_bracket(
 
 # --------------------------------------------------------------------------- files
 def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float, make: str, model: str,
-               quality: int = 95, fnumber: float | None = None, iso: int | None = None) -> Path:
+               quality: int = 95, fnumber: float | None = None, iso: int | None = None,
+               sensitivity_type: int | None = None) -> Path:
     """Write 8-bit RGB codes as a JPEG (4:2:2, like most cameras) with EXIF Make/Model/ExposureTime
-    (and ``FNumber`` / ``ISOSpeedRatings`` when given)."""
+    (and ``FNumber`` / ``ISOSpeedRatings`` when given; ``sensitivity_type``: EXIF 2.3's
+    ``SensitivityType``, 3 for an ISO speed from saturation, which then also goes to ``ISOSpeed``)."""
     from PIL import Image, TiffImagePlugin
 
     from derender.io.files import atomic_output
@@ -297,6 +299,10 @@ def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float,
         exif.get_ifd(0x8769)[0x829D] = TiffImagePlugin.IFDRational(fn.numerator, fn.denominator)
     if iso is not None:
         exif.get_ifd(0x8769)[0x8827] = int(iso)
+    if sensitivity_type is not None:
+        exif.get_ifd(0x8769)[0x8830] = int(sensitivity_type)
+        if int(sensitivity_type) == 3 and iso is not None:
+            exif.get_ifd(0x8769)[0x8833] = int(iso)
     path = Path(path)
     with atomic_output(path) as tmp:
         img.save(tmp, format="JPEG", quality=quality, subsampling=1, exif=exif.tobytes(), optimize=False)
@@ -323,7 +329,8 @@ def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_qua
                         make=cam.make, model=cam.model, bits=cam.bits)
         jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j],
                          t_exif, cam.make, cam.model, quality=jpeg_quality,
-                         fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None)
+                         fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None,
+                         sensitivity_type=3 if lum else None)     # the family's ISO follows saturation
         files["raw"].append(str(dng.relative_to(outdir)))
         files["jpeg"].append(str(jpg.relative_to(outdir)))
     write_exr(outdir / "truth.exr", bracket.truth_linear_srgb)

@@ -136,8 +136,9 @@ def merge_cmd(
     spot: Optional[str] = typer.Option(None, "--spot", help="X,Y,W,H=NITS: a luminance-meter reading (cd/m2) over "
                                        "that rectangle of the output; the map (and variance) are scaled to absolute "
                                        "units, luminance 179 (w·RGB) cd/m2 as Radiance reads it."),
-    absolute: Optional[str] = typer.Option(None, "--absolute", help="'exif': absolute units without a meter, the "
-                                           "nominal ISO 2720 constant K = 12.5 and EXIF t, N, S (+-22 %; docs)."),
+    absolute: Optional[str] = typer.Option(None, "--absolute", help="'exif': absolute units without a meter, from "
+                                           "EXIF t, N, S and the ISO rating the camera states (SOS: 15 %, "
+                                           "saturation or unstated: 44 %; docs/luminance.md)."),
     profile: Optional[Path] = typer.Option(None, "--profile", help="Camera profile (.json): its response curves "
                                            "(debevec, robertson), photometric factor, vignetting and view."),
     save_profile: Optional[Path] = typer.Option(None, "--save-profile", help="Write this merge's camera profile "

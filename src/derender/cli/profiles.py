@@ -101,7 +101,7 @@ def merge_photometry(*, profile: Optional[Path], vignetting: Optional[Path], spo
     """Read and check the photometric options of ``derender merge`` before any work."""
     ph = Photometry(absolute=absolute)
     if absolute is not None and absolute != "exif":
-        raise InputError(f"--absolute takes 'exif' (ISO 2720 nominal constant), got {absolute!r}")
+        raise InputError(f"--absolute takes 'exif' (the nominal factor from EXIF t, N, S), got {absolute!r}")
     if absolute is not None and spot is not None:
         raise InputError("give either --spot (a meter reading) or --absolute exif (nominal), not both")
     if vignetting is not None:
@@ -174,10 +174,14 @@ def apply_photometry(ph: Photometry, result, images: list, method: str) -> str |
         typer.echo(f"photometric factor {k:.6g} from the spot ({s.nits:g} cd/m2; luminance spread in it "
                    f"{100 * cal.spread:.1f} %)", err=True)
     elif ph.absolute == "exif":
-        k, unc = _exif_factor(result, images)
-        source = "exif nominal (ISO 2720, K = 12.5)"
-        typer.echo(f"photometric factor {k:.6g} nominal from EXIF (ISO 2720 K = 12.5 cd s/m2, mid-grey code 118; "
-                   f"relative standard uncertainty {100 * unc:.0f} %)", err=True)
+        cal = _exif_factor(result, images)
+        from derender.photometry.calibration import SENSITIVITY_RATINGS
+
+        k, unc, rating = cal.factor, cal.uncertainty, SENSITIVITY_RATINGS[cal.rating]
+        source = f"exif nominal ({rating.name}: {rating.constant:.1f} N^2/(t S) cd/m2 at code 118)"
+        typer.echo(f"photometric factor {k:.6g} nominal from EXIF ({rating.name}: a surface rendered at code 118 "
+                   f"is {rating.constant:.1f} N^2/(t S) cd/m2; relative standard uncertainty {100 * unc:.0f} %)",
+                   err=True)
     elif ph.profile is not None and ph.profile.factor is not None:
         n0, s0 = _first_exposure(images[0])
         k = ph.profile.photometric_factor(n0, s0)
@@ -205,11 +209,11 @@ def hdr_header_lines(info: dict) -> list[str]:
     return [] if text is None else [f"DERENDER_PHOTOMETRY= {text}"]
 
 
-def _exif_factor(result, images: list) -> tuple[float, float]:
+def _exif_factor(result, images: list):
     from derender.io.exif import read_exif
     from derender.io.images import read_codes
     from derender.io.rgbe import SRGB_PRIMARIES
-    from derender.photometry.calibration import exif_factor
+    from derender.photometry.calibration import exif_factor, sensitivity_rating
 
     exifs = [read_exif(p) for p in images]
     for p, e in zip(images, exifs):
@@ -218,15 +222,19 @@ def _exif_factor(result, images: list) -> tuple[float, float]:
             raise InputError(f"--absolute exif needs ExposureTime, FNumber and ISO in every frame's EXIF; {p.name} "
                              f"has no {', '.join(lacking)}")
 
+    ratings = [sensitivity_rating(e) for e in exifs]
+    if len({r for r, _ in ratings}) > 1:
+        raise InputError("--absolute exif: the frames state their ISO speed under different ratings (EXIF "
+                         f"SensitivityType: {', '.join(sorted({r for r, _ in ratings}))}); use --spot")
+
     def frames():
-        for p, e in zip(images, exifs):
+        for p, e, (_, speed) in zip(images, exifs, ratings):
             codes = read_codes(p, max_megapixels=None)
             if codes is None:
                 raise InputError(f"--absolute exif reads 8-bit frames; {p.name} is not one")
-            yield codes, e["ExposureTime"], e["FNumber"], e["ISO"]
+            yield codes, e["ExposureTime"], e["FNumber"], speed
 
-    cal = exif_factor(result.radiance, frames(), primaries=SRGB_PRIMARIES, mask=result.mask)
-    return cal.factor, cal.uncertainty
+    return exif_factor(result.radiance, frames(), primaries=SRGB_PRIMARIES, mask=result.mask, rating=ratings[0][0])
 
 
 def save_merge_profile(path: Path, ph: Photometry, result, images: list, method: str, view: str | None,

@@ -42,7 +42,9 @@ def _ratio_to_float(value) -> float | None:
 
 
 def read_exif(path: str | os.PathLike) -> dict:
-    """EXIF fields we use: ``ExposureTime`` (s), ``Make``, ``Model``, ``Lens``, ``ISO``, ``FNumber``.
+    """EXIF fields we use: ``ExposureTime`` (s), ``Make``, ``Model``, ``Lens``, ``ISO``, ``FNumber``,
+    and what the ISO speed means: ``SensitivityType`` (EXIF 2.3, an int) and the ``SOS``
+    (``StandardOutputSensitivity``), ``REI`` (``RecommendedExposureIndex``) and ``ISOSpeed`` tags.
 
     Missing fields are absent from the dict; unreadable EXIF gives an empty dict. An
     ``ExposureTime`` that is present but not a positive number is reported as
@@ -66,12 +68,20 @@ def read_exif(path: str | os.PathLike) -> dict:
             "Image Make": "Make",
             "Image Model": "Model",
             "EXIF LensModel": "Lens",
+            "EXIF SensitivityType": "SensitivityType",
+            "EXIF StandardOutputSensitivity": "SOS",
+            "EXIF RecommendedExposureIndex": "REI",
+            "EXIF ISOSpeed": "ISOSpeed",
         }
         for key, name in mapping.items():
             if key in tags and name not in info:
                 val = tags[key]
                 if name in ("Make", "Model", "Lens"):
                     info[name] = str(val.printable).strip().strip("\x00")
+                elif name == "SensitivityType":
+                    v = _ratio_to_float(val.values[0] if getattr(val, "values", None) else val)
+                    if v is not None and v == int(v) and 0 <= v <= 7:
+                        info[name] = int(v)
                 else:
                     v = _ratio_to_float(val.values[0] if getattr(val, "values", None) else val)
                     if v is not None and np.isfinite(v) and v > 0:
@@ -94,12 +104,17 @@ def read_exif(path: str | os.PathLike) -> dict:
                         if v is not None and np.isfinite(v) and v > 0:
                             info["ExposureTime"] = v
                             break
-                for tag, name in ((0x829D, "FNumber"), (0x8827, "ISO")):
+                for tag, name in ((0x829D, "FNumber"), (0x8827, "ISO"), (0x8831, "SOS"), (0x8832, "REI"),
+                                  (0x8833, "ISOSpeed")):
                     if name not in info and sub and tag in sub:
                         raw = sub[tag][0] if isinstance(sub[tag], tuple) else sub[tag]
                         v = _ratio_to_float(raw)
                         if v is not None and np.isfinite(v) and v > 0:
                             info[name] = v
+                if sub and 0x8830 in sub and "SensitivityType" not in info:
+                    kind = sub[0x8830][0] if isinstance(sub[0x8830], tuple) else sub[0x8830]
+                    if isinstance(kind, int) and 0 <= kind <= 7:
+                        info["SensitivityType"] = kind
                 if exif:
                     info.setdefault("Make", str(exif.get(0x010F, "")).strip("\x00 ") or None)
                     info.setdefault("Model", str(exif.get(0x0110, "")).strip("\x00 ") or None)
