@@ -38,8 +38,10 @@ GHOST_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "prob
 GHOST_SETTINGS = ("tripod", "handheld")
 
 
-#: Codes (of 255) between which a reference pixel counts as seen unclipped (``object_seen``).
-SEEN_LOW, SEEN_HIGH = 3, 250
+#: Lowest code (of 255) at which a reference pixel counts as seen (``object_seen``).
+SEEN_LOW = 3
+#: Highest code (of 255) at which a reference pixel counts as seen unclipped (``object_seen``).
+SEEN_HIGH = 250
 
 
 def seen_in_reference(ref_codes: np.ndarray) -> np.ndarray:
