@@ -55,6 +55,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "blocks": ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"],
     "colour_matrices": ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
+    "grey_balance": ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "grey_balance"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
     "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"],
     "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],

@@ -275,7 +275,9 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 #: 1e5) lowered ``camera``. What the tie would buy is neutral greys in the rendering: truly grey
 #: pixels of ``camera`` 0.22 -> 0.10 largest deviation per decade, the iPhone's mid-frame greys
 #: 0.21-0.29 -> 0.10-0.15. Against the exact radiance the tie loses on the tuning family, so it is
-#: off (an option of :func:`unclipped_debevec`); the greys stay an open problem (``docs/paper1.md``, neutral axis).
+#: off (an option of :func:`unclipped_debevec`). The greys' constant cast is removed instead by
+#: :mod:`derender.hdr.stabilize.grey_balance` (one gain per output channel; iPhone mid-frame greys
+#: 0.21-0.29 -> 0.06-0.12); what varies with brightness stays (``docs/paper1.md``, neutral axis).
 CURVE_TIE = 0.0
 
 

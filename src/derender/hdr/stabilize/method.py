@@ -507,6 +507,11 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
         mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
                                     n_iter=ransac_iter)
         how = ["joint"] * n
+    from derender.hdr.stabilize import grey_balance as gb
+
+    if gb.GREY_BALANCE:
+        gains, info["grey_balance"] = gb.grey_balance(blocks, curves, mats, low=low, high=high)
+        mats = np.asarray(mats, dtype=np.float64) * gains[None, :, None]      # D M_j
     t3 = time.perf_counter()
     info["timings"] = {"response_s": t2 - t1, "matrices_s": t3 - t2}
     return Stabilization(mode=mode, reference=ref, gammas=ge, matrices=mats, alignment=al, times=times,
@@ -588,6 +593,8 @@ def stabilization_info(stab: Stabilization) -> dict:
             "gamma_trend": stab.info.get("gamma_trend")}
     if "hidden_saturation" in stab.info:
         info["hidden_saturation"] = stab.info["hidden_saturation"]
+    if "grey_balance" in stab.info:
+        info["grey_balance"] = stab.info["grey_balance"]
     if al.shifts is not None:
         info["shifts"] = al.shifts.tolist()
     return info
