@@ -74,3 +74,28 @@ def test_frame_greys_stay_grey_on_a_channel_identical_rendering(fixed_camera_bra
     gains = np.asarray(res.info["grey_balance"]["gains"])
     assert np.max(np.abs(gains - 1)) > 0.05             # the untied curves left a cast
     np.testing.assert_allclose(rad, rad0 * gains.astype(np.float32), rtol=2e-4, atol=1e-6 * float(rad.max()))
+
+
+def test_tie_on_part_of_the_codes():
+    """:data:`~derender.hdr.stabilize.filmic.CURVE_TIE_CODES`: on every code it is the tie of
+    :func:`derender.response.curves.solve_tied`; on the lower half only, the upper half of the
+    channel differences is left free (far from the tied codes it follows the untied solution)."""
+    from derender.hdr.stabilize.filmic import _solve_tied_codes
+    from derender.response.curves import solve_tied
+
+    rng = np.random.default_rng(3)
+    n = 256
+    d2 = np.diff(np.eye(n), 2, axis=0)
+    blocks, rhs = [], []
+    for c in range(3):
+        a = rng.uniform(0.5, 2.0, n)
+        blocks.append(np.diag(a) + 50.0 * d2.T @ d2)
+        rhs.append((a * (np.linspace(-3, 1, n) + 0.2 * c + 0.1 * c * np.sin(np.arange(n) / 9.0)))[:, None])
+    full = _solve_tied_codes(blocks, rhs, 1000.0, (0, 255)).reshape(3, n).T
+    np.testing.assert_allclose(full, solve_tied(blocks, rhs, 1000.0)[:, :, 0], atol=1e-8)
+    free = np.stack([np.linalg.solve(b, r[:, 0]) for b, r in zip(blocks, rhs)], axis=1)
+    half = _solve_tied_codes(blocks, rhs, 1000.0, (0, 128)).reshape(3, n).T
+    spread = lambda g, sl: np.ptp(g[sl, 2] - g[sl, 1])                      # noqa: E731
+    low, high = slice(10, 118), slice(200, 250)
+    assert spread(half, low) < 0.2 * spread(free, low)                          # tied where asked
+    assert abs(spread(half, high) - spread(free, high)) < 0.1 * spread(free, high)   # free elsewhere
