@@ -43,7 +43,9 @@ Beyond the paper (its Fig. 5: the result depends on the reference):
 :func:`joint_colour_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
-all (method ``"stabilized-joint"``). Pipelines that render a sensor-clipped pixel below
+all (method ``"stabilized-joint"``). Both modes then grey-balance the output (:mod:`.grey_balance`,
+issue 27): one gain per channel, from the blocks the frames render neutral, multiplies every
+H_j / K_j, so that greys come out grey whatever gauge the per-channel curves left. Pipelines that render a sensor-clipped pixel below
 white (local tone maps, highlight roll-offs) are caught by :mod:`.saturation`: codes that
 stop growing with exposure mark saturation no threshold sees, and the merges leave it out.
 :func:`derender.evaluation.table1.reference_spread` reports how PSNR varies with the reference.

@@ -533,7 +533,7 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     by the inverse variance of image j's radiance estimate for equal code noise,
     ``t_j^2 / (dL_j/dJ)^2``: a dark code of a short exposure, inverted through a steep
     curve, otherwise counts as much as a well-exposed one and dominates a linear average
-    with its noise. Linear result: the reference's colour rendering
+    with its noise. Linear result: the reference's colour rendering, grey-balanced (:mod:`.grey_balance`)
     (``mode="reference"``, radiance per second of the reference's exposure) or the common
     average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
     weights (normalised per pixel). 8-bit stacks with integer alignment and no
