@@ -43,7 +43,9 @@ Beyond the paper (its Fig. 5: the result depends on the reference):
 :func:`joint_colour_matrices` fits all ``K_j`` at once so that ``K_j L_j / t_j`` agree on
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
-all (method ``"stabilized-joint"``). Pipelines that render a sensor-clipped pixel below
+all (method ``"stabilized-joint"``). Both modes then grey-balance the output (:mod:`.grey_balance`,
+issue 27): one gain per channel, from the blocks the frames render neutral, multiplies every
+H_j / K_j, so that greys come out grey whatever gauge the per-channel curves left. Pipelines that render a sensor-clipped pixel below
 white (local tone maps, highlight roll-offs) are caught by :mod:`.saturation`: codes that
 stop growing with exposure mark saturation no threshold sees, and the merges leave it out.
 :func:`derender.evaluation.table1.reference_spread` reports how PSNR varies with the reference.
@@ -55,8 +57,9 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "blocks": ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"],
     "colour_matrices": ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
+    "grey_balance": ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "grey_balance"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
-    "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"],
+    "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_TIE_CODES", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"],
     "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "ShiftedFrames", "ShiftedValid", "LazyAlignment"],
     "pair_fit": ["RIDGE", "predict_codes", "pair_weights", "fit_pair", "effective_codes", "pair_cost", "pair_residuals", "pair_costs_power"],
     "saturation": ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO",

@@ -75,6 +75,7 @@ from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import relative_exponents
 
 __all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
+           "CURVE_TIE_CODES",
            "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
            "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"]
 
@@ -220,6 +221,32 @@ def _debevec_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, ro
     return gm @ (log_t + off), off
 
 
+#: Codes ``(lo, hi)`` on which the channel tie (:data:`CURVE_TIE`) acts (None: every code): the
+#: first differences ``(g_c - g_c')(z + 1) - (g_c - g_c')(z)`` for ``lo <= z < hi`` only, the
+#: shoulders left free. Measured with the tie on (``docs/paper1.md``, neutral axis): 300 on codes
+#: 0-160 keeps within 0.2 dB of the untied fit on ``camera`` and the demo's bracket but buys little
+#: grey, so the tie stays off.
+CURVE_TIE_CODES: tuple[int, int] | None = None
+
+
+def _solve_tied_codes(blocks: list, rhs: list, tie: float, codes: tuple[int, int]) -> np.ndarray:
+    """The tied system of :func:`derender.response.curves.solve_tied` with the tie acting on the
+    first differences between codes ``codes[0]`` and ``codes[1]`` only: the (768, 768) matrix
+    ``blockdiag(A_c) + tie (3 I - J) kron (D' W D)`` solved directly. Returns (768, k)."""
+    from scipy.linalg import solve
+
+    n = blocks[0].shape[0]
+    d = np.diff(np.eye(n), axis=0)
+    w = np.zeros(n - 1)
+    w[max(int(codes[0]), 0):min(int(codes[1]), n - 1)] = 1.0
+    lap = d.T @ (w[:, None] * d) * float(tie)
+    k3 = 3.0 * np.eye(3) - np.ones((3, 3))
+    big = np.kron(k3, lap)
+    for c in range(3):
+        big[c * n:(c + 1) * n, c * n:(c + 1) * n] += np.asarray(blocks[c], dtype=np.float64)
+    return solve(big, np.concatenate([np.asarray(r, dtype=np.float64) for r in rhs], axis=0), assume_a="sym")
+
+
 def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, rounds: int,
                                  tie: float) -> tuple:
     """:func:`_debevec_with_exposures` for the three channels at once, their curves tied
@@ -242,7 +269,10 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
         w2s.append(w2)
         dinvs.append(dinv)
     # (768, 3N): the three curves stacked by channel = gm @ (b_R, b_G, b_B)
-    gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
+    if CURVE_TIE_CODES is None:
+        gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
+    else:
+        gm = _solve_tied_codes(blocks, rhs, tie, CURVE_TIE_CODES)
     off = np.zeros((n, 3))
     tc = log_t - log_t.mean()
     span = np.stack([tc ** k for k in range(min(CURVE_OFFSET_DEGREE, log_t.size - 1) + 1)], axis=1)
@@ -275,8 +305,33 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 #: 1e5) lowered ``camera``. What the tie would buy is neutral greys in the rendering: truly grey
 #: pixels of ``camera`` 0.22 -> 0.10 largest deviation per decade, the iPhone's mid-frame greys
 #: 0.21-0.29 -> 0.10-0.15. Against the exact radiance the tie loses on the tuning family, so it is
-#: off (an option of :func:`unclipped_debevec`); the greys stay an open problem (``docs/paper1.md``, neutral axis).
+#: off (an option of :func:`unclipped_debevec`). The greys' constant cast is removed instead by
+#: :mod:`derender.hdr.stabilize.grey_balance` (one gain per output channel; iPhone mid-frame greys
+#: 0.21-0.29 -> 0.06-0.12); what varies with brightness stays (``docs/paper1.md``, neutral axis).
+#: Remeasured on issue 27 part 3's branch (with the grey balance): ``camera`` 43.49 -> 43.56 (per
+#: bracket -1.25 .. +1.15), the demo's bracket 49.24 -> 47.54. The cost is not a channel-different
+#: rendering: with one rendering for every frame the tie costs nothing on the demo's scene (49.00 /
+#: 49.02); it comes from the per-frame tone changes (gamma times gain), which one common curve cannot
+#: represent and each untied channel absorbs in its own way (``docs/paper1.md``).
 CURVE_TIE = 0.0
+
+
+def _misfit(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(3,) weighted RMS of Debevec & Malik's data term per channel,
+    ``sum_{p,j} w^2 (g(Z_pj) - ln E_p - ln t_j - o_jc)^2 / sum w^2`` (hat weights, ``ln E_p`` its
+    weighted least-squares value), of curves ``g`` (256, 3) and offsets (N, 3) on ``codes`` (N, P, 3)."""
+    z = np.asarray(codes, dtype=np.int64)
+    w = np.minimum(z, 255 - z).astype(np.float64) + 0.0
+    w2 = w ** 2
+    out = np.empty(3)
+    for c in range(3):
+        b = log_t[:, None] + offsets[:, c][:, None]                     # (N, 1)
+        gz = g[z[:, :, c], c]
+        den = np.maximum(w2[:, :, c].sum(axis=0), 1e-12)
+        ln_e = (w2[:, :, c] * (gz - b)).sum(axis=0) / den
+        r = gz - ln_e[None, :] - b
+        out[c] = np.sqrt((w2[:, :, c] * r ** 2).sum() / max(w2[:, :, c].sum(), 1e-12))
+    return out
 
 
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, *, seed: int = 0,
@@ -351,7 +406,8 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
               "weights": "hat", "clip": float(high), "clip_radius": r,
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
-              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie}
+              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie,
+              "misfit": _misfit(codes, log_t, g, offsets).tolist()}
     return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
 
 

@@ -507,6 +507,11 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
         mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
                                     n_iter=ransac_iter)
         how = ["joint"] * n
+    from derender.hdr.stabilize import grey_balance as gb
+
+    if gb.GREY_BALANCE:
+        gains, info["grey_balance"] = gb.grey_balance(blocks, curves, mats, low=low, high=high)
+        mats = np.asarray(mats, dtype=np.float64) * gains[None, :, None]      # D M_j
     t3 = time.perf_counter()
     info["timings"] = {"response_s": t2 - t1, "matrices_s": t3 - t2}
     return Stabilization(mode=mode, reference=ref, gammas=ge, matrices=mats, alignment=al, times=times,
@@ -528,7 +533,7 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     by the inverse variance of image j's radiance estimate for equal code noise,
     ``t_j^2 / (dL_j/dJ)^2``: a dark code of a short exposure, inverted through a steep
     curve, otherwise counts as much as a well-exposed one and dominates a linear average
-    with its noise. Linear result: the reference's colour rendering
+    with its noise. Linear result: the reference's colour rendering, grey-balanced (:mod:`.grey_balance`)
     (``mode="reference"``, radiance per second of the reference's exposure) or the common
     average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
     weights (normalised per pixel). 8-bit stacks with integer alignment and no
@@ -588,6 +593,8 @@ def stabilization_info(stab: Stabilization) -> dict:
             "gamma_trend": stab.info.get("gamma_trend")}
     if "hidden_saturation" in stab.info:
         info["hidden_saturation"] = stab.info["hidden_saturation"]
+    if "grey_balance" in stab.info:
+        info["grey_balance"] = stab.info["grey_balance"]
     if al.shifts is not None:
         info["shifts"] = al.shifts.tolist()
     return info
