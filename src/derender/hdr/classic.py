@@ -36,7 +36,6 @@ from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
 from derender.hdr.registry import record_values
 from derender.response.curves import (
-    DEFAULT_LAMBDA,
     DEFAULT_SAMPLES,
     DEFAULT_TIE,
     check_usable,
@@ -45,7 +44,22 @@ from derender.response.curves import (
     histogram_samples,
 )
 
-__all__ = ["DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
+#: Smoothness weight lambda of the Debevec *merge*'s calibration (``merge_debevec``, ``--method
+#: debevec``; :func:`~derender.response.debevec1997.calibrate_debevec` itself keeps the
+#: response package's :data:`~derender.response.curves.DEFAULT_LAMBDA` = 30). With 2-stop
+#: brackets the data constrain ``g`` only between codes one exposure step apart; the shape
+#: inside a step is left to the smoothness term, and lambda 30 let it ripple by +-15 % with
+#: the period of one step (measured against the true curve on the luminance family's
+#: ``camera`` style with a fixed pipeline: exp(g - g_true) 0.84 at code 80, 1.04 at 118, 0.84
+#: at 160, 1.12 at 200, seed 1). Spot-calibrated linearity, median abs error / worst decade
+#: (``benchmarks/bench_linearity_causes.py``; seeds 0, 1, 2; tuning renderings): lambda 30:
+#: gamma 1.8-2.4 % / 0.973, fixed camera style 1.6-6.4 % / 1.106; 100: gamma 1.0-1.1 % /
+#: 1.010, fixed camera style 0.9-1.6 % / 1.020; 200: 0.9-1.0 % / 1.021 and 0.8-0.9 % / 0.995.
+#: On the auto-pipeline renderings (``paper``, ``camera``) lambda moves nothing (the frames'
+#: own gammas and gains dominate: docs/luminance.md).
+MERGE_LAMBDA = 100.0
+
+__all__ = ["MERGE_LAMBDA", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
            "debevec_engine", "robertson_engine"]
 
 
@@ -104,7 +118,7 @@ class DebevecMethod(MethodDefaults):
         self.curves = options.curves
         self.variance = bool(options.variance)
         self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
-        self.lam = DEFAULT_LAMBDA if options.lam is None else float(options.lam)
+        self.lam = MERGE_LAMBDA if options.lam is None else float(options.lam)
         self.n_samples = DEFAULT_SAMPLES if options.n_samples is None else int(options.n_samples)
         self.sampling, self.seed = options.sampling, int(options.seed)
         self.weight, self.domain, self.channel_weights = options.weight, options.domain, options.channel_weights
@@ -279,7 +293,7 @@ def merge_debevec(
         e.g. a camera profile's).
     lam, n_samples, sampling, seed, tie
         The calibration (:func:`~derender.response.debevec1997.calibrate_debevec`, always with the
-        paper's hat weights): smoothness lambda, number of samples (``"grid"`` samples in
+        paper's hat weights): smoothness lambda (None: :data:`MERGE_LAMBDA`), number of samples (``"grid"`` samples in
         uniform regions, or ``"histogram"``), the grid's seed, the channel tie (None: the default).
     weight, domain, channel_weights
         The merge's weight (``"gaussian"``, ``"hat"``, ...), averaging domain (``"log"`` or
