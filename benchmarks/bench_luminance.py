@@ -16,6 +16,14 @@ hdrgen runs twice:
   on a file that does not exist) from a *calibration* bracket of the same camera and rendering
   (the next seed), then reused on the measured bracket, as the luminance-map procedure does.
 
+``--evalglare`` also runs Radiance's ``evalglare`` (pyradiance's) on the fisheye framing: ``-V``
+(vertical illuminance Ev) and its default output (DGP, DGI, UGR, VCP, CGI, Lveil) for the
+truth map and every map with the same ``VIEW=`` header. The family's fisheye scene gives
+Ev of about 41 klx, where DGP = 5.87e-5 Ev + ... + 0.16 saturates at 1 (evalglare clips it):
+the table also gives DGP with every map, the truth's included, scaled by ``--dgp-scale``
+(default 0.1, Ev about 4 klx) so that the glare probability is not clipped and the maps'
+differences show.
+
 A missing hdrgen is skipped with its reason. Run::
 
     python benchmarks/bench_luminance.py --hdrgen /tmp/hdrgen/build/hdrgen [--renders gamma,camera] \\
@@ -156,11 +164,27 @@ def glare(args, work: Path, hdrgen: str | None) -> list[dict]:
         path = work / f"fisheye-{name}.hdr"
         write_hdr(path, img, view=FISHEYE_VIEW)
         run = subprocess.run([str(evalglare), "-V", str(path)], capture_output=True, text=True)
-        rows.append({"map": name, "ev_lx": float(run.stdout.split()[0])})
-    ref = rows[0]["ev_lx"]
+        row = {"map": name, "ev_lx": float(run.stdout.split()[0])} | evalglare_indices(evalglare, path)
+        scaled = work / f"fisheye-{name}-scaled.hdr"
+        write_hdr(scaled, img * args.dgp_scale, view=FISHEYE_VIEW)
+        row["dgp_scaled"] = evalglare_indices(evalglare, scaled).get("dgp", float("nan"))
+        rows.append(row)
+    ref = rows[0]
     for r in rows:
-        r["ev_error"] = r["ev_lx"] / ref - 1.0
+        r["ev_error"] = r["ev_lx"] / ref["ev_lx"] - 1.0
+        r["dgp_scaled_diff"] = r["dgp_scaled"] - ref["dgp_scaled"]
     return rows
+
+
+def evalglare_indices(evalglare, path) -> dict:
+    """evalglare's default output on a fisheye map with a VIEW= header, ``dgp,dgi,ugr,vcp,cgi,Lveil:
+    v1 v2 ...``, as a dict (lower-case names); empty when evalglare printed no such line."""
+    run = subprocess.run([str(evalglare), str(path)], capture_output=True, text=True)
+    for line in run.stdout.splitlines():
+        if ":" in line and line.lower().startswith("dgp"):
+            names, values = line.split(":", 1)
+            return {n.strip().lower(): float(v) for n, v in zip(names.split(","), values.split())}
+    return {}
 
 
 def main(argv=None) -> int:
@@ -174,6 +198,8 @@ def main(argv=None) -> int:
     p.add_argument("--n-train", type=int, default=3000)
     p.add_argument("--evalglare", action="store_true", help="also evalglare -V on the fisheye framing")
     p.add_argument("--fisheye-size", type=int, default=160)
+    p.add_argument("--dgp-scale", type=float, default=0.1,
+                   help="DGP also on every map scaled by this (the family's Ev ~41 klx clips DGP at 1)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     args.size = tuple(int(v) for v in args.size.lower().split("x"))
@@ -200,13 +226,15 @@ def main(argv=None) -> int:
         print(f"| {r['render']} | {r['role']} | {r['method']} | {r['median_abs']:.1%} | {r['p90_abs']:.1%} | "
               f"{r['decades'][-1]:.3f} | {format_decades(r['decades'])} |")
     if glare_rows:
-        print("\n| map (fisheye, gamma camera, tuning) | evalglare -V Ev (lx) | vs truth |")
-        print("| --- | ---: | ---: |")
+        print(f"\n| map (fisheye, gamma camera, tuning) | evalglare -V Ev (lx) | vs truth | DGP | UGR | "
+              f"DGP, maps x {args.dgp_scale:g} | vs truth |")
+        print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
         for r in glare_rows:
             if "skipped" in r:
-                print(f"| {r['map']} | skipped: {r['skipped']} | |")
+                print(f"| {r['map']} | skipped: {r['skipped']} | | | | | |")
             else:
-                print(f"| {r['map']} | {r['ev_lx']:.0f} | {r['ev_error']:+.1%} |")
+                print(f"| {r['map']} | {r['ev_lx']:.0f} | {r['ev_error']:+.1%} | {r.get('dgp', float('nan')):.3f} | "
+                      f"{r.get('ugr', float('nan')):.1f} | {r['dgp_scaled']:.3f} | {r['dgp_scaled_diff']:+.3f} |")
     if args.json:
         Path(args.json).write_text(json.dumps({"linearity": rows, "evalglare": glare_rows}, indent=2, default=float))
     return 0

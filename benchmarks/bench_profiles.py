@@ -14,6 +14,17 @@ for comparison, and the ratio of the profile's factor to B's own spot factor.
 
 Tuning families: the fixed pipeline (``camera`` style), ``camera``, ``paper``; held out:
 ``dslr-lut``, ``phone-local``, ``drift``. Results: docs/luminance.md.
+
+``--luminance RENDERS`` measures the same line on the luminance-truth family
+(:mod:`derender.camera.luminance`, absolute truth in cd/m2 over 1..1e6): bracket A is a time
+bracket (f/16, ISO 100) calibrated with ``--spot`` on its grey card (the spot the family
+records, the card's exact luminance), bracket B another seed's ``aperture-iso`` bracket (f/4-16,
+ISO 100-800 drawn per frame, the times out of order against brightness), merged with the
+profile only. Scored on the smooth pixels off the card with truth >= 1 cd/m2 (as
+:mod:`derender.evaluation.linearity`). Renderings ``gamma``, ``paper``, ``camera`` tuning;
+``dslr-lut``, ``phone-local``, ``drift`` held out::
+
+    python benchmarks/bench_profiles.py --luminance gamma,paper,camera,dslr-lut --methods debevec,stabilized
 """
 
 from __future__ import annotations
@@ -119,17 +130,70 @@ def run(family: str, pairs, methods, work: Path) -> list[str]:
     return rows
 
 
+LUMINANCE_PAIRS = [(0, 1), (2, 3), (4, 5)]
+
+
+def run_luminance(render: str, pairs, methods, work: Path) -> list[str]:
+    """The profile line on the luminance family (module docstring)."""
+    from derender.camera import bracket_paths, write_bracket
+    from derender.camera.luminance import TUNING_RENDERS, simulate_luminance, truth_luminance_cd_m2
+    from derender.evaluation.families import smooth_mask
+    from derender.io.exr import read_exr
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.illuminance import luminance_cd_m2
+
+    role = "tuning" if render in TUNING_RENDERS else "held out"
+
+    def scores(path: Path, b) -> dict:
+        lt = truth_luminance_cd_m2(b.truth_linear_srgb)
+        ok = smooth_mask(b.truth_linear_srgb) & (lt >= 1.0)
+        x, y, w, h = b.params["luminance"]["grey_card"]
+        ok[y:y + h, x:x + w] = False
+        ratio = luminance_cd_m2(read_exr(path), SRGB_PRIMARIES)[ok] / lt[ok]
+        err = np.abs(ratio - 1.0)
+        return {"median": float(np.median(err)), "p90": float(np.percentile(err, 90)),
+                "ratio": float(np.median(ratio))}
+
+    rows = []
+    for sa, sb in pairs:
+        ba = simulate_luminance(mode="time", render=render, seed=sa)
+        bb = simulate_luminance(mode="aperture-iso", render=render, seed=sb)
+        fa_dir, fb_dir = work / f"lum-{render}-{sa}a", work / f"lum-{render}-{sb}b"
+        write_bracket(ba, fa_dir)
+        write_bracket(bb, fb_dir)
+        fa, fb = bracket_paths(fa_dir, "jpeg"), bracket_paths(fb_dir, "jpeg")
+        for m in methods:
+            p, a, bp, bs = (work / f"lum-{render}-{sa}-{m}{x}" for x in (".json", "a.exr", "b.exr", "bs.exr"))
+            merge(["merge", *fa, "-o", a, "--method", m, "--spot", ba.params["luminance"]["spot_option"],
+                   "--save-profile", p])
+            merge(["merge", *fb, "-o", bp, "--method", m, "--profile", p])
+            merge(["merge", *fb, "-o", bs, "--method", m, "--spot", bb.params["luminance"]["spot_option"]])
+            s_a, s_b, s_bs = scores(a, ba), scores(bp, bb), scores(bs, bb)
+            k = float(np.median(read_exr(bp) / np.maximum(read_exr(bs), 1e-30)))
+            rows.append(f"| luminance `{render}` ({role}) | {sa}/{sb} time/aperture-iso | {m} | "
+                        f"{100 * s_a['median']:.1f} % | {100 * s_bs['median']:.1f} % | {100 * s_b['median']:.1f} % | "
+                        f"{100 * s_b['p90']:.1f} % | {s_b['ratio']:.3f} | {k:.3f} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--families", default="fixed", help="fixed (fixed pipeline, camera style) and/or simulator "
                                                           "families, comma separated")
     ap.add_argument("--methods", default="debevec,stabilized")
     ap.add_argument("--pairs", type=int, default=None, help="scene pairs per family (default: 5 fixed, 2 families)")
+    ap.add_argument("--luminance", default=None, help="luminance-family renderings (gamma, paper, camera, "
+                                                      "dslr-lut, phone-local, drift) instead of --families")
     args = ap.parse_args(argv)
     print("| pipeline | seeds A/B, scenes | method | A, spot | B, own spot | B, profile | p90 | ratio | "
           "k profile / k own |\n| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     work = Path(tempfile.mkdtemp(prefix="bench-profiles-"))
     try:
+        if args.luminance:
+            for render in args.luminance.split(","):
+                run_luminance(render, LUMINANCE_PAIRS[:args.pairs or 3], args.methods.split(","), work)
+            return 0
         for fam in args.families.split(","):
             n = args.pairs or (5 if fam == "fixed" else 2)
             pairs = PAIRS[:n] if fam == "fixed" else [(s, s, "outdoor", "indoor") for s in (21, 22)][:n]

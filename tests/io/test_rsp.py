@@ -135,8 +135,9 @@ def test_hdrgen_merges_with_our_exported_rsp(tmp_path, capsys):
 def test_merge_with_a_response_hdrgen_solved(tmp_path, capsys):
     """hdrgen solves its response on a bracket (-r, file absent); 'profile import-rsp' and
     'merge --profile' merge with it: the map's luminance deviates from hdrgen's own map by a
-    median 7.8 % around their median ratio, against 11.5 % for our own Debevec curves (gamma-2.2
-    camera, 192x128, 7 frames, seed 7; the rest is hdrgen's weighting and exposure adjustment)."""
+    median 7.8 % around their median ratio, against 9.5 % for our own Debevec curves (11.5 % with
+    the Debevec merge's former smoothness lambda 30, whose curve rippled; gamma-2.2 camera, 192x128,
+    7 frames, seed 7; the rest is hdrgen's weighting and exposure adjustment)."""
     from helpers import write_exif_jpeg as _write
 
     from derender.camera import simulate_bracket
@@ -163,4 +164,4 @@ def test_merge_with_a_response_hdrgen_solved(tmp_path, capsys):
         ok = ours > 1e-3 * ours.max()
         ratio = hg[ok] / ours[ok]
         dev[name] = float(np.median(np.abs(ratio / np.median(ratio) - 1)))
-    assert dev["imp"] < 0.10 and dev["imp"] < dev["own"] - 0.02, dev
+    assert dev["imp"] < 0.10 and dev["imp"] < dev["own"] - 0.005, dev

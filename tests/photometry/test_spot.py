@@ -23,7 +23,8 @@ def test_spot_calibrated_luminance_matches_the_absolute_truth(tmp_path, capsys, 
     """The truth in cd/m2 is the simulator's radiance times an arbitrary 317.0; the meter reads
     its mean luminance over a smooth 8x8 patch. After --spot the patch reads the meter, and
     the map's luminance on the other smooth pixels (where demosaicing keeps the truth) matches
-    the absolute truth: median ratio 0.974 / 0.975 and median absolute error 0.054 / 0.043
+    the absolute truth: median ratio 0.971 / 0.975 and median absolute error 0.038 / 0.043
+    (debevec with its merge's lambda 60; 0.974 / 0.054 at lambda 30)
     (debevec / stabilized, 168 smooth pixels; seed 7, 192x128, fixed pipeline, camera style); the bounds leave room for the method's own error
     but not for a wrong factor (179, the primaries' weights, the exposure)."""
     from derender.camera import bracket_paths, simulate_bracket, write_bracket

@@ -280,6 +280,9 @@ def exp_linearity(
     methods: str = typer.Option("debevec,robertson,stabilized,stabilized-joint,probabilistic", "--methods",
                                 help="derender methods (probabilistic: paper 2's GP from the camera's chart session)."),
     n_train: int = typer.Option(5000, "--n-train", help="GP training pairs for probabilistic."),
+    readback: Optional[str] = typer.Option(None, "--readback",
+                                           help="'pvalue': score the spot-scaled map written as .hdr and read back "
+                                                "by Radiance's pvalue -h -H -o -d (PATH or pyradiance)."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
     """Linearity over 5 decades. Each method's map, scaled on the grey card (--spot), against the
@@ -301,10 +304,18 @@ def exp_linearity(
         if bad or not given:
             raise InputError(f"{name} takes {', '.join(allowed)}; got {', '.join(bad) or 'nothing'}")
     _ = LUMINANCE_MODES
+    if readback is not None:
+        from derender.evaluation.linearity import radiance_program
+
+        if readback != "pvalue":
+            raise InputError(f"--readback takes pvalue, got {readback!r}")
+        if radiance_program("pvalue") is None:
+            raise InputError("--readback pvalue: Radiance's pvalue not found (PATH or pip install pyradiance)")
     with OutputTransaction() as tx:
         json_tmp = tx.add(output, "--json", (".json",))
         rows = linearity_experiment(split(renders), modes=split(modes), seeds=seed_list, size=(w, h), exposures=exposures,
-                                    methods=split(methods), n_train=n_train, progress=lambda msg: console().print(msg))
+                                    methods=split(methods), n_train=n_train, readback=readback,
+                                    progress=lambda msg: console().print(msg))
         if json_tmp is not None:
             json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")
     for r in rows:

@@ -12,6 +12,14 @@ reading would (:func:`derender.photometry.calibration.spot_factor`: ``k = L_card
 luminance 1..10, ..., 1e5..1e6 cd/m2. Scored pixels are those where the in-camera demosaicing
 and chroma denoising keep the truth (:func:`derender.evaluation.families.smooth_mask`), off the
 grey card itself, and not over-exposed in every frame (the merge's mask: a bound, not a value).
+
+``readback="pvalue"`` scores the file a user would get instead of the array: the spot-scaled
+map is written as a Radiance ``.hdr`` (:func:`derender.io.rgbe.write_hdr`, ``EXPOSURE=`` as
+given) and read back by Radiance's own ``pvalue -h -H -o -d`` (``-o``: ``EXPOSURE`` undone,
+mantissa + 0.5 as Radiance decodes), found on ``PATH`` or in the ``pyradiance`` wheel
+(:func:`radiance_program`); the scores are then computed from those numbers. They agree with the
+array's to RGBE precision (one mantissa step, ``2^-8`` relative at worst): a check that the
+written file carries the measured linearity.
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ import numpy as np
 from derender.core.errors import InputError
 
 __all__ = ["DECADES", "LINEARITY_METHODS", "linearity_scores", "linearity_experiment", "render_chart_model",
-           "format_decades", "fisheye_maps", "FISHEYE_VIEW"]
+           "format_decades", "fisheye_maps", "FISHEYE_VIEW", "radiance_program", "pvalue_rgb"]
 
 #: Decade edges of the true luminance (cd/m2).
 DECADES = tuple(10.0 ** k for k in range(7))
@@ -31,14 +39,60 @@ DECADES = tuple(10.0 ** k for k in range(7))
 LINEARITY_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint", "probabilistic")
 
 
+def radiance_program(name: str) -> str | None:
+    """Path of Radiance's program ``name`` (``pvalue``, ``getinfo``, ``evalglare``): on ``PATH``,
+    else inside the ``pyradiance`` wheel (PyPI); None when neither has it."""
+    import shutil
+    from pathlib import Path
+
+    found = shutil.which(name)
+    if found:
+        return found
+    try:
+        import pyradiance
+    except ImportError:
+        return None
+    path = Path(pyradiance.__file__).parent / "bin" / name
+    return str(path) if path.is_file() else None
+
+
+def pvalue_rgb(path: Any, *, pvalue: str | None = None) -> np.ndarray:
+    """(H, W, 3) float64 of a Radiance picture as ``pvalue -h -H -o -d`` prints it (no header, no
+    resolution line, original units: ``EXPOSURE`` undone; one ``R G B`` line per pixel in
+    scanline order), the size from the file's resolution line. ``InputError`` without pvalue."""
+    import subprocess
+
+    exe = pvalue or radiance_program("pvalue")
+    if exe is None:
+        raise InputError("Radiance's pvalue not found (PATH or pip install pyradiance)")
+    with open(path, "rb") as f:
+        head = f.read(65536)
+    end = head.find(b"\n\n")
+    res = head[end + 2:head.find(b"\n", end + 2)].split()
+    if end < 0 or len(res) != 4 or res[0] != b"-Y" or res[2] != b"+X":
+        raise InputError(f"{path}: not a standard-orientation (-Y H +X W) Radiance picture")
+    h, w = int(res[1]), int(res[3])
+    run = subprocess.run([exe, "-h", "-H", "-o", "-d", str(path)], capture_output=True, text=True)
+    if run.returncode != 0:
+        raise InputError(f"pvalue failed on {path}: {run.stderr.strip()}")
+    vals = np.array(run.stdout.split(), dtype=np.float64)
+    if vals.size != h * w * 3:
+        raise InputError(f"pvalue printed {vals.size} numbers for a {w}x{h} picture")
+    return vals.reshape(h, w, 3)
+
+
 def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], *,
-                     score_mask: np.ndarray | None = None, merge_mask: np.ndarray | None = None) -> dict[str, Any]:
+                     score_mask: np.ndarray | None = None, merge_mask: np.ndarray | None = None,
+                     readback: str | None = None, hdr_exposure: float = 1.0) -> dict[str, Any]:
     """Spot-calibrate ``radiance_srgb`` (H, W, 3, linear sRGB, relative) on ``card`` ``[x, y, w, h]`` (the
     meter's spot: ``scene.json``'s ``luminance.spot``)
     against ``truth_cd_m2`` (H, W) and score it (module docstring). ``score_mask`` (H, W bool)
     selects pixels; ``merge_mask`` (``HDRResult.mask``, 1 = over-exposed in every frame) drops
     those. Returns ``median_abs``, ``p90_abs``, ``median_ratio``, ``decades`` (median ratio per
-    decade, NaN for an empty one), ``counts`` and the ``factor``."""
+    decade, NaN for an empty one), ``counts`` and the ``factor``. ``readback="pvalue"``: the
+    spot-scaled map goes through a ``.hdr`` (``EXPOSURE=hdr_exposure``) and Radiance's ``pvalue``
+    before it is scored (module docstring); ``factor`` is then the spot factor of the array times
+    the (near 1) factor of the read-back map."""
     from derender.io.rgbe import SRGB_PRIMARIES
     from derender.photometry.calibration import Spot, spot_factor
     from derender.photometry.illuminance import luminance_cd_m2
@@ -50,6 +104,21 @@ def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], 
     x, y, w, h = (int(v) for v in card)
     spot = Spot(x, y, w, h, float(lt[y:y + h, x:x + w].mean()))
     cal = spot_factor(rad, spot, SRGB_PRIMARIES, mask=merge_mask)
+    factor = float(cal.factor)
+    if readback == "pvalue":
+        import tempfile
+        from pathlib import Path
+
+        from derender.io.rgbe import write_hdr
+
+        with tempfile.TemporaryDirectory(prefix="derender-readback-") as tmp:
+            path = Path(tmp) / "map.hdr"
+            write_hdr(path, rad * factor, exposure=hdr_exposure, software="derender linearity readback")
+            rad = pvalue_rgb(path)
+        cal = spot_factor(rad, spot, SRGB_PRIMARIES, mask=merge_mask)
+        factor *= float(cal.factor)
+    elif readback is not None:
+        raise InputError(f"readback must be None or 'pvalue', got {readback!r}")
     lum = cal.factor * luminance_cd_m2(rad, SRGB_PRIMARIES)
     sel = np.ones(lt.shape, bool) if score_mask is None else np.asarray(score_mask, bool).copy()
     sel[y:y + h, x:x + w] = False
@@ -66,19 +135,20 @@ def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], 
     err = np.abs(ratio - 1.0)
     return {"median_abs": float(np.median(err)), "p90_abs": float(np.percentile(err, 90)),
             "median_ratio": float(np.median(ratio)), "decades": decades, "counts": counts,
-            "factor": float(cal.factor), "n": int(ratio.size)}
+            "factor": factor, "n": int(ratio.size), "readback": readback or "array"}
 
 
 def linearity_experiment(renders: Sequence[str] = ("gamma", "paper", "camera", "dslr-lut", "phone-local", "drift"),
                          *, modes: Sequence[str] = ("time",), seeds: Sequence[int] = (0,),
                          size: tuple[int, int] = (192, 128), exposures: int = 9,
                          methods: Sequence[str] = LINEARITY_METHODS, camera: str = "nikon-d5100",
-                         n_train: int = 5000, progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+                         n_train: int = 5000, readback: str | None = None,
+                         progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """``derender experiment linearity``: every method on luminance-family brackets of every
     rendering, scored by :func:`linearity_scores`. ``probabilistic`` uses paper 2's GP from the
     camera's chart session (:func:`derender.evaluation.uncertainty.chart_model`), as
     ``derender experiment uncertainty`` does. Rows: render, role (tuning / held-out), mode,
-    seed, method and the scores."""
+    seed, method and the scores (``readback="pvalue"``: read back through Radiance's pvalue)."""
     from derender.camera.luminance import TUNING_RENDERS, simulate_luminance, truth_luminance_cd_m2
     from derender.core.types import Stack
     from derender.evaluation.families import smooth_mask
@@ -104,7 +174,8 @@ def linearity_experiment(renders: Sequence[str] = ("gamma", "paper", "camera", "
                             models[render] = render_chart_model(camera, render, n_train)
                         opts["model"] = models[render]
                     res = merge_seeded(stack, m, int(seed), **opts)
-                    sc = linearity_scores(res.radiance, lt, card, score_mask=smooth, merge_mask=res.mask)
+                    sc = linearity_scores(res.radiance, lt, card, score_mask=smooth, merge_mask=res.mask,
+                                          readback=readback)
                     rows.append({"render": render, "role": "tuning" if render in TUNING_RENDERS else "held-out",
                                  "mode": mode, "seed": int(seed), "method": m} | sc)
     return rows

@@ -36,7 +36,6 @@ from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
 from derender.hdr.registry import record_values
 from derender.response.curves import (
-    DEFAULT_LAMBDA,
     DEFAULT_SAMPLES,
     DEFAULT_TIE,
     check_usable,
@@ -45,7 +44,26 @@ from derender.response.curves import (
     histogram_samples,
 )
 
-__all__ = ["DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
+#: Smoothness weight lambda of the Debevec *merge*'s calibration (``merge_debevec``, ``--method
+#: debevec``; :func:`~derender.response.debevec1997.calibrate_debevec` itself keeps the
+#: response package's :data:`~derender.response.curves.DEFAULT_LAMBDA` = 30). With 2-stop
+#: brackets the data constrain ``g`` only between codes one exposure step apart; the shape
+#: inside a step is left to the smoothness term, and lambda 30 let it ripple by +-15 % with
+#: the period of one step (measured against the true curve on the luminance family's
+#: ``camera`` style with a fixed pipeline: exp(g - g_true) 0.84 at code 80, 1.04 at 118, 0.84
+#: at 160, 1.12 at 200, seed 1). Spot-calibrated linearity, median abs error / worst decade
+#: (``benchmarks/bench_linearity_causes.py``; seeds 0, 1, 2; tuning renderings): lambda 30:
+#: gamma 1.8-2.4 % / 1.034, fixed camera style 1.6-6.4 % / 1.106; 60: gamma 1.1-1.3 % /
+#: 0.989, fixed camera style 1.0-3.0 % / 1.046; 100: 1.0-1.1 % / 1.010 and 0.9-1.6 % / 1.020;
+#: 200: 0.9-1.0 % / 1.021 and 0.8-0.9 % / 1.008. 60, not 100: on the still bracket of
+#: ``tests/engine/test_motion_engine.py`` ghost removal's change of the static error, bounded by
+#: 5 %, is 2.7 % at 30, 2.2 % at 60 and 9.2, 7.7, 8.0, 11.8 % at 70, 80, 100, 200 (not
+#: monotone; the plain merge's own static error falls from 0.273 to 0.257 to 0.244). On the
+#: auto-pipeline renderings (``paper``, ``camera``) lambda moves nothing (the frames' own
+#: gammas and gains dominate: docs/luminance.md).
+MERGE_LAMBDA = 60.0
+
+__all__ = ["MERGE_LAMBDA", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
            "debevec_engine", "robertson_engine"]
 
 
@@ -104,7 +122,7 @@ class DebevecMethod(MethodDefaults):
         self.curves = options.curves
         self.variance = bool(options.variance)
         self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
-        self.lam = DEFAULT_LAMBDA if options.lam is None else float(options.lam)
+        self.lam = MERGE_LAMBDA if options.lam is None else float(options.lam)
         self.n_samples = DEFAULT_SAMPLES if options.n_samples is None else int(options.n_samples)
         self.sampling, self.seed = options.sampling, int(options.seed)
         self.weight, self.domain, self.channel_weights = options.weight, options.domain, options.channel_weights
@@ -279,7 +297,7 @@ def merge_debevec(
         e.g. a camera profile's).
     lam, n_samples, sampling, seed, tie
         The calibration (:func:`~derender.response.debevec1997.calibrate_debevec`, always with the
-        paper's hat weights): smoothness lambda, number of samples (``"grid"`` samples in
+        paper's hat weights): smoothness lambda (None: :data:`MERGE_LAMBDA`), number of samples (``"grid"`` samples in
         uniform regions, or ``"histogram"``), the grid's seed, the channel tie (None: the default).
     weight, domain, channel_weights
         The merge's weight (``"gaussian"``, ``"hat"``, ...), averaging domain (``"log"`` or
