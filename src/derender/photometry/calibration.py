@@ -42,10 +42,10 @@ standard uncertainty (:data:`SENSITIVITY_RATINGS`, each spread taken as uniform)
 curve), against the about 7 % of a spot reading on a grey card (Inanici 2006). Measured on the
 simulator's luminance family (saturation rated; ``derender simulate --luminance time``, 192x128,
 seed 0; median ratio of the map's luminance to the truth on smooth pixels, debevec /
-stabilized): tuning renderings ``gamma`` 0.97 / 1.01, ``paper`` 1.08 / 1.08, ``camera`` 2.13 /
-1.86 (its filmic curve lifts mid-grey by about 1 EV, the case a saturation rating cannot know,
-and the one that sets the +-1 EV); held out ``dslr-lut`` 1.18 / 1.13, ``phone-local`` 0.76 /
-0.73, ``drift`` 2.34 / 2.22.
+stabilized): tuning renderings ``gamma`` 0.98 / 1.01, ``paper`` 1.08 / 1.09, ``camera`` 2.14 /
+1.87 (its filmic curve lifts mid-grey by about 1 EV, the case a saturation rating cannot know,
+and the one that sets the +-1 EV); held out ``dslr-lut`` 1.18 / 1.12, ``phone-local`` 0.77 /
+0.73, ``drift`` 2.34 / 2.27.
 
 (The reflected-light meter constant of ISO 2720, ``K = 12.5`` cd s/m2, :data:`ISO2720_K`, is
 what a meter aims at: ``H = q K / S``, 0.81 of an SOS camera's code-118 exposure. An earlier
