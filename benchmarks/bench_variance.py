@@ -1,0 +1,96 @@
+#!/usr/bin/env python
+"""What ``--variance`` costs the classic and stabilised merges, apart from writing its EXR.
+
+In one process, on a bracket of JPEGs (default: the 9 x 24 MP bracket of ``bench_merge.py``),
+runs ``merge_files(paths, method=M)`` and ``merge_files(paths, method=M, variance=True)``
+(outputs held in memory, nothing written) in alternating pairs (plain, variance; then
+variance, plain; ...) after one warm-up run each, and reports per configuration the median
+wall time and CPU time (``time.process_time``: every thread of the process, so other jobs on
+a shared machine count less) of the whole merge and of the compiled kernel calls alone
+(the kernels are wrapped by timers), and the median pair ratios. The radiance of the last
+two runs is compared byte for byte.
+
+    python benchmarks/bench_variance.py --methods debevec,stabilized --pairs 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.wall = 0.0
+        self.cpu = 0.0
+
+    def wrap(self, fn):
+        def timed(*a, **k):
+            w0, c0 = time.perf_counter(), time.process_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                self.wall += time.perf_counter() - w0
+                self.cpu += time.process_time() - c0
+        return timed
+
+
+def main(argv: list[str] | None = None) -> int:
+    import numpy as np
+
+    import derender.engine.kernels as kernels
+    import derender.engine.variance as variance
+    import derender.engine.variance_kernels as variance_kernels
+    from derender.hdr.files import merge_files
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bracket", default="/tmp/derender-bench/bracket-6000x4000-9-s0-tex")
+    ap.add_argument("--methods", default="debevec,stabilized")
+    ap.add_argument("--pairs", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=None)
+    args = ap.parse_args(argv)
+    paths = sorted(str(p) for p in Path(args.bracket).iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
+    timer = _Timer()
+    for mod, names in ((kernels, ("table_merge_rows", "stabilized_merge_rows")),
+                       (variance_kernels, ("table_merge_var_rows", "stabilized_merge_var_rows")),
+                       (variance, ("add_edge_term",))):
+        for name in names:
+            setattr(mod, name, timer.wrap(getattr(mod, name)))
+
+    def once(method: str, var: bool):
+        timer.wall = timer.cpu = 0.0
+        w0, c0 = time.perf_counter(), time.process_time()
+        res = merge_files(paths, method=method, threads=args.threads, **({"variance": True} if var else {}))
+        return (time.perf_counter() - w0, time.process_time() - c0, timer.wall, timer.cpu), res
+
+    print(f"bracket {args.bracket} ({len(paths)} frames), pairs {args.pairs}, alternating order")
+    for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+        once(method, False)
+        once(method, True)       # warm-up (compilation, page cache)
+        runs: dict = {False: [], True: []}
+        last = {}
+        for i in range(args.pairs):
+            for var in ((False, True) if i % 2 == 0 else (True, False)):
+                t, res = once(method, var)
+                runs[var].append(t)
+                last[var] = res
+                print(f"  {method} {'variance' if var else 'plain   '} wall {t[0]:6.2f} s cpu {t[1]:6.2f} s "
+                      f"kernel wall {t[2]:6.2f} s cpu {t[3]:6.2f} s", flush=True)
+        same = np.array_equal(np.asarray(last[False].radiance), np.asarray(last[True].radiance))
+        last.clear()
+        labels = ("wall", "cpu", "kernel wall", "kernel cpu")
+        for k, lab in enumerate(labels):
+            a = statistics.median(r[k] for r in runs[False])
+            b = statistics.median(r[k] for r in runs[True])
+            ratios = [rv[k] / rp[k] for rp, rv in zip(runs[False], runs[True]) if rp[k] > 0]
+            print(f"{method:11s} {lab:12s} plain {a:6.2f} s  variance {b:6.2f} s  median pair ratio "
+                  f"{statistics.median(ratios):.2f}")
+        print(f"{method:11s} radiance byte-identical with and without variance: {same}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
