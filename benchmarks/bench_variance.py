@@ -10,7 +10,12 @@ a shared machine count less) of the whole merge and of the compiled kernel calls
 (the kernels are wrapped by timers), and the median pair ratios. The radiance of the last
 two runs is compared byte for byte.
 
+``--cli``: instead, ``derender merge BRACKET -o out.exr --method M`` against the same with
+``--variance var.exr`` (the second EXR written too), each a fresh process, in alternating
+pairs; wall and CPU time (``wait4``) of the whole command.
+
     python benchmarks/bench_variance.py --methods debevec,stabilized --pairs 3
+    python benchmarks/bench_variance.py --cli --methods debevec,stabilized --pairs 3
 """
 
 from __future__ import annotations
@@ -38,6 +43,37 @@ class _Timer:
         return timed
 
 
+def _cli(args, paths) -> int:
+    import tempfile
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from runner import _run_measured
+
+    print(f"derender merge, fresh process per run, bracket {args.bracket} ({len(paths)} frames), "
+          f"pairs {args.pairs}, alternating order")
+    with tempfile.TemporaryDirectory(dir=Path(args.bracket).parent) as tmp:
+        for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+            runs: dict = {False: [], True: []}
+            for i in range(args.pairs + 1):          # the first pair warms the caches and is not counted
+                for var in ((False, True) if i % 2 == 0 else (True, False)):
+                    cmd = [sys.executable, "-m", "derender.cli", "merge", *paths, "-o", f"{tmp}/{method}.exr",
+                           "--method", method] + (["--variance", f"{tmp}/{method}-var.exr"] if var else [])
+                    r = _run_measured(cmd)
+                    if r["returncode"] != 0:
+                        raise SystemExit(r["stderr"])
+                    if i:
+                        runs[var].append((r["wall_s"], r["cpu_s"]))
+                    print(f"  {method} {'variance' if var else 'plain   '} wall {r['wall_s']:6.2f} s "
+                          f"cpu {r['cpu_s']:6.2f} s{'' if i else ' (warm-up)'}", flush=True)
+            for k, lab in enumerate(("wall", "cpu")):
+                a = statistics.median(r[k] for r in runs[False])
+                b = statistics.median(r[k] for r in runs[True])
+                ratios = [rv[k] / rp[k] for rp, rv in zip(runs[False], runs[True])]
+                print(f"{method:11s} {lab:5s} plain {a:6.2f} s  --variance {b:6.2f} s  median pair ratio "
+                      f"{statistics.median(ratios):.2f}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
@@ -51,8 +87,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default="debevec,stabilized")
     ap.add_argument("--pairs", type=int, default=3)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--cli", action="store_true", help="time 'derender merge' with and without --variance instead")
     args = ap.parse_args(argv)
     paths = sorted(str(p) for p in Path(args.bracket).iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
+    if args.cli:
+        return _cli(args, paths)
     timer = _Timer()
     for mod, names in ((kernels, ("table_merge_rows", "stabilized_merge_rows")),
                        (variance_kernels, ("table_merge_var_rows", "stabilized_merge_var_rows")),

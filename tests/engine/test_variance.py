@@ -36,7 +36,7 @@ def test_radiance_unchanged_and_variance_finite(paper_bracket, method):
     assert v.shape == res.radiance.shape and v.dtype == np.float32
     assert np.all(np.isfinite(v)) and v.min() >= 0 and np.count_nonzero(v > 0) > 0.99 * v.size
     src = res.info["variance_sources"]
-    assert set(src) == {"noise", "quantisation", "disagreement", "shared", "edges", "curve"}
+    assert set(src) == {"noise", "quantisation", "disagreement", "shared", "edges"}
     assert all(0.0 <= s <= 1.0 for s in src.values())
 
 

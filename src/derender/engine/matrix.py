@@ -137,13 +137,12 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
         radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
         mask = populated_zeros((h, w), dtype=np.uint8)
     if vm is not None:
-        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts, reference_level
+        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts
         from derender.engine.variance_kernels import stabilized_merge_var_rows
 
         parts = new_parts(h, w)
         vargs = (np.ascontiguousarray(vm.noise, dtype=np.float32), np.ascontiguousarray(vm.quant, dtype=np.float32),
                  vm.constants())
-        vref = vm.ref if vm.ref is not None else reference_level(lin, "linear", mats64)
         if out_ring is None:
             var = populated_zeros((3, h, w), dtype=np.float32)
     t0 = time.perf_counter()
@@ -168,7 +167,7 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
             else:
                 stabilized_merge_var_rows(*args, y0, y1, row0, dst, mask, *vargs, vdst, parts, SOURCE_STRIDE)
         if vm is not None:
-            add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0, curve=vm.curve, ref=vref)
+            add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0)
 
     merge_writing(h, OVERLAP_ROWS, band, res, write, ring=out_ring)
     info.update({"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",
@@ -179,5 +178,4 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
         from derender.engine.variance import source_shares
 
         info["variance_sources"] = source_shares(parts)
-        info["variance_reference_level"] = [float(x) for x in vref]
     return res

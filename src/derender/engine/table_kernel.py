@@ -86,7 +86,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
         if vm is not None:
             var = populated_zeros((3, h, w), dtype=np.float32)
     if vm is not None:
-        from derender.engine.variance import (SOURCE_STRIDE, add_edge_term, new_parts, reference_level,
+        from derender.engine.variance import (SOURCE_STRIDE, add_edge_term, new_parts,
                                               scale_relative_variance)
         from derender.engine.variance_kernels import table_merge_var_rows
 
@@ -94,7 +94,6 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
         tn = np.ascontiguousarray(vm.noise, dtype=np.float32)
         tq = np.ascontiguousarray(vm.quant, dtype=np.float32)
         kv = vm.constants()
-        vref = vm.ref if vm.ref is not None else reference_level(plan.values, plan.domain)
     order_a = np.asarray(order, dtype=np.int64)
     valid_k = np.ones((n, 1, 1), dtype=np.uint8) if valid is None else np.ascontiguousarray(valid, dtype=np.uint8)
     independent = plan.channel_weights == "independent"
@@ -132,7 +131,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
                                          tn, tq, kv, vdst, parts, SOURCE_STRIDE)
             run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
             if vm is not None:
-                add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0, curve=vm.curve, ref=vref)
+                add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0)
 
         merge_writing(h, step, band, res, write, ring=out_ring)
     info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))
@@ -142,7 +141,6 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
 
         info["kernel"] = "table_merge_var_rows"
         info["variance_sources"] = source_shares(parts)
-        info["variance_reference_level"] = [float(x) for x in vref]
     return res
 
 
