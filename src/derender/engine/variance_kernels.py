@@ -14,7 +14,8 @@ end of each tile into the variance of :mod:`derender.engine.variance`:
 relative variance (``Var u`` + ``shared^2``, without the factor ``r^2``) and the caller
 multiplies it by the radiance squared after its exponential (vectorised, instead of one
 ``exp`` per pixel-channel here); in the ``"mean"`` mode (one weight per pixel) ``sum w`` and
-``sum w^2`` are kept once per pixel, and frames without weight add nothing. Rows ``y`` with ``y % stride == 0`` also
+``sum w^2`` are kept once per pixel, frames without weight add nothing, and the log domain
+reads ``sum w``, ``sum w u`` from the radiance's own float64 sums. Rows ``y`` with ``y % stride == 0`` also
 write the four sources (noise, quantisation, disagreement, shared) into ``parts``
 (4, ceil(H / stride), W, 3) for ``info["variance_sources"]``.
 """
@@ -32,16 +33,20 @@ __all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
 
 
 @njit(inline="always")
-def _acc(vs, c, t, wc, uc, nq, q, split, own):  # pragma: no cover - compiled
+def _acc(vs, c, t, wc, uc, nq, q, split, own, log_domain):  # pragma: no cover - compiled
     """Add one observation (weight ``wc``, value ``uc``, noise + quantisation variance ``nq``) to the
     sums; ``own`` False: the pixel's weight is shared by its channels (``"mean"`` mode) and
-    ``sum w``, ``sum w^2`` are kept once, in channel 0's planes."""
+    ``sum w``, ``sum w^2`` are kept once, in channel 0's planes. In the log domain the radiance's
+    own float64 sums ``den64``, ``num64`` are ``sum w`` and ``sum w u`` (the same products, in the
+    same order), so only ``sum w u^2`` and the variance sums are added here."""
     ww = wc * wc
     wu = wc * uc
     if own:
-        vs[0, c, t] += wc
+        if not log_domain:
+            vs[0, c, t] += wc
         vs[3, c, t] += ww
-    vs[1, c, t] += wu
+    if not log_domain:
+        vs[1, c, t] += wu
     vs[2, c, t] += wu * uc
     vs[4, c, t] += ww * nq
     if split:
@@ -106,13 +111,13 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         frames, j, y, x, t, weights, values, independent, log_domain, num64, den64, num32, den32)
                     # a frame without weight adds nothing (most of a long bracket's frames, per pixel)
                     if w0 != 0.0:
-                        _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split, True)
+                        _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split, True, log_domain)
                     if w1 != 0.0:
                         _acc(vs, 1, t, np.float64(w1), np.float64(v1), tnq[j, z1, 1], tq[j, z1, 1], split,
-                             independent)
+                             independent, log_domain)
                     if w2 != 0.0:
                         _acc(vs, 2, t, np.float64(w2), np.float64(v2), tnq[j, z2, 2], tq[j, z2, 2], split,
-                             independent)
+                             independent, log_domain)
             for x in range(x0, xe):
                 t = x - x0
                 nb = False
@@ -162,8 +167,10 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                             o = -f32max
                         out[c, y - row0, x] = o
                         m = np.float64(o)
-                    if jj < 0 and vs[0, dc, t] > 0.0:
-                        pn, pq, pd, ps = _finish_var(vs[0, dc, t], vs[1, c, t], vs[2, c, t], vs[3, dc, t],
+                    s0 = den64[dc, t] if log_domain else vs[0, dc, t]
+                    if jj < 0 and s0 > 0.0:
+                        s1 = num64[c, t] if log_domain else vs[1, c, t]
+                        pn, pq, pd, ps = _finish_var(s0, s1, vs[2, c, t], vs[3, dc, t],
                                                      vs[4, c, t] - vs[5, c, t], vs[5, c, t], k, log_domain, m)
                     else:
                         if jj < 0:
