@@ -86,8 +86,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
         if vm is not None:
             var = populated_zeros((3, h, w), dtype=np.float32)
     if vm is not None:
-        from derender.engine.variance import (SOURCE_STRIDE, add_edge_term, new_parts,
-                                              scale_relative_variance)
+        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts, scale_relative_variance
         from derender.engine.variance_kernels import table_merge_var_rows
 
         parts = new_parts(h, w)

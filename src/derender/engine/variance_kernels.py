@@ -22,7 +22,6 @@ write the four sources (noise, quantisation, disagreement, shared) into ``parts`
 
 from __future__ import annotations
 
-
 import numpy as np
 from numba import njit, prange
 
