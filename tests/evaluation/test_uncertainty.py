@@ -33,6 +33,32 @@ def test_calibrated_gaussian_errors_give_nominal_coverage():
     assert np.allclose(d["matrix"], 3.0 * np.eye(3), rtol=0.01)    # the unknown scale is found
 
 
+def test_tail_share_split_into_edge_and_flat_pixels():
+    """Known answer: a truth with a vertical step (the edge pixels are the two columns beside
+    it) and Gaussian errors of the reported sd, except that the edge pixels' sd is 4x the
+    reported one: |z| > 3 in 2 (1 - Phi(3)) = 0.0027 of flat pixel-channels and in
+    2 (1 - Phi(0.75)) = 0.453 of edge ones."""
+    from derender.evaluation.uncertainty import coverage_scores, edge_pixels
+
+    rng = np.random.default_rng(3)
+    h, w = 200, 200
+    g = np.full((h, w, 3), 0.2)
+    g[:, w // 2:] = 20.0
+    g *= np.linspace(1.0, 1.2, w)[None, :, None]      # a gentle ramp: flat pixels have a gradient too
+    edge = edge_pixels(g, share=0.01)
+    assert edge.sum() == 2 * h and edge[:, w // 2 - 1:w // 2 + 1].all()
+    sd = 0.05 * g
+    err = rng.normal(size=g.shape) * sd
+    err[edge] *= 4.0
+    d = coverage_scores((g + err).astype(np.float32), (sd ** 2).astype(np.float32), g.astype(np.float32), fit="none")
+    n_flat = 3 * int((~edge_pixels(g)).sum())
+    assert d["tail3_flat"] == pytest.approx(2 * norm.sf(3.0), abs=4 * np.sqrt(0.0027 / n_flat) + 1e-3)
+    share_edge = 2 * h / (h * w) / 0.10            # the edge set is the top 10 %: 2 of 20 columns are the step
+    expect_edge = share_edge * 2 * norm.sf(0.75) + (1 - share_edge) * 2 * norm.sf(3.0)
+    assert d["tail3_edge"] == pytest.approx(expect_edge, abs=0.02)
+    assert d["tail3"] == pytest.approx(0.1 * d["tail3_edge"] + 0.9 * d["tail3_flat"], abs=2e-3)
+
+
 def test_variance_too_small_is_caught():
     from derender.evaluation.uncertainty import coverage_scores
 

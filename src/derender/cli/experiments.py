@@ -263,7 +263,8 @@ def exp_uncertainty(
         shown.append(r2)
     typer.echo(format_table(shown, [("family", "family", ""), ("method", "method", ""), ("cov50", "50 %", ".3f"),
                                     ("cov80", "80 %", ".3f"), ("cov95", "95 %", ".3f"), ("cov99", "99 %", ".3f"),
-                                    ("median_abs_z", "median abs(z)", ".2f")]))
+                                    ("median_abs_z", "median abs(z)", ".2f"), ("tail3_edge", "|z|>3 edge", ".3f"),
+                                    ("tail3_flat", "|z|>3 flat", ".3f")]))
     if output is not None:
         output.write_text(json.dumps(rows, indent=2, default=float))
 

@@ -466,7 +466,8 @@ def evaluate(
         out = {k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in scores.items()}
         if cover is not None:
             out["coverage"] = {part: {"coverage": {str(p): round(c, 6) for p, c in d["coverage"].items()},
-                                      "median_abs_z": round(d["median_abs_z"], 6), "n": d["n"],
+                                      "median_abs_z": round(d["median_abs_z"], 6),
+                                      **{t: round(d[t], 6) for t in ("tail3", "tail3_edge", "tail3_flat")}, "n": d["n"],
                                       "n_unscored": d["n_unscored"]} for part, d in cover.items()}
         typer.echo(json.dumps(out))
     else:
@@ -479,7 +480,8 @@ def evaluate(
                        "0.99), median |z| (ideal 0.67), pixel-channels scored")
             for part, d in cover.items():
                 typer.echo(f"  {part:9s} " + " / ".join(f"{c:.3f}" for c in d["coverage"].values())
-                           + f"   median |z| {d['median_abs_z']:.2f}   n {d['n']}"
+                           + f"   median |z| {d['median_abs_z']:.2f}   |z|>3 edge {d['tail3_edge']:.3f} flat "
+                           f"{d['tail3_flat']:.3f}   n {d['n']}"
                            + (f" ({d['n_unscored']} without a usable variance)" if d["n_unscored"] else ""))
 
 

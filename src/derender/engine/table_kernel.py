@@ -86,7 +86,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
         if vm is not None:
             var = populated_zeros((3, h, w), dtype=np.float32)
     if vm is not None:
-        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts
+        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts, scale_relative_variance
         from derender.engine.variance_kernels import table_merge_var_rows
 
         parts = new_parts(h, w)
@@ -116,6 +116,8 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
                         cv2.exp(r, dst=r)
                     if not cv2.checkRange(r)[0]:
                         np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
+                    if log and vm is not None:      # the kernel's relative variance, times r^2
+                        scale_relative_variance(r, vdst[c, r0 - row0:r1 - row0], parts, c, r0)
 
             with KERNEL_LOCK:
                 set_numba_threads(threads)

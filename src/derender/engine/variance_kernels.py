@@ -10,14 +10,17 @@ end of each tile into the variance of :mod:`derender.engine.variance`:
     Var u = a (Qn + Qq) / S0^2 + b D r / max(1 - r, r_floor) + c D,   r = W2 / S0^2,
     D = S2 / S0 - (S1 / S0)^2,   Var r = [r^2 if log] Var u + shared^2 r^2
 
-(``k = [a, b, shared^2, censored, r_floor, c]``). Rows ``y`` with ``y % stride == 0`` also
+(``k = [a, b, shared^2, censored, r_floor, c]``). In the log domain the kernel writes the
+relative variance (``Var u`` + ``shared^2``, without the factor ``r^2``) and the caller
+multiplies it by the radiance squared after its exponential (vectorised, instead of one
+``exp`` per pixel-channel here); in the ``"mean"`` mode (one weight per pixel) ``sum w`` and
+``sum w^2`` are kept once per pixel, frames without weight add nothing, and the log domain
+reads ``sum w``, ``sum w u`` from the radiance's own float64 sums. Rows ``y`` with ``y % stride == 0`` also
 write the four sources (noise, quantisation, disagreement, shared) into ``parts``
 (4, ceil(H / stride), W, 3) for ``info["variance_sources"]``.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 from numba import njit, prange
@@ -29,14 +32,21 @@ __all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
 
 
 @njit(inline="always")
-def _acc(vs, c, t, wc, uc, nq, q, split):  # pragma: no cover - compiled
-    """Add one observation (weight ``wc``, value ``uc``, noise + quantisation variance ``nq``) to the sums."""
+def _acc(vs, c, t, wc, uc, nq, q, split, own, log_domain):  # pragma: no cover - compiled
+    """Add one observation (weight ``wc``, value ``uc``, noise + quantisation variance ``nq``) to the
+    sums; ``own`` False: the pixel's weight is shared by its channels (``"mean"`` mode) and
+    ``sum w``, ``sum w^2`` are kept once, in channel 0's planes. In the log domain the radiance's
+    own float64 sums ``den64``, ``num64`` are ``sum w`` and ``sum w u`` (the same products, in the
+    same order), so only ``sum w u^2`` and the variance sums are added here."""
     ww = wc * wc
     wu = wc * uc
-    vs[0, c, t] += wc
-    vs[1, c, t] += wu
+    if own:
+        if not log_domain:
+            vs[0, c, t] += wc
+        vs[3, c, t] += ww
+    if not log_domain:
+        vs[1, c, t] += wu
     vs[2, c, t] += wu * uc
-    vs[3, c, t] += ww
     vs[4, c, t] += ww * nq
     if split:
         vs[5, c, t] += ww * q
@@ -53,9 +63,8 @@ def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover -
     vd = k[1] * d * r / max(1.0 - r, k[4]) + k[5] * d
     vn = k[0] * qn * inv * inv
     vq = k[0] * qq * inv * inv
-    if log_domain:
-        m2 = m * m
-        return vn * m2, vq * m2, vd * m2, k[2] * m2
+    if log_domain:      # relative: the caller multiplies by the radiance squared after its exponential
+        return vn, vq, vd, k[2]
     return vn, vq, vd, k[2] * m * m
 
 
@@ -99,9 +108,15 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                     t = x - x0
                     z0, z1, z2, w0, w1, w2, v0, v1, v2 = add_table_observation(
                         frames, j, y, x, t, weights, values, independent, log_domain, num64, den64, num32, den32)
-                    _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split)
-                    _acc(vs, 1, t, np.float64(w1), np.float64(v1), tnq[j, z1, 1], tq[j, z1, 1], split)
-                    _acc(vs, 2, t, np.float64(w2), np.float64(v2), tnq[j, z2, 2], tq[j, z2, 2], split)
+                    # a frame without weight adds nothing (most of a long bracket's frames, per pixel)
+                    if w0 != 0.0:
+                        _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split, True, log_domain)
+                    if w1 != 0.0:
+                        _acc(vs, 1, t, np.float64(w1), np.float64(v1), tnq[j, z1, 1], tq[j, z1, 1], split,
+                             independent, log_domain)
+                    if w2 != 0.0:
+                        _acc(vs, 2, t, np.float64(w2), np.float64(v2), tnq[j, z2, 2], tq[j, z2, 2], split,
+                             independent, log_domain)
             for x in range(x0, xe):
                 t = x - x0
                 nb = False
@@ -139,9 +154,8 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         else:
                             ndk = True
                     if log_domain:
-                        lr = min(r, 88.0)
-                        out[c, y - row0, x] = np.float32(lr)
-                        m = math.exp(np.float64(np.float32(lr)))
+                        out[c, y - row0, x] = np.float32(min(r, 88.0))
+                        m = 1.0       # the variance stays relative (module docstring)
                     else:
                         o = np.float32(r)
                         if np.isnan(o):
@@ -152,16 +166,17 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                             o = -f32max
                         out[c, y - row0, x] = o
                         m = np.float64(o)
-                    if jj < 0 and vs[0, c, t] > 0.0:
-                        pn, pq, pd, ps = _finish_var(vs[0, c, t], vs[1, c, t], vs[2, c, t], vs[3, c, t],
+                    s0 = den64[dc, t] if log_domain else vs[0, dc, t]
+                    if jj < 0 and s0 > 0.0:
+                        s1 = num64[c, t] if log_domain else vs[1, c, t]
+                        pn, pq, pd, ps = _finish_var(s0, s1, vs[2, c, t], vs[3, dc, t],
                                                      vs[4, c, t] - vs[5, c, t], vs[5, c, t], k, log_domain, m)
                     else:
                         if jj < 0:
                             jj = j_short if bright[frames[j_short, y, x, c]] else j_long
                         zc = frames[jj, y, x, c]
-                        conv = m * m if log_domain else 1.0
-                        pn = np.float64(tn[jj, zc, c]) * conv
-                        pq = np.float64(tq[jj, zc, c]) * conv
+                        pn = np.float64(tn[jj, zc, c])
+                        pq = np.float64(tq[jj, zc, c])
                         pd = k[3] * m * m
                         ps = k[2] * m * m
                     tot = pn + pq + pd + ps

@@ -15,6 +15,12 @@ calibrated variance gives coverage ``p`` at every level and a median ``|z|`` of
 ``Phi^-1(0.75) = 0.674``; a variance too small by a factor ``c^2`` gives a median ``|z|``
 ``c`` times larger (the reliability diagram of the docs plots coverage against ``p``).
 
+The errors of a merge are heavier-tailed than a Gaussian, most of all at edges (the largest
+errors sit where the truth changes within a pixel). The share of pixel-channels with
+``|z| > 3`` (0.0027 for a Gaussian) is reported over all of them and split into **edge**
+pixels (the :data:`EDGE_SHARE` of pixels with the largest gradient of the truth's log
+luminance, ``|grad ln(mean_c g + 1e-3 mean g)|``, central differences) and **flat** ones (the rest).
+
 Pixel-channels whose variance is zero or not finite cannot be scored; they are counted
 (``n_unscored``). With a merge mask (``derender merge --mask``), pixels over-exposed even in
 the shortest frame are reported on their own: their value is a bound, not a measurement.
@@ -31,6 +37,8 @@ from derender.core.errors import InputError
 __all__ = [
     "chart_model",
     "COVERAGE_LEVELS",
+    "EDGE_SHARE",
+    "edge_pixels",
     "coverage_scores",
     "coverage_table",
     "uncertainty_experiment",
@@ -38,6 +46,23 @@ __all__ = [
 
 #: Central-interval probabilities reported by ``derender evaluate --variance``.
 COVERAGE_LEVELS = (0.5, 0.8, 0.95, 0.99)
+
+
+#: The share of pixels counted as edge pixels (largest log-luminance gradient of the truth).
+EDGE_SHARE = 0.10
+
+
+def edge_pixels(truth: np.ndarray, share: float = EDGE_SHARE) -> np.ndarray:
+    """(H, W) bool: the ``share`` of pixels of ``truth`` (H, W, 3) with the largest gradient of
+    ``ln(mean_c g + 1e-3 mean(g))`` (central differences; module docstring)."""
+    g = np.asarray(truth, dtype=np.float64)
+    lum = g.mean(axis=-1)
+    lg = np.log(np.maximum(lum, 0.0) + 1e-3 * max(float(np.mean(lum)), 1e-30))
+    if min(lg.shape) < 2:
+        return np.zeros(lg.shape, dtype=bool)
+    gy, gx = np.gradient(lg)
+    grad = np.hypot(gx, gy)
+    return grad >= np.quantile(grad, 1.0 - share)
 
 
 def _half_widths(levels) -> np.ndarray:
@@ -53,8 +78,9 @@ def coverage_scores(result: Any, variance: Any, truth: Any, fit: str = "matrix",
     ``result``, ``variance``, ``truth``: (H, W, 3) arrays of one shape (linear radiance, its
     per-channel variance, the true radiance); ``mask`` (H, W) bool selects the pixels to
     score (all by default). Returns ``{"coverage": {p: share}, "coverage_rgb": {p: [R, G, B]},
-    "median_abs_z", "n", "n_unscored", "matrix", "fit"}``; shares are over scored
-    pixel-channels."""
+    "median_abs_z", "tail3", "tail3_edge", "tail3_flat", "n", "n_unscored", "matrix", "fit"}``;
+    shares are over scored pixel-channels (``tail3*``: the share with ``|z| > 3``, over all, edge
+    and flat pixels, :func:`edge_pixels`)."""
     from derender.evaluation.metrics import relative_errors
 
     r = np.asarray(result, dtype=np.float64)
@@ -67,6 +93,7 @@ def coverage_scores(result: Any, variance: Any, truth: Any, fit: str = "matrix",
     sel = np.ones(r.shape[:2], bool) if mask is None else np.asarray(mask, dtype=bool)
     if sel.shape != r.shape[:2]:
         raise InputError(f"mask shape {sel.shape} differs from image shape {r.shape[:2]}")
+    edge = edge_pixels(g)[sel]
     rr, vv, gg = r[sel], v[sel], g[sel]
     mapped = rr @ m.T
     var_mapped = vv @ (m * m).T
@@ -79,8 +106,13 @@ def coverage_scores(result: Any, variance: Any, truth: Any, fit: str = "matrix",
     cov = {float(p): (float(np.sum(az[ok] <= w)) / n if n else float("nan")) for p, w in zip(levels, widths)}
     cov_rgb = {float(p): [float(np.sum(az[:, c][ok[:, c]] <= w)) / max(int(ok[:, c].sum()), 1) for c in range(3)]
                for p, w in zip(levels, widths)}
+    def tail(rows: np.ndarray) -> float:
+        o = ok[rows]
+        return float(np.sum(az[rows][o] > 3.0)) / int(o.sum()) if o.any() else float("nan")
+
     return {"coverage": cov, "coverage_rgb": cov_rgb,
             "median_abs_z": float(np.median(az[ok])) if n else float("nan"),
+            "tail3": tail(np.ones(edge.shape, dtype=bool)), "tail3_edge": tail(edge), "tail3_flat": tail(~edge),
             "n": n, "n_unscored": int(ok.size - n), "matrix": m.tolist(), "fit": fit}
 
 
@@ -123,8 +155,9 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
     calibrated once on the chart session of the same camera (``camera`` style, fixed white
     balance: what a user of ``derender chart-pairs`` + ``calibrate`` has). Methods without a
     variance are listed with ``gives_variance=False``. Rows: family, held_out, seed, method,
-    the 50/80/95/99 % coverages and median abs(z) over all pixels, and over pixels measured by some
-    frame (``measured_*``) when some are clipped in every frame."""
+    the 50/80/95/99 % coverages, median abs(z) and the shares with ``|z| > 3`` (all, edge and flat
+    pixels: ``tail3``, ``tail3_edge``, ``tail3_flat``) over all pixels, and over pixels measured by
+    some frame (``measured_*``) when some are clipped in every frame."""
     from derender.camera import simulate_bracket
     from derender.camera.families import check_family
     from derender.core.types import Stack
@@ -156,5 +189,7 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
                         for p, c in d["coverage"].items():
                             row[f"{prefix}cov{int(round(100 * p))}"] = c
                         row[f"{prefix}median_abs_z"] = d["median_abs_z"]
+                        for t in ("tail3", "tail3_edge", "tail3_flat"):
+                            row[f"{prefix}{t}"] = d[t]
                 rows.append(row)
     return rows
