@@ -1,6 +1,6 @@
 """The luminance-truth family: absolute scene luminance (cd/m2) over 5 decades, EXIF t / N / ISO, a grey card.
 
-Issue 28's measurement-grade luminance maps need a bracket whose truth is in cd/m2. A
+Measurement-grade luminance maps need a bracket whose truth is in cd/m2. A
 :func:`luminance_scene` is lit so that its luminance spans 1 .. 1e6 cd/m2: a textured room
 (reflectances 0.03-0.9 from the natural texture, :mod:`derender.camera.scene`) under a
 horizontal illumination gradient of 3.5 decades, a window (D65 sky, 1e4 .. 1e5 cd/m2) and three
@@ -16,7 +16,8 @@ so the simulator's exposure of frame j is ``e_j = t_j S_j / N_j^2`` and its trut
 per unit ``e``, ``truth.exr``) has luminance ``L / 120``: the absolute luminance is
 ``120 (w . truth)`` cd/m2 (``w`` the Rec. 709 row), and Radiance RGB in cd/m2 / 179 units is
 ``truth * 120 / 179`` (``scene.json``: ``luminance.truth_to_cd_m2``). The JPEGs carry EXIF
-``ExposureTime``, ``FNumber`` and ``ISOSpeedRatings``:
+``ExposureTime``, ``FNumber`` and ``ISOSpeedRatings`` (with ``SensitivityType`` 3 and ``ISOSpeed``:
+a saturation-based speed, :func:`derender.photometry.calibration.sensitivity_rating`):
 
 * ``mode="time"``: f/16, ISO 100, the time alone varies (2 stops a frame from 1/8000 s);
 * ``mode="aperture-iso"``: the same exposures ``e_j`` reached with apertures f/4 .. f/16 and ISO

@@ -188,7 +188,7 @@ FISHEYE_VIEW = "-vta -vh 180 -vv 180"
 def fisheye_maps(methods: Sequence[str] = ("debevec", "stabilized"), *, render: str = "gamma", size: int = 160,
                  exposures: int = 9, seed: int = 0, camera: str = "nikon-d5100", n_train: int = 5000
                  ) -> dict[str, np.ndarray]:
-    """Issue 28's glare check: the luminance family framed as a 180-degree circular fisheye
+    """The glare check of the luminance maps: the luminance family framed as a 180-degree circular fisheye
     (``size`` x ``size``, :data:`FISHEYE_VIEW`), merged by each method and scaled on the grey
     card's spot, with the truth: ``{"truth": ..., method: ...}`` (H, W, 3) in Radiance units
     (``179 w·RGB`` = cd/m2), ready for ``write_hdr(..., view=FISHEYE_VIEW)`` and ``evalglare -V``."""

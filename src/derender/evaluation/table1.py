@@ -287,7 +287,7 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), *, kinds: Sequence
     the simulator's exact radiance, :func:`derender.evaluation.metrics.psnr_rgbl`) of each method
     minus that of ``debevec``, per scene (rows with ``scene`` set) and as the mean over the
     scenes of each rendering style (rows with ``scene="mean"``, plus ``wins``: the share of
-    scenes won on >= 3 of the 4 planes). Issue 5's acceptance figures come from the default
+    scenes won on >= 3 of the 4 planes). The acceptance figures come from the default
     (auto pipeline, 3 scene kinds x seeds 0-2, 192x128, 9 exposures)."""
     from derender.camera import simulate_bracket
     from derender.core.types import Stack

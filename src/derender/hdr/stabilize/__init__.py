@@ -44,7 +44,7 @@ Beyond the paper (its Fig. 5: the result depends on the reference):
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
 all (method ``"stabilized-joint"``). Both modes then grey-balance the output (:mod:`.grey_balance`,
-issue 27): one gain per channel, from the blocks the frames render neutral, multiplies every
+the neutral axis): one gain per channel, from the blocks the frames render neutral, multiplies every
 H_j / K_j, so that greys come out grey whatever gauge the per-channel curves left. Pipelines that render a sensor-clipped pixel below
 white (local tone maps, highlight roll-offs) are caught by :mod:`.saturation`: codes that
 stop growing with exposure mark saturation no threshold sees, and the merges leave it out.

@@ -308,7 +308,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
 #: off (an option of :func:`unclipped_debevec`). The greys' constant cast is removed instead by
 #: :mod:`derender.hdr.stabilize.grey_balance` (one gain per output channel; iPhone mid-frame greys
 #: 0.21-0.29 -> 0.06-0.12); what varies with brightness stays (``docs/paper1.md``, neutral axis).
-#: Remeasured on issue 27 part 3's branch (with the grey balance): ``camera`` 43.49 -> 43.56 (per
+#: Remeasured with the grey balance: ``camera`` 43.49 -> 43.56 (per
 #: bracket -1.25 .. +1.15), the demo's bracket 49.24 -> 47.54. The cost is not a channel-different
 #: rendering: with one rendering for every frame the tie costs nothing on the demo's scene (49.00 /
 #: 49.02); it comes from the per-frame tone changes (gamma times gain), which one common curve cannot

@@ -1,4 +1,4 @@
-"""Grey balance of the stabilised merges (issue 27, neutral axis): pixels the frames render grey come out grey.
+"""Grey balance of the stabilised merges (the neutral axis): pixels the frames render grey come out grey.
 
 Beyond paper 1. A camera renders neutral surfaces with equal codes. The curve model
 (:mod:`.filmic`) fits one Debevec & Malik curve per channel, each anchored at
