@@ -1,4 +1,4 @@
-"""Grey balance of the stabilised merges (issue 27, neutral axis; :mod:`derender.hdr.stabilize.grey_balance`)."""
+"""Grey balance of the stabilised merges (the neutral axis; :mod:`derender.hdr.stabilize.grey_balance`)."""
 
 from __future__ import annotations
 
@@ -30,6 +30,25 @@ def test_recovers_a_constant_cast_of_the_curves():
     gains, info = grey_balance(_blocks(codes), curves, mats)
     np.testing.assert_allclose(gains, [1 / 1.25, 1.0, 1 / 0.8], rtol=1e-6)
     assert [f["blocks"] for f in info["frames"]] == [150] * n
+
+
+def test_an_implausible_gain_leaves_the_output_unbalanced():
+    """Votes for a 3x gain (blocks that are no neutral surface of a consistent fit, as moving
+    objects gave on held-out brackets) are refused: gains 1, the reason in the info. A 1.4x cast
+    is still corrected."""
+    rng = np.random.default_rng(2)
+    level = rng.uniform(0.2, 0.8, size=(2, 100, 1, 1))
+    codes = np.repeat(np.repeat(level, 4, axis=2), 3, axis=3)
+    for cast, balanced in ((3.0, False), (1.4, True)):
+        table = np.repeat(2.2 * np.log(np.maximum(np.arange(256) / 255.0, 1e-4))[:, None], 3, axis=1)
+        table[:, 0] += np.log(cast)
+        gains, info = grey_balance(_blocks(codes), [Curve(1.0, log_table=table)] * 2, np.stack([np.eye(3)] * 2))
+        if balanced:
+            np.testing.assert_allclose(gains, [1 / cast, 1.0, 1.0], rtol=1e-6)
+            assert "rejected" not in info
+        else:
+            np.testing.assert_array_equal(gains, np.ones(3))
+            assert "beyond" in info["rejected"]
 
 
 def test_no_vote_without_neutral_blocks():

@@ -36,7 +36,7 @@ import numpy as np
 from derender.hdr.stabilize.blocks import FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve
 
-__all__ = ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "grey_balance"]
+__all__ = ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "GREY_MAX_GAIN", "grey_balance"]
 
 
 #: Whether :func:`derender.hdr.stabilize.method.stabilize_aligned` grey-balances its matrices.
@@ -50,16 +50,26 @@ GREY_TOLERANCE = 8.0 / 255.0
 #: Fewest neutral blocks a frame needs to vote.
 GREY_MIN_BLOCKS = 16
 
+#: Largest plausible gain (either way, ``1 / GREY_MAX_GAIN .. GREY_MAX_GAIN``). The untied curves'
+#: anchoring leaves casts of 1.2-1.3 (the iPhone 6 bracket: gains 0.78 / 1.01 and 0.83 / 1.12);
+#: still brackets of the tuning families give 0.81-1.09. A gain beyond 1.5 says that the blocks
+#: voting are not neutral surfaces of a consistent fit: on moving brackets (before this bound)
+#: the votes reached 0.34 .. 14.8 (``dslr-lut``, ``stabilized-joint``), and the balance then
+#: moved the ghost test's brightest-channel bounds (static-zone error 0.221 -> 0.397). Then the
+#: output is left unbalanced (gains 1) and ``info["rejected"]`` says why.
+GREY_MAX_GAIN = 1.5
+
 
 def grey_balance(blocks: Blocks, curves: Sequence[Curve], matrices: np.ndarray, *, low: float = FIT_LOW,
                  high: float = FIT_HIGH, tolerance: float = GREY_TOLERANCE,
-                 min_blocks: int = GREY_MIN_BLOCKS) -> tuple[np.ndarray, dict]:
+                 min_blocks: int = GREY_MIN_BLOCKS, max_gain: float = GREY_MAX_GAIN) -> tuple[np.ndarray, dict]:
     """The gains ``(g_R, 1, g_B)`` that make the frames' neutral blocks neutral in the output (module docstring).
 
     ``blocks``: the fitting blocks, codes (N, nb, k, 3) in [0, 1]; ``curves``: per-frame
     linearisations; ``matrices`` (N, 3, 3): ``H_j`` or ``K_j`` (a per-frame scale does not
     change a ratio). Returns ``(gains (3,), info)``; gains are ones when no frame has
-    ``min_blocks`` neutral blocks (``info["frames"]`` lists the voting frames and their ratios).
+    ``min_blocks`` neutral blocks, or when a gain would lie beyond ``max_gain`` either way
+    (``info["rejected"]``; ``info["frames"]`` lists the voting frames and their ratios).
     """
     codes = np.asarray(blocks.codes, dtype=np.float64)
     n = codes.shape[0]
@@ -81,7 +91,13 @@ def grey_balance(blocks: Blocks, curves: Sequence[Curve], matrices: np.ndarray, 
         used.append({"frame": j, "blocks": int(ok.sum()), "r_over_g": 1.0 / votes[-1][0],
                      "b_over_g": 1.0 / votes[-1][1]})
     gains = np.ones(3)
+    info: dict = {"frames": used, "tolerance": float(tolerance)}
     if votes:
         r = np.median(np.asarray(votes), axis=0)
-        gains[0], gains[2] = r[0], r[1]
-    return gains, {"gains": gains.tolist(), "frames": used, "tolerance": float(tolerance)}
+        if np.all(np.abs(np.log(r)) <= np.log(max_gain)):
+            gains[0], gains[2] = r[0], r[1]
+        else:
+            info["rejected"] = (f"gains R {r[0]:.3g}, B {r[1]:.3g} beyond 1/{max_gain:g}..{max_gain:g}: the blocks "
+                                "voting are not neutral surfaces of a consistent fit")
+    info["gains"] = gains.tolist()
+    return gains, info
