@@ -110,23 +110,34 @@ def merge(args: list) -> None:
 
 
 def run(family: str, pairs, methods, work: Path) -> list[str]:
-    from derender.io.exr import read_exr
 
     rows = []
     for sa, sb, ka, kb in pairs:
         ba, fa = bracket(work / f"{family}-{sa}a", family, sa, ka, False)
         bb, fb = bracket(work / f"{family}-{sb}b{sa}", family, sb, kb, True)
-        for m in methods:
-            p, a, bp, bs = (work / f"{family}-{sa}-{m}{x}" for x in (".json", "a.exr", "b.exr", "bs.exr"))
-            merge(["merge", *fa, "-o", a, "--method", m, "--spot", spot(ba), "--save-profile", p])
-            merge(["merge", *fb, "-o", bp, "--method", m, "--profile", p])
-            merge(["merge", *fb, "-o", bs, "--method", m, "--spot", spot(bb)])
-            s_a, s_b, s_bs = score(a, ba), score(bp, bb), score(bs, bb)
-            k = float(np.median(read_exr(bp) / np.maximum(read_exr(bs), 1e-30)))
-            rows.append(f"| {family} | {sa}/{sb} {ka}/{kb} | {m} | {100 * s_a['median']:.1f} % | "
-                        f"{100 * s_bs['median']:.1f} % | {100 * s_b['median']:.1f} % | {100 * s_b['p90']:.1f} % | "
-                        f"{s_b['ratio']:.3f} | {k:.3f} |")
-            print(rows[-1], flush=True)
+        rows += profile_rows(f"{family} | {sa}/{sb} {ka}/{kb}", work / f"{family}-{sa}", methods, (fa, ba, spot(ba)),
+                             (fb, bb, spot(bb)), score)
+    return rows
+
+
+def profile_rows(label: str, prefix: Path, methods, a_case: tuple, b_case: tuple, score) -> list[str]:
+    """One table row per method: bracket A merged with its spot and the profile saved, bracket B
+    merged with that profile and, for comparison, with its own spot; ``a_case`` / ``b_case`` are
+    ``(files, bracket, spot option)``, ``score(path, bracket)`` the error figures."""
+    from derender.io.exr import read_exr
+
+    (fa, ba, spot_a), (fb, bb, spot_b) = a_case, b_case
+    rows = []
+    for m in methods:
+        p, a, bp, bs = (Path(f"{prefix}-{m}{x}") for x in (".json", "a.exr", "b.exr", "bs.exr"))
+        merge(["merge", *fa, "-o", a, "--method", m, "--spot", spot_a, "--save-profile", p])
+        merge(["merge", *fb, "-o", bp, "--method", m, "--profile", p])
+        merge(["merge", *fb, "-o", bs, "--method", m, "--spot", spot_b])
+        s_a, s_b, s_bs = score(a, ba), score(bp, bb), score(bs, bb)
+        k = float(np.median(read_exr(bp) / np.maximum(read_exr(bs), 1e-30)))
+        rows.append(f"| {label} | {m} | {100 * s_a['median']:.1f} % | {100 * s_bs['median']:.1f} % | "
+                    f"{100 * s_b['median']:.1f} % | {100 * s_b['p90']:.1f} % | {s_b['ratio']:.3f} | {k:.3f} |")
+        print(rows[-1], flush=True)
     return rows
 
 
@@ -162,18 +173,9 @@ def run_luminance(render: str, pairs, methods, work: Path) -> list[str]:
         write_bracket(ba, fa_dir)
         write_bracket(bb, fb_dir)
         fa, fb = bracket_paths(fa_dir, "jpeg"), bracket_paths(fb_dir, "jpeg")
-        for m in methods:
-            p, a, bp, bs = (work / f"lum-{render}-{sa}-{m}{x}" for x in (".json", "a.exr", "b.exr", "bs.exr"))
-            merge(["merge", *fa, "-o", a, "--method", m, "--spot", ba.params["luminance"]["spot_option"],
-                   "--save-profile", p])
-            merge(["merge", *fb, "-o", bp, "--method", m, "--profile", p])
-            merge(["merge", *fb, "-o", bs, "--method", m, "--spot", bb.params["luminance"]["spot_option"]])
-            s_a, s_b, s_bs = scores(a, ba), scores(bp, bb), scores(bs, bb)
-            k = float(np.median(read_exr(bp) / np.maximum(read_exr(bs), 1e-30)))
-            rows.append(f"| luminance `{render}` ({role}) | {sa}/{sb} time/aperture-iso | {m} | "
-                        f"{100 * s_a['median']:.1f} % | {100 * s_bs['median']:.1f} % | {100 * s_b['median']:.1f} % | "
-                        f"{100 * s_b['p90']:.1f} % | {s_b['ratio']:.3f} | {k:.3f} |")
-            print(rows[-1], flush=True)
+        rows += profile_rows(f"luminance `{render}` ({role}) | {sa}/{sb} time/aperture-iso", work / f"lum-{render}-{sa}",
+                             methods, (fa, ba, ba.params["luminance"]["spot_option"]),
+                             (fb, bb, bb.params["luminance"]["spot_option"]), scores)
     return rows
 
 
