@@ -102,14 +102,14 @@ def test_dslr_lut_held_out_beats_debevec():
 def test_engine_gate_on_codes_and_row_subsample(phone):
     """The engine's gate reads aligned uint8 codes (every k-th row on large frames): the same
     fraction as the float frames, and close to it on a row subsample."""
-    from derender.hdr.stabilize.method import ShiftedFrames, _CodeFrames
+    from derender.hdr.stabilize.method import CodeFrameRows, ShiftedFrames
     from derender.hdr.stabilize.saturation import saturation_fraction
 
     b, _ = phone
     view = ShiftedFrames(b.jpeg_codes, np.zeros((len(b.times), 2), dtype=int))
     full = saturation_fraction(_stack(b).images, b.times)
-    assert saturation_fraction(_CodeFrames(view), b.times) == pytest.approx(full, abs=1e-9)
-    assert saturation_fraction(_CodeFrames(view, 3), b.times) == pytest.approx(full, abs=0.03)
+    assert saturation_fraction(CodeFrameRows(view), b.times) == pytest.approx(full, abs=1e-9)
+    assert saturation_fraction(CodeFrameRows(view, 3), b.times) == pytest.approx(full, abs=0.03)
 
 
 def test_exposure_offsets_reach_the_oracle_on_the_camera_family(monkeypatch):

@@ -36,12 +36,12 @@ from derender.hdr.stabilize.filmic import (
     screen_gamma_trend,
     unclipped_debevec,
 )
+from derender.hdr.stabilize.frame_views import CodeFrameRows, HeldValid, LazyAlignment, ShiftedFrames
 from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
-           "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "ShiftedFrames",
-           "ShiftedValid", "LazyAlignment"]
+           "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine"]
 
 
 def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
@@ -115,105 +115,6 @@ def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: boo
     return res
 
 
-class ShiftedFrames:
-    """8-bit frames seen through integer registration shifts, as the float images
-    :func:`derender.engine.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
-    clip(x + dx)]``, codes as ``k * float32(1/255)``), without making them: ``shape`` and
-    ``pixels(j, ys, xs)`` for :func:`stabilize_aligned`; ``codes(j)`` gives the aligned
-    uint8 frame."""
-
-    def __init__(self, frames: np.ndarray, shifts: np.ndarray):
-        self.frames = frames
-        self.shifts = np.asarray(shifts, dtype=int)
-        h, w = frames[0].shape[:2]
-        self.shape = (len(frames), h, w, 3)
-        self.valid_view = ShiftedValid(self)
-
-    def _where(self, j: int, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        h, w = self.shape[1:3]
-        dy, dx = self.shifts[j]
-        return np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
-
-    def pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-        yy, xx = self._where(j, ys, xs)
-        return code_values()[self.frames[j][yy, xx]]
-
-    def code_pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-        yy, xx = self._where(j, ys, xs)
-        return self.frames[j][yy, xx]
-
-    def codes(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
-        from derender.engine.align import shift_into
-
-        dy, dx = self.shifts[j]
-        if dy == 0 and dx == 0:
-            return self.frames[j]
-        out = np.empty_like(self.frames[j]) if out is None else out
-        shift_into(out, self.frames[j], int(dy), int(dx))
-        return out
-
-
-class ShiftedValid:
-    """Registration masks of :class:`ShiftedFrames` (``shape``, ``pixels``), never made whole."""
-
-    def __init__(self, frames: ShiftedFrames):
-        self.f = frames
-        self.shape = frames.shape[:3]
-
-    def pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-        h, w = self.shape[1:3]
-        dy, dx = self.f.shifts[j]
-        return (ys + dy >= 0) & (ys + dy < h) & (xs + dx >= 0) & (xs + dx < w)
-
-
-class HeldValid:
-    """The engine's ``valid`` planes (N, H, W) uint8 (alignment, ghost removal) as the fits read them."""
-
-    def __init__(self, valid: np.ndarray):
-        self.valid = valid
-        self.shape = valid.shape
-
-    def pixels(self, j: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-        return self.valid[j][ys, xs] != 0
-
-
-class _CodeFrames:
-    """Every ``rows``-th row of the aligned uint8 frames of a :class:`ShiftedFrames`, one at a time."""
-
-    def __init__(self, view: ShiftedFrames, rows: int = 1):
-        self.view, self.rows = view, max(int(rows), 1)
-
-    def __getitem__(self, j: int) -> np.ndarray:
-        if self.rows == 1:
-            return self.view.codes(j)
-        from derender.engine.align import shift_into
-
-        # the rows of the shifted frame, without shifting the whole frame first (at 24 MP that
-        # copied 72 MB per frame to keep one row in ``rows``): shift_into's clipped source rows
-        frame = self.view.frames[j]
-        h = frame.shape[0]
-        dy, dx = (int(v) for v in self.view.shifts[j])
-        sub = frame[np.clip(np.arange(0, h, self.rows) + dy, 0, h - 1)]
-        if dx == 0:
-            return sub
-        out = np.empty_like(sub)
-        shift_into(out, sub, 0, dx)
-        return out
-
-
-@dataclass
-class LazyAlignment:
-    """What :func:`stabilize_aligned` reads of an :class:`~derender.engine.align.Alignment`."""
-
-    images: ShiftedFrames
-    valid: ShiftedValid
-    transforms: np.ndarray
-    method: str
-    reference: int
-    shifts: np.ndarray
-    info: dict
-
-
 class StabilizedMethod(MethodDefaults):
     """Paper 1's stabilised merge on the engine (methods ``"stabilized"`` and ``"stabilized-joint"``).
 
@@ -275,7 +176,7 @@ class StabilizedMethod(MethodDefaults):
         view = ShiftedFrames(frames, shifts)
         valid_view = view.valid_view if access.valid is None else HeldValid(access.valid)
         rows = -(-h * w // REF_PIXELS)     # the gate counts ~REF_PIXELS pixels per frame (every k-th row)
-        if saturation_fraction(_CodeFrames(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
+        if saturation_fraction(CodeFrameRows(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
             raise NotStreamable("saturation below white (stabilize.saturation)")
         al = LazyAlignment(images=view, valid=valid_view, transforms=transforms, method=self.align,
                            reference=ref, shifts=shifts, info=ainfo)
