@@ -73,15 +73,10 @@ def truth_luminance(b):
 
 
 def spot(b, size: int = 8) -> str:
+    from derender.evaluation.linearity import smoothest_window
+
     _, lum = truth_luminance(b)
-    best, where = np.inf, (0, 0)
-    for y in range(8, lum.shape[0] - size - 8, 4):
-        for x in range(8, lum.shape[1] - size - 8, 4):
-            win = lum[y:y + size, x:x + size]
-            spread = win.std() / win.mean()
-            if spread < best and 0.05 * lum.max() > win.mean() > 1e-3 * lum.max():
-                best, where = spread, (x, y)
-    x, y = where
+    x, y = smoothest_window(lum, size)
     return f"{x},{y},{size},{size}={float(lum[y:y + size, x:x + size].mean()):.6f}"
 
 

@@ -6,16 +6,7 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
-
-def _smoothest_window(lum: np.ndarray, size: int = 8) -> tuple[int, int]:
-    best, where = np.inf, (0, 0)
-    for y in range(8, lum.shape[0] - size - 8, 4):
-        for x in range(8, lum.shape[1] - size - 8, 4):
-            win = lum[y:y + size, x:x + size]
-            spread = win.std() / win.mean()
-            if spread < best and 0.05 * lum.max() > win.mean() > 1e-3 * lum.max():
-                best, where = spread, (x, y)
-    return where
+from derender.evaluation.linearity import smoothest_window as _smoothest_window
 
 
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])

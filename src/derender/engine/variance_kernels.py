@@ -69,6 +69,23 @@ def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover -
 
 
 # Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
+@njit(inline="always")
+def _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big):  # pragma: no cover - compiled
+    """A pixel-channel's variance (the sum of its sources, ``big`` where not finite or beyond) and,
+    on every ``stride``-th row, its sources (noise, quantisation, disagreement, shared)."""
+    tot = pn + pq + pd + ps
+    if not (tot >= 0.0):
+        tot = big
+    var[c, y - row0, x] = np.float32(min(tot, big))
+    if y % stride == 0:
+        yy = y // stride
+        parts[0, yy, x, c] = np.float32(min(pn, big))
+        parts[1, yy, x, c] = np.float32(min(pq, big))
+        parts[2, yy, x, c] = np.float32(min(pd, big))
+        parts[3, yy, x, c] = np.float32(min(ps, big))
+
+
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def table_merge_var_rows(frames, valid, ref, order, values, weights, independent, log_domain, v_short, v_long,
                          j_short, j_long, bright, y0, y1, row0, out, mask, tn, tq, k, var, parts,
@@ -179,16 +196,7 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         pq = np.float64(tq[jj, zc, c])
                         pd = k[3] * m * m
                         ps = k[2] * m * m
-                    tot = pn + pq + pd + ps
-                    if not (tot >= 0.0):
-                        tot = big
-                    var[c, y - row0, x] = np.float32(min(tot, big))
-                    if y % stride == 0:
-                        yy = y // stride
-                        parts[0, yy, x, c] = np.float32(min(pn, big))
-                        parts[1, yy, x, c] = np.float32(min(pq, big))
-                        parts[2, yy, x, c] = np.float32(min(pd, big))
-                        parts[3, yy, x, c] = np.float32(min(ps, big))
+                    _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
                 mask[y, x] = 1 if nb else (2 if ndk else 0)
 
 
@@ -315,18 +323,3 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     pn = m0 * tn[jj, c0, 0] + m1 * tn[jj, c1, 1] + m2 * tn[jj, c2, 2]
                     pq = m0 * tq[jj, c0, 0] + m1 * tq[jj, c1, 1] + m2 * tq[jj, c2, 2]
                     _store(var, parts, y, row0, x, c, pn, pq, k[3] * m * m, k[2] * m * m, stride, big)
-
-
-# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
-@njit(inline="always")
-def _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big):  # pragma: no cover - compiled
-    tot = pn + pq + pd + ps
-    if not (tot >= 0.0):
-        tot = big
-    var[c, y - row0, x] = np.float32(min(tot, big))
-    if y % stride == 0:
-        yy = y // stride
-        parts[0, yy, x, c] = np.float32(min(pn, big))
-        parts[1, yy, x, c] = np.float32(min(pq, big))
-        parts[2, yy, x, c] = np.float32(min(pd, big))
-        parts[3, yy, x, c] = np.float32(min(ps, big))

@@ -31,7 +31,7 @@ import numpy as np
 from derender.core.errors import InputError
 
 __all__ = ["DECADES", "LINEARITY_METHODS", "linearity_scores", "linearity_experiment", "render_chart_model",
-           "format_decades", "fisheye_maps", "FISHEYE_VIEW", "radiance_program", "pvalue_rgb"]
+           "format_decades", "fisheye_maps", "FISHEYE_VIEW", "radiance_program", "pvalue_rgb", "smoothest_window"]
 
 #: Decade edges of the true luminance (cd/m2).
 DECADES = tuple(10.0 ** k for k in range(7))
@@ -79,6 +79,22 @@ def pvalue_rgb(path: Any, *, pvalue: str | None = None) -> np.ndarray:
     if vals.size != h * w * 3:
         raise InputError(f"pvalue printed {vals.size} numbers for a {w}x{h} picture")
     return vals.reshape(h, w, 3)
+
+
+def smoothest_window(luminance: np.ndarray, size: int = 8) -> tuple[int, int]:
+    """Top-left ``(x, y)`` of the ``size`` x ``size`` window of a truth luminance map (H, W) with the
+    smallest relative spread, among windows 8 pixels in from the border on a 4-pixel grid whose mean
+    lies between 1e-3 and 0.05 of the map's maximum: where a meter reading is taken in the spot
+    tests and benchmarks (a uniform, well-exposed surface)."""
+    lum = np.asarray(luminance)
+    best, where = np.inf, (0, 0)
+    for y in range(8, lum.shape[0] - size - 8, 4):
+        for x in range(8, lum.shape[1] - size - 8, 4):
+            win = lum[y:y + size, x:x + size]
+            spread = win.std() / win.mean()
+            if spread < best and 0.05 * lum.max() > win.mean() > 1e-3 * lum.max():
+                best, where = spread, (x, y)
+    return where
 
 
 def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], *,
