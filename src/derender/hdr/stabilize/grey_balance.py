@@ -50,7 +50,7 @@ GREY_TOLERANCE = 8.0 / 255.0
 #: Fewest neutral blocks a frame needs to vote.
 GREY_MIN_BLOCKS = 16
 
-#: Largest plausible gain (either way, ``1 / GREY_MAX_GAIN .. GREY_MAX_GAIN``). The untied curves'
+#: Largest plausible gain, either way (from 1 / GREY_MAX_GAIN to GREY_MAX_GAIN). The untied curves'
 #: anchoring leaves casts of 1.2-1.3 (the iPhone 6 bracket: gains 0.78 / 1.01 and 0.83 / 1.12);
 #: still brackets of the tuning families give 0.81-1.09. A gain beyond 1.5 says that the blocks
 #: voting are not neutral surfaces of a consistent fit: on moving brackets (before this bound)
