@@ -9,6 +9,9 @@ compared (max relative difference of the radiance).
 
     python benchmarks/ab_merge.py --a /tmp/before/src --b src --bracket DIR \\
         --methods debevec,stabilized,probabilistic --model gp.npz --runs 3
+
+A method may carry ``+align`` (``--align translation``) or ``+deghost`` (``--align translation
+--deghost``), as in ``bench_merge.py``'s entries: ``--methods debevec,debevec+deghost``.
 """
 
 from __future__ import annotations
@@ -26,8 +29,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from runner import _run_measured  # noqa: E402
 
 
-def _cmd(method: str, files: list[str], out: Path, model: str | None) -> list[str]:
-    cmd = [sys.executable, "-m", "derender.cli", "merge", *files, "-o", str(out / f"{method}.exr"), "--method", method]
+def _cmd(entry: str, files: list[str], out: Path, model: str | None) -> list[str]:
+    method, *extras = entry.split("+")
+    cmd = [sys.executable, "-m", "derender.cli", "merge", *files, "-o", str(out / f"{entry}.exr"), "--method", method]
+    for extra in extras:            # METHOD+align, METHOD+deghost: the engine's motion steps (as bench_merge.py)
+        if extra == "align":
+            cmd += ["--align", "translation"]
+        elif extra == "deghost":
+            cmd += ["--align", "translation", "--deghost"]
+        else:
+            raise SystemExit(f"unknown suffix +{extra} (use +align or +deghost)")
     if method in ("probabilistic", "stabilized-probabilistic"):
         if not model:
             raise SystemExit(f"--model is needed for {method}")

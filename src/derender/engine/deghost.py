@@ -295,11 +295,16 @@ def map_frames(fn, items: list, threads: int | None = None) -> list:
         return list(ex.map(fn, items))
 
 
-def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None) -> np.ndarray | None:
-    """``valid`` (N, H, W) uint8 or None with the ``rejected`` (N, H, W) bool pixels removed."""
+def merge_valid(valid: np.ndarray | None, rejected: np.ndarray | None, *, in_place: bool = False) -> np.ndarray | None:
+    """``valid`` (N, H, W) uint8 or None with the ``rejected`` (N, H, W) bool pixels removed
+    (``in_place``: written over ``rejected``'s memory, which then holds the result, not the
+    rejections: no new plane, whose first touch costs a page fault per 4 kB)."""
     if rejected is None:
         return valid
-    keep = np.logical_not(rejected).view(np.uint8)        # one new plane, its bytes 0/1
+    if in_place:
+        keep = np.logical_not(rejected, out=rejected).view(np.uint8)
+    else:
+        keep = np.logical_not(rejected).view(np.uint8)        # one new plane, its bytes 0/1
     if valid is not None:
         np.bitwise_and(keep, valid, out=keep)
     return keep
@@ -401,7 +406,7 @@ def upsample_mask(mask: np.ndarray, step: int, h: int, w: int) -> np.ndarray:
 
 def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, threshold: float = GHOST_THRESHOLD,
                   window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE,
-                  threads: int | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
+                  threads: int | None = None, out: np.ndarray | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Per frame and pixel, whether the frame disagrees with frame ``ref`` (module docstring).
 
     Returns ``rejected`` ((N, H, W) bool, False for the reference and, to the detection grid's
@@ -410,11 +415,21 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     fraction, log offset ``b``, unexplained spread ``s``). Raises :class:`StackError` when more
     than :data:`MAX_REJECTED` of the other frames' pixels disagree. The per-pixel statistic is
     one compiled pass (:func:`derender.engine.ghost_kernels.ghost_statistic`); the offsets and
-    spreads are robust statistics of at most :data:`STAT_PIXELS` pixels."""
+    spreads are robust statistics of at most :data:`STAT_PIXELS` pixels. ``out``: an (N, H, W)
+    bool plane to write ``rejected`` into (e.g. the previous round's, no longer needed): the
+    grid's rejections are written to full resolution in place
+    (:func:`derender.engine.ghost_kernels.upsample_into`), no temporary planes."""
+    from derender.core.memory import populated_zeros
+    from derender.engine.ghost_kernels import upsample_into
+
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)
     vsub = None if valid is None else valid[:, ::test.step, ::test.step] != 0
-    rejected = np.zeros((n, h, w), dtype=bool)
+    if out is not None and out.shape == (n, h, w) and out.dtype == np.bool_:
+        rejected = out
+        rejected[ref] = False
+    else:
+        rejected = populated_zeros((n, h, w), dtype=bool)
     agreements: dict[int, FrameAgreement] = {}
 
     def one(j: int) -> tuple[int, int, dict]:
@@ -423,7 +438,7 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
         bad = test.regions_grid(q, dilate=True)
         if vsub is not None:
             bad &= vsub[j]
-        rejected[j] = upsample_mask(bad.astype(np.uint8), test.step, h, w)   # counted on the grid
+        upsample_into(bad.view(np.uint8), test.step, rejected[j])   # counted on the grid
         agreements[j] = agreement
         return int(bad.sum()), bad.size, {"frame": j, "rejected": float(bad.mean()), **agreement.summary()}
 

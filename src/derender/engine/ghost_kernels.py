@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["ghost_statistic"]
+__all__ = ["ghost_statistic", "upsample_into"]
 
 
 @njit(inline="always")
@@ -113,3 +113,21 @@ def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, e
                     if np.isfinite(qt) and qt > q:
                         q = qt
             out[y, x] = min(q, cap)
+
+
+@njit(nogil=True, cache=True)
+def upsample_into(mask, step, out):  # pragma: no cover - compiled
+    """``out[y, x] = mask[y // step, x // step] != 0`` for every pixel of ``out`` ((H, W) bool or
+    uint8; ``mask`` the (hs, ws) detection grid, every ``step``-th row and column): a grid
+    mask at full resolution written in place, no temporary plane (fresh memory costs a page
+    fault per 4 kB on first touch). The index is OpenCV's nearest-neighbour rule
+    ``floor(y * (1 / step))``, clamped to the grid, so that the planes equal
+    ``cv2.resize(..., INTER_NEAREST)``'s."""
+    h, w = out.shape[0], out.shape[1]
+    hs, ws = mask.shape[0], mask.shape[1]
+    inv = 1.0 / step
+    for y in range(h):
+        sy = min(int(np.floor(y * inv)), hs - 1)
+        for x in range(w):
+            sx = min(int(np.floor(x * inv)), ws - 1)
+            out[y, x] = mask[sy, sx] != 0

@@ -403,14 +403,18 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     plan = method.plan(access)
     t3 = time.perf_counter()
     ghosts = None
+    covered = False
     ginfo: dict[str, Any] = {}
     if motion.deghost:
         from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
 
         threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
 
+        spare: list = []          # a round's rejection plane, reused by the next round
+
         def detect(plan):
-            return detect_ghosts(frames, plan, ref, valid, threshold=threshold, threads=threads)
+            return detect_ghosts(frames, plan, ref, valid, threshold=threshold, threads=threads,
+                                 out=spare.pop() if spare else None)
 
         def fill(plan, rejected, info) -> None:
             from derender.engine.compensation import compensate_frames
@@ -431,22 +435,26 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
             valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"))
             ainfo["refined"] = rinfo["corrections"]
             if rinfo["corrections"]:
+                if rejected is not None:
+                    spare.append(rejected)
                 rejected, ginfo = detect(plan)
         if rejected is not None and motion.compensate and not refits:
             fill(plan, rejected, ginfo)      # else after the refit (filled pixels posterised the stabiliser's fits)
         rounds = 1
         if rejected is not None and refits:
             # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
-            access = _access(method, source, frames, merge_valid(valid, rejected), ref, threads)
-            plan = method.plan(access)
+            access = _access(method, source, frames, merge_valid(valid, rejected, in_place=True), ref, threads)
+            plan = method.plan(access)         # (access.valid, the first round's plane, stays: finish may read it)
             rejected, ginfo = detect_and_fill(plan)
             rounds = 2
         ginfo["rounds"] = rounds
         ginfo.pop("agreements", None)      # the per-frame summaries stay in ginfo["frames"]
         if rejected is not None:
             ghosts = rejected.sum(axis=0, dtype=np.uint8)
-        valid = merge_valid(valid, rejected)
-    if valid is not None:
+        covered = valid is None              # then the merged validity is the rejections' alone: counted
+        valid = merge_valid(valid, rejected, in_place=True)
+        spare.clear()
+    if valid is not None and not (covered and ghosts is not None):
         uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
         ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
     t4 = time.perf_counter()
