@@ -3,7 +3,8 @@
 
 Alternates the two trees run by run (A, B, A, B, ...) on the same bracket, each run a fresh
 process (``python -m derender.cli merge``) with the tree's ``src`` first on ``PYTHONPATH``;
-reports per method the median wall time, the median ratio B/A over the pairs and the peak
+reports per method the median wall time, the median ratio B/A over the pairs (wall and CPU
+time, the latter steadier on a shared machine) and the peak
 RSS measured in the child itself (``runner._run_measured``). Outputs of the last runs are
 compared (max relative difference of the radiance).
 
@@ -91,13 +92,14 @@ def main(argv: list[str] | None = None) -> int:
                 "B_over_A_median": statistics.median([b / a for a, b in zip(wa, wb)]),
                 "A_peak_mb": max(r["peak_rss_mb"] for r in runs["A"]),
                 "B_peak_mb": max(r["peak_rss_mb"] for r in runs["B"]),
+                "B_over_A_cpu_median": statistics.median([b["cpu_s"] / a["cpu_s"] for a, b in zip(runs["A"], runs["B"])]),
                 "max_rel_diff": rel, "bit_identical": bool(np.array_equal(ra, rb)),
             }
-    print("| method | A median s | B median s | B/A (median of pairs) | A peak MB | B peak MB | outputs |")
-    print("|---|---|---|---|---|---|---|")
+    print("| method | A median s | B median s | B/A (median of pairs) | B/A CPU time | A peak MB | B peak MB | outputs |")
+    print("|---|---|---|---|---|---|---|---|")
     for m, r in rows.items():
         same = "identical" if r["bit_identical"] else f"max rel diff {r['max_rel_diff']:.2g}"
-        print(f"| {m} | {r['A_median_s']:.2f} | {r['B_median_s']:.2f} | {r['B_over_A_median']:.3f} | "
+        print(f"| {m} | {r['A_median_s']:.2f} | {r['B_median_s']:.2f} | {r['B_over_A_median']:.3f} | {r['B_over_A_cpu_median']:.3f} | "
               f"{r['A_peak_mb']:.0f} | {r['B_peak_mb']:.0f} | {same} |")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))

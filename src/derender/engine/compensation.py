@@ -82,7 +82,7 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
             return None
         dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)     # one per thread
         agreement = offsets[j]
-        mu_j, _, cens_j = frame_estimates(test.plan, test.sub(frames[j]), j)
+        mu_j, _, cens_j = frame_estimates(test.plan, test.grid(frames[j]), j)
         mu_j = mu_j - test.maps(agreement)[0]
         rng_j = _observed_range(mu_j, cens_j)
         if rng_j is None:

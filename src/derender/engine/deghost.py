@@ -322,14 +322,15 @@ class ConsistencyTest:
         self.threshold, self.window, self.dilate = float(threshold), int(window), int(dilate)
         self.h, self.w = ref_codes.shape[:2]
         self.step = max(1, int(np.ceil(np.sqrt(self.h * self.w / pixels))))
-        self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, ref_codes[::self.step, ::self.step], ref)
+        self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, self.grid(ref_codes), ref)
         self.hs, self.ws = self.mu_r.shape[:2]
         self.stat_step = max(1, int(np.ceil(np.sqrt(self.hs * self.ws / STAT_PIXELS))))
         self._maps: dict = {}
         self._lock = threading.Lock()
         lo, hi = float(self.mu_r.min()), float(self.mu_r.max())
         self._levels = np.linspace(lo, hi, 4096)
-        self._level_idx = np.clip(np.rint((self.mu_r - lo) * (4095.0 / max(hi - lo, 1e-12))), 0, 4095).astype(np.intp)
+        level_idx = np.clip(np.rint((self.mu_r - lo) * (4095.0 / max(hi - lo, 1e-12))), 0, 4095).astype(np.intp)
+        self._flat_idx = level_idx * 3 + np.arange(3)      # into a (4096, 3) table, raveled: one np.take
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self._dilate = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
 
@@ -343,9 +344,8 @@ class ConsistencyTest:
         if hit is not None and hit[0] is agreement:
             return hit[1], hit[2]
         off_t, var_t = agreement.maps(np.repeat(self._levels[:, None], 3, axis=1))
-        ch = np.arange(3)
-        entry = (agreement, np.ascontiguousarray(off_t[self._level_idx, ch]),
-                 np.ascontiguousarray(var_t[self._level_idx, ch]))
+        entry = (agreement, np.take(np.ascontiguousarray(off_t).ravel(), self._flat_idx),
+                 np.take(np.ascontiguousarray(var_t).ravel(), self._flat_idx))
         with self._lock:
             self._maps[key] = entry
             while len(self._maps) > MAPS_CACHED:
@@ -356,6 +356,11 @@ class ConsistencyTest:
         """``a`` (H, W, ...) on the detection grid."""
         return a[::self.step, ::self.step]
 
+    def grid(self, a: np.ndarray) -> np.ndarray:
+        """:meth:`sub` gathered once into a C-contiguous array (the estimates read the codes
+        several times: a strided view of a full frame would be gathered again each time)."""
+        return np.ascontiguousarray(self.sub(a))
+
     def statistic(self, codes: np.ndarray, j: int, ok: np.ndarray | None = None,
                   agreement: "FrameAgreement | None" = None, on_grid: bool = False):
         """Frame ``j``'s capped ``z^2`` per pixel of the detection grid ((hs, ws) float32), its log
@@ -364,7 +369,7 @@ class ConsistencyTest:
         ``ok`` (hs, ws) uint8 where it may be compared."""
         from derender.engine.ghost_kernels import ghost_statistic
 
-        mu_j, sd_j, cens_j = _estimates32(self.plan, codes if on_grid else self.sub(codes), j)
+        mu_j, sd_j, cens_j = _estimates32(self.plan, codes if on_grid else self.grid(codes), j)
         if ok is None:
             ok = np.ones((self.hs, self.ws), dtype=np.uint8)
         if agreement is None:

@@ -126,8 +126,16 @@ def upsample_into(mask, step, out):  # pragma: no cover - compiled
     h, w = out.shape[0], out.shape[1]
     hs, ws = mask.shape[0], mask.shape[1]
     inv = 1.0 / step
+    cols = np.empty(w, np.int64)
+    for x in range(w):
+        cols[x] = min(int(np.floor(x * inv)), ws - 1)
+    prev = -1
     for y in range(h):
         sy = min(int(np.floor(y * inv)), hs - 1)
+        if sy == prev:          # the row above read the same grid row: copy it
+            for x in range(w):
+                out[y, x] = out[y - 1, x]
+            continue
+        prev = sy
         for x in range(w):
-            sx = min(int(np.floor(x * inv)), ws - 1)
-            out[y, x] = mask[sy, sx] != 0
+            out[y, x] = mask[sy, cols[x]] != 0
