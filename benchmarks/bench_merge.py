@@ -36,6 +36,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="alternating rounds over all entries; medians and median same-round ratios are reported")
     ap.add_argument("--no-texture", action="store_true",
                     help="the old bracket (upscaled frames + uniform grain, decodes unrealistically fast)")
+    ap.add_argument("--scene-texture", action="store_true",
+                    help="the physically consistent bracket: the texture in the scene's radiance, rendered by the "
+                         "simulated camera (the default bracket multiplies every frame's codes by it)")
     ap.add_argument("--model", default=None, help="de-rendering model for the probabilistic methods "
                     "(default: a GP fitted once on simulated chart pairs, cached in the workdir)")
     ap.add_argument("--seed", type=int, default=0)
@@ -48,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     entries = [e.strip() for e in args.entries.split(",") if e.strip()]
     res = run_bench(size=(w, h), frames=args.frames, workdir=args.workdir, entries=entries,
                     memory_frames=args.memory_frames or None, seed=args.seed, repeat=args.repeat,
-                    texture=not args.no_texture, model=args.model,
+                    texture="scene" if args.scene_texture else not args.no_texture, model=args.model,
                     progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_bench(res))
     if args.json:

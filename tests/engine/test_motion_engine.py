@@ -159,6 +159,42 @@ def test_ghost_statistic_kernel_matches_its_numpy_transcription():
     assert 0 < (q == 16.0).mean() < 0.5 and (q == 0).any()
 
 
+@pytest.mark.parametrize("h,w", [(4000, 6000), (37, 53), (101, 64)])
+@pytest.mark.parametrize("step", [1, 2, 3, 7, 9])
+def test_upsample_into_equals_opencv_nearest(h, w, step):
+    """The in-place full-resolution rejection plane equals OpenCV's nearest-neighbour upscale of
+    the grid (what ghost removal wrote before), on the bench's 24 MP size and odd sizes."""
+    import cv2
+
+    from derender.engine.ghost_kernels import upsample_into
+
+    rng = np.random.default_rng(step)
+    hs, ws = -(-h // step), -(-w // step)
+    grid = (rng.random((hs, ws)) < 0.3).astype(np.uint8)
+    want = cv2.resize(grid, (ws * step, hs * step), interpolation=cv2.INTER_NEAREST)[:h, :w].astype(bool)
+    out = np.ones((h, w), dtype=bool)
+    upsample_into(grid, step, out)
+    assert np.array_equal(out, want)
+    assert np.array_equal(out[::step, ::step], grid.astype(bool))
+
+
+def test_merge_valid_in_place_reuses_the_rejection_plane():
+    from derender.engine.deghost import merge_valid
+
+    rng = np.random.default_rng(0)
+    rejected = rng.random((3, 5, 7)) < 0.3
+    valid = (rng.random((3, 5, 7)) < 0.8).astype(np.uint8)
+    want = merge_valid(valid, rejected)
+    got = merge_valid(valid, rejected.copy(), in_place=False)
+    assert np.array_equal(got, want) and np.array_equal(want, (valid != 0) & ~rejected)
+    plane = rejected.copy()
+    got = merge_valid(valid, plane, in_place=True)
+    assert np.array_equal(got, want) and np.shares_memory(got, plane)
+    plane = rejected.copy()
+    got = merge_valid(None, plane, in_place=True)
+    assert got.dtype == np.uint8 and np.array_equal(got, ~rejected) and np.shares_memory(got, plane)
+
+
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])
 def test_deghost_leaves_a_still_bracket_alone(method):
     """Issue 23: on a bracket where nothing moves, ghost removal changes the static-zone median

@@ -184,7 +184,7 @@ REFINE_REACH = 1
 
 
 def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, rejected: np.ndarray | None,
-                  shifts: list | None) -> tuple[np.ndarray | None, dict[str, Any]]:
+                  shifts: list | None, threads: int | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Check each frame's registration against the reference with the method's own noise model,
     leaving out what ghost removal rejected, and move it where it agrees best.
 
@@ -196,16 +196,16 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     at most :data:`REFINE_PIXELS` of them), ties keeping the registration as it is; the frames
     move **in place** and ``valid`` with them. Returns ``valid`` and the corrections."""
     from derender.engine.align import shift_into, shift_valid
-    from derender.engine.deghost import ConsistencyTest
+    from derender.engine.deghost import ConsistencyTest, map_frames
 
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, pixels=REFINE_PIXELS)
     st = test.step
     keep = np.ones((test.hs, test.ws), dtype=bool)
-    if rejected is not None:
-        keep &= ~test.sub(rejected.any(axis=0))
+    if rejected is not None:          # on the grid first: the full-resolution planes are N bytes a pixel
+        keep &= ~rejected[:, ::st, ::st].any(axis=0)
     if valid is not None:
-        keep &= test.sub(valid.all(axis=0) != 0)
+        keep &= (valid[:, ::st, ::st] != 0).all(axis=0)
     m = max(REFINE_REACH + 1, 2)
     border = np.zeros_like(keep)
     border[-(-m // st):test.hs - (-(-m // st)), -(-m // st):test.ws - (-(-m // st))] = True
@@ -218,9 +218,9 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     r = int(REFINE_REACH)
     rows0, cols0 = np.arange(0, h, st), np.arange(0, w, st)
     cands = sorted(((dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1)), key=lambda d: abs(d[0]) + abs(d[1]))
-    for j in range(n):
-        if j == ref:
-            continue
+
+    def score(j: int) -> list[float]:
+        """Frame j's mean capped ``z^2`` at every candidate (reads frame j only: frames in threads)."""
         scores = []
         agreement = None
         for dy, dx in cands:
@@ -228,6 +228,10 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
             grid = frames[j][np.ix_(np.clip(rows0 + dy, 0, h - 1), np.clip(cols0 + dx, 0, w - 1))]
             q, _, agreement = test.statistic(grid, j, ok, agreement, on_grid=True)   # one per frame: comparable
             scores.append(float(q[keep].mean()))
+        return scores
+
+    others = [j for j in range(n) if j != ref]
+    for j, scores in zip(others, map_frames(score, others, threads)):      # scored in threads, moved in order
         best = int(np.argmin(scores))
         if best != 0 and scores[best] < scores[0] * 0.9:
             dy, dx = cands[best]
@@ -432,7 +436,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         rejected, ginfo = detect(plan)
         if motion.align == "translation":
             # the registration checked with the method's noise model, the ghosts left out
-            valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"))
+            valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"), threads=threads)
             ainfo["refined"] = rinfo["corrections"]
             if rinfo["corrections"]:
                 if rejected is not None:
