@@ -4,7 +4,8 @@
 flags into the capped ``z^2`` of the consistency test in one pass per pixel. It is compiled
 once and cached on disk (``cache=True``), runs on one thread with the GIL released, and the
 engine runs it for several frames at once. It is not a parallel kernel, because numba
-cannot launch parallel kernels from two threads. The merge kernels live in
+cannot launch parallel kernels from two threads. :func:`upsample_into` writes a
+detection-grid mask into a full-resolution plane in place. The merge kernels live in
 :mod:`derender.engine.kernels`.
 """
 
