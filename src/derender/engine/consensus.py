@@ -44,6 +44,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numba import njit, prange
 
 __all__ = ["CONSENSUS_BIN", "CONSENSUS_MIN_COUNT", "CONSENSUS_PIXELS", "frame_biases", "consensus_correct"]
 
@@ -55,11 +56,7 @@ CONSENSUS_MIN_COUNT = 20
 
 #: The bias tables are measured on every s-th row and column so that at most about this many
 #: pixels remain.
-CONSENSUS_PIXELS = 1 << 19
-
-#: Pixels corrected per chunk (bounds the memory of the gathered codes and tables).
-_CHUNK = 1 << 20
-
+CONSENSUS_PIXELS = 1 << 16
 
 def _log_tables(plan) -> tuple[np.ndarray, np.ndarray]:
     """(N, 256, 3) float64 log radiance of every frame's codes (NaN where not finite) and their
@@ -125,56 +122,102 @@ def frame_biases(plan, codes: np.ndarray) -> np.ndarray:
     return out
 
 
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def _correct_kernel(frames, valid, where, w_lut, d_lut, mean_w, radiance, variance, has_variance):  # pragma: no cover - compiled
+    """Per pixel (rows in parallel) where ``where`` and some frame is left out: divide by
+    ``exp(sum_S w d / sum_S w)`` per channel. Returns per row (touched pixels, sum |delta|)."""
+    n, h, w = valid.shape
+    counts = np.zeros(h, np.int64)
+    sums = np.zeros(h, np.float64)
+    for y in prange(h):
+        for x in range(w):
+            if not where[y, x]:
+                continue
+            full = True
+            for j in range(n):
+                if valid[j, y, x] == 0:
+                    full = False
+                    break
+            if full:
+                continue
+            counts[y] += 1
+            num0 = 0.0
+            num1 = 0.0
+            num2 = 0.0
+            den0 = 0.0
+            den1 = 0.0
+            den2 = 0.0
+            for j in range(n):
+                if valid[j, y, x] == 0:
+                    continue
+                z0 = frames[j, y, x, 0]
+                z1 = frames[j, y, x, 1]
+                z2 = frames[j, y, x, 2]
+                a0 = w_lut[j, z0, 0]
+                a1 = w_lut[j, z1, 1]
+                a2 = w_lut[j, z2, 2]
+                if mean_w:
+                    m = (a0 + a1 + a2) / 3.0
+                    a0 = m
+                    a1 = m
+                    a2 = m
+                num0 += a0 * d_lut[j, z0, 0]
+                num1 += a1 * d_lut[j, z1, 1]
+                num2 += a2 * d_lut[j, z2, 2]
+                den0 += a0
+                den1 += a1
+                den2 += a2
+            d0 = num0 / den0 if den0 > 0 else 0.0
+            d1 = num1 / den1 if den1 > 0 else 0.0
+            d2 = num2 / den2 if den2 > 0 else 0.0
+            f0 = np.exp(-d0)
+            f1 = np.exp(-d1)
+            f2 = np.exp(-d2)
+            radiance[y, x, 0] *= f0
+            radiance[y, x, 1] *= f1
+            radiance[y, x, 2] *= f2
+            if has_variance:
+                variance[y, x, 0] *= f0 * f0
+                variance[y, x, 1] *= f1 * f1
+                variance[y, x, 2] *= f2 * f2
+            sums[y] += abs(d0) + abs(d1) + abs(d2)
+    return counts, sums
+
+
 def consensus_correct(radiance: np.ndarray, variance: np.ndarray | None, plan, frames: np.ndarray,
-                      valid: np.ndarray | None, *, where: np.ndarray | None = None) -> dict[str, Any] | None:
-    """Correct, in place, the pixels of ``radiance`` (H, W, 3) (and ``variance``) that were merged
-    from a subset of ``frames`` (N, H, W, 3) uint8 (``valid`` (N, H, W) uint8, 0 = left out) under
-    a table ``plan`` (module docstring); ``where`` (H, W) bool limits the correction to those
+                      valid: np.ndarray | None, *, where: np.ndarray | None = None,
+                      threads: int | None = None) -> dict[str, Any] | None:
+    """Correct, in place, the pixels of ``radiance`` (H, W, 3) float32 (and ``variance``) that were
+    merged from a subset of ``frames`` (N, H, W, 3) uint8 (``valid`` (N, H, W) uint8, 0 = left out)
+    under a table ``plan`` (module docstring); ``where`` (H, W) bool limits the correction to those
     pixels (the engine: where ghost removal left a frame out). Returns a summary for the
     result's info, or None when nothing was corrected (no table plan, or every frame takes
-    part everywhere)."""
-    from derender.engine.deghost import _lut3
+    part everywhere). ``threads``: the compiled kernel's (all CPUs when None)."""
+    from derender.engine.matrix import KERNEL_LOCK, set_numba_threads
     from derender.engine.plans import TablePlan
 
     if not isinstance(plan, TablePlan) or valid is None:
         return None
     n, h, w = frames.shape[:3]
-    full = np.all(valid != 0, axis=0)
-    todo = ~full if where is None else (~full & where)
-    ys, xs = np.nonzero(todo)
-    if ys.size == 0:
-        return None
     step = max(1, int(np.ceil(np.sqrt(h * w / CONSENSUS_PIXELS))))
-    grid_full = full[::step, ::step]
-    gy, gx = np.nonzero(grid_full)
-    codes = frames[:, ::step, ::step][:, gy, gx]               # (N, K, 3)
-    d = frame_biases(plan, codes)
+    vg = valid[:, ::step, ::step]
+    gy, gx = np.nonzero(np.all(vg != 0, axis=0))
+    d = frame_biases(plan, frames[:, ::step, ::step][:, gy, gx])
     _, wtab = _log_tables(plan)
-    mean_w = plan.channel_weights == "mean"
-    # per frame, per code: the merge weight and the bias (what the correction sums), as LUTs
-    codes256 = np.arange(256) // CONSENSUS_BIN
-    w_lut = wtab.astype(np.float32)                                              # (N, 256, 3)
-    d_lut = np.stack([d[j][:, codes256].T for j in range(n)]).astype(np.float32)  # (N, 256, 3)
-    sum_abs, count = 0.0, 0
-    for s in range(0, ys.size, _CHUNK):
-        yy, xx = ys[s:s + _CHUNK], xs[s:s + _CHUNK]
-        num = np.zeros((yy.size, 1, 3), np.float32)
-        den = np.zeros((yy.size, 1, 3), np.float32)
-        for j in range(n):
-            cz = np.ascontiguousarray(frames[j, yy, xx]).reshape(-1, 1, 3)
-            wt = _lut3(cz, w_lut[j])
-            if mean_w:
-                wt[:] = wt.mean(axis=-1, keepdims=True)
-            wt *= (valid[j, yy, xx] != 0).reshape(-1, 1, 1)
-            num += wt * _lut3(cz, d_lut[j])
-            den += wt
-        delta = np.divide(num, den, out=np.zeros_like(num), where=den > 0).reshape(-1, 3)
-        f = np.exp(-delta)
-        radiance[yy, xx] *= f
-        if variance is not None:
-            variance[yy, xx] *= f * f
-        sum_abs += float(np.abs(delta).sum(dtype=np.float64))
-        count += delta.size
-    return {"pixels": float(ys.size / (h * w)), "grid_step": step, "consensus_pixels": int(gy.size),
-            "mean_abs_log_correction": sum_abs / max(count, 1),
+    bins = np.arange(256) // CONSENSUS_BIN
+    d_lut = np.ascontiguousarray(np.stack([d[j][:, bins].T for j in range(n)]), dtype=np.float64)
+    where_ = np.ones((h, w), np.bool_) if where is None else np.ascontiguousarray(where, dtype=np.bool_)
+    var = variance if variance is not None else np.zeros((1, 1, 3), np.float32)
+    if radiance.dtype != np.float32:
+        raise TypeError(f"consensus_correct needs float32 radiance, got {radiance.dtype}")
+    with KERNEL_LOCK:
+        set_numba_threads(threads)
+        counts, sums = _correct_kernel(frames, np.ascontiguousarray(valid), where_,
+                                       np.ascontiguousarray(wtab, dtype=np.float64), d_lut,
+                                       plan.channel_weights == "mean", radiance, var, variance is not None)
+    touched = int(counts.sum())
+    if touched == 0:
+        return None
+    return {"pixels": touched / (h * w), "grid_step": step, "consensus_pixels": int(gy.size),
+            "mean_abs_log_correction": float(sums.sum()) / (3 * touched),
             "bias": np.round(d, 4).tolist()}

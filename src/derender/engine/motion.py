@@ -458,11 +458,13 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
     t4 = time.perf_counter()
     res = _merge(plan, frames, source.times, valid, threads, ref)
+    t45 = time.perf_counter()
     cinfo = None
     if motion.consensus and ghosts_rejected is not None:
         from derender.engine.consensus import consensus_correct
 
-        cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=ghosts_rejected)
+        cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=ghosts_rejected,
+                                  threads=threads)
     t5 = time.perf_counter()
     res.ghosts = ghosts if ghosts is not None else np.zeros((h, w), dtype=np.uint8)
     res.info["n_clipped"] = n_clipped
@@ -476,7 +478,8 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     res.info["motion"] = {"reference": motion.reference, "align": motion.align, "deghost": motion.deghost,
                           "compensate": motion.compensate, "consensus": motion.consensus}
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "align_s": t2 - t1, "plan_s": t3 - t2,
-                                               "deghost_s": t4 - t3, "merge_s": t5 - t4})
+                                               "deghost_s": t4 - t3, "merge_s": t45 - t4,
+                                               "consensus_s": t5 - t45})
     res.info["streaming"] = {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}
     method.finish(res, access)
     return res
