@@ -66,6 +66,10 @@ class MotionOptions:
     compensate : bool
         With ``deghost``: fill the rejected pixels of each frame from its own view of the moved
         thing, found by optical flow and tested again (:mod:`derender.engine.compensation`).
+    consensus : bool
+        With ``deghost``: pixels where ghost removal left frames out lose the rendering bias of
+        the frames that remain (:mod:`derender.engine.consensus`; methods with one curve for
+        the bracket).
     seed : int
         Seeds the homography's RANSAC.
     """
@@ -75,6 +79,7 @@ class MotionOptions:
     deghost: bool = False
     ghost_threshold: float | None = None
     compensate: bool = True
+    consensus: bool = True
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -408,6 +413,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     t3 = time.perf_counter()
     ghosts = None
     covered = False
+    ghosts_rejected = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
         from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
@@ -455,6 +461,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         ginfo.pop("agreements", None)      # the per-frame summaries stay in ginfo["frames"]
         if rejected is not None:
             ghosts = rejected.sum(axis=0, dtype=np.uint8)
+            ghosts_rejected = ghosts > 0
         covered = valid is None              # then the merged validity is the rejections' alone: counted
         valid = merge_valid(valid, rejected, in_place=True)
         spare.clear()
@@ -463,6 +470,13 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
     t4 = time.perf_counter()
     res = _merge(plan, frames, source.times, valid, threads, ref)
+    t45 = time.perf_counter()
+    cinfo = None
+    if motion.consensus and ghosts_rejected is not None:
+        from derender.engine.consensus import consensus_correct
+
+        cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=ghosts_rejected,
+                                  threads=threads)
     t5 = time.perf_counter()
     res.ghosts = ghosts if ghosts is not None else np.zeros((h, w), dtype=np.uint8)
     res.info["n_clipped"] = n_clipped
@@ -471,10 +485,13 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     res.info["alignment"] = ainfo
     if motion.deghost:
         res.info["deghost"] = ginfo
+    if cinfo is not None:
+        res.info["consensus"] = cinfo
     res.info["motion"] = {"reference": motion.reference, "align": motion.align, "deghost": motion.deghost,
-                          "compensate": motion.compensate}
+                          "compensate": motion.compensate, "consensus": motion.consensus}
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "align_s": t2 - t1, "plan_s": t3 - t2,
-                                               "deghost_s": t4 - t3, "merge_s": t5 - t4})
+                                               "deghost_s": t4 - t3, "merge_s": t45 - t4,
+                                               "consensus_s": t5 - t45})
     res.info["streaming"] = {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}
     method.finish(res, access)
     return res

@@ -77,7 +77,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     **options
         The method's own options (as :func:`derender.hdr.registry.merge` takes them), and the
         engine's ``reference`` (an index among ``paths`` as given, from 0, or ``"auto"``),
-        ``align``, ``deghost``, ``ghost_threshold``, ``ghost_fill``
+        ``align``, ``deghost``, ``ghost_threshold``, ``ghost_fill``, ``ghost_consensus``
         (:func:`derender.hdr.registry.split_motion`, :mod:`derender.engine.motion`).
 
     Returns

@@ -245,7 +245,7 @@ def _missing_message(method: str, missing: list[str]) -> str:
 
 
 #: Options the engine takes for every method (:class:`derender.engine.motion.MotionOptions`).
-MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold", "ghost_fill")
+MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold", "ghost_fill", "ghost_consensus")
 
 
 def split_motion(method: str, options: dict, engine_reference: bool = False) -> tuple[Any, dict]:
@@ -269,6 +269,7 @@ def split_motion(method: str, options: dict, engine_reference: bool = False) -> 
         raise InputError(f"deghost must be True or False, got {deghost!r}")
     threshold = opts.pop("ghost_threshold", None)
     fill = opts.pop("ghost_fill", True)
+    consensus = opts.pop("ghost_consensus", True)
     if own:
         ref, align = opts.get("reference"), opts.get("align", "mtb")
         if align == "translation":
@@ -282,7 +283,7 @@ def split_motion(method: str, options: dict, engine_reference: bool = False) -> 
     else:
         ref, align = opts.pop("reference", None), opts.pop("align", None) or "none"
     motion = MotionOptions(reference=ref, align=align, deghost=bool(deghost), ghost_threshold=threshold,
-                           compensate=bool(fill), seed=int(opts.get("seed", 0) or 0))
+                           compensate=bool(fill), consensus=bool(consensus), seed=int(opts.get("seed", 0) or 0))
     return (motion if motion.active else None), opts
 
 
@@ -322,9 +323,11 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
         Every method also takes the engine's (:mod:`derender.engine.motion`):
         ``reference`` (index of the reference frame among the images, from 0, or ``"auto"``),
         ``align`` (``"none"``, ``"translation"``, ``"homography"``), ``deghost`` (bool),
-        ``ghost_threshold`` and ``ghost_fill`` (bool, default True: rejected pixels filled from
-        each frame's flow-compensated view); paper 1's methods register to their own
-        reference by default.
+        ``ghost_threshold``, ``ghost_fill`` (bool, default True: rejected pixels filled from
+        each frame's flow-compensated view) and ``ghost_consensus`` (bool, default True: pixels
+        merged from a subset of the frames lose that subset's rendering bias,
+        :mod:`derender.engine.consensus`); paper 1's methods register to their own reference by
+        default.
 
     Returns
     -------
