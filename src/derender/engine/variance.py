@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares",
-           "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "CENSORED", "R_FLOOR", "SOURCE_STRIDE"]
+           "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"]
 
 #: Shot noise of the sensor signal relative to white: ``Var x = SHOT x`` (a 24 000 e- full well
 #: times ~2.4 for white balance and colour-matrix gains).
@@ -185,6 +185,8 @@ def add_edge_term(radiance: np.ndarray, var: np.ndarray, parts: np.ndarray, edge
 
 
 _F32_QUARTER = float(np.finfo(np.float32).max) / 4.0
+#: The largest variance written (a quarter of float32's largest value).
+VAR_CAP = _F32_QUARTER
 
 
 def scale_relative_variance(radiance: np.ndarray, var: np.ndarray, parts: np.ndarray, c: int, y0: int) -> None:

@@ -422,3 +422,55 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     pn = m0 * tn[jj, c0, 0] + m1 * tn[jj, c1, 1] + m2 * tn[jj, c2, 2]
                     pq = m0 * tq[jj, c0, 0] + m1 * tq[jj, c1, 1] + m2 * tq[jj, c2, 2]
                     _store(var, parts, y, row0, x, c, pn, pq, k[3] * m * m, k[2] * m * m, stride, big)
+
+
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def variance_finish_rows(radiance, var, parts, e2, relative, y0, y1, row0, stride, cap):  # pragma: no cover
+    """The variance's last steps on rows ``y0:y1`` of a band (``radiance``, ``var`` (3, rows, W)
+    float32, image row ``y`` at ``y - row0``), in one pass per pixel-channel:
+
+    * ``relative`` (the log-domain kernel's relative variance): ``var *= r^2`` with ``r^2`` the
+      float32 square of the radiance (:func:`derender.engine.variance.scale_relative_variance`'s
+      products), and the sampled rows' sources ``parts[:4]`` too; non-finite or beyond ``cap``: ``cap``;
+    * the edge term ``e2 Var_3x3(r)`` (:func:`derender.engine.variance.add_edge_term`; the
+      3x3 neighbourhood within the band, its first and last rows and columns repeated; float64
+      sums), added to ``var`` (capped at ``cap``) and written as the sampled rows' ``parts[4]``."""
+    w = radiance.shape[2]
+    ninth = 1.0 / 9.0
+    for y in prange(y0, y1):
+        split = y % stride == 0
+        yy = y // stride
+        ra = max(y - 1, y0) - row0
+        rb = y - row0
+        rc = min(y + 1, y1 - 1) - row0
+        for c in range(3):
+            for x in range(w):
+                v = var[c, rb, x]
+                if relative:
+                    r = radiance[c, rb, x]
+                    r2 = r * r
+                    v = v * r2
+                    if not (v <= cap):        # NaN, inf or beyond
+                        v = cap
+                    if split:
+                        for p in range(4):
+                            q = parts[p, yy, x, c] * r2
+                            parts[p, yy, x, c] = q if q <= cap else cap
+                if e2 > 0.0:
+                    xa = max(x - 1, 0)
+                    xc = min(x + 1, w - 1)
+                    s = 0.0
+                    q2 = 0.0
+                    for rr in (ra, rb, rc):
+                        for xx in (xa, x, xc):
+                            u = np.float64(radiance[c, rr, xx])
+                            s += u
+                            q2 += u * u
+                    mu = s * ninth
+                    lv = max(q2 * ninth - mu * mu, 0.0) * e2
+                    lv32 = np.float32(min(lv, cap))
+                    v = np.float32(min(np.float64(v) + np.float64(lv32), cap))
+                    if split:
+                        parts[4, yy, x, c] = lv32
+                var[c, rb, x] = v
