@@ -145,3 +145,36 @@ def test_matrix_kernel_variance_equals_formula():
                + vm.inflate_sys * d + vm.shared ** 2 * np.asarray(res.radiance, dtype=np.float64) ** 2)
     assert ok.mean() > 0.9
     np.testing.assert_allclose(np.asarray(res.variance, dtype=np.float64)[ok], var[ok], rtol=RTOL, atol=0)
+
+
+@pytest.mark.parametrize("relative", [False, True])
+def test_variance_finish_rows_equals_float64_oracle(relative):
+    """The edge term ``e2 Var_3x3(r)`` (band rows and image columns repeated at the ends) and the
+    log domain's ``r^2`` scaling, against float64 NumPy; a 2e6 highlight above dark texture
+    (where float32 running box sums over the image lose the dark pixels' local variance)."""
+    from derender.engine.variance import SOURCE_STRIDE, VAR_CAP, new_parts
+    from derender.engine.variance_kernels import variance_finish_rows
+
+    rng = np.random.default_rng(11)
+    h, w, y0, y1 = 96, 70, 8, 90
+    rad = np.exp(rng.normal(-2.5, 1.0, size=(3, h, w))).astype(np.float32)
+    rad[:, y0:y0 + 20, 10:30] = 2e6
+    var = (rng.random((3, h, w)) * 1e-3).astype(np.float32)
+    parts = new_parts(h, w)
+    parts[:4] = rng.random(parts[:4].shape).astype(np.float32)
+    e2 = float(np.float32(0.3 ** 2))
+    got, got_parts = var.copy(), parts.copy()
+    variance_finish_rows(rad, got, got_parts, e2, relative, y0, y1, 0, SOURCE_STRIDE, VAR_CAP)
+    r = rad[:, y0:y1].astype(np.float64)
+    pad = np.pad(r, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    win = np.stack([pad[:, a:a + y1 - y0, b:b + w] for a in range(3) for b in range(3)])
+    local = np.maximum((win ** 2).mean(0) - win.mean(0) ** 2, 0.0)
+    base = var[:, y0:y1].astype(np.float64)
+    if relative:
+        base = base * (rad[:, y0:y1] * rad[:, y0:y1]).astype(np.float64)
+    expect = np.minimum(base + e2 * local, VAR_CAP)
+    np.testing.assert_allclose(got[:, y0:y1], expect, rtol=1e-5, atol=0)
+    np.testing.assert_array_equal(got[:, :y0], var[:, :y0])       # rows outside the band untouched
+    ys = [y for y in range(y0, y1) if y % SOURCE_STRIDE == 0]
+    for y in ys:
+        np.testing.assert_allclose(got_parts[4, y // SOURCE_STRIDE].T, e2 * local[:, y - y0], rtol=1e-5, atol=1e-30)
