@@ -32,7 +32,7 @@ from numba import njit, prange
 from derender.engine.kernels import MERGE_TILE
 from derender.engine.merge_parts import add_frame_to_tile_var, add_table_observation, fallback_frame
 
-__all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
+__all__ = ["table_merge_var_rows", "stabilized_merge_var_rows", "variance_finish_rows"]
 
 
 @njit(inline="always")
