@@ -460,13 +460,17 @@ def variance_finish_rows(radiance, var, parts, e2, relative, y0, y1, row0, strid
                 if e2 > 0.0:
                     xa = max(x - 1, 0)
                     xc = min(x + 1, w - 1)
-                    s = 0.0
-                    q2 = 0.0
-                    for rr in (ra, rb, rc):
-                        for xx in (xa, x, xc):
-                            u = np.float64(radiance[c, rr, xx])
-                            s += u
-                            q2 += u * u
+                    u0 = np.float64(radiance[c, ra, xa])
+                    u1 = np.float64(radiance[c, ra, x])
+                    u2 = np.float64(radiance[c, ra, xc])
+                    u3 = np.float64(radiance[c, rb, xa])
+                    u4 = np.float64(radiance[c, rb, x])
+                    u5 = np.float64(radiance[c, rb, xc])
+                    u6 = np.float64(radiance[c, rc, xa])
+                    u7 = np.float64(radiance[c, rc, x])
+                    u8 = np.float64(radiance[c, rc, xc])
+                    s = ((u0 + u1) + (u2 + u3)) + ((u4 + u5) + (u6 + u7)) + u8
+                    q2 = ((u0 * u0 + u1 * u1) + (u2 * u2 + u3 * u3)) + ((u4 * u4 + u5 * u5) + (u6 * u6 + u7 * u7)) + u8 * u8
                     mu = s * ninth
                     lv = max(q2 * ninth - mu * mu, 0.0) * e2
                     lv32 = np.float32(min(lv, cap))
