@@ -137,8 +137,10 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
         radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
         mask = populated_zeros((h, w), dtype=np.uint8)
     if vm is not None:
-        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts
-        from derender.engine.variance_kernels import stabilized_merge_var_rows
+        from derender.engine.variance import SOURCE_STRIDE, VAR_CAP, new_parts
+        from derender.engine.variance_kernels import stabilized_merge_var_rows, variance_finish_rows
+
+        edge2 = float(np.float32(vm.edge * vm.edge)) if vm.edge > 0 else 0.0
 
         parts = new_parts(h, w)
         vargs = (np.ascontiguousarray(vm.noise, dtype=np.float32), np.ascontiguousarray(vm.quant, dtype=np.float32),
@@ -166,8 +168,8 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
                 stabilized_merge_rows(*args, y0, y1, row0, dst, mask)
             else:
                 stabilized_merge_var_rows(*args, y0, y1, row0, dst, mask, *vargs, vdst, parts, SOURCE_STRIDE)
-        if vm is not None:
-            add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0)
+                if edge2 > 0.0:       # the edge term, one compiled pass over the band
+                    variance_finish_rows(dst, vdst, parts, edge2, False, y0, y1, row0, SOURCE_STRIDE, VAR_CAP)
 
     merge_writing(h, OVERLAP_ROWS, band, res, write, ring=out_ring)
     info.update({"channel_weights": "min_else_brightest", "domain": "linear", "engine": "table",

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["add_frame_to_tile", "add_table_observation", "fallback_frame"]
+__all__ = ["add_frame_to_tile", "add_frame_to_tile_var", "add_table_observation", "fallback_frame"]
 
 
 # Positional on purpose (as the kernels): an inlined part of them.
@@ -70,6 +70,103 @@ def add_frame_to_tile(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, in
         acc[5, t] += v0 * wbright
         acc[6, t] += v1 * wbright
         acc[7, t] += v2 * wbright
+
+
+# Positional on purpose (as the kernels): an inlined part of them.
+@njit(inline="always")
+def add_frame_to_tile_var(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, inv_var, ik, use_inv_var, colour_w,
+                          use_colour_w, lin, mats32, acc, usable, tnq, tq, sqm32, split, s64,
+                          s32):  # pragma: no cover - compiled
+    """:func:`add_frame_to_tile` (the same arithmetic, the same ``acc``) and, with the weight of
+    frames measured in every channel (``wmin``; zero adds zeros), the variance's sums of the
+    frame's estimate ``v`` (:func:`derender.engine.variance_kernels.stabilized_merge_var_rows`):
+    ``s64`` (7, tile) float64 ``sum w``, ``sum w v_c``, ``sum w v_c^2``; ``s32`` (7, tile)
+    float32 ``sum w^2``, ``sum w^2 s_c^2`` (noise + quantisation, ``s_c^2 = sum_k M_ck^2
+    tnq[z_k, k]``) and, on ``split`` rows, the quantisation alone (``tq``)."""
+    zero = np.float32(0.0)
+    tiny = np.float32(1e-30)
+    a00 = mats32[j, 0, 0]
+    a01 = mats32[j, 0, 1]
+    a02 = mats32[j, 0, 2]
+    a10 = mats32[j, 1, 0]
+    a11 = mats32[j, 1, 1]
+    a12 = mats32[j, 1, 2]
+    a20 = mats32[j, 2, 0]
+    a21 = mats32[j, 2, 1]
+    a22 = mats32[j, 2, 2]
+    q00 = sqm32[j, 0, 0]
+    q01 = sqm32[j, 0, 1]
+    q02 = sqm32[j, 0, 2]
+    q10 = sqm32[j, 1, 0]
+    q11 = sqm32[j, 1, 1]
+    q12 = sqm32[j, 1, 2]
+    q20 = sqm32[j, 2, 0]
+    q21 = sqm32[j, 2, 1]
+    q22 = sqm32[j, 2, 2]
+    for x in range(max(x0, -sx), min(xe, w - sx)):
+        if not whole and valid[j, y, x] == 0:
+            continue
+        xx = x + sx
+        z0 = frames[j, yy, xx, 0]
+        z1 = frames[j, yy, xx, 1]
+        z2 = frames[j, yy, xx, 2]
+        wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
+        wbright = weights[max(max(z0, z1), z2), 0]
+        t = x - x0
+        if wmin > zero:
+            usable[t] = True
+        elif wbright == zero:
+            continue
+        if use_inv_var:
+            d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+            d = d + inv_var[j, z2, 2]
+            f = ik / max(d, tiny)
+            wmin = wmin * f
+            wbright = wbright * f
+        if use_colour_w:
+            cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
+            wmin = wmin * cw
+            wbright = wbright * cw
+        l0 = lin[j, z0, 0]
+        l1 = lin[j, z1, 1]
+        l2 = lin[j, z2, 2]
+        v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
+        v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
+        v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
+        acc[0, t] += wmin
+        acc[1, t] += v0 * wmin
+        acc[2, t] += v1 * wmin
+        acc[3, t] += v2 * wmin
+        acc[4, t] += wbright
+        acc[5, t] += v0 * wbright
+        acc[6, t] += v1 * wbright
+        acc[7, t] += v2 * wbright
+        wd = np.float64(wmin)
+        b0 = wd * np.float64(v0)
+        b1 = wd * np.float64(v1)
+        b2 = wd * np.float64(v2)
+        s64[0, t] += wd
+        s64[1, t] += b0
+        s64[2, t] += b1
+        s64[3, t] += b2
+        s64[4, t] += b0 * np.float64(v0)
+        s64[5, t] += b1 * np.float64(v1)
+        s64[6, t] += b2 * np.float64(v2)
+        ww = wmin * wmin
+        n0 = tnq[j, z0, 0]
+        n1 = tnq[j, z1, 1]
+        n2 = tnq[j, z2, 2]
+        s32[0, t] += ww
+        s32[1, t] += ww * (q00 * n0 + q01 * n1 + q02 * n2)
+        s32[2, t] += ww * (q10 * n0 + q11 * n1 + q12 * n2)
+        s32[3, t] += ww * (q20 * n0 + q21 * n1 + q22 * n2)
+        if split:
+            r0 = tq[j, z0, 0]
+            r1 = tq[j, z1, 1]
+            r2 = tq[j, z2, 2]
+            s32[4, t] += ww * (q00 * r0 + q01 * r1 + q02 * r2)
+            s32[5, t] += ww * (q10 * r0 + q11 * r1 + q12 * r2)
+            s32[6, t] += ww * (q20 * r0 + q21 * r1 + q22 * r2)
 
 
 # Positional on purpose (as the kernels): an inlined part of them.

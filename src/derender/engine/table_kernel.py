@@ -86,13 +86,14 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
         if vm is not None:
             var = populated_zeros((3, h, w), dtype=np.float32)
     if vm is not None:
-        from derender.engine.variance import SOURCE_STRIDE, add_edge_term, new_parts, scale_relative_variance
-        from derender.engine.variance_kernels import table_merge_var_rows
+        from derender.engine.variance import SOURCE_STRIDE, VAR_CAP, new_parts
+        from derender.engine.variance_kernels import table_merge_var_rows, variance_finish_rows
 
         parts = new_parts(h, w)
         tn = np.ascontiguousarray(vm.noise, dtype=np.float32)
         tq = np.ascontiguousarray(vm.quant, dtype=np.float32)
         kv = vm.constants()
+        edge2 = float(np.float32(vm.edge * vm.edge)) if vm.edge > 0 else 0.0
     order_a = np.asarray(order, dtype=np.int64)
     valid_k = np.ones((n, 1, 1), dtype=np.uint8) if valid is None else np.ascontiguousarray(valid, dtype=np.uint8)
     independent = plan.channel_weights == "independent"
@@ -116,8 +117,6 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
                         cv2.exp(r, dst=r)
                     if not cv2.checkRange(r)[0]:
                         np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
-                    if log and vm is not None:      # the kernel's relative variance, times r^2
-                        scale_relative_variance(r, vdst[c, r0 - row0:r1 - row0], parts, c, r0)
 
             with KERNEL_LOCK:
                 set_numba_threads(threads)
@@ -129,8 +128,10 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
                                          values[0], values[n - 1], 0, n - 1, bright, y0, y1, row0, dst, mask,
                                          tn, tq, kv, vdst, parts, SOURCE_STRIDE)
             run_bands(ex, nthreads, finish, [(r0, min(y1, r0 + br)) for r0 in range(y0, y1, br)])
-            if vm is not None:
-                add_edge_term(dst, vdst, parts, vm.edge, y0, y1, row0)
+            if vm is not None:      # log domain: the kernel's relative variance times r^2; the edge term
+                with KERNEL_LOCK:
+                    set_numba_threads(threads)
+                    variance_finish_rows(dst, vdst, parts, edge2, log, y0, y1, row0, SOURCE_STRIDE, VAR_CAP)
 
         merge_writing(h, step, band, res, write, ring=out_ring)
     info["n_bright"] = int(np.count_nonzero(mask == HDRResult.MASK_BRIGHT))

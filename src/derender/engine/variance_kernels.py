@@ -3,9 +3,13 @@
 :func:`table_merge_var_rows` and :func:`stabilized_merge_var_rows` are
 :func:`derender.engine.kernels.table_merge_rows` and
 :func:`derender.engine.kernels.stabilized_merge_rows` with the same radiance arithmetic
-(the same bytes) plus, per pixel and channel, float64 sums ``sum w``, ``sum w u``,
-``sum w u^2``, ``sum w^2`` and ``sum w^2 s^2`` (noise and quantisation apart), turned at the
-end of each tile into the variance of :mod:`derender.engine.variance`:
+(the same bytes) plus, per pixel and channel, the sums ``sum w``, ``sum w u``,
+``sum w u^2`` (float64: the difference ``D`` below cancels), ``sum w^2`` and ``sum w^2 s^2``
+(noise and quantisation apart; float32, sums of positive terms), fused into the radiance's
+pass: each frame's codes are read once and one look-up in a packed table (weight or
+inverse variance, value, noise + quantisation, quantisation: 16 bytes per frame, code and
+channel) serves both. At the end of each tile they become the variance of
+:mod:`derender.engine.variance`:
 
     Var u = a (Qn + Qq) / S0^2 + b D r / max(1 - r, r_floor) + c D,   r = W2 / S0^2,
     D = S2 / S0 - (S1 / S0)^2,   Var r = [r^2 if log] Var u + shared^2 r^2
@@ -14,7 +18,7 @@ end of each tile into the variance of :mod:`derender.engine.variance`:
 relative variance (``Var u`` + ``shared^2``, without the factor ``r^2``) and the caller
 multiplies it by the radiance squared after its exponential (vectorised, instead of one
 ``exp`` per pixel-channel here); in the ``"mean"`` mode (one weight per pixel) ``sum w`` and
-``sum w^2`` are kept once per pixel, frames without weight add nothing, and the log domain
+``sum w^2`` are kept once per pixel, frames without weight add exact zeros (no branch), and the log domain
 reads ``sum w``, ``sum w u`` from the radiance's own float64 sums. Rows ``y`` with ``y % stride == 0`` also
 write the four sources (noise, quantisation, disagreement, shared) into ``parts``
 (4, ceil(H / stride), W, 3) for ``info["variance_sources"]``.
@@ -26,9 +30,9 @@ import numpy as np
 from numba import njit, prange
 
 from derender.engine.kernels import MERGE_TILE
-from derender.engine.merge_parts import add_frame_to_tile, add_table_observation, fallback_frame
+from derender.engine.merge_parts import add_frame_to_tile_var, add_table_observation, fallback_frame
 
-__all__ = ["table_merge_var_rows", "stabilized_merge_var_rows"]
+__all__ = ["table_merge_var_rows", "stabilized_merge_var_rows", "variance_finish_rows"]
 
 
 @njit(inline="always")
@@ -60,7 +64,9 @@ def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover -
     r = w2 * inv * inv
     mu = s1 * inv
     d = max(s2 * inv - mu * mu, 0.0)
-    vd = k[1] * d * r / max(1.0 - r, k[4]) + k[5] * d
+    vd = k[5] * d
+    if k[1] != 0.0:        # the methods' constants have none: no division
+        vd += k[1] * d * r / max(1.0 - r, k[4])
     vn = k[0] * qn * inv * inv
     vq = k[0] * qq * inv * inv
     if log_domain:      # relative: the caller multiplies by the radiance squared after its exponential
@@ -94,7 +100,13 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
     radiance) and the variance into ``var`` (3, rows, W) float32 (row ``y`` at ``y - row0``),
     the radiance's own units (linear, after the caller's exponential in the log domain):
     ``tn``, ``tq`` (N, 256, 3) the noise and quantisation variance of each frame's values,
-    ``k`` the constants (module docstring)."""
+    ``k`` the constants (module docstring).
+
+    One pass per tile: each frame's codes are read once (:func:`add_table_observation`, the
+    radiance's own arithmetic) and their weights and values serve the variance's sums too,
+    without a branch (a frame without weight adds exact zeros). ``sum w u^2`` (and, in the
+    linear domain, ``sum w``, ``sum w u``) are float64, as the difference ``D`` needs; the sums
+    of positive terms ``sum w^2``, ``sum w^2 s^2`` are float32 (relative error ~1e-7)."""
     n = order.shape[0]
     nf = frames.shape[0]
     w = frames.shape[2]
@@ -102,21 +114,47 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
     tile = MERGE_TILE
     f32max = np.float32(3.4028234663852886e38)
     big = np.float64(f32max) / 4.0
-    tnq = tn + tq      # noise and quantisation in one look-up; apart only on the sampled rows
+    # one 16-byte entry per (frame, code, channel): weight, value, noise + quantisation,
+    # quantisation, so that a look-up reads one cache line instead of four
+    nfr = values.shape[0]
+    pk = np.empty((nfr, values.shape[1], 3, 4), dtype=np.float32)
+    for jf in range(nfr):
+        for zf in range(values.shape[1]):
+            for cf in range(3):
+                pk[jf, zf, cf, 0] = weights[jf, zf, cf]
+                pk[jf, zf, cf, 1] = values[jf, zf, cf]
+                pk[jf, zf, cf, 2] = tn[jf, zf, cf] + tq[jf, zf, cf]
+                pk[jf, zf, cf, 3] = tq[jf, zf, cf]
+    wts = pk[:, :, :, 0]
+    vals = pk[:, :, :, 1]
+    tnq = pk[:, :, :, 2]
+    tqq = pk[:, :, :, 3]
     for y in prange(y0, y1):
         split = y % stride == 0
         num64 = np.zeros((3, tile), dtype=np.float64)
         den64 = np.zeros((3, tile), dtype=np.float64)
         num32 = np.zeros((3, tile), dtype=np.float32)
         den32 = np.zeros((3, tile), dtype=np.float32)
-        vs = np.zeros((6, 3, tile), dtype=np.float64)     # S0, S1, S2, W2, Qn, Qq
+        s2 = np.zeros((3, tile), dtype=np.float64)       # sum w u^2
+        s0 = np.zeros((3, tile), dtype=np.float64)       # sum w (linear domain)
+        s1 = np.zeros((3, tile), dtype=np.float64)       # sum w u (linear domain)
+        w2s = np.zeros((3, tile), dtype=np.float32)      # sum w^2
+        qnq = np.zeros((3, tile), dtype=np.float32)      # sum w^2 (noise + quantisation)
+        qq = np.zeros((3, tile), dtype=np.float32)       # sum w^2 quantisation (sampled rows)
         for x0 in range(0, w, tile):
             xe = min(x0 + tile, w)
             num64[:, :] = 0.0
             den64[:, :] = 0.0
             num32[:, :] = 0.0
             den32[:, :] = 0.0
-            vs[:, :, :] = 0.0
+            s2[:, :] = 0.0
+            w2s[:, :] = 0.0
+            qnq[:, :] = 0.0
+            if not log_domain:
+                s0[:, :] = 0.0
+                s1[:, :] = 0.0
+            if split:
+                qq[:, :] = 0.0
             for kk in range(n):
                 j = order[kk]
                 for x in range(x0, xe):
@@ -124,16 +162,38 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         continue
                     t = x - x0
                     z0, z1, z2, w0, w1, w2, v0, v1, v2 = add_table_observation(
-                        frames, j, y, x, t, weights, values, independent, log_domain, num64, den64, num32, den32)
-                    # a frame without weight adds nothing (most of a long bracket's frames, per pixel)
-                    if w0 != 0.0:
-                        _acc(vs, 0, t, np.float64(w0), np.float64(v0), tnq[j, z0, 0], tq[j, z0, 0], split, True, log_domain)
-                    if w1 != 0.0:
-                        _acc(vs, 1, t, np.float64(w1), np.float64(v1), tnq[j, z1, 1], tq[j, z1, 1], split,
-                             independent, log_domain)
-                    if w2 != 0.0:
-                        _acc(vs, 2, t, np.float64(w2), np.float64(v2), tnq[j, z2, 2], tq[j, z2, 2], split,
-                             independent, log_domain)
+                        frames, j, y, x, t, wts, vals, independent, log_domain, num64, den64, num32, den32)
+                    a0 = np.float64(v0) * np.float64(w0)
+                    a1 = np.float64(v1) * np.float64(w1)
+                    a2 = np.float64(v2) * np.float64(w2)
+                    s2[0, t] += a0 * np.float64(v0)
+                    s2[1, t] += a1 * np.float64(v1)
+                    s2[2, t] += a2 * np.float64(v2)
+                    e0 = w0 * w0
+                    if independent:
+                        e1 = w1 * w1
+                        e2 = w2 * w2
+                        w2s[1, t] += e1
+                        w2s[2, t] += e2
+                    else:
+                        e1 = e0
+                        e2 = e0
+                    w2s[0, t] += e0
+                    qnq[0, t] += e0 * tnq[j, z0, 0]
+                    qnq[1, t] += e1 * tnq[j, z1, 1]
+                    qnq[2, t] += e2 * tnq[j, z2, 2]
+                    if not log_domain:
+                        s0[0, t] += np.float64(w0)
+                        if independent:
+                            s0[1, t] += np.float64(w1)
+                            s0[2, t] += np.float64(w2)
+                        s1[0, t] += a0
+                        s1[1, t] += a1
+                        s1[2, t] += a2
+                    if split:
+                        qq[0, t] += e0 * tqq[j, z0, 0]
+                        qq[1, t] += e1 * tqq[j, z1, 1]
+                        qq[2, t] += e2 * tqq[j, z2, 2]
             for x in range(x0, xe):
                 t = x - x0
                 nb = False
@@ -183,11 +243,12 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                             o = -f32max
                         out[c, y - row0, x] = o
                         m = np.float64(o)
-                    s0 = den64[dc, t] if log_domain else vs[0, dc, t]
-                    if jj < 0 and s0 > 0.0:
-                        s1 = num64[c, t] if log_domain else vs[1, c, t]
-                        pn, pq, pd, ps = _finish_var(s0, s1, vs[2, c, t], vs[3, dc, t],
-                                                     vs[4, c, t] - vs[5, c, t], vs[5, c, t], k, log_domain, m)
+                    sw = den64[dc, t] if log_domain else s0[dc, t]
+                    if jj < 0 and sw > 0.0:
+                        swu = num64[c, t] if log_domain else s1[c, t]
+                        qc = np.float64(qq[c, t]) if split else 0.0
+                        pn, pq, pd, ps = _finish_var(sw, swu, s2[c, t], np.float64(w2s[dc, t]),
+                                                     np.float64(qnq[c, t]) - qc, qc, k, log_domain, m)
                     else:
                         if jj < 0:
                             jj = j_short if bright[frames[j_short, y, x, c]] else j_long
@@ -201,6 +262,57 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
 
 
 # Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
+@njit(inline="always")
+def _bright_set_sums(frames, valid, whole, shifts, y, x, h, w, weights, inv_var, inv_k, use_inv_var, colour_w,
+                     use_colour_w, lin, mats32, sqm, tnq, tq, mu0, mu1, mu2, split, vs):  # pragma: no cover
+    """A pixel no frame measures in every channel (the brightest-channel weights): its sums
+    ``vs`` (11,) (S0, W2, sum w (v - mu)^2 (3), Qnq (3), Qq (3)) around its merged mean, the
+    frames read a second time (rare pixels)."""
+    zero = np.float32(0.0)
+    tiny = np.float32(1e-30)
+    n = frames.shape[0]
+    vs[:] = 0.0
+    for j in range(n):
+        yy = y + shifts[j, 0]
+        xx = x + shifts[j, 1]
+        if yy < 0 or yy >= h or xx < 0 or xx >= w:
+            continue
+        if not whole and valid[j, y, x] == 0:
+            continue
+        z0 = frames[j, yy, xx, 0]
+        z1 = frames[j, yy, xx, 1]
+        z2 = frames[j, yy, xx, 2]
+        ws = weights[max(max(z0, z1), z2), 0]
+        if ws == zero:
+            continue
+        if use_inv_var:
+            d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+            d = d + inv_var[j, z2, 2]
+            ws = ws * (inv_k[j] / max(d, tiny))
+        if use_colour_w:
+            ws = ws * colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
+        l0 = lin[j, z0, 0]
+        l1 = lin[j, z1, 1]
+        l2 = lin[j, z2, 2]
+        wd = np.float64(ws)
+        ww = wd * wd
+        n0 = np.float64(tnq[j, z0, 0])
+        n1 = np.float64(tnq[j, z1, 1])
+        n2 = np.float64(tnq[j, z2, 2])
+        vs[0] += wd
+        vs[1] += ww
+        m32 = mats32[j]
+        sq = sqm[j]
+        for c in range(3):
+            mu = mu0 if c == 0 else (mu1 if c == 1 else mu2)
+            vc = np.float64(max(l0 * m32[c, 0] + l1 * m32[c, 1] + l2 * m32[c, 2], zero)) - mu
+            vs[2 + c] += wd * vc * vc
+            vs[5 + c] += ww * (sq[c, 0] * n0 + sq[c, 1] * n1 + sq[c, 2] * n2)
+            if split:
+                vs[8 + c] += ww * (sq[c, 0] * tq[j, z0, 0] + sq[c, 1] * tq[j, z1, 1] + sq[c, 2] * tq[j, z2, 2])
+
+
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, weights, inv_var, inv_k, use_inv_var,
                               colour_w, use_colour_w, j_short, j_long, bright, y0, y1, row0, out, mask, tn, tq, k, var,
@@ -208,99 +320,86 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
     """:func:`derender.engine.kernels.stabilized_merge_rows` (same arguments up to ``mask``, same
     radiance) and the variance into ``var`` (3, rows, W) float32: frame ``j``'s channel ``c``
     has noise variance ``sum_k mats64[j, c, k]^2 tn[j, z_k, k]`` (and so quantisation with
-    ``tq``); the sums of both weight sets are kept, the one the radiance uses gives the variance."""
+    ``tq``).
+
+    One pass over each tile's frames (:func:`~derender.engine.merge_parts.add_frame_to_tile_var`:
+    the radiance's arithmetic and, for the weights of frames measured in every channel, the
+    variance's float64 sums ``sum w``, ``sum w v``, ``sum w v^2``, float32 ``sum w^2`` and
+    ``sum w^2 s^2``; ``D = sum w v^2 / sum w - (sum w v / sum w)^2``). The rare pixels no
+    frame measures in every channel (the brightest-channel weights) are summed again around
+    their mean (:func:`_bright_set_sums`)."""
     n = frames.shape[0]
     h, w = frames.shape[1], frames.shape[2]
     whole = valid.shape[1] == 1 and valid.shape[2] == 1
     zero = np.float32(0.0)
-    tiny = np.float32(1e-30)
     tile = MERGE_TILE
     big = np.float64(np.finfo(np.float32).max) / 4.0
-    tnq = tn + tq      # noise and quantisation in one look-up; apart only on the sampled rows
     sqm = mats64 * mats64
+    sqm32 = sqm.astype(np.float32)
+    # one 16-byte entry per (frame, code, channel): linear value, inverse variance, noise +
+    # quantisation, quantisation (one cache line per look-up instead of four)
+    pk = np.empty((n, lin.shape[1], 3, 4), dtype=np.float32)
+    for jf in range(n):
+        for zf in range(lin.shape[1]):
+            for cf in range(3):
+                pk[jf, zf, cf, 0] = lin[jf, zf, cf]
+                pk[jf, zf, cf, 1] = inv_var[jf, zf, cf] if use_inv_var else zero
+                pk[jf, zf, cf, 2] = tn[jf, zf, cf] + tq[jf, zf, cf]
+                pk[jf, zf, cf, 3] = tq[jf, zf, cf]
+    linp = pk[:, :, :, 0]
+    ivp = pk[:, :, :, 1]
+    tnq = pk[:, :, :, 2]
+    tqp = pk[:, :, :, 3]
     for y in prange(y0, y1):
         split = y % stride == 0
         acc = np.empty((8, tile), dtype=np.float32)
         usable = np.empty(tile, dtype=np.bool_)
-        vs = np.empty((11, tile), dtype=np.float64)   # S0, W2, sum w (v - mean)^2 (3), Qnq (3), Qq (3)
-        mu3 = np.zeros((3, tile), dtype=np.float64)
+        s64 = np.empty((7, tile), dtype=np.float64)    # S0, sum w v (3), sum w v^2 (3)
+        s32 = np.empty((7, tile), dtype=np.float32)    # W2, Qnq (3), Qq (3)
+        vb = np.empty(11, dtype=np.float64)
         for x0 in range(0, w, tile):
             xe = min(x0 + tile, w)
             acc[:, :] = zero
             usable[:] = False
+            s64[:, :] = 0.0
+            s32[:, :] = zero
             for j in range(n):
                 yy = y + shifts[j, 0]
                 if yy < 0 or yy >= h:
                     continue
-                add_frame_to_tile(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, inv_var,
-                                   inv_k[j], use_inv_var, colour_w, use_colour_w, lin, mats32, acc, usable)
-            # second look at the tile's frames: the spread around the merged mean, with the set it used
+                add_frame_to_tile_var(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, ivp,
+                                      inv_k[j], use_inv_var, colour_w, use_colour_w, linp, mats32, acc, usable,
+                                      tnq, tqp, sqm32, split, s64, s32)
             for x in range(x0, xe):
                 t = x - x0
-                kset = 0 if usable[t] else 4
-                dm = acc[kset, t]
-                if dm > zero:
-                    for c in range(3):
-                        mu3[c, t] = np.float64(acc[kset + 1 + c, t] / dm)
-            vs[:, :] = 0.0
-            for j in range(n):
-                yy = y + shifts[j, 0]
-                if yy < 0 or yy >= h:
-                    continue
-                sx = shifts[j, 1]
-                ik = inv_k[j]
-                sq = sqm[j]
-                m32 = mats32[j]
-                for x in range(max(x0, -sx), min(xe, w - sx)):
-                    if not whole and valid[j, y, x] == 0:
-                        continue
-                    t = x - x0
-                    xx = x + sx
-                    z0 = frames[j, yy, xx, 0]
-                    z1 = frames[j, yy, xx, 1]
-                    z2 = frames[j, yy, xx, 2]
-                    if usable[t]:
-                        ws = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
-                    else:
-                        ws = weights[max(max(z0, z1), z2), 0]
-                    if ws == zero:
-                        continue
-                    if use_inv_var:
-                        d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
-                        d = d + inv_var[j, z2, 2]
-                        ws = ws * (ik / max(d, tiny))
-                    if use_colour_w:
-                        ws = ws * colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
-                    l0 = lin[j, z0, 0]
-                    l1 = lin[j, z1, 1]
-                    l2 = lin[j, z2, 2]
-                    wd = np.float64(ws)
-                    ww = wd * wd
-                    n0 = tnq[j, z0, 0]
-                    n1 = tnq[j, z1, 1]
-                    n2 = tnq[j, z2, 2]
-                    vs[0, t] += wd
-                    vs[1, t] += ww
-                    for c in range(3):
-                        vc = np.float64(max(l0 * m32[c, 0] + l1 * m32[c, 1] + l2 * m32[c, 2], zero)) - mu3[c, t]
-                        vs[2 + c, t] += wd * vc * vc
-                        vs[5 + c, t] += ww * (sq[c, 0] * n0 + sq[c, 1] * n1 + sq[c, 2] * n2)
-                        if split:
-                            vs[8 + c, t] += ww * (sq[c, 0] * tq[j, z0, 0] + sq[c, 1] * tq[j, z1, 1]
-                                                  + sq[c, 2] * tq[j, z2, 2])
-            for x in range(x0, xe):
-                t = x - x0
-                kset = 0 if usable[t] else 4
-                dm = acc[kset, t]
-                if dm > zero:
-                    out[0, y - row0, x] = acc[kset + 1, t] / dm
-                    out[1, y - row0, x] = acc[kset + 2, t] / dm
-                    out[2, y - row0, x] = acc[kset + 3, t] / dm
+                if usable[t] and acc[0, t] > zero:
+                    dm = acc[0, t]
+                    out[0, y - row0, x] = acc[1, t] / dm
+                    out[1, y - row0, x] = acc[2, t] / dm
+                    out[2, y - row0, x] = acc[3, t] / dm
                     mask[y, x] = 0
+                    sw = s64[0, t]
                     for c in range(3):
                         m = np.float64(out[c, y - row0, x])
-                        pn, pq, pd, ps = _finish_var(vs[0, t], 0.0, vs[2 + c, t], vs[1, t],
-                                                     vs[5 + c, t] - vs[8 + c, t], vs[8 + c, t], k, False, m)
+                        qc = np.float64(s32[4 + c, t]) if split else 0.0
+                        pn, pq, pd, ps = _finish_var(sw, s64[1 + c, t], s64[4 + c, t], np.float64(s32[0, t]),
+                                                     np.float64(s32[1 + c, t]) - qc, qc, k, False, m)
+                        _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
+                    continue
+                if not usable[t] and acc[4, t] > zero:
+                    dm = acc[4, t]
+                    out[0, y - row0, x] = acc[5, t] / dm
+                    out[1, y - row0, x] = acc[6, t] / dm
+                    out[2, y - row0, x] = acc[7, t] / dm
+                    mask[y, x] = 0
+                    _bright_set_sums(frames, valid, whole, shifts, y, x, h, w, weights, inv_var, inv_k, use_inv_var,
+                                     colour_w, use_colour_w, lin, mats32, sqm, tnq, tq,
+                                     np.float64(acc[5, t] / dm), np.float64(acc[6, t] / dm),
+                                     np.float64(acc[7, t] / dm), split, vb)
+                    for c in range(3):
+                        m = np.float64(out[c, y - row0, x])
+                        pn, pq, pd, ps = _finish_var(vb[0], 0.0, vb[2 + c], vb[1], vb[5 + c] - vb[8 + c], vb[8 + c],
+                                                     k, False, m)
                         _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
                     continue
                 jj, code = fallback_frame(frames, valid, whole, ref, shifts, j_short, j_long, bright, y, x, h, w)
@@ -323,3 +422,59 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     pn = m0 * tn[jj, c0, 0] + m1 * tn[jj, c1, 1] + m2 * tn[jj, c2, 2]
                     pq = m0 * tq[jj, c0, 0] + m1 * tq[jj, c1, 1] + m2 * tq[jj, c2, 2]
                     _store(var, parts, y, row0, x, c, pn, pq, k[3] * m * m, k[2] * m * m, stride, big)
+
+
+# Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def variance_finish_rows(radiance, var, parts, e2, relative, y0, y1, row0, stride, cap):  # pragma: no cover
+    """The variance's last steps on rows ``y0:y1`` of a band (``radiance``, ``var`` (3, rows, W)
+    float32, image row ``y`` at ``y - row0``), in one pass per pixel-channel:
+
+    * ``relative`` (the log-domain kernel's relative variance): ``var *= r^2`` with ``r^2`` the
+      float32 square of the radiance (:func:`derender.engine.variance.scale_relative_variance`'s
+      products), and the sampled rows' sources ``parts[:4]`` too; non-finite or beyond ``cap``: ``cap``;
+    * the edge term ``e2 Var_3x3(r)`` (:func:`derender.engine.variance.add_edge_term`; the
+      3x3 neighbourhood within the band, its first and last rows and columns repeated; float64
+      sums), added to ``var`` (capped at ``cap``) and written as the sampled rows' ``parts[4]``."""
+    w = radiance.shape[2]
+    ninth = 1.0 / 9.0
+    for y in prange(y0, y1):
+        split = y % stride == 0
+        yy = y // stride
+        ra = max(y - 1, y0) - row0
+        rb = y - row0
+        rc = min(y + 1, y1 - 1) - row0
+        for c in range(3):
+            for x in range(w):
+                v = var[c, rb, x]
+                if relative:
+                    r = radiance[c, rb, x]
+                    r2 = r * r
+                    v = v * r2
+                    if not (v <= cap):        # NaN, inf or beyond
+                        v = cap
+                    if split:
+                        for p in range(4):
+                            q = parts[p, yy, x, c] * r2
+                            parts[p, yy, x, c] = q if q <= cap else cap
+                if e2 > 0.0:
+                    xa = max(x - 1, 0)
+                    xc = min(x + 1, w - 1)
+                    u0 = np.float64(radiance[c, ra, xa])
+                    u1 = np.float64(radiance[c, ra, x])
+                    u2 = np.float64(radiance[c, ra, xc])
+                    u3 = np.float64(radiance[c, rb, xa])
+                    u4 = np.float64(radiance[c, rb, x])
+                    u5 = np.float64(radiance[c, rb, xc])
+                    u6 = np.float64(radiance[c, rc, xa])
+                    u7 = np.float64(radiance[c, rc, x])
+                    u8 = np.float64(radiance[c, rc, xc])
+                    s = ((u0 + u1) + (u2 + u3)) + ((u4 + u5) + (u6 + u7)) + u8
+                    q2 = ((u0 * u0 + u1 * u1) + (u2 * u2 + u3 * u3)) + ((u4 * u4 + u5 * u5) + (u6 * u6 + u7 * u7)) + u8 * u8
+                    mu = s * ninth
+                    lv = max(q2 * ninth - mu * mu, 0.0) * e2
+                    lv32 = np.float32(min(lv, cap))
+                    v = np.float32(min(np.float64(v) + np.float64(lv32), cap))
+                    if split:
+                        parts[4, yy, x, c] = lv32
+                var[c, rb, x] = v
