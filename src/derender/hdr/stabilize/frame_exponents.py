@@ -79,8 +79,11 @@ EXPONENT_MAX = 0.4
 #: alternation's offsets are held).
 EXPONENT_FREE_OFFSETS = False
 
-#: Half-width (in ``ln rho``) and points of each round's grid around the current exponent.
-EXPONENT_STEP, EXPONENT_GRID = 0.25, 51
+#: Half-width (in ``ln rho``) of each round's grid around the current exponent.
+EXPONENT_STEP = 0.25
+
+#: Points of that grid (a parabola through the best three refines the minimum).
+EXPONENT_GRID = 51
 
 
 def warp_codes(codes: np.ndarray, rho: np.ndarray) -> np.ndarray:

@@ -586,9 +586,10 @@ def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str =
     ----------
     stack : Stack
         The bracket.
-    reference, align, response, gammas, use_times, path, block, max_blocks, ransac_iter, seed, exposure_rounds,
-        exponent_rounds
+    reference, align, response, gammas, use_times, path, block, max_blocks, ransac_iter, seed, exposure_rounds
         As :func:`stabilize`.
+    exponent_rounds : int, optional
+        As :func:`stabilize` (per-frame exponents of the curve model; off by default).
     weight : str
         The merge's weight (paper 1: ``"trapezoid"``).
     noise_weighting : bool
