@@ -439,6 +439,12 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
                 break
             rho = new
             fit(rounds, rho)
+        misfit_fit = float(np.mean(_misfit(fitted["codes"], log_t, g, offsets)))
+        if e_rounds > 0 and not exp_rejected and misfit_fit >= fe.EXPONENT_MISFIT_RATIO * float(np.mean(misfit_plain)):
+            # the exponents do not lower Debevec's misfit: the alternation wandered off (the
+            # frames change what neither the offsets nor the exponents model); keep rho = 1
+            exp_rejected, rho = True, np.ones(n)
+            fit(rounds, rho)
     rejected = bool(rounds > 0 and np.max(np.abs(offsets)) >= CURVE_MAX_OFFSET * (1 - 1e-9))
     if rejected:
         # an offset at the bound is no gain or white-balance step of a camera: the data do not

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EXPONENT_DEGREE", "EXPONENT_MAX", "EXPONENT_STEP", "EXPONENT_GRID", "EXPONENT_FREE_OFFSETS", "warp_codes", "interp_table",
+__all__ = ["EXPONENT_DEGREE", "EXPONENT_MAX", "EXPONENT_STEP", "EXPONENT_GRID", "EXPONENT_FREE_OFFSETS", "EXPONENT_TOE", "EXPONENT_MISFIT_RATIO", "warp_codes", "interp_table",
            "search_exponents", "gauge_exponents"]
 
 #: Degree of the polynomial in ``ln t_j`` removed from ``ln rho_j`` (0: only their mean).
@@ -79,6 +79,11 @@ EXPONENT_MAX = 0.4
 #: alternation's offsets are held).
 EXPONENT_FREE_OFFSETS = False
 
+#: :func:`~derender.hdr.stabilize.filmic.unclipped_debevec` keeps the exponents only when
+#: Debevec's misfit (weighted RMS, mean of the channels) drops below this fraction of its value
+#: at ``rho = 1`` (the guard's second signal; 0: never, a large value: always).
+EXPONENT_MISFIT_RATIO = 1.0
+
 #: Half-width (in ``ln rho``) of each round's grid around the current exponent.
 EXPONENT_STEP = 0.25
 
@@ -86,11 +91,21 @@ EXPONENT_STEP = 0.25
 EXPONENT_GRID = 51
 
 
-def warp_codes(codes: np.ndarray, rho: np.ndarray) -> np.ndarray:
-    """Codes ``Z`` (N, P, ...) of 256 levels warped by frame: ``255 (Z / 255) ** rho_j`` (float)."""
+#: Offset ``a`` of the display encoding ``J = (1 + a) y ** (1 / gamma) - a`` the warp undoes
+#: (:func:`warp_codes`; 0: a pure power law ``J ** rho``).
+EXPONENT_TOE = 0.055
+
+
+def warp_codes(codes: np.ndarray, rho: np.ndarray, toe: float | None = None) -> np.ndarray:
+    """Codes ``Z`` (N, P, ...) of 256 levels warped by frame (float): with ``u = Z / 255`` and
+    ``a = toe`` (default :data:`EXPONENT_TOE`), ``255 ((1 + a) ((u + a) / (1 + a)) ** rho_j - a)``,
+    clipped at 0 (``a = 0``: ``255 u ** rho_j``)."""
+    a = EXPONENT_TOE if toe is None else float(toe)
     z = np.asarray(codes, dtype=np.float64) / 255.0
     r = np.asarray(rho, dtype=np.float64).reshape((-1,) + (1,) * (z.ndim - 1))
-    return 255.0 * z ** r
+    if a == 0.0:
+        return 255.0 * z ** r
+    return 255.0 * np.maximum((1.0 + a) * ((z + a) / (1.0 + a)) ** r - a, 0.0)
 
 
 def interp_table(g: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -133,7 +148,6 @@ def search_exponents(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offset
     den = w2.sum(axis=0)
     steps = np.linspace(-EXPONENT_STEP, EXPONENT_STEP, EXPONENT_GRID)
     out, gain = rho.astype(np.float64).copy(), np.ones(n)
-    u = np.asarray(z, dtype=np.float64) / 255.0
     for j in range(n):
         wj = w2[j]
         d = den - wj
@@ -143,7 +157,7 @@ def search_exponents(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offset
             continue
         ln_e = np.where(ok, (num - wj * (gx[j] - b[j])) / np.where(ok, d, 1.0), 0.0)      # leave-one-out (P, 3)
         s = rho[j] * np.exp(steps)                                          # (K,)
-        xs = 255.0 * u[j][None] ** s[:, None, None]                         # (K, P, 3)
+        xs = warp_codes(np.broadcast_to(z[j][None], (s.size,) + z[j].shape), s)    # (K, P, 3)
         gs = np.stack([interp_table(g[:, c], xs[..., c]) for c in range(3)], axis=-1)
         r = gs - ln_e[None] - log_t[j]
         if free_offsets and EXPONENT_FREE_OFFSETS:
