@@ -370,7 +370,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     ``exponent_rounds`` (default :data:`CURVE_EXPONENT_ROUNDS`): per-frame relative exponents
     ``rho_j`` (the camera's per-frame display gamma) searched with the curve
     (:mod:`.frame_exponents`), the curve then fitted on the warped codes ``255 (Z / 255) ** rho_j``
-    (``params["rho"]``; read them as ``Curve(rho_j, log_table=...)``). ``exponents`` (N,): fixed
+    (``params["rho"]``; read them as ``Curve(rho_j, log_table=..., toe=params["toe"])``). ``exponents`` (N,): fixed
     ``rho_j`` instead (e.g. the simulator's true ``gamma_j / gamma_0``, an oracle).
 
     ``codes_at(j, ys, xs)``: (P, 3) integer codes of aligned image j at those pixels;
@@ -428,16 +428,37 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
         rho = np.asarray(exponents, dtype=np.float64).reshape(n)
         fit(rounds, rho)
     else:
+        # EXPONENT_TIMES_GIVEN: the search alternates with the fit of the times as given
+        # (no offsets to take up part of each exponent); the offsets come with the last fit
+        search_rounds = 0 if (fe.EXPONENT_TIMES_GIVEN and e_rounds > 0) else rounds
+        if search_rounds != rounds:
+            fit(search_rounds, rho)
         for _ in range(max(e_rounds, 0)):
-            new, _gain = fe.search_exponents(codes, log_t, g, offsets, rho, free_offsets=rounds > 0)
+            new, _gain = fe.search_exponents(codes, log_t, g, offsets, rho, free_offsets=search_rounds > 0)
             new = fe.gauge_exponents(new, log_t)
             history.append(new.tolist())
             if np.max(np.abs(np.log(new))) >= fe.EXPONENT_MAX:
                 # an exponent at the bound: the data do not determine it; keep rho = 1
                 exp_rejected, rho = True, np.ones(n)
-                fit(rounds, rho)
                 break
             rho = new
+            fit(search_rounds, rho)
+        if search_rounds != rounds or exp_rejected:
+            fit(rounds, rho)
+        if fe.EXPONENT_REFINE > 0 and e_rounds > 0:
+            def cost_of(rh: np.ndarray) -> float:
+                fit(rounds, rh)
+                return fe.profile_cost(codes, log_t, g, offsets, rh)
+            start = rho if not exp_rejected else np.ones(n)
+            c1 = cost_of(np.ones(n))
+            cs = cost_of(start)
+            if c1 < cs:
+                start = np.ones(n)
+            rho, _c0, c_end = fe.refine_exponents(cost_of, start, log_t, sweeps=fe.EXPONENT_REFINE)
+            exp_rejected = bool(np.max(np.abs(np.log(rho))) >= fe.EXPONENT_MAX)
+            if exp_rejected:
+                rho = np.ones(n)
+            history.append(rho.tolist())
             fit(rounds, rho)
         misfit_fit = float(np.mean(_misfit(fitted["codes"], log_t, g, offsets)))
         if e_rounds > 0 and not exp_rejected and misfit_fit >= fe.EXPONENT_MISFIT_RATIO * float(np.mean(misfit_plain)):
@@ -456,6 +477,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
               "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie,
               "exponent_rounds": e_rounds, "rho": rho.tolist(), "rho_rejected": exp_rejected,
+              "toe": fe.EXPONENT_TOE,
               "rho_history": history, "misfit_plain": misfit_plain, "misfit": _misfit(fitted["codes"], log_t, g, offsets).tolist()}
     return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
 
@@ -495,6 +517,7 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
         if calibrate is not None and np.all(r == 1.0):
             cur = calibrate()
             fitted["rho"] = cur.params.get("rho")
+            fitted["toe"] = cur.params.get("toe")
             fitted["misfit"] = (cur.params.get("misfit_plain"), cur.params.get("misfit"))
             return cur.log_inverse
         if np.all(r == 1.0):
@@ -503,6 +526,7 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
                                     exponent_rounds=exponent_rounds)
             if cur is not None:
                 fitted["rho"] = cur.params.get("rho")
+                fitted["toe"] = cur.params.get("toe")
                 fitted["misfit"] = (cur.params.get("misfit_plain"), cur.params.get("misfit"))
                 return cur.log_inverse
         fitted["rho"] = None
@@ -522,6 +546,8 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
         rho = rho * np.exp(u)
         rho = rho / np.exp(np.mean(np.log(rho)))
         table = table_for(rho)
-    curves = [Curve(rho[j], log_table=table) for j in range(n)]
+    # exponents searched inside unclipped_debevec: its table is on codes warped with the toe
+    toe = float(fitted.get("toe") or 0.0) if int(rounds) <= 0 else 0.0
+    curves = [Curve(rho[j], log_table=table, toe=toe) for j in range(n)]
     info = {"rho": rho.tolist(), "misfit": fitted.get("misfit"), "pairs": [{k: v for k, v in p.items() if k not in ("sel", "common")} for p in pairs]}
     return curves, info

@@ -63,10 +63,13 @@ exponent and the held offsets release it slowly.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-__all__ = ["EXPONENT_DEGREE", "EXPONENT_MAX", "EXPONENT_STEP", "EXPONENT_GRID", "EXPONENT_FREE_OFFSETS", "EXPONENT_TOE", "EXPONENT_MISFIT_RATIO", "warp_codes", "interp_table",
-           "search_exponents", "gauge_exponents"]
+__all__ = ["EXPONENT_DEGREE", "EXPONENT_MAX", "EXPONENT_STEP", "EXPONENT_GRID", "EXPONENT_FREE_OFFSETS", "EXPONENT_TOE", "EXPONENT_MISFIT_RATIO", "EXPONENT_TIMES_GIVEN", "warp_codes", "interp_table",
+           "search_exponents", "gauge_exponents", "EXPONENT_REFINE", "EXPONENT_REFINE_STEP",
+           "profile_cost", "refine_exponents"]
 
 #: Degree of the polynomial in ``ln t_j`` removed from ``ln rho_j`` (0: only their mean).
 EXPONENT_DEGREE = 1
@@ -83,6 +86,17 @@ EXPONENT_FREE_OFFSETS = False
 #: Debevec's misfit (weighted RMS, mean of the channels) drops below this fraction of its value
 #: at ``rho = 1`` (the guard's second signal; 0: never, a large value: always).
 EXPONENT_MISFIT_RATIO = 1.0
+
+#: The search alternates with Debevec & Malik's fit of the times as given (no per-frame offsets,
+#: which take up part of each exponent); the offsets are fitted once the exponents are (False:
+#: with the offsets re-estimated in every round).
+EXPONENT_TIMES_GIVEN = False
+
+#: Sweeps of :func:`refine_exponents` after the alternation (0: none).
+EXPONENT_REFINE = 0
+
+#: First step (in ``ln rho``) of :func:`refine_exponents` (halved each sweep).
+EXPONENT_REFINE_STEP = 0.05
 
 #: Half-width (in ``ln rho``) of each round's grid around the current exponent.
 EXPONENT_STEP = 0.25
@@ -177,3 +191,61 @@ def search_exponents(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offset
         mid = EXPONENT_GRID // 2
         gain[j] = float(cost[k] / max(cost[mid], 1e-300))
     return out, gain
+
+
+def profile_cost(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offsets: np.ndarray,
+                 rho: np.ndarray) -> float:
+    """Debevec & Malik's data term of table ``g`` (256, 3) and ``offsets`` (N, 3) on the codes
+    (N, P, 3; 0 where left out) warped by ``rho`` *without rounding* (``g`` read between levels),
+    weighted by the hat of the *raw* codes, ``ln E`` its weighted least-squares value: the same
+    samples and weights for every ``rho``, so costs of different exponents compare (weighted
+    mean square, in ``ln``)."""
+    from derender.response.curves import level_weights
+
+    z = np.asarray(codes, dtype=np.int64)
+    w2 = level_weights("hat", 256)[z] ** 2
+    w2[z == 0] = 0.0
+    x = warp_codes(z, rho)
+    gx = np.stack([interp_table(g[:, c], x[..., c]) for c in range(3)], axis=-1)
+    b = log_t[:, None] + offsets                                            # (N, 3)
+    d = gx - b[:, None, :]
+    den = w2.sum(axis=0)
+    ln_e = (w2 * d).sum(axis=0) / np.maximum(den, 1e-12)
+    return float((w2 * (d - ln_e[None]) ** 2).sum() / max(w2.sum(), 1e-12))
+
+
+def refine_exponents(cost_of: Any, rho: np.ndarray, log_t: np.ndarray, *, sweeps: int,
+                     step: float | None = None) -> tuple[np.ndarray, float, float]:
+    """Coordinate search of the profile cost ``cost_of(rho)`` (the curve refitted for each
+    candidate, :func:`profile_cost` of that fit): per frame ``ln rho_j`` and ``+-step``, a
+    parabola through the three, kept where it lowers the cost; the gauge after each sweep.
+    Returns ``(rho, cost at the start, cost at the end)``."""
+    step = EXPONENT_REFINE_STEP if step is None else float(step)
+    rho = np.asarray(rho, dtype=np.float64).copy()
+    best = start = float(cost_of(rho))
+    for _ in range(int(sweeps)):
+        for j in range(rho.size):
+            lr = np.log(rho[j])
+            cs = []
+            for d in (-step, step):
+                r = rho.copy()
+                r[j] = np.exp(lr + d)
+                cs.append(float(cost_of(r)))
+            c0, c2 = cs
+            den2 = c0 - 2 * best + c2
+            cand = [(c0, lr - step), (c2, lr + step)]
+            if den2 > 0:
+                shift = float(np.clip(0.5 * (c0 - c2) / den2, -1.0, 1.0)) * step
+                r = rho.copy()
+                r[j] = np.exp(lr + shift)
+                cand.append((float(cost_of(r)), lr + shift))
+            c, l = min(cand)
+            if c < best:
+                best, rho[j] = c, np.exp(l)
+        g_rho = gauge_exponents(rho, log_t)
+        if not np.allclose(g_rho, rho):
+            c = float(cost_of(g_rho))
+            if c <= best * (1 + 1e-3):
+                rho, best = g_rho, c
+        step *= 0.5
+    return rho, start, best
