@@ -36,12 +36,19 @@ class Curve:
 
     Multiplying a curve by a number scales ``rho`` (for a power law: the gamma), which is
     how the pairwise searches vary one image's exponent.
+
+    ``toe`` (tables only): the offset ``a`` of a display encoding ``J = (1 + a) y ** (1 / gamma) - a``
+    (sRGB's 0.055); the warp is then ``W(J) = (1 + a) ((J + a) / (1 + a)) ** rho - a`` (clipped at
+    0), which takes such an encoding of gamma ``gamma`` exactly to gamma ``gamma / rho``
+    (:mod:`.frame_exponents`). ``toe = 0``: ``W(J) = J ** rho``; with ``rho = 1`` it is the identity.
     """
 
-    def __init__(self, rho: float = 1.0, gamma: float | None = None, log_table: np.ndarray | None = None):
+    def __init__(self, rho: float = 1.0, gamma: float | None = None, log_table: np.ndarray | None = None,
+                 toe: float = 0.0):
         if (gamma is None) == (log_table is None):
             raise ValueError("a Curve needs exactly one of gamma and log_table")
         self.rho = float(rho)
+        self.toe = float(toe) if log_table is not None else 0.0
         self.gamma = None if gamma is None else float(gamma)
         self.table = None
         if log_table is not None:
@@ -60,6 +67,7 @@ class Curve:
             return Curve(1.0, gamma=self.gamma * self.rho * r)
         c = Curve.__new__(Curve)
         c.rho, c.gamma, c.table, c._levels, c._dt = self.rho * r, None, self.table, self._levels, self._dt
+        c.toe = self.toe
         return c
 
     __rmul__ = __mul__
@@ -85,9 +93,15 @@ class Curve:
         return np.exp(self.table[i0, ch] + (x - i0) * self._dt[i0, ch])
 
     def _segments(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Table position ``x = u ** rho * (levels - 1)`` of codes ``u`` in [0, 1] and its segment."""
+        """Table position ``x = W(u) * (levels - 1)`` of codes ``u`` in [0, 1] and its segment."""
         n = self.table.shape[0] - 1
-        x = (u if self.rho == 1.0 else u ** self.rho) * n
+        a = self.toe
+        if self.rho == 1.0:
+            x = u * n
+        elif a == 0.0:
+            x = u ** self.rho * n
+        else:
+            x = np.maximum((1.0 + a) * ((u + a) / (1.0 + a)) ** self.rho - a, 0.0) * n
         return x, np.minimum(x.astype(np.int64), n - 1)
 
     def code(self, lin: np.ndarray) -> np.ndarray:
@@ -100,7 +114,13 @@ class Curve:
         n = self.table.shape[0] - 1
         for c in range(3):
             out[..., c] = np.interp(lg[..., c], self.table[:, c], self._levels) / n
-        return np.clip(out, 0.0, 1.0) ** (1.0 / self.rho)
+        out = np.clip(out, 0.0, 1.0)
+        if self.rho == 1.0:
+            return out
+        a = self.toe
+        if a == 0.0:
+            return out ** (1.0 / self.rho)
+        return np.clip((1.0 + a) * ((out + a) / (1.0 + a)) ** (1.0 / self.rho) - a, 0.0, 1.0)
 
     def dlin(self, j: np.ndarray) -> np.ndarray:
         """Derivative ``dL/dJ`` (float64, positive)."""
@@ -112,14 +132,15 @@ class Curve:
 
     def log_slope(self, j: np.ndarray) -> np.ndarray:
         """``d ln L / dJ`` (float64, positive; codes below 1e-6 count as 1e-6): ``gamma / J``
-        for a power law, ``dG * (levels - 1) * rho * J ** (rho - 1)`` (``dG`` the table
-        segment's log step) for a table. Needs no exponential."""
+        for a power law, ``dG * (levels - 1) * W'(J)`` (``dG`` the table segment's log step,
+        ``W'(J) = rho ((J + a) / (1 + a)) ** (rho - 1)``) for a table. Needs no exponential."""
         u = np.clip(np.asarray(j, dtype=np.float64), 1e-6, 1.0)
         if self.table is None:
             return (self.gamma * self.rho) / u
         _, i0 = self._segments(u)
         n = self.table.shape[0] - 1
-        tail = n * self.rho if self.rho == 1.0 else (n * self.rho) * u ** (self.rho - 1.0)
+        a = self.toe
+        tail = n * self.rho if self.rho == 1.0 else (n * self.rho) * ((u + a) / (1.0 + a)) ** (self.rho - 1.0)
         return self._dt[i0, np.arange(3)] * tail
 
     def noise_log_slope(self, j: np.ndarray) -> np.ndarray:

@@ -57,6 +57,11 @@ and Memorial (16 film frames; no truth: against ``memorial.hdr`` the brightest 0
 at +0.48 in ``ln``, where the offsets moved them to +2.1 with degree 1, -0.8 with degree 2).
 On the iPhone 6 bracket (degree 1, no guard) the median angle to the camera's own rendering
 dropped 8.9 -> 5.2 degrees (Frobisher 3.8 either way).
+**Per-frame exponents** (option ``exponent_rounds=`` of the stabilised merges, off by default,
+:data:`CURVE_EXPONENT_ROUNDS`): the ``auto`` pipelines also change the display gamma per frame,
+after the tone curve; :mod:`.frame_exponents` searches a relative exponent ``rho_j`` per frame
+inside this alternation, the curve then fitted on the warped codes ``J_j ** rho_j`` (measured
+table there).
 Cost: the fit is linear in the log exposures, so one factorisation serves every round
 (:func:`_debevec_affine`): measured 0.365 -> 0.405 s for the whole curve fit of 9 frames of
 6 MP (the samples are a fixed 1024-point grid, so the cost does not grow with the frame size).
@@ -70,6 +75,7 @@ import numpy as np
 
 from derender.core.types import Stack
 from derender.engine.reference_frame import REF_HIGH
+from derender.hdr.stabilize import frame_exponents as fe
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import relative_exponents
@@ -77,7 +83,7 @@ from derender.hdr.stabilize.exponents import relative_exponents
 __all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
            "CURVE_TIE_CODES",
            "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
-           "CURVE_MAX_OFFSET", "unclipped_debevec", "curve_model"]
+           "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"]
 
 
 def gamma_trend(gammas: Sequence[float], times: Sequence[float]) -> float:
@@ -169,6 +175,10 @@ CURVE_OFFSET_DEGREE = 2
 #: Largest per-frame, per-channel log-exposure offset :func:`_debevec_with_exposures` accepts;
 #: :func:`unclipped_debevec` drops the offsets of a bracket where one reaches it (the guard).
 CURVE_MAX_OFFSET = 0.5
+
+#: Rounds of per-frame relative exponents ``rho_j`` searched with the curve in
+#: :func:`unclipped_debevec` (:mod:`.frame_exponents`; 0: ``rho_j = 1``, one table for every frame).
+CURVE_EXPONENT_ROUNDS = 0
 
 
 def _debevec_affine(codes: np.ndarray, lam: float) -> tuple:
@@ -336,7 +346,8 @@ def _misfit(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offsets: np.nda
 
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, *, seed: int = 0,
                       high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS,
-                      exposure_rounds: int | None = None, tie: float | None = None, valid_at: Any = None) -> Any:
+                      exposure_rounds: int | None = None, tie: float | None = None, valid_at: Any = None,
+                      exponent_rounds: int | None = None, exponents: Any = None) -> Any:
     """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
     :data:`CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
     pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
@@ -355,6 +366,12 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     ``exposure_rounds`` (default :data:`CURVE_EXPOSURE_ROUNDS`): per-frame, per-channel
     log-exposure offsets re-estimated with the curve (:func:`_debevec_with_exposures`; in
     ``params["exposure_offsets"]``, (N, 3)); 0 is Debevec & Malik with the times as given.
+
+    ``exponent_rounds`` (default :data:`CURVE_EXPONENT_ROUNDS`): per-frame relative exponents
+    ``rho_j`` (the camera's per-frame display gamma) searched with the curve
+    (:mod:`.frame_exponents`), the curve then fitted on the warped codes ``255 (Z / 255) ** rho_j``
+    (``params["rho"]``; read them as ``Curve(rho_j, log_table=..., toe=params["toe"])``). ``exponents`` (N,): fixed
+    ``rho_j`` instead (e.g. the simulator's true ``gamma_j / gamma_0``, an oracle).
 
     ``codes_at(j, ys, xs)``: (P, 3) integer codes of aligned image j at those pixels;
     ``valid_at(j, ys, xs)`` (optional): (P,) bool, False where image j does not take part
@@ -387,33 +404,88 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     lam = DEFAULT_LAMBDA * float(np.sqrt(codes.shape[1] / 256.0))
     g = np.empty((256, 3))
     rounds = CURVE_EXPOSURE_ROUNDS if exposure_rounds is None else int(exposure_rounds)
+    e_rounds = CURVE_EXPONENT_ROUNDS if exponent_rounds is None else int(exponent_rounds)
     tie = CURVE_TIE if tie is None else float(tie)
     offsets = np.zeros((n, 3))
+    rho = np.ones(n)
+    fitted = {"codes": codes}
 
-    def fit(r: int) -> None:
+    def fit(r: int, rh: np.ndarray) -> None:
+        zc = codes if np.all(rh == 1.0) else np.where(
+            codes > 0, np.clip(np.rint(fe.warp_codes(codes, rh)), 0, 255), 0).astype(np.int32)
+        fitted["codes"] = zc
         if tie > 0:
-            g[:], offsets[:] = _debevec_tied_with_exposures(codes, log_t, lam, r, tie)
+            g[:], offsets[:] = _debevec_tied_with_exposures(zc, log_t, lam, r, tie)
             return
         for c in range(3):
-            g[:, c], offsets[:, c] = _debevec_with_exposures(codes[:, :, c], log_t, lam, r)
+            g[:, c], offsets[:, c] = _debevec_with_exposures(zc[:, :, c], log_t, lam, r)
 
-    fit(rounds)
+    fit(rounds, rho)
+    misfit_plain = _misfit(fitted["codes"], log_t, g, offsets).tolist()
+    exp_rejected = False
+    history = []
+    if exponents is not None:
+        rho = np.asarray(exponents, dtype=np.float64).reshape(n)
+        fit(rounds, rho)
+    else:
+        # EXPONENT_TIMES_GIVEN: the search alternates with the fit of the times as given
+        # (no offsets to take up part of each exponent); the offsets come with the last fit
+        search_rounds = 0 if (fe.EXPONENT_TIMES_GIVEN and e_rounds > 0) else rounds
+        if search_rounds != rounds:
+            fit(search_rounds, rho)
+        for _ in range(max(e_rounds, 0)):
+            new, _gain = fe.search_exponents(codes, log_t, g, offsets, rho, free_offsets=search_rounds > 0)
+            new = fe.gauge_exponents(new, log_t)
+            history.append(new.tolist())
+            if np.max(np.abs(np.log(new))) >= fe.EXPONENT_MAX:
+                # an exponent at the bound: the data do not determine it; keep rho = 1
+                exp_rejected, rho = True, np.ones(n)
+                break
+            rho = new
+            fit(search_rounds, rho)
+        if search_rounds != rounds or exp_rejected:
+            fit(rounds, rho)
+        if fe.EXPONENT_REFINE > 0 and e_rounds > 0:
+            def cost_of(rh: np.ndarray) -> float:
+                fit(rounds, rh)
+                return fe.profile_cost(codes, log_t, g, offsets, rh)
+            start = rho if not exp_rejected else np.ones(n)
+            c1 = cost_of(np.ones(n))
+            cs = cost_of(start)
+            if c1 < cs:
+                start = np.ones(n)
+            rho, _c0, c_end = fe.refine_exponents(cost_of, start, log_t, sweeps=fe.EXPONENT_REFINE)
+            exp_rejected = bool(np.max(np.abs(np.log(rho))) >= fe.EXPONENT_MAX)
+            if exp_rejected:
+                rho = np.ones(n)
+            history.append(rho.tolist())
+            fit(rounds, rho)
+        misfit_fit = float(np.mean(_misfit(fitted["codes"], log_t, g, offsets)))
+        if e_rounds > 0 and not exp_rejected and misfit_fit >= fe.EXPONENT_MISFIT_RATIO * float(np.mean(misfit_plain)):
+            # the exponents do not lower Debevec's misfit: the alternation wandered off (the
+            # frames change what neither the offsets nor the exponents model); keep rho = 1
+            exp_rejected, rho = True, np.ones(n)
+            fit(rounds, rho)
     rejected = bool(rounds > 0 and np.max(np.abs(offsets)) >= CURVE_MAX_OFFSET * (1 - 1e-9))
     if rejected:
         # an offset at the bound is no gain or white-balance step of a camera: the data do not
         # determine it (Memorial's film frames), so the times are taken as given
-        fit(0)
+        rho = np.ones(n)
+        fit(0, rho)
     params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
               "weights": "hat", "clip": float(high), "clip_radius": r,
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
               "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie,
-              "misfit": _misfit(codes, log_t, g, offsets).tolist()}
+              "exponent_rounds": e_rounds, "rho": rho.tolist(), "rho_rejected": exp_rejected,
+              "toe": fe.EXPONENT_TOE,
+              "rho_history": history, "misfit_plain": misfit_plain, "misfit": _misfit(fitted["codes"], log_t, g, offsets).tolist()}
     return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
 
 
 def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
                  *, max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
-                 seed: int = 0, calibrate: Any = None, exposure_rounds: int | None = None) -> tuple[list, dict]:
+                 seed: int = 0, calibrate: Any = None, exposure_rounds: int | None = None,
+                 exponent_rounds: int | None = None) -> tuple[list, dict]:
     """Response model ``L_j = G(J_j ** rho_j)``: one response table ``G`` per channel common to
     the bracket (Debevec & Malik 1997, on the exponent-warped codes) and a relative
     exponent ``rho_j`` (geometric mean 1) per image from the pairwise 3x3-linearity
@@ -429,7 +501,9 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
     leaves a channel without data, or for warped codes). ``calibrate()`` (optional) returns
     the curves of the unwarped ``images`` without reading them (the streaming path
     samples its frames). ``exposure_rounds``: per-frame exposure offsets re-estimated with
-    ``G`` (:func:`unclipped_debevec`; default :data:`CURVE_EXPOSURE_ROUNDS`).
+    ``G`` (:func:`unclipped_debevec`; default :data:`CURVE_EXPOSURE_ROUNDS`). ``exponent_rounds``:
+    the ``rho_j`` searched inside that fit instead (:mod:`.frame_exponents`; default
+    :data:`CURVE_EXPONENT_ROUNDS`), used when ``rounds=0``.
     """
     from derender.response.curves import to_codes
     from derender.response.debevec1997 import calibrate_debevec
@@ -437,15 +511,25 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
     n = images.shape[0]
     rho = np.ones(n)
     pairs: list = []
+    fitted: dict = {}
 
     def table_for(r: np.ndarray) -> np.ndarray:
         if calibrate is not None and np.all(r == 1.0):
-            return calibrate().log_inverse
+            cur = calibrate()
+            fitted["rho"] = cur.params.get("rho")
+            fitted["toe"] = cur.params.get("toe")
+            fitted["misfit"] = (cur.params.get("misfit_plain"), cur.params.get("misfit"))
+            return cur.log_inverse
         if np.all(r == 1.0):
             cur = unclipped_debevec(lambda j, ys, xs: to_codes(np.asarray(images[j])[ys, xs], 256), n,
-                                    images.shape[1:3], times, seed=seed, exposure_rounds=exposure_rounds)
+                                    images.shape[1:3], times, seed=seed, exposure_rounds=exposure_rounds,
+                                    exponent_rounds=exponent_rounds)
             if cur is not None:
+                fitted["rho"] = cur.params.get("rho")
+                fitted["toe"] = cur.params.get("toe")
+                fitted["misfit"] = (cur.params.get("misfit_plain"), cur.params.get("misfit"))
                 return cur.log_inverse
+        fitted["rho"] = None
         if np.all(r == 1.0) and images.min() >= 0.0 and images.max() <= 1.0:
             warped = images                 # no exponent warp: no full-size copy of the stack
         else:
@@ -453,6 +537,8 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
         return calibrate_debevec(Stack(images=warped, times=times), seed=seed, tie=CURVE_TIE).log_inverse
 
     table = table_for(rho)
+    if int(rounds) <= 0 and fitted.get("rho") is not None:
+        rho = np.asarray(fitted["rho"], dtype=np.float64)     # searched with the curve (exponent_rounds)
     for _ in range(int(rounds)):
         bases = [Curve(rho[j], log_table=table) for j in range(n)]
         u, pairs, _ = relative_exponents(blocks, bases, low=low, high=high, floor=floor, max_gap=max_gap,
@@ -460,6 +546,8 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
         rho = rho * np.exp(u)
         rho = rho / np.exp(np.mean(np.log(rho)))
         table = table_for(rho)
-    curves = [Curve(rho[j], log_table=table) for j in range(n)]
-    info = {"rho": rho.tolist(), "pairs": [{k: v for k, v in p.items() if k not in ("sel", "common")} for p in pairs]}
+    # exponents searched inside unclipped_debevec: its table is on codes warped with the toe
+    toe = float(fitted.get("toe") or 0.0) if int(rounds) <= 0 else 0.0
+    curves = [Curve(rho[j], log_table=table, toe=toe) for j in range(n)]
+    info = {"rho": rho.tolist(), "misfit": fitted.get("misfit"), "pairs": [{k: v for k, v in p.items() if k not in ("sel", "common")} for p in pairs]}
     return curves, info

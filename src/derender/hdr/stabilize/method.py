@@ -184,7 +184,7 @@ class StabilizedMethod(MethodDefaults):
 
         def calibrate():
             cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed=seed,
-                                    exposure_rounds=opts.exposure_rounds,
+                                    exposure_rounds=opts.exposure_rounds, exponent_rounds=opts.exponent_rounds,
                                     valid_at=None if access.valid is None else valid_view.pixels)
             if cur is not None:
                 return cur
@@ -204,7 +204,8 @@ class StabilizedMethod(MethodDefaults):
         stab = stabilize_aligned(al, t, mode=mode, response=opts.response, gammas=opts.gammas,
                                  use_times=opts.use_times, path=opts.path, block=opts.block,
                                  max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=seed,
-                                 calibrate=calibrate, exposure_rounds=opts.exposure_rounds)
+                                 calibrate=calibrate, exposure_rounds=opts.exposure_rounds,
+                                 exponent_rounds=opts.exponent_rounds)
         self.stab = stab
         self.align_s = t1 - t0
         plan = stabilized_plan(stab, opts.weight, opts.noise_weighting, shifts=shifts)
@@ -275,7 +276,8 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb",
               response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
               path: str = "auto", block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW,
               high: float = FIT_HIGH, floor: float = FIT_FLOOR, ransac_iter: int = 100,
-              seed: int = 0, exposure_rounds: int | None = None) -> Stabilization:
+              seed: int = 0, exposure_rounds: int | None = None,
+              exponent_rounds: int | None = None) -> Stabilization:
     """Paper 1, Algorithm 1 steps 1-3 (reference, registration, per-image linearisation and
     H_j), or the reference-free joint fit (``mode="joint"``).
 
@@ -307,6 +309,10 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb",
         Curve model: rounds of per-frame exposure offsets re-estimated with the common curve
         (:func:`~derender.hdr.stabilize.filmic.unclipped_debevec`; default
         :data:`~derender.hdr.stabilize.filmic.CURVE_EXPOSURE_ROUNDS`).
+    exponent_rounds : int, optional
+        Curve model: rounds of per-frame relative exponents (the camera's per-frame display gamma)
+        searched with the common curve (:mod:`~derender.hdr.stabilize.frame_exponents`; default
+        :data:`~derender.hdr.stabilize.filmic.CURVE_EXPONENT_ROUNDS`).
 
     Returns
     -------
@@ -336,7 +342,8 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb",
     t1 = time.perf_counter()
     stab = stabilize_aligned(al, stack.times, mode=mode, response=response, gammas=gammas, use_times=use_times,
                              path=path, block=block, max_blocks=max_blocks, low=low, high=high, floor=floor,
-                             ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds)
+                             ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds,
+                             exponent_rounds=exponent_rounds)
     stab.info["timings"] = {"align_s": t1 - t0, **stab.info["timings"]}
     stab.info["hidden_saturation"] = {"fraction": hidden_frac, "masked": hidden is not None}
     return stab
@@ -353,7 +360,8 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
                       gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                       block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW, high: float = FIT_HIGH,
                       floor: float = FIT_FLOOR, ransac_iter: int = 100, seed: int = 0,
-                      calibrate: Any = None, exposure_rounds: int | None = None) -> Stabilization:
+                      calibrate: Any = None, exposure_rounds: int | None = None,
+                      exponent_rounds: int | None = None) -> Stabilization:
     """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
 
     ``al`` is an :class:`derender.engine.align.Alignment`, or a lazy equivalent with ``images``
@@ -394,7 +402,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
             info["response"] = "power"
         if response == "curve" or (response == "auto" and (screened or not power_law_plausible(ge.gammas, times))):
             cc, cinfo = curve_model(blocks, al.images, times, low, high, floor, seed=seed, calibrate=calibrate,
-                                    exposure_rounds=exposure_rounds)
+                                    exposure_rounds=exposure_rounds, exponent_rounds=exponent_rounds)
             if ge is not None:
                 cinfo["rejected_power_gammas"] = ge.gammas.tolist()
             ge = GammaEstimate(gammas=np.array([c.effective_gamma for c in cc]), method="curve", info=cinfo)
@@ -492,6 +500,9 @@ def stabilization_info(stab: Stabilization) -> dict:
             "gamma_method": stab.gammas.method, "matrices": stab.matrices.tolist(), "mode": stab.mode,
             "how": stab.how, "align": al.method, "response": stab.info.get("response", "given"),
             "gamma_trend": stab.info.get("gamma_trend")}
+    if stab.gammas.method == "curve" and "rho" in stab.gammas.info:
+        info["rho"] = stab.gammas.info["rho"]          # per-frame relative exponents of the curve model
+        info["curve_misfit"] = stab.gammas.info.get("misfit")   # (rho = 1, fitted rho) per channel
     if "hidden_saturation" in stab.info:
         info["hidden_saturation"] = stab.info["hidden_saturation"]
     if "grey_balance" in stab.info:
@@ -520,6 +531,7 @@ class StabilizedOptions:
     ransac_iter: int = 100
     seed: int = 0
     exposure_rounds: int | None = None
+    exponent_rounds: int | None = None
     variance: bool = False
 
 
@@ -548,7 +560,7 @@ def _merge_stabilized(name: str, stack: Stack, opts: StabilizedOptions) -> HDRRe
                      mode="joint" if name == "stabilized-joint" else "reference", response=opts.response,
                      gammas=opts.gammas, use_times=opts.use_times, path=opts.path, block=opts.block,
                      max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=opts.seed,
-                     exposure_rounds=opts.exposure_rounds)
+                     exposure_rounds=opts.exposure_rounds, exponent_rounds=opts.exponent_rounds)
     t1 = time.perf_counter()
     res = stabilized_merge(stab, weight=opts.weight, noise_weighting=opts.noise_weighting)
     res.info.update({"method": name, "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
@@ -560,7 +572,8 @@ def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str =
                      gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
                      weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
                      max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                     exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
+                     exposure_rounds: int | None = None, exponent_rounds: int | None = None,
+                     variance: bool = False) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
 
@@ -575,6 +588,8 @@ def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str =
         The bracket.
     reference, align, response, gammas, use_times, path, block, max_blocks, ransac_iter, seed, exposure_rounds
         As :func:`stabilize`.
+    exponent_rounds : int, optional
+        As :func:`stabilize` (per-frame exponents of the curve model; off by default).
     weight : str
         The merge's weight (paper 1: ``"trapezoid"``).
     noise_weighting : bool
@@ -600,7 +615,8 @@ def merge_stabilized_joint(stack: Stack, *, reference: int | None = None, align:
                            response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
                            path: str = "auto", weight: str = "trapezoid", noise_weighting: bool = True,
                            block: int = 2, max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                           exposure_rounds: int | None = None, variance: bool = False) -> HDRResult:
+                           exposure_rounds: int | None = None, exponent_rounds: int | None = None,
+                           variance: bool = False) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
     (:func:`joint_colour_matrices`); ``reference`` only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
