@@ -117,8 +117,11 @@ def test_matrix_kernel_variance_equals_formula():
     np.testing.assert_array_equal(res.mask, plain.mask)
     # oracle: frame j's estimate v = max(M_j L_j(z), 0) at (y + dy, x + dx), weight = min over channels
     h, w = frames.shape[1:3]
-    s0 = np.zeros((h, w)); w2 = np.zeros((h, w))
-    s1 = np.zeros((h, w, 3)); s2 = np.zeros((h, w, 3)); q = np.zeros((h, w, 3))
+    s0 = np.zeros((h, w))
+    w2 = np.zeros((h, w))
+    s1 = np.zeros((h, w, 3))
+    s2 = np.zeros((h, w, 3))
+    q = np.zeros((h, w, 3))
     usable = np.zeros((h, w), bool)
     m32 = mats.astype(np.float32)
     for j in range(n):
@@ -134,8 +137,11 @@ def test_matrix_kernel_variance_equals_formula():
         v = np.maximum(np.einsum("ck,hwk->hwc", m32[j], l, dtype=np.float32), 0).astype(np.float64)
         s_nq = np.einsum("ck,hwk->hwc", mats[j] ** 2,
                          (vm.noise[j] + vm.quant[j]).astype(np.float64)[z, np.arange(3)])
-        s0 += wmin; w2 += wmin ** 2
-        s1 += wmin[..., None] * v; s2 += wmin[..., None] * v * v; q += (wmin ** 2)[..., None] * s_nq
+        s0 += wmin
+        w2 += wmin ** 2
+        s1 += wmin[..., None] * v
+        s2 += wmin[..., None] * v * v
+        q += (wmin ** 2)[..., None] * s_nq
     ok = usable & (s0 > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         mean = s1 / s0[..., None]
