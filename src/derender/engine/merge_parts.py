@@ -10,7 +10,62 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["add_frame_to_tile", "add_frame_to_tile_var", "add_table_observation", "fallback_frame"]
+__all__ = ["add_frame_to_tile", "add_frame_to_tile_var", "add_table_observation", "fallback_frame",
+           "stabilized_observation"]
+
+
+# Positional on purpose (as the kernels): an inlined part of them.
+@njit(inline="always")
+def stabilized_observation(frames, valid, whole, j, y, yy, x, sx, weights, inv_var, ik, use_inv_var, colour_w,
+                           use_colour_w, lin, a00, a01, a02, a10, a11, a12, a20, a21, a22):  # pragma: no cover
+    """Frame ``j``'s observation of pixel ``(y, x)`` (read at ``(yy, x + sx)``) in the stabilised
+    merge: ``(state, wmin, wbright, v0, v1, v2, z0, z1, z2)``, ``state`` 0 when it adds nothing,
+    1 when every channel is usable (``wmin > 0``), 2 when only the brightest code's weight counts;
+    ``v`` the frame's estimate ``M_j L_j(z)`` projected onto the non-negative orthant."""
+    zero = np.float32(0.0)
+    tiny = np.float32(1e-30)
+    if not whole and valid[j, y, x] == 0:
+        return 0, zero, zero, zero, zero, zero, 0, 0, 0
+    xx = x + sx
+    z0 = frames[j, yy, xx, 0]
+    z1 = frames[j, yy, xx, 1]
+    z2 = frames[j, yy, xx, 2]
+    wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
+    wbright = weights[max(max(z0, z1), z2), 0]
+    state = 1
+    if wmin <= zero:
+        if wbright == zero:
+            return 0, zero, zero, zero, zero, zero, 0, 0, 0
+        state = 2
+    if use_inv_var:
+        d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
+        d = d + inv_var[j, z2, 2]
+        f = ik / max(d, tiny)
+        wmin = wmin * f
+        wbright = wbright * f
+    if use_colour_w:
+        cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
+        wmin = wmin * cw
+        wbright = wbright * cw
+    l0 = lin[j, z0, 0]
+    l1 = lin[j, z1, 1]
+    l2 = lin[j, z2, 2]
+    v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
+    v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
+    v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
+    return state, wmin, wbright, v0, v1, v2, z0, z1, z2
+
+
+@njit(inline="always")
+def _add_observation(acc, t, wmin, wbright, v0, v1, v2):  # pragma: no cover - compiled
+    acc[0, t] += wmin
+    acc[1, t] += v0 * wmin
+    acc[2, t] += v1 * wmin
+    acc[3, t] += v2 * wmin
+    acc[4, t] += wbright
+    acc[5, t] += v0 * wbright
+    acc[6, t] += v1 * wbright
+    acc[7, t] += v2 * wbright
 
 
 # Positional on purpose (as the kernels): an inlined part of them.
@@ -19,9 +74,7 @@ def add_frame_to_tile(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, in
                        use_colour_w, lin, mats32, acc, usable):  # pragma: no cover - compiled
     """Frame ``j``'s observations of row ``y`` (read at row ``yy``, shifted by ``sx``) added to a
     tile's sums ``acc`` (8, tile) and ``usable`` (:func:`stabilized_merge_rows`; the variance
-    kernel's first pass adds them the same way)."""
-    zero = np.float32(0.0)
-    tiny = np.float32(1e-30)
+    kernel's pass adds them the same way, :func:`add_frame_to_tile_var`)."""
     a00 = mats32[j, 0, 0]
     a01 = mats32[j, 0, 1]
     a02 = mats32[j, 0, 2]
@@ -32,44 +85,15 @@ def add_frame_to_tile(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, in
     a21 = mats32[j, 2, 1]
     a22 = mats32[j, 2, 2]
     for x in range(max(x0, -sx), min(xe, w - sx)):
-        if not whole and valid[j, y, x] == 0:
+        state, wmin, wbright, v0, v1, v2, z0, z1, z2 = stabilized_observation(
+            frames, valid, whole, j, y, yy, x, sx, weights, inv_var, ik, use_inv_var, colour_w, use_colour_w, lin,
+            a00, a01, a02, a10, a11, a12, a20, a21, a22)
+        if state == 0:
             continue
-        xx = x + sx
-        z0 = frames[j, yy, xx, 0]
-        z1 = frames[j, yy, xx, 1]
-        z2 = frames[j, yy, xx, 2]
-        wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
-        wbright = weights[max(max(z0, z1), z2), 0]
         t = x - x0
-        if wmin > zero:
+        if state == 1:
             usable[t] = True
-        elif wbright == zero:
-            continue
-        if use_inv_var:
-            d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
-            d = d + inv_var[j, z2, 2]
-            f = ik / max(d, tiny)
-            wmin = wmin * f
-            wbright = wbright * f
-        if use_colour_w:
-            cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
-            wmin = wmin * cw
-            wbright = wbright * cw
-        l0 = lin[j, z0, 0]
-        l1 = lin[j, z1, 1]
-        l2 = lin[j, z2, 2]
-        # the frame's estimate, projected onto the non-negative orthant (radiance >= 0)
-        v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
-        v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
-        v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
-        acc[0, t] += wmin
-        acc[1, t] += v0 * wmin
-        acc[2, t] += v1 * wmin
-        acc[3, t] += v2 * wmin
-        acc[4, t] += wbright
-        acc[5, t] += v0 * wbright
-        acc[6, t] += v1 * wbright
-        acc[7, t] += v2 * wbright
+        _add_observation(acc, t, wmin, wbright, v0, v1, v2)
 
 
 # Positional on purpose (as the kernels): an inlined part of them.
@@ -83,8 +107,6 @@ def add_frame_to_tile_var(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights
     ``s64`` (7, tile) float64 ``sum w``, ``sum w v_c``, ``sum w v_c^2``; ``s32`` (7, tile)
     float32 ``sum w^2``, ``sum w^2 s_c^2`` (noise + quantisation, ``s_c^2 = sum_k M_ck^2
     tnq[z_k, k]``) and, on ``split`` rows, the quantisation alone (``tq``)."""
-    zero = np.float32(0.0)
-    tiny = np.float32(1e-30)
     a00 = mats32[j, 0, 0]
     a01 = mats32[j, 0, 1]
     a02 = mats32[j, 0, 2]
@@ -104,43 +126,15 @@ def add_frame_to_tile_var(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights
     q21 = sqm32[j, 2, 1]
     q22 = sqm32[j, 2, 2]
     for x in range(max(x0, -sx), min(xe, w - sx)):
-        if not whole and valid[j, y, x] == 0:
+        state, wmin, wbright, v0, v1, v2, z0, z1, z2 = stabilized_observation(
+            frames, valid, whole, j, y, yy, x, sx, weights, inv_var, ik, use_inv_var, colour_w, use_colour_w, lin,
+            a00, a01, a02, a10, a11, a12, a20, a21, a22)
+        if state == 0:
             continue
-        xx = x + sx
-        z0 = frames[j, yy, xx, 0]
-        z1 = frames[j, yy, xx, 1]
-        z2 = frames[j, yy, xx, 2]
-        wmin = min(min(weights[z0, 0], weights[z1, 1]), weights[z2, 2])
-        wbright = weights[max(max(z0, z1), z2), 0]
         t = x - x0
-        if wmin > zero:
+        if state == 1:
             usable[t] = True
-        elif wbright == zero:
-            continue
-        if use_inv_var:
-            d = inv_var[j, z0, 0] + inv_var[j, z1, 1]
-            d = d + inv_var[j, z2, 2]
-            f = ik / max(d, tiny)
-            wmin = wmin * f
-            wbright = wbright * f
-        if use_colour_w:
-            cw = colour_w[(np.int64(z0) << 16) | (np.int64(z1) << 8) | np.int64(z2)]
-            wmin = wmin * cw
-            wbright = wbright * cw
-        l0 = lin[j, z0, 0]
-        l1 = lin[j, z1, 1]
-        l2 = lin[j, z2, 2]
-        v0 = max(l0 * a00 + l1 * a01 + l2 * a02, zero)
-        v1 = max(l0 * a10 + l1 * a11 + l2 * a12, zero)
-        v2 = max(l0 * a20 + l1 * a21 + l2 * a22, zero)
-        acc[0, t] += wmin
-        acc[1, t] += v0 * wmin
-        acc[2, t] += v1 * wmin
-        acc[3, t] += v2 * wmin
-        acc[4, t] += wbright
-        acc[5, t] += v0 * wbright
-        acc[6, t] += v1 * wbright
-        acc[7, t] += v2 * wbright
+        _add_observation(acc, t, wmin, wbright, v0, v1, v2)
         wd = np.float64(wmin)
         b0 = wd * np.float64(v0)
         b1 = wd * np.float64(v1)
