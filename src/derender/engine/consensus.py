@@ -89,10 +89,11 @@ def _gather(codes: np.ndarray, vals: np.ndarray, w: np.ndarray, mean_weights: bo
     return mu, wt
 
 
-def frame_biases(plan, codes: np.ndarray) -> np.ndarray:
+def frame_biases(plan, codes: np.ndarray, *, tables: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Per-frame bias tables ``d`` (N, 3, 256 // CONSENSUS_BIN) float64 (module docstring) from
-    ``codes`` (N, K, 3) uint8: pixels every frame takes part in."""
-    vals, w = _log_tables(plan)
+    ``codes`` (N, K, 3) uint8: pixels every frame takes part in. ``tables``: the plan's log
+    radiance and weight tables when the caller has them already."""
+    vals, w = _log_tables(plan) if tables is None else tables
     n, k = codes.shape[:2]
     nb = 256 // CONSENSUS_BIN
     out = np.zeros((n, 3, nb))
@@ -202,8 +203,9 @@ def consensus_correct(radiance: np.ndarray, variance: np.ndarray | None, plan, f
     step = max(1, int(np.ceil(np.sqrt(h * w / CONSENSUS_PIXELS))))
     vg = valid[:, ::step, ::step]
     gy, gx = np.nonzero(np.all(vg != 0, axis=0))
-    d = frame_biases(plan, frames[:, ::step, ::step][:, gy, gx])
-    _, wtab = _log_tables(plan)
+    tables = _log_tables(plan)
+    d = frame_biases(plan, frames[:, ::step, ::step][:, gy, gx], tables=tables)
+    wtab = tables[1]
     bins = np.arange(256) // CONSENSUS_BIN
     d_lut = np.ascontiguousarray(np.stack([d[j][:, bins].T for j in range(n)]), dtype=np.float64)
     where_ = np.ones((h, w), np.bool_) if where is None else np.ascontiguousarray(where, dtype=np.bool_)
