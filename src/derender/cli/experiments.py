@@ -325,3 +325,36 @@ def exp_linearity(
                                    ("method", "method", ""), ("median_abs", "median abs err", ".2%"),
                                    ("p90_abs", "p90", ".2%"),
                                    ("decades_text", "median ratio per decade 1..1e6 cd/m2", "")]))
+
+
+@experiment_app.command("consistency")
+def exp_consistency(
+    brackets: str = typer.Option("iphone,memorial,frobisher", "--brackets",
+                                 help="Still real brackets of ../shared/data (iphone, memorial, frobisher)."),
+    methods: str = typer.Option("debevec,robertson,stabilized,stabilized-joint", "--methods", help="Merge methods."),
+    data: Optional[Path] = typer.Option(None, "--data", help="The shared data folder (default: $DERENDER_SHARED_DATA or ../shared/data)."),
+    output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
+) -> None:
+    """Checks without truth on still real brackets: every method with against without ``--deghost``
+    (same reference and alignment): block chroma and luminance change (median, p95, p99) and the
+    fraction of the other frames' pixels ghost removal left out."""
+    from derender.evaluation.consistency import STILL_BRACKETS, flag_invariance
+    from derender.evaluation.experiments import format_table
+    from derender.io.files import OutputTransaction
+
+    names = [b.strip() for b in brackets.split(",") if b.strip()]
+    unknown = [b for b in names if b not in STILL_BRACKETS]
+    if unknown:
+        raise InputError(f"unknown bracket {unknown[0]!r}; choose from {', '.join(STILL_BRACKETS)}")
+    ms = [m.strip() for m in methods.split(",") if m.strip()]
+    with OutputTransaction() as tx:
+        json_tmp = tx.add(output, "--json", (".json",))
+        rows = []
+        for b in names:
+            rows += flag_invariance(b, methods=ms, root=data, progress=lambda msg: console().print(msg))
+        if json_tmp is not None:
+            json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")
+    typer.echo(format_table(rows, [("bracket", "bracket", ""), ("method", "method", ""),
+                                   ("rejected", "left out", ".3f"), ("chroma_median", "chroma median", ".3f"),
+                                   ("chroma_p95", "chroma p95", ".3f"), ("chroma_p99", "chroma p99", ".3f"),
+                                   ("luminance_p95", "lum p95", ".3f"), ("luminance_p99", "lum p99", ".3f")]))

@@ -82,8 +82,9 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
             return None
         dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)     # one per thread
         agreement = offsets[j]
-        mu_j, _, cens_j = frame_estimates(test.plan, test.grid(frames[j]), j)
-        mu_j = mu_j - test.maps(agreement)[0]
+        grid_j = test.grid(frames[j])
+        mu_j, _, cens_j = frame_estimates(test.plan, grid_j, j)
+        mu_j = mu_j - agreement.maps(grid_j)[0]
         rng_j = _observed_range(mu_j, cens_j)
         if rng_j is None:
             return None

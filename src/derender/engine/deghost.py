@@ -1,39 +1,36 @@
-"""Ghost removal by a per-pixel consistency test against the reference frame, with the method's own noise model.
+"""Ghost removal by a per-pixel consistency test against the reference frame, with noise learnt from the bracket.
 
-A moving object puts different radiance at a pixel in different frames. Every merge method
-already says how a frame's code becomes radiance and how uncertain that is (its plan); the
-engine tests each frame against the reference frame with it (in the spirit of Granados et
-al. 2013, *Automatic noise modeling for ghost-free HDR reconstruction*, and of the noise-model
-driven merge of Google's HDR+), and excludes the frames that disagree, per pixel.
+A moving object puts different radiance at a pixel in different frames. The engine tests each
+frame against the reference frame and excludes the frames that disagree, per pixel (in the spirit
+of Granados et al. 2013, *Automatic noise modeling for ghost-free HDR reconstruction*, whose
+noise is estimated from the bracket itself).
 
-Per frame ``j``, pixel and channel, on a grid of at most :data:`DETECT_PIXELS` pixels
-(every ``s``-th row and column):
+Per frame ``j``, on a grid of at most :data:`DETECT_PIXELS` pixels (every ``s``-th row and
+column):
 
-* the frame's log radiance ``mu_j`` and its standard deviation ``sd_j``
-  (:func:`frame_estimates`): for table and matrix plans (Debevec & Malik, Robertson, paper 1)
-  the code noise ``sqrt(sigma_c^2 + 1/12)`` (read noise and JPEG error :data:`CODE_SIGMA`,
-  quantisation) through the slope of the plan's log-radiance table, plus what a
-  half-pixel misregistration does on an edge (:data:`EDGE_SHIFT` times the log radiance's
-  gradient); for Gaussian plans
-  (paper 2) the model's own predictive variance. Codes the method gives no weight (clipped)
-  are *bounds*: a clipped-bright code says the radiance is at least the value of the
-  brightest usable code, a clipped-dark one that it is at most the darkest usable code's.
-  Where either frame has a channel clipped bright only the pixel's brightest channel is
-  compared (a camera clips a pixel to white when one sensor channel saturates and
-  desaturates its highlights, so a white code bounds the brightest channel, not each).
-* ``z = gap(I_j - b_j, I_ref) / sqrt(sd_j^2 + sd_ref^2 + s_j^2)``, where ``gap`` is the
-  distance between the two intervals (points for observed codes, half-lines for bounds: a
-  frame clipped where the reference is clipped agrees), ``b_j`` the frame's log offset
-  against the reference and ``s_j`` the spread the noise model does not explain, both robust
-  (median, MAD) over the pixels well exposed in both frames, in bins of the reference's
-  brightness (:class:`FrameAgreement`): a camera that changes its white balance, gain or tone
-  curve between frames is not a ghost, and a model error is not either.
+* the two frames' **intensity mapping functions** (:mod:`derender.engine.intensity_mapping`):
+  per channel and code, the median code the other frame shows at the pixels of that code, and
+  its robust spread (MAD), read off the two frames' joint histogram (:class:`FrameAgreement`).
+  Whatever the camera changed between the two exposures (exposure, white balance, gain, tone
+  curve, a look-up table, film and scanner) maps a code the same way at every still pixel, so
+  it is not a ghost; and the spread is the noise, quantisation and rendering variation these
+  two frames really show at that code, not a model's;
+* ``z^2`` per channel, the smaller of the two directions' squared residuals over their spread
+  (plus what a half-pixel misregistration does on an edge: :data:`EDGE_SHIFT` times the
+  codes' gradient); a code clipped in one frame predicts the other badly, but the other
+  predicts it exactly, so clipping is never taken for motion;
 * the statistic ``Q = mean over a (2k+1)^2 window of min(mean over channels of z^2,``
-  :data:`Z2_CAP` ``)`` (a local chi-square per degree of freedom, about 1 where the model
-  holds; the cap keeps one wild pixel from rejecting its window) is compared with
+  :data:`Z2_CAP` ``)`` (a local chi-square per degree of freedom, about 1 where the frames
+  agree; the cap keeps one wild pixel from rejecting its window) is compared with
   :data:`GHOST_THRESHOLD`; the rejections are cleaned into regions (a 3x3 opening removes
   specks, a dilation by :data:`GHOST_DILATE` covers the object's blurred edges) and brought
   to full resolution.
+
+The test reads codes only, so every method gets the same ghost mask for a bracket (before this,
+each method's own noise model and four-bin offsets rejected 1-25 % of still real brackets,
+differently per method, and recoloured them: measured in ``docs/ghosts.md``). The method's plan
+still gives each frame's log radiance and a per-code log offset against the reference
+(:meth:`FrameAgreement.maps`), which the flow fill (:mod:`derender.engine.compensation`) reads.
 
 The reference frame always takes part. Where every other frame is rejected the reference
 alone gives the value (its mask rule as usual: a clipped reference gives the bound).
@@ -44,7 +41,6 @@ and, before any of this, neighbouring frames whose structure disagrees:
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from statistics import NormalDist
 from typing import Any
@@ -52,9 +48,10 @@ from typing import Any
 import numpy as np
 
 from derender.core.errors import StackError
+from derender.engine.intensity_mapping import MappingTables, mapping_tables, mapping_z2
 
-__all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED",
-           "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_BINS",
+__all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED", "REFIT_MIN_REJECTED",
+           "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_MIN_PIXELS",
            "frame_estimates", "FrameAgreement", "ConsistencyTest", "upsample_mask", "map_frames", "detect_ghosts",
            "merge_valid"]
 
@@ -87,11 +84,12 @@ DETECT_PIXELS = 1 << 19
 #: The offsets and spreads are robust statistics of at most about this many pixels.
 STAT_PIXELS = 1 << 16
 
-#: Frames whose brightness maps a :class:`ConsistencyTest` keeps (two per thread at most).
-MAPS_CACHED = 4
+#: A frame's offset and spread at a code are estimated from at least this many pixels (of the
+#: nearest codes when that code alone has fewer).
+AGREEMENT_MIN_PIXELS = 64
 
-#: Bins of the reference's brightness in which a frame's offset and spread are estimated.
-AGREEMENT_BINS = 4
+#: The codes at which :meth:`FrameAgreement.summary` reports a frame's offset and spread.
+SUMMARY_CODES = (16, 64, 128, 192, 240)
 
 #: The spread is read at this quantile of ``|d - median|`` (scaled to a normal's standard
 #: deviation): below the median, so that ghosts filling a good part of a brightness bin do not
@@ -99,6 +97,14 @@ AGREEMENT_BINS = 4
 SPREAD_QUANTILE = 0.3
 _HALF_NORMAL_QUANTILE = NormalDist().inv_cdf(0.5 + SPREAD_QUANTILE / 2)   # |N(0, 1)|'s quantile
 
+
+#: The method is calibrated again without the rejected pixels (fit, detect, refit) only when
+#: at least this fraction of the other frames' pixels was rejected: a refit on a pixel set that
+#: hardly differs cannot remove much of a ghost's pull on the fits, but it can move an
+#: ill-conditioned fit (measured on Debevec's still Memorial bracket, stabilized, reference 8:
+#: 1.3 % rejected, the refit recoloured the whole church by a chroma change p95 of 0.14; without
+#: it 0.007).
+REFIT_MIN_REJECTED = 0.05
 
 #: A bracket is refused when more than this fraction of the non-reference frames' pixels
 #: disagree with the reference.
@@ -205,73 +211,74 @@ def _estimates32(plan, codes: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarra
 
 @dataclass(frozen=True)
 class FrameAgreement:
-    """How frame j departs from the reference where nothing moves, by the reference's brightness:
-    per channel, at log radiance ``centres`` (3, K), the median log offset ``offset`` (3, K)
-    and the variance the noise model leaves unexplained ``spread2`` (3, K) (robust: median and
-    MAD of ``mu_j - mu_r``). A camera that changes its white balance, gain or tone curve between
-    frames, or a response curve that fits some frames better than others, is not a ghost."""
+    """How frame j departs from the reference where nothing moves, as a function of frame j's own
+    code (its intensity mapping onto the reference): per code and channel, the median log
+    offset ``offset`` (256, 3) of ``mu_j - mu_r`` and the variance the noise model leaves
+    unexplained ``spread2`` (256, 3) (robust: median and a low quantile of ``|d - median|`` over
+    the pixels whose frame-j code lies in a window of codes around it). A camera that changes
+    its white balance, gain or tone curve between frames, or a response curve that fits some
+    frames better than others, is not a ghost: whatever it does to a code, it does to every
+    pixel of that code, so the offset absorbs it code by code."""
 
-    centres: np.ndarray
     offset: np.ndarray
     spread2: np.ndarray
+    forward: MappingTables
+    backward: MappingTables
 
-    def maps(self, mu_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-pixel offset and extra variance (h, w, 3) float32 at the reference's log radiance
-        (interpolated between the bins, constant beyond them)."""
-        off = np.empty(mu_r.shape, np.float32)
-        var = np.empty(mu_r.shape, np.float32)
-        for c in range(3):
-            if np.ptp(self.offset[c]) == 0 and np.ptp(self.spread2[c]) == 0:
-                off[..., c] = self.offset[c][0]
-                var[..., c] = self.spread2[c][0]
-                continue
-            off[..., c] = np.interp(mu_r[..., c], self.centres[c], self.offset[c])
-            var[..., c] = np.interp(mu_r[..., c], self.centres[c], self.spread2[c])
-        return off, var
+    def maps(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-pixel offset and extra variance (h, w, 3) float32 of frame j's (h, w, 3) uint8 ``codes``."""
+        return _lut3(codes, self.offset), _lut3(codes, self.spread2)
 
     def summary(self) -> dict:
-        """JSON-friendly: the offsets and spreads (their square roots) per channel and bin."""
-        return {"centres": np.round(self.centres, 3).tolist(), "offset": np.round(self.offset, 4).tolist(),
-                "spread": np.round(np.sqrt(self.spread2), 4).tolist()}
+        """JSON-friendly: the offsets and spreads (their square roots) per channel at a few codes."""
+        at = list(SUMMARY_CODES)
+        return {"codes": at, "offset": np.round(self.offset[at].T, 4).tolist(),
+                "spread": np.round(np.sqrt(self.spread2[at].T), 4).tolist()}
 
 
-def _agreement(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> FrameAgreement:
+def _agreement(codes_j, codes_r, mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> FrameAgreement:
     """:class:`FrameAgreement` from the pixels observed (not clipped) in both frames with
-    ``sd < 0.5``, in :data:`AGREEMENT_BINS` bins of the reference's log radiance (quantiles;
-    a bin needs 64 pixels, fewer bins otherwise, a single global one at least; 0 without data)."""
+    ``sd < 0.5``: per channel and frame-j code, the pixels of the nearest codes until at least
+    :data:`AGREEMENT_MIN_PIXELS` are pooled (codes without data take the nearest code's values;
+    0 without data at all)."""
     both = (cens_j == 0) & (cens_r == 0) & (sd_j < 0.5) & (sd_r < 0.5) & (ok != 0)[..., None]
-    k = AGREEMENT_BINS
-    centres = np.zeros((3, k))
-    off = np.zeros((3, k))
-    s2 = np.zeros((3, k))
+    off = np.zeros((256, 3))
+    s2 = np.zeros((256, 3))
+    has = np.zeros((256, 3), dtype=bool)
     for c in range(3):
         sel = both[..., c]
         m = int(np.count_nonzero(sel))
-        if m < 64:
+        if m < AGREEMENT_MIN_PIXELS:
             continue
-        r = mu_r[..., c][sel].astype(np.float64)
-        d = mu_j[..., c][sel].astype(np.float64) - r
+        code = codes_j[..., c][sel].astype(np.intp)
+        d = mu_j[..., c][sel].astype(np.float64) - mu_r[..., c][sel].astype(np.float64)
         v = sd_j[..., c][sel].astype(np.float64) ** 2 + sd_r[..., c][sel].astype(np.float64) ** 2
-        nb = max(1, min(k, m // 64))
-        edges = np.quantile(r, np.linspace(0, 1, nb + 1))
-        idx = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, nb - 1)
-        cs, os_, ss = [], [], []
-        for i in range(nb):
-            sb = idx == i
-            if np.count_nonzero(sb) < 16:
-                continue
-            db = d[sb]
+        order = np.argsort(code, kind="stable")
+        code, d, v = code[order], d[order], v[order]
+        counts = np.bincount(code, minlength=256)
+        ends = np.cumsum(counts)
+        starts = ends - counts
+        for k in np.flatnonzero(counts):
+            lo = hi = k
+            n = counts[k]
+            while n < AGREEMENT_MIN_PIXELS and (lo > 0 or hi < 255):   # widen towards the nearer data
+                if lo > 0:
+                    lo -= 1
+                    n += counts[lo]
+                if hi < 255 and n < AGREEMENT_MIN_PIXELS:
+                    hi += 1
+                    n += counts[hi]
+            db = d[starts[lo]:ends[hi]]
             med = float(np.median(db))
-            mad = float(np.quantile(np.abs(db - med), SPREAD_QUANTILE)) / _HALF_NORMAL_QUANTILE
-            cs.append(float(np.median(r[sb])))
-            os_.append(med)
-            ss.append(max(0.0, mad * mad - float(np.median(v[sb]))))
-        order = np.argsort(cs)
-        cs, os_, ss = np.asarray(cs)[order], np.asarray(os_)[order], np.asarray(ss)[order]
-        centres[c] = np.interp(np.linspace(0, 1, k), np.linspace(0, 1, len(cs)), cs) if len(cs) > 1 else cs[0]
-        off[c] = np.interp(centres[c], cs, os_)
-        s2[c] = np.interp(centres[c], cs, ss)
-    return FrameAgreement(centres=centres, offset=off, spread2=s2)
+            spread = float(np.quantile(np.abs(db - med), SPREAD_QUANTILE)) / _HALF_NORMAL_QUANTILE
+            off[k, c] = med
+            s2[k, c] = max(0.0, spread * spread - float(np.median(v[starts[lo]:ends[hi]])))
+            has[k, c] = True
+    sel = ok != 0
+    forward = mapping_tables(codes_j[sel], codes_r[sel])
+    backward = mapping_tables(codes_r[sel], codes_j[sel])
+    return FrameAgreement(offset=_fill_nearest(off, has), spread2=_fill_nearest(s2, has), forward=forward,
+                          backward=backward)
 
 
 def _box_mean(a: np.ndarray, k: int) -> np.ndarray:
@@ -322,35 +329,12 @@ class ConsistencyTest:
         self.threshold, self.window, self.dilate = float(threshold), int(window), int(dilate)
         self.h, self.w = ref_codes.shape[:2]
         self.step = max(1, int(np.ceil(np.sqrt(self.h * self.w / pixels))))
-        self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, self.grid(ref_codes), ref)
+        self.codes_r = self.grid(ref_codes)
+        self.mu_r, self.sd_r, self.cens_r = _estimates32(plan, self.codes_r, ref)
         self.hs, self.ws = self.mu_r.shape[:2]
         self.stat_step = max(1, int(np.ceil(np.sqrt(self.hs * self.ws / STAT_PIXELS))))
-        self._maps: dict = {}
-        self._lock = threading.Lock()
-        lo, hi = float(self.mu_r.min()), float(self.mu_r.max())
-        self._levels = np.linspace(lo, hi, 4096)
-        level_idx = np.clip(np.rint((self.mu_r - lo) * (4095.0 / max(hi - lo, 1e-12))), 0, 4095).astype(np.intp)
-        self._flat_idx = level_idx * 3 + np.arange(3)      # into a (4096, 3) table, raveled: one np.take
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self._dilate = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate + 1, 2 * dilate + 1))
-
-    def maps(self, agreement: "FrameAgreement") -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`FrameAgreement.maps` at the reference's log radiance, read from 4096-level
-        tables of it (one frame's maps serve every candidate shift and round: cached for the
-        last :data:`MAPS_CACHED` frames; thread-safe)."""
-        key = id(agreement)
-        with self._lock:
-            hit = self._maps.get(key)
-        if hit is not None and hit[0] is agreement:
-            return hit[1], hit[2]
-        off_t, var_t = agreement.maps(np.repeat(self._levels[:, None], 3, axis=1))
-        entry = (agreement, np.take(np.ascontiguousarray(off_t).ravel(), self._flat_idx),
-                 np.take(np.ascontiguousarray(var_t).ravel(), self._flat_idx))
-        with self._lock:
-            self._maps[key] = entry
-            while len(self._maps) > MAPS_CACHED:
-                self._maps.pop(next(iter(self._maps)))
-        return entry[1], entry[2]
 
     def sub(self, a: np.ndarray) -> np.ndarray:
         """``a`` (H, W, ...) on the detection grid."""
@@ -367,19 +351,17 @@ class ConsistencyTest:
         radiance estimates (mu, sd, cens) and its :class:`FrameAgreement` (estimated here unless
         given). ``codes`` is the whole (H, W, 3) frame (``on_grid``: already the grid's (hs, ws, 3));
         ``ok`` (hs, ws) uint8 where it may be compared."""
-        from derender.engine.ghost_kernels import ghost_statistic
-
-        mu_j, sd_j, cens_j = _estimates32(self.plan, codes if on_grid else self.grid(codes), j)
+        grid = codes if on_grid else self.grid(codes)
+        mu_j, sd_j, cens_j = _estimates32(self.plan, grid, j)
         if ok is None:
             ok = np.ones((self.hs, self.ws), dtype=np.uint8)
         if agreement is None:
             k = self.stat_step
-            agreement = _agreement(mu_j[::k, ::k], sd_j[::k, ::k], cens_j[::k, ::k], self.mu_r[::k, ::k],
-                                   self.sd_r[::k, ::k], self.cens_r[::k, ::k], ok[::k, ::k])
-        off, extra = self.maps(agreement)
-        q = np.empty((self.hs, self.ws), dtype=np.float32)
-        ghost_statistic(mu_j, sd_j, cens_j, self.mu_r, self.sd_r, self.cens_r, off, extra,
-                        float(EDGE_SHIFT), float(Z2_CAP), np.ascontiguousarray(ok, dtype=np.uint8), q)
+            agreement = _agreement(grid[::k, ::k], self.codes_r[::k, ::k], mu_j[::k, ::k], sd_j[::k, ::k],
+                                   cens_j[::k, ::k], self.mu_r[::k, ::k], self.sd_r[::k, ::k], self.cens_r[::k, ::k],
+                                   ok[::k, ::k])
+        q = mapping_z2(np.ascontiguousarray(grid), self.codes_r, agreement.forward, agreement.backward,
+                       float(EDGE_SHIFT), float(Z2_CAP), ok)
         return q, (mu_j, sd_j, cens_j), agreement
 
     def regions_grid(self, q: np.ndarray, dilate: bool = False) -> np.ndarray:
@@ -417,10 +399,10 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     Returns ``rejected`` ((N, H, W) bool, False for the reference and, to the detection grid's
     resolution, where ``valid`` already excludes the pixel; None when nothing is rejected) and
     the details per frame (rejected
-    fraction, log offset ``b``, unexplained spread ``s``). Raises :class:`StackError` when more
-    than :data:`MAX_REJECTED` of the other frames' pixels disagree. The per-pixel statistic is
-    one compiled pass (:func:`derender.engine.ghost_kernels.ghost_statistic`); the offsets and
-    spreads are robust statistics of at most :data:`STAT_PIXELS` pixels. ``out``: an (N, H, W)
+    fraction, log offset ``b`` and unexplained spread ``s`` at a few codes). Raises
+    :class:`StackError` when more than :data:`MAX_REJECTED` of the other frames' pixels disagree.
+    The per-pixel statistic is :func:`derender.engine.intensity_mapping.mapping_z2`; the mapping
+    tables and offsets are robust statistics of at most :data:`STAT_PIXELS` pixels. ``out``: an (N, H, W)
     bool plane to write ``rejected`` into (e.g. the previous round's, no longer needed): the
     grid's rejections are written to full resolution in place
     (:func:`derender.engine.ghost_kernels.upsample_into`), no temporary planes."""

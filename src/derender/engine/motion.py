@@ -197,7 +197,7 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     its shift by a pixel or two (measured on the simulator: a tripod bracket's darkest frame moved
     by (2, -2) while the static scene had not). Here every correction within
     :data:`REFINE_REACH` pixels of the current registration is scored by the mean capped ``z^2``
-    of :func:`derender.engine.ghost_kernels.ghost_statistic` over the pixels no frame has rejected (on
+    of :func:`derender.engine.intensity_mapping.mapping_z2` over the pixels no frame has rejected (on
     at most :data:`REFINE_PIXELS` of them), ties keeping the registration as it is; the frames
     move **in place** and ``valid`` with them. Returns ``valid`` and the corrections."""
     from derender.engine.align import shift_into, shift_valid
@@ -416,7 +416,13 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     ghosts_rejected = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
-        from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
+        from derender.engine.deghost import (
+            GHOST_THRESHOLD,
+            REFIT_MIN_REJECTED,
+            ConsistencyTest,
+            detect_ghosts,
+            merge_valid,
+        )
 
         threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
 
@@ -451,7 +457,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         if rejected is not None and motion.compensate and not refits:
             fill(plan, rejected, ginfo)      # else after the refit (filled pixels posterised the stabiliser's fits)
         rounds = 1
-        if rejected is not None and refits:
+        if rejected is not None and refits and ginfo["rejected"] >= REFIT_MIN_REJECTED:
             # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
             access = _access(method, source, frames, merge_valid(valid, rejected, in_place=True), ref, threads)
             plan = method.plan(access)         # (access.valid, the first round's plane, stays: finish may read it)

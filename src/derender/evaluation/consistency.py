@@ -1,0 +1,172 @@
+"""Checks without truth: a still scene gives one answer, whatever the flag, reference or method.
+
+A real photograph has no ground truth, but physics still constrains what a merge of it may
+do (``../shared/DESIGN.md``, "Real photographs: checks without truth"). These are
+*metamorphic* checks: two merges of the same still bracket that differ only in a flag
+(``--deghost``), in the reference frame (a bracket of one rendering) or in the method must
+show the same scene.
+
+The comparison is made on blocks, so that noise and half-pixel edges do not count: a block is
+the per-channel median of a ``B x B`` tile (:data:`BLOCK`, 16 pixels) of both maps, over the
+tiles where both maps are finite and positive. Between two maps ``a`` and ``b``:
+
+* **chroma change** of a block: ``max(|d ln(R/G)|, |d ln(B/G)|)`` with ``d`` the difference
+  ``b - a`` (a change of 0.05 is a 5 % shift of a colour ratio; a white balance that differs
+  between the two maps shows as a constant, a recolouring of parts of the scene as a tail);
+* **luminance change** of a block: ``|ln L_b - ln L_a - k|`` with ``L`` Rec. 709 luminance and
+  ``k`` the median of ``ln L_b - ln L_a`` over the blocks (one global scale: a radiance map is
+  known up to scale).
+
+:func:`compare_maps` gives their median, p95 and p99 over the blocks (:class:`MapChange`);
+the issue's lines read them (``p95 <= 0.03``, ``p99 <= 0.06`` for the chroma change,
+``p99 <= 0.06`` for the luminance change, blocks whose luminance is in the darkest 1 % of
+either map left out: their colour is the noise of the longest frame).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from derender.core.colorimetry import luminance
+
+__all__ = ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps"]
+
+#: Side of the square tiles (pixels) whose per-channel medians are compared.
+BLOCK = 16
+
+#: Blocks darker than this quantile of either map's block luminance are left out of the
+#: comparison (their chromaticity is the longest frame's noise, not the scene's colour).
+DARK_QUANTILE = 0.01
+
+
+def block_medians(radiance: np.ndarray, block: int = BLOCK) -> np.ndarray:
+    """Per-channel medians of ``block x block`` tiles of an (H, W, 3) map: (H // block, W // block, 3)
+    float64 (the last partial rows and columns are left out)."""
+    rad = np.asarray(radiance)
+    h, w = rad.shape[0] // block, rad.shape[1] // block
+    if h == 0 or w == 0:
+        raise ValueError(f"a map of {rad.shape[1]}x{rad.shape[0]} has no {block}x{block} block")
+    tiles = rad[:h * block, :w * block, :3].reshape(h, block, w, block, 3).swapaxes(1, 2).reshape(h, w, -1, 3)
+    return np.median(tiles.astype(np.float64), axis=2)
+
+
+@dataclass(frozen=True)
+class MapChange:
+    """How map ``b`` differs from map ``a`` of the same scene, over ``blocks`` blocks (module
+    docstring): chroma change median/p95/p99, luminance change median/p95/p99, and ``scale``
+    (the global factor ``exp(k)`` of ``b`` against ``a``)."""
+
+    blocks: int
+    chroma_median: float
+    chroma_p95: float
+    chroma_p99: float
+    luminance_median: float
+    luminance_p95: float
+    luminance_p99: float
+    scale: float
+
+    def row(self) -> dict[str, float]:
+        """JSON-friendly."""
+        return asdict(self)
+
+
+def _change_planes(a: np.ndarray, b: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Per usable block: chroma change, signed luminance log ratio (before the scale), the
+    global log scale."""
+    ma, mb = block_medians(a, block), block_medians(b, block)
+    ok = np.all(np.isfinite(ma) & np.isfinite(mb) & (ma > 0) & (mb > 0), axis=-1)
+    la, lb = luminance(ma), luminance(mb)
+    if np.count_nonzero(ok) == 0:
+        raise ValueError("no block is finite and positive in both maps")
+    for lum in (la, lb):
+        ok &= lum > np.quantile(lum[ok], DARK_QUANTILE)
+    ra, rb = np.log(ma[ok]), np.log(mb[ok])
+    d = rb - ra
+    chroma = np.maximum(np.abs(d[:, 0] - d[:, 1]), np.abs(d[:, 2] - d[:, 1]))
+    dl = np.log(lb[ok]) - np.log(la[ok])
+    k = float(np.median(dl))
+    return chroma, dl, k
+
+
+def compare_maps(a: np.ndarray, b: np.ndarray, block: int = BLOCK) -> MapChange:
+    """:class:`MapChange` of map ``b`` against map ``a`` (both (H, W, 3), the same scene on the
+    same pixel grid)."""
+    if np.asarray(a).shape[:2] != np.asarray(b).shape[:2]:
+        raise ValueError(f"maps of different sizes: {np.asarray(a).shape[:2]} and {np.asarray(b).shape[:2]}")
+    chroma, dl, k = _change_planes(a, b, block)
+    lum = np.abs(dl - k)
+    q = lambda x, p: float(np.quantile(x, p))   # noqa: E731
+    return MapChange(blocks=int(chroma.size), chroma_median=q(chroma, 0.5), chroma_p95=q(chroma, 0.95),
+                     chroma_p99=q(chroma, 0.99), luminance_median=q(lum, 0.5), luminance_p95=q(lum, 0.95),
+                     luminance_p99=q(lum, 0.99), scale=float(np.exp(k)))
+
+
+# --- real brackets --------------------------------------------------------------------------
+
+#: The still real brackets of ``../shared/data`` the checks run on: folder, how its times are
+#: given, the reference frame (from 1, as the CLI counts) and the alignment. Memorial and
+#: Frobisher are on a tripod; the iPhone bracket is handheld (only the monitor's flicker moves).
+STILL_BRACKETS: dict[str, dict] = {
+    "iphone": {"folder": "iphone6-bracket", "reference": 3, "align": "translation"},
+    "memorial": {"folder": "debevec-memorial", "times_file": "memorial.hdr_image_list.txt",
+                 "times_file_inverse": True, "reference": 8, "align": "none"},
+    "frobisher": {"folder": "colour-hdri-frobisher", "reference": 2, "align": "none"},
+}
+
+#: The methods whose maps the flag-invariance check compares.
+FLAG_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
+
+
+def shared_data_root() -> Path:
+    """``$DERENDER_SHARED_DATA``, else the ``shared/data`` folder beside the project's checkout
+    (where ``../shared/data`` of ``shared/data/README.md`` is), else ``../shared/data``."""
+    env = os.environ.get("DERENDER_SHARED_DATA")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        cand = parent.parent / "shared" / "data"
+        if (parent / "pyproject.toml").exists() and cand.is_dir():
+            return cand
+    return Path.cwd().parent / "shared" / "data"
+
+
+def bracket_inputs(name: str, root=None) -> tuple[list, dict]:
+    """The image paths and the :func:`derender.hdr.files.merge_files` keywords (times, reference
+    from 0, alignment) of the real bracket ``name`` (:data:`STILL_BRACKETS`)."""
+    from derender.core.errors import InputError
+    from derender.io.files import expand_image_paths
+
+    spec = STILL_BRACKETS[name]
+    folder = (shared_data_root() if root is None else root) / spec["folder"]
+    if not folder.is_dir():
+        raise InputError(f"real bracket {name!r} not found: {folder} (see shared/data/README.md)")
+    paths = expand_image_paths([folder])
+    kw: dict = {"reference": int(spec["reference"]) - 1, "align": spec["align"]}
+    if "times_file" in spec:
+        kw["times_file"] = folder / spec["times_file"]
+        kw["times_file_inverse"] = bool(spec.get("times_file_inverse", False))
+    return paths, kw
+
+
+def flag_invariance(name: str, methods=FLAG_METHODS, root=None, progress=None) -> list[dict]:
+    """Per method, :class:`MapChange` of the ``--deghost`` merge of the still real bracket
+    ``name`` against the plain merge with the same reference and alignment, with the fraction
+    of the other frames' pixels ghost removal left out."""
+    from derender.hdr.files import merge_files
+
+    paths, kw = bracket_inputs(name, root)
+    rows = []
+    for m in methods:
+        if progress:
+            progress(f"{name}: {m}")
+        plain = merge_files(paths, method=m, **kw)
+        clean = merge_files(paths, method=m, deghost=True, **kw)
+        change = compare_maps(plain.radiance, clean.radiance)
+        rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
+        rows.append({"bracket": name, "method": m, "rejected": rejected, **change.row()})
+    return rows
