@@ -78,6 +78,12 @@ napoleon_use_rtype = False
 # The figures of the architecture page, drawn at build time (no graphviz binary needed).
 figures.draw_all(DOCS / "_generated")
 
+# The gallery of real brackets (docs/gallery.md): merged at build time unless the tests already
+# built it from the same sources (tests/evaluation/test_consistency.py writes the same folder).
+from derender.evaluation.gallery import build_gallery  # noqa: E402
+
+build_gallery(DOCS / "_generated", progress=lambda msg: print(msg, flush=True))
+
 
 def _drop_type_docstrings(app, what, name, obj, options, lines):
     """A constant without a ``#:`` comment gets no summary rather than its type's docstring

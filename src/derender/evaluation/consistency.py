@@ -170,3 +170,39 @@ def flag_invariance(name: str, methods=FLAG_METHODS, root=None, progress=None) -
         rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
         rows.append({"bracket": name, "method": m, "rejected": rejected, **change.row()})
     return rows
+
+
+def method_agreement(name: str, methods=("debevec", "robertson", "stabilized"), root=None, progress=None) -> list[dict]:
+    """Pairs of methods on the still real bracket ``name``: after one scale per channel (the
+    median log ratio: each method's map is linear in its own rendering, known up to a
+    per-channel factor), the fraction of pixel-channels where the two maps differ by less than
+    their combined 95 % interval (``|a - b| < 1.96 sqrt(var_a + var_b)``), and each method's
+    median relative standard deviation ``sqrt(var) / value``. Pixels both methods expose
+    well (mask 0), positive, finite."""
+    from derender.hdr.files import merge_files
+
+    paths, kw = bracket_inputs(name, root)
+    res = {}
+    for m in methods:
+        if progress:
+            progress(f"{name}: {m} with its variance")
+        res[m] = merge_files(paths, method=m, variance=True, **kw)
+    rows = []
+    for i, a in enumerate(methods):
+        for b in methods[i + 1:]:
+            ra, rb = res[a], res[b]
+            ok = (ra.mask == 0) & (rb.mask == 0)
+            ok &= np.all((ra.radiance > 0) & (rb.radiance > 0) & np.isfinite(ra.variance) & np.isfinite(rb.variance),
+                         axis=-1)
+            xa = ra.radiance[ok].astype(np.float64)
+            xb = rb.radiance[ok].astype(np.float64)
+            va = ra.variance[ok].astype(np.float64)
+            vb = rb.variance[ok].astype(np.float64)
+            k = np.exp(np.median(np.log(xa) - np.log(xb), axis=0))     # per channel
+            xb, vb = xb * k, vb * k * k
+            z = np.abs(xa - xb) / np.sqrt(np.maximum(va + vb, 1e-300))
+            rows.append({"bracket": name, "pair": f"{a} / {b}", "pixels": int(ok.sum()),
+                         "within95": float(np.mean(z < 1.959964)),
+                         "rel_sigma_a": float(np.median(np.sqrt(va) / xa)),
+                         "rel_sigma_b": float(np.median(np.sqrt(vb) / xb))})
+    return rows
