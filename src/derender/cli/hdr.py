@@ -193,6 +193,7 @@ def merge_cmd(
     images = expand_image_paths(images)
     spec = method_spec(method)
     method_opts = parse_options(method, option)
+    _check_method_options(method, spec, method_opts, len(images), variance is not None)
     from derender.cli.profiles import apply_photometry, hdr_header_lines, merge_photometry, profile_options
 
     ph = merge_photometry(profile=profile, vignetting=vignetting, spot=spot, absolute=absolute, method=method,
@@ -208,6 +209,8 @@ def merge_cmd(
     if plot is not None and not spec.gives_curves:
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     motion_opts = _motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
+    announce_compiling(kernel_modules(method, deghost=deghost, variance=variance is not None,
+                                      align=align not in (None, "none")))
     t0 = time.perf_counter()
     inputs = list(images) + [p for p in (times_file, model, vignetting, profile) if p]
     with OutputTransaction(inputs) as tx:
@@ -244,6 +247,8 @@ def merge_cmd(
                              hold_outputs=preview_tmp is not None or report_tmp is not None or not direct,
                              **extra)
         absolute_source = apply_photometry(ph, result, images, method) if ph.active else None
+        result.info["summary"] = result.info["summary"].with_photometry(result.info.get("photometric_factor"),
+                                                                        absolute_source)
         if profile_tmp is not None:
             from derender.cli.profiles import save_merge_profile
 
@@ -260,9 +265,79 @@ def merge_cmd(
         _side_outputs(result, images, inputs, preview=preview_tmp, mask=mask_tmp, ghost_mask=ghost_tmp,
                       plot=plot_tmp)
         if report_tmp is not None:
-            _merge_report(report_tmp, result, images, method, absolute_source is not None, view, inputs,
-                          times=(parse_times(times) if times is not None else None, times_file, times_inverse))
+            _merge_report(report_tmp, result, method, absolute_source is not None, view, inputs)
     _merge_summary(result, images, method, output, time.perf_counter() - t0, variance is not None)
+
+
+#: The modules of disk-cached compiled kernels a merge uses: always, and with each flag.
+KERNEL_MODULES = {"merge": ("derender.engine.kernels",),
+                  "deghost": ("derender.engine.ghost_kernels", "derender.engine.consensus"),
+                  "variance": ("derender.engine.variance_kernels",),
+                  "model": ("derender.engine.gaussian_kernels",)}
+
+
+def kernel_modules(method: str, *, deghost: bool, variance: bool, align: bool) -> list[str]:
+    """The kernel modules (:data:`KERNEL_MODULES`) a ``derender merge`` with these flags compiles."""
+    from derender.hdr.registry import method_spec
+
+    mods = list(KERNEL_MODULES["merge"])
+    if deghost:
+        mods += KERNEL_MODULES["deghost"]
+    if variance:
+        mods += KERNEL_MODULES["variance"]
+    if method_spec(method).needs_model:
+        mods += KERNEL_MODULES["model"]
+    return mods
+
+
+def cold_kernel_modules(modules: list[str]) -> list[str]:
+    """Those of ``modules`` none of whose disk-cached numba kernels (``cache=True``) has machine
+    code cached for this source and CPU: their first call compiles (the first merge with
+    ``--variance --deghost`` compiled for 28 s here, silent). A module with one kernel cached
+    counts as warm (the check costs no compilation; its other kernels may still compile)."""
+    import importlib
+
+    cold = []
+    for name in modules:
+        mod = importlib.import_module(name)
+        caches = [getattr(obj, "_cache", None) for obj in vars(mod).values()
+                  if getattr(obj, "__module__", None) == name and hasattr(obj, "py_func")]
+        files = [getattr(c, "_cache_file", None) for c in caches]
+        files = [f for f in files if f is not None and hasattr(f, "_load_index")]
+        if not files:
+            continue
+        warm = False
+        for f in files:
+            try:
+                warm = bool(f._load_index())
+            except Exception:  # noqa: BLE001 - an unreadable index is a cold cache
+                warm = False
+            if warm:
+                break
+        if not warm:
+            cold.append(name)
+    return cold
+
+
+def announce_compiling(modules: list[str]) -> None:
+    """One stderr line before a merge whose compiled kernels are not cached yet."""
+    cold = cold_kernel_modules(modules)
+    if cold:
+        names = ", ".join(m.rsplit(".", 1)[-1] for m in cold)
+        typer.echo(f"compiling kernels (first run only; cached afterwards): {names} ...", err=True)
+
+
+def _check_method_options(method: str, spec, method_opts: dict, n_images: int, with_variance: bool) -> None:
+    """Every ``--option`` value checked before any file is decoded (its record's checks), and
+    the per-frame ones against the number of images."""
+    from derender.hdr.registry import check_method_options
+
+    check_method_options(method, {**method_opts, **({"variance": True} if with_variance and spec.has_option("variance")
+                                             else {})})
+    gammas = method_opts.get("gammas")
+    if gammas is not None and len(gammas) != n_images:
+        raise InputError(f"--option gammas lists {len(gammas)} value(s) for {n_images} images (one per image, "
+                         "in exposure order)")
 
 
 def _side_outputs(result: HDRResult, images: list, inputs: list, *, preview, mask, ghost_mask, plot) -> None:
@@ -289,20 +364,18 @@ def _side_outputs(result: HDRResult, images: list, inputs: list, *, preview, mas
 
 def _merge_summary(result: HDRResult, images: list, method: str, output: Path, seconds: float,
                    with_variance: bool) -> None:
-    """The lines ``derender merge`` prints when done: sizes, time, clipped and taken pixels, the
-    variance's sources, the motion path's reference, alignment and ghosts."""
-    n_bright = int((result.mask == HDRResult.MASK_BRIGHT).sum())
-    n_dark = int((result.mask == HDRResult.MASK_DARK).sum())
-    n_clipped = result.info.get("n_clipped")
-    clipped = f"{n_clipped} px clipped even in the shortest exposure; " if n_clipped is not None else ""
-    typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
-               f"({seconds:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
-               f"{n_dark} px from the longest (mask))")
+    """The lines ``derender merge`` prints when done, from the merge's one summary record
+    (:class:`derender.hdr.summary.MergeSummary`, the same the output and the report hold):
+    sizes, time, clipped and taken pixels, the variance's sources, the reference frame,
+    alignment and ghosts."""
+    rec = result.info["summary"]
+    typer.echo(f"{method}: {len(images)} images {rec.width}x{rec.height} -> {output} ({seconds:.2f} s; "
+               f"{rec.counts_text()})")
     sources = result.info.get("variance_sources")
     if with_variance and sources:
         typer.echo("variance by source (median share of a pixel's): "
                    + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
-    motion_line = _motion_summary(result.info, images)
+    motion_line = rec.motion_text()
     if motion_line:
         typer.echo(motion_line)
 
@@ -349,40 +422,15 @@ def _ghost_png(ghosts, n_images: int):
     return np.repeat(v[:, :, None], 3, axis=2)
 
 
-def _motion_summary(info: dict, images) -> str:
-    """One line on the reference frame, the alignment and ghost removal (motion path only)."""
-    if info.get("engine_path") != "motion":
-        return ""
-    parts = []
-    k = info.get("reference_input")
-    if k is not None:
-        parts.append(f"reference frame {k + 1} ({images[k].name})")
-    al = info.get("alignment", {})
-    if al.get("align") == "translation":
-        shifts = al.get("shifts") or [[0, 0]]
-        parts.append(f"aligned by translation (largest shift {max(max(abs(a), abs(b)) for a, b in shifts)} px)")
-    elif al.get("align") == "homography":
-        parts.append("aligned by homography")
-    dg = info.get("deghost")
-    if dg:
-        parts.append(f"ghost removal left out {100 * dg.get('rejected', 0.0):.1f} % of the other frames' pixels")
-    return "; ".join(parts)
-
-
-def _merge_report(path, result, images, method: str, absolute: bool, view: str | None, inputs, times) -> None:
-    from derender.applications.report import merge_summary, write_report
-    from derender.io.exif import file_times, read_exif
+def _merge_report(path, result, method: str, absolute: bool, view: str | None, inputs) -> None:
+    """``--report``: the page of the merged map, its summary table the merge's one record."""
+    from derender.applications.report import write_report
     from derender.io.rgbe import SRGB_PRIMARIES
     from derender.photometry.projection import parse_view
 
-    exifs = [read_exif(p) for p in images]
-    exposures = file_times(images, times[0], times[1], times[2])      # as the merge took them
-    order = sorted(range(len(images)), key=lambda j: exposures[j])
-    frames = [{"name": images[j].name, "time": float(exposures[j]), "FNumber": exifs[j].get("FNumber"),
-               "ISO": exifs[j].get("ISO")} for j in order]
     curves = result.info.get("curves")
     write_report(path, result.radiance, variance=result.variance, mask=result.mask, ghost_mask=result.ghosts,
-                 absolute=absolute, primaries=SRGB_PRIMARIES, summary=merge_summary(result.info, frames),
+                 absolute=absolute, primaries=SRGB_PRIMARIES, summary=result.info["summary"].rows(),
                  curves=getattr(curves, "log_inverse", None), view=parse_view(view) if view else None,
                  title=f"derender merge --method {method}", inputs=inputs)
 
