@@ -45,16 +45,22 @@ from derender.core.errors import InputError
 
 __all__ = ["REPORT_MAX_PIXELS", "RGB_MANTISSA_BITS", "VAR_MANTISSA_BITS", "reduce_map", "pack_half", "write_report"]
 
-#: Default largest number of pixels the page holds (a 24 MP merge is reduced by 4: 1.5 MP).
-REPORT_MAX_PIXELS = 2_000_000
+#: Default largest number of pixels the page holds (a 24 MP merge is reduced by 5: 0.96 MP; the
+#: iPhone bracket's 8 MP by 3: 816x1088, still more than the page shows at 1:1). The page data
+#: is the map's noise, which no lossless coder removes, so its size follows the pixel count:
+#: the iPhone report with a variance was 9.76 MB at 2 MP (radiance 7.08 MB, standard
+#: deviation 2.66 MB) and is 3.7 MB at 1 MP with the bits below (issue 37).
+REPORT_MAX_PIXELS = 1_000_000
 
-#: Mantissa bits kept of the radiance's half floats: relative error <= 0.2 % (the readout's
-#: 1 % promise), 22 % smaller pages than all 10 bits (the iPhone bracket's 2 MP: 8.9 -> 7.0 MB).
-RGB_MANTISSA_BITS = 8
+#: Mantissa bits kept of the radiance's half floats: relative error <= 2^-8 = 0.4 % (the
+#: readout's 1 % promise); 7 bits instead of 8 saved 13 % of the radiance's bytes on the
+#: iPhone bracket (3.13 -> 2.73 MB at 1 MP).
+RGB_MANTISSA_BITS = 7
 
 #: Mantissa bits kept of the luminance's standard deviation (stored instead of the variance: a
-#: variance spans twice the decades, and dark pixels fell into the half floats' subnormals).
-VAR_MANTISSA_BITS = 8
+#: variance spans twice the decades, and dark pixels fell into the half floats' subnormals):
+#: relative error <= 2^-7 = 0.8 % of an uncertainty (within the readout's 1 %).
+VAR_MANTISSA_BITS = 6
 
 
 def reduce_map(image: np.ndarray, max_pixels: int = REPORT_MAX_PIXELS) -> tuple[np.ndarray, int]:
@@ -304,7 +310,7 @@ function readout(x, y){
           (D.factor > 1 ? ` (mean of a ${D.factor}x${D.factor} block)` : "") + "\n";
   s += `linear RGB ${RGB[3*i].toPrecision(5)} ${RGB[3*i+1].toPrecision(5)} ${RGB[3*i+2].toPrecision(5)}\n`;
   s += `luminance <span id="lum">${L.toPrecision(5)}</span> ${unit}`;
-  if (VAR){ s += `\nstandard deviation <span id="lumsd">${(179 * Math.sqrt(VAR[i])).toPrecision(4)}</span> ${unit}`; }
+  if (VAR){ s += `\nstandard deviation <span id="lumsd">${(179 * Math.sqrt(VAR[i])).toPrecision(3)}</span> ${unit}`; }
   document.getElementById("readout").innerHTML = s;
 }
 img.addEventListener("mousemove", e => { const r = img.getBoundingClientRect();

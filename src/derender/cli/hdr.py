@@ -209,11 +209,9 @@ def merge_cmd(
     if plot is not None and not spec.gives_curves:
         raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
     motion_opts = _motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
-    announce_compiling(kernel_modules(method, deghost=deghost, variance=variance is not None,
-                                      align=align not in (None, "none")))
     t0 = time.perf_counter()
     inputs = list(images) + [p for p in (times_file, model, vignetting, profile) if p]
-    with OutputTransaction(inputs) as tx:
+    with OutputTransaction(inputs) as tx, compile_notice():
         out_tmp = tx.add(output, "--output", (".exr", ".hdr"))
         as_hdr = output.suffix.lower() == ".hdr"
         view = view if view is not None or not as_hdr or ph.profile is None else ph.profile.view
@@ -269,62 +267,25 @@ def merge_cmd(
     _merge_summary(result, images, method, output, time.perf_counter() - t0, variance is not None)
 
 
-#: The modules of disk-cached compiled kernels a merge uses: always, and with each flag.
-KERNEL_MODULES = {"merge": ("derender.engine.kernels",),
-                  "deghost": ("derender.engine.ghost_kernels", "derender.engine.consensus"),
-                  "variance": ("derender.engine.variance_kernels",),
-                  "model": ("derender.engine.gaussian_kernels",)}
+def compile_notice():
+    """A context in which the first compilation of a kernel prints one stderr line: a numba
+    ``numba:compile`` event listener (a kernel found in numba's disk cache, ``cache=True``, is
+    loaded without that event). The first merge with ``--variance --deghost`` sat silent for
+    28 s here, compiling."""
+    from numba.core import event
 
+    class CompileNotice(event.Listener):
+        said = False
 
-def kernel_modules(method: str, *, deghost: bool, variance: bool, align: bool) -> list[str]:
-    """The kernel modules (:data:`KERNEL_MODULES`) a ``derender merge`` with these flags compiles."""
-    from derender.hdr.registry import method_spec
+        def on_start(self, ev) -> None:
+            if not self.said:
+                self.said = True
+                typer.echo("compiling kernels (first run only; cached afterwards) ...", err=True)
 
-    mods = list(KERNEL_MODULES["merge"])
-    if deghost:
-        mods += KERNEL_MODULES["deghost"]
-    if variance:
-        mods += KERNEL_MODULES["variance"]
-    if method_spec(method).needs_model:
-        mods += KERNEL_MODULES["model"]
-    return mods
+        def on_end(self, ev) -> None:
+            pass
 
-
-def cold_kernel_modules(modules: list[str]) -> list[str]:
-    """Those of ``modules`` none of whose disk-cached numba kernels (``cache=True``) has machine
-    code cached for this source and CPU: their first call compiles (the first merge with
-    ``--variance --deghost`` compiled for 28 s here, silent). A module with one kernel cached
-    counts as warm (the check costs no compilation; its other kernels may still compile)."""
-    import importlib
-
-    cold = []
-    for name in modules:
-        mod = importlib.import_module(name)
-        caches = [getattr(obj, "_cache", None) for obj in vars(mod).values()
-                  if getattr(obj, "__module__", None) == name and hasattr(obj, "py_func")]
-        files = [getattr(c, "_cache_file", None) for c in caches]
-        files = [f for f in files if f is not None and hasattr(f, "_load_index")]
-        if not files:
-            continue
-        warm = False
-        for f in files:
-            try:
-                warm = bool(f._load_index())
-            except Exception:  # noqa: BLE001 - an unreadable index is a cold cache
-                warm = False
-            if warm:
-                break
-        if not warm:
-            cold.append(name)
-    return cold
-
-
-def announce_compiling(modules: list[str]) -> None:
-    """One stderr line before a merge whose compiled kernels are not cached yet."""
-    cold = cold_kernel_modules(modules)
-    if cold:
-        names = ", ".join(m.rsplit(".", 1)[-1] for m in cold)
-        typer.echo(f"compiling kernels (first run only; cached afterwards): {names} ...", err=True)
+    return event.install_listener("numba:compile", CompileNotice())
 
 
 def _check_method_options(method: str, spec, method_opts: dict, n_images: int, with_variance: bool) -> None:

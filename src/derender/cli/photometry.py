@@ -13,8 +13,8 @@ from derender.cli.app import (
     INVERSE_HELP,
     TIMES_FILE_HELP,
     TIMES_HELP,
-    app,
     absolute_units,
+    app,
     check_times_options,
     map_summary,
     read_mask_codes,
@@ -141,7 +141,7 @@ def report(
                                   "says (default: cd/m2 only for a map that says it is absolute, e.g. after --spot)."),
     relative: bool = typer.Option(False, "--relative", help="Legends and readout in relative units whatever the "
                                   "map's header says."),
-    max_pixels: int = typer.Option(2_000_000, "--max-pixels", help="Largest page image (the map is reduced by an "
+    max_pixels: int = typer.Option(1_000_000, "--max-pixels", help="Largest page image (the map is reduced by an "
                                    "integer factor)."),
 ) -> None:
     """A self-contained HTML report of a radiance map, to look at it in any browser, offline.

@@ -34,8 +34,8 @@ from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
 from derender.engine.run import ENGINES, run_stack
 from derender.engine.tables import _ENGINE_MODES, curve_value_tables, weight_table
-from derender.engine.weights import WEIGHTS
 from derender.engine.variance import variance_tables
+from derender.engine.weights import WEIGHTS
 from derender.hdr.registry import record_values
 from derender.response.curves import (
     DEFAULT_SAMPLES,

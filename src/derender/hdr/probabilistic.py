@@ -145,8 +145,8 @@ from typing import Any
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.core.options import check_at_least, check_choice
 from derender.core.memory import thread_count
+from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
