@@ -205,3 +205,31 @@ def test_report_and_cli_agree_on_reference_shifts_and_counts(tmp_path, capsys):
     overlays = np.frombuffer(gzip.decompress(base64.b64decode(_page_data(tmp_path / "r.html")["overlays"])),
                              np.uint8)
     assert (overlays & 2).any()
+
+
+@pytest.mark.parametrize("suffix,extra", [(".exr", []), (".hdr", []), (".exr", ["--spot", "8,8,16,16=100"])])
+def test_the_summary_record_round_trips_through_the_output(tmp_path, capsys, suffix, extra):
+    """The record is in the output's header whichever way it was written (an EXR written while
+    merging, filled afterwards; a .hdr line; an EXR written after a --spot calibration, with its
+    factor), and ``derender report`` shows what ``derender merge`` printed."""
+    from derender.cli.app import map_summary, read_radiance_map
+
+    frames = _bracket(tmp_path / "b")
+    given = [frames[2], frames[0], frames[1]]                  # out of time order
+    out_map = tmp_path / f"m{suffix}"
+    code, out, err = run_cli(["merge", *given, "--times", "4,1,2", "--reference", "3", "-o", out_map, *extra],
+                             capsys)
+    assert code == 0, err
+    assert "reference frame 3 (in1.png)" in out
+    rec = map_summary(read_radiance_map(out_map)[1])
+    assert rec is not None and rec.reference == 3 and rec.frame(3).name == "in1.png"
+    assert [f.name for f in rec.frames] == ["in2.png", "in0.png", "in1.png"]
+    assert [f.time_s for f in rec.frames] == [4.0, 1.0, 2.0]
+    assert rec.counts_text() in out
+    if extra:
+        assert rec.photometric_factor is not None and "spot" in rec.photometric_source
+    code, _, err = run_cli(["report", out_map, "-o", tmp_path / "r.html"], capsys)
+    assert code == 0, err
+    rows = _page_data(tmp_path / "r.html")["summary"]
+    assert rows["reference frame"] == "image 3 (in1.png)"
+    assert ("photometric factor" in rows) == bool(extra)

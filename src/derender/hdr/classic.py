@@ -33,7 +33,7 @@ from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
 from derender.engine.run import ENGINES, run_stack
-from derender.engine.tables import _ENGINE_MODES, curve_value_tables, weight_table
+from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
 from derender.engine.weights import WEIGHTS
 from derender.hdr.registry import record_values
@@ -69,6 +69,10 @@ __all__ = ["MERGE_LAMBDA", "DebevecOptions", "RobertsonOptions", "DebevecMethod"
            "debevec_engine", "robertson_engine"]
 
 
+#: The ways a pixel's channels share their weights (the table engine's modes).
+CHANNEL_WEIGHTS = ("mean", "min", "independent", "brightest", "min_else_brightest")
+
+
 @dataclass(frozen=True, kw_only=True)
 class DebevecOptions:
     """The options of :func:`merge_debevec` (each described there), as its engine method and
@@ -94,7 +98,7 @@ class DebevecOptions:
             raise InputError(f"n_samples must be positive, got {self.n_samples}")
         _check_common(self)
         check_choice("domain", self.domain, ("log", "linear"))
-        check_choice("channel_weights", self.channel_weights, _ENGINE_MODES)
+        check_choice("channel_weights", self.channel_weights, CHANNEL_WEIGHTS)
         check_at_least("lam", self.lam, 0.0)
 
 
