@@ -115,7 +115,9 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def check_choice(option: str, value: str, choices: tuple[str, ...]) -> None:
     if value not in choices:
-        raise InputError(f"{option} must be one of {', '.join(choices)}, got {value!r}")
+        from derender.core.options import did_you_mean
+
+        raise InputError(f"{option} must be one of {', '.join(choices)}, got {value!r}{did_you_mean(value, choices)}")
 
 
 def load_camera_cli(camera: str, camera_file: Optional[Path]):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sys
 import time
 from pathlib import Path
 from typing import List, Optional
@@ -267,25 +269,71 @@ def merge_cmd(
     _merge_summary(result, images, method, output, time.perf_counter() - t0, variance is not None)
 
 
+@contextlib.contextmanager
 def compile_notice():
     """A context in which the first compilation of a kernel prints one stderr line: a numba
     ``numba:compile`` event listener (a kernel found in numba's disk cache, ``cache=True``, is
     loaded without that event). The first merge with ``--variance --deghost`` sat silent for
-    28 s here, compiling."""
-    from numba.core import event
+    28 s here, compiling. Merges that need no kernel never import numba (0.2-0.6 s): the
+    listener is registered when numba's event module is first imported, if ever
+    (:class:`_AfterImport`)."""
+    said = []
 
-    class CompileNotice(event.Listener):
-        said = False
+    def register(event) -> object:
+        class CompileNotice(event.Listener):
+            def on_start(self, ev) -> None:
+                if not said:
+                    said.append(True)
+                    typer.echo("compiling kernels (first run only; cached afterwards) ...", err=True)
 
-        def on_start(self, ev) -> None:
-            if not self.said:
-                self.said = True
-                typer.echo("compiling kernels (first run only; cached afterwards) ...", err=True)
+            def on_end(self, ev) -> None:
+                pass
 
-        def on_end(self, ev) -> None:
-            pass
+        listener = CompileNotice()
+        event.register("numba:compile", listener)
+        return listener
 
-    return event.install_listener("numba:compile", CompileNotice())
+    registered: list = []
+    hook = None
+    if "numba.core.event" in sys.modules:
+        registered.append(register(sys.modules["numba.core.event"]))
+    else:
+        hook = _AfterImport("numba.core.event", lambda module: registered.append(register(module)))
+        sys.meta_path.insert(0, hook)
+    try:
+        yield
+    finally:
+        if hook is not None and hook in sys.meta_path:
+            sys.meta_path.remove(hook)
+        for listener in registered:
+            sys.modules["numba.core.event"].unregister("numba:compile", listener)
+
+
+class _AfterImport:
+    """A one-shot import hook: ``callback(module)`` right after module ``name`` is first
+    executed (the module is found and loaded by the usual path finder)."""
+
+    def __init__(self, name: str, callback) -> None:
+        self.name, self.callback = name, callback
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname != self.name:
+            return None
+        import importlib.machinery
+
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.machinery.PathFinder.find_spec(fullname, path, target)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run, callback = spec.loader.exec_module, self.callback
+
+        def exec_module(module) -> None:
+            run(module)
+            callback(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
 
 
 def _check_method_options(method: str, spec, method_opts: dict, n_images: int, with_variance: bool) -> None:

@@ -187,7 +187,8 @@ def attach_summary(res: HDRResult, paths: Sequence, times: Sequence[float], meth
     from derender.io.exif import read_exif
     from derender.io.exr import fill_exr_attribute
 
-    shape = res.mask.shape[:2] if res.mask is not None else res.radiance.shape[:2]
+    shape = res.mask.shape[:2] if res.mask is not None else (res.radiance.shape[:2] if res.radiance is not None
+                                                             else (0, 0))
     record = merge_summary_record(res.info, res.mask, shape, method, paths, times, [read_exif(p) for p in paths])
     res.info["summary"] = record
     for out in outputs:
@@ -219,9 +220,9 @@ def merge_summary_record(info: dict, mask: np.ndarray | None, shape: tuple[int, 
     al = info.get("alignment") or {}
     align = al.get("align") if al.get("align") not in (None, "none") else None
     shifts_time = al.get("shifts")
-    if shifts_time is None and info.get("shifts") is not None:
-        shifts_time = info["shifts"]
-        align = align or ("translation" if info.get("align") in ("mtb", "translation") else info.get("align"))
+    if not al and info.get("align") not in (None, "none"):     # the stabilised merges' own registration
+        align = "translation" if info["align"] in ("mtb", "translation") else str(info["align"])
+        shifts_time = info.get("shifts")
     shifts = None
     if shifts_time is not None and len(shifts_time) == len(paths):
         by_input = [(0, 0)] * len(paths)
