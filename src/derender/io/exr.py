@@ -38,6 +38,7 @@ __all__ = [
     "read_exr_attributes",
     "fill_exr_attribute",
     "reserved_text",
+    "SUMMARY_BYTES",
 ]
 
 #: OpenEXR ``chromaticities`` of linear sRGB / Rec. 709 (x, y of red, green, blue, white D65).
