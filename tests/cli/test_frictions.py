@@ -123,6 +123,9 @@ def test_duplicate_given_times_name_the_files(tmp_path, capsys):
     (["--option", "lam=-1"], ["lam", ">= 0"]),
     (["--option", "channel_weights=x"], ["channel_weights"]),
     (["--method", "robertson", "--option", "n_iter=0"], ["n_iter"]),
+    (["--seed", "-3"], ["--seed"]),                             # was a traceback from NumPy's seeding
+    (["--deghost", "--ghost-threshold", "-1"], ["--ghost-threshold", "positive"]),
+    (["--max-megapixels", "-1"], ["--max-megapixels", "positive"]),
 ])
 def test_bad_method_and_option_values_are_refused_before_any_work(tmp_path, capsys, args, needles):
     """A bad --option value was refused only after 3.3 s of work (weight=bogus on the iPhone

@@ -64,7 +64,7 @@ def simulate(
     outdir: Path = typer.Argument(..., help="Output folder (raw/, jpeg/, truth.exr, scene.json)."),
     exposures: int = typer.Option(9, "--exposures", "-n", help="Number of exposures in the bracket."),
     size: str = typer.Option("384x256", "--size", help="Image size WxH."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (scene, pipeline, noise)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (scene, pipeline, noise)."),
     camera: str = typer.Option("nikon-d5100", "--camera", help="Built-in camera or rawtoaces camera name."),
     camera_file: Optional[Path] = typer.Option(None, "--camera-file", help="rawtoaces camera JSON."),
     pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto (camera changes WB, gain, gamma)."),
@@ -157,7 +157,7 @@ def merge_cmd(
     report: Optional[Path] = typer.Option(None, "--report", help="Self-contained HTML report of the merge (tone "
                                           "mapping, falsecolor, uncertainty, masks, curves, cursor readout)."),
     half: bool = typer.Option(False, "--half", help="Write half-float EXR."),
-    seed: int = typer.Option(0, "--seed", help="Seed for sampling / RANSAC."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed for sampling / RANSAC."),
     max_megapixels: float = typer.Option(DEFAULT_MAX_MEGAPIXELS, "--max-megapixels",
                                          help="Refuse images larger than this (decoded size, read from the header)."),
     strict_camera: bool = typer.Option(False, "--strict-camera",
@@ -192,6 +192,8 @@ def merge_cmd(
     from derender.io.preview import IMAGE8_SUFFIXES
 
     check_times_options(times, times_file, times_inverse)
+    if not max_megapixels > 0:
+        raise InputError(f"--max-megapixels must be positive, got {max_megapixels:g}")
     images = expand_image_paths(images)
     spec = method_spec(method)
     method_opts = parse_options(method, option)
@@ -416,6 +418,8 @@ def _motion_options(reference: Optional[str], align: Optional[str], deghost: boo
     if threshold is not None:
         if not deghost:
             raise InputError("--ghost-threshold sets the test of --deghost; add --deghost")
+        if not threshold > 0:
+            raise InputError(f"--ghost-threshold must be a positive number, got {threshold:g}")
         out["ghost_threshold"] = threshold
     if ghost_mask is not None and not deghost and align in (None, "none"):
         raise InputError("--ghost-mask shows where --deghost or --align left frames out; add one of them")
@@ -549,7 +553,7 @@ def diagnose(
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
-    seed: int = typer.Option(0, "--seed", help="Sampling seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Sampling seed."),
 ) -> None:
     """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response)."""
     from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
@@ -627,7 +631,7 @@ def simulate_dataset_cmd(
     size: str = typer.Option("384x256", "--size", help="Image size WxH."),
     pipelines: str = typer.Option("auto,fixed", "--pipelines", help="Pipelines to cycle through."),
     renders: str = typer.Option("camera", "--renders", help="Rendering styles to cycle through (simple, camera)."),
-    seed: int = typer.Option(0, "--seed", help="Dataset seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Dataset seed."),
 ) -> None:
     """Simulate a dataset of brackets (raw/ + jpeg/ + truth per scene) for 'derender benchmark'."""
     from derender.evaluation.table1 import simulate_dataset
@@ -654,7 +658,7 @@ def benchmark(
     methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated merge methods (default: all)."),
     scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
     workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
-    seed: int = typer.Option(0, "--seed", help="Seed passed to every method."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed passed to every method."),
 ) -> None:
     """Paper 1's Table 1: every method on every scene, PSNR R/G/B/L against the RAW ground truth."""
     from derender.evaluation.table1 import run_benchmark, write_benchmark_outputs
@@ -674,7 +678,7 @@ def benchmark(
 def demo(
     outdir: Path = typer.Option(Path("derender-demo"), "--outdir", "-o", help="Where to write the demo outputs."),
     size: str = typer.Option("480x320", "--size", help="Image size WxH."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed."),
     pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto."),
     render: str = typer.Option("camera", "--render", help="simple | camera."),
     no_model: bool = typer.Option(False, "--no-model",
@@ -725,7 +729,7 @@ def merge_batch_cmd(
     method: str = typer.Option("debevec", "--method", help="Merge method."),
     scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
     workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
-    seed: int = typer.Option(0, "--seed", help="Seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed."),
     half: bool = typer.Option(False, "--half", help="Half-float EXR."),
 ) -> None:
     """Merge many brackets in parallel (Dask); one EXR per stack folder; identical to a serial run."""
