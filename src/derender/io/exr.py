@@ -70,9 +70,10 @@ def exr_attributes(info: dict) -> dict:
             **dict(info.get("exr_attributes") or {})}
 
 
-#: Bytes reserved for a merge's summary record (``derender:summary``: JSON, about 100 bytes a
-#: frame) in an EXR written before the record exists; filled by :func:`fill_exr_attribute`.
-SUMMARY_BYTES = 8192
+#: Bytes reserved for a merge's summary record (``derender:summary``: JSON, about 110 bytes a
+#: frame, so about 140 frames) in an EXR written before the record exists; filled by
+#: :func:`fill_exr_attribute` (a record that does not fit is left out of that file).
+SUMMARY_BYTES = 16384
 
 
 class Chromaticities(tuple):
