@@ -175,7 +175,7 @@ def test_merge_writes_its_report(tmp_path, capsys):
     page = (tmp_path / "r.html").read_text()
     data = json.loads(re.search(r"const D = (\{.*?\});\n", page, flags=re.S).group(1))
     assert data["summary"]["method"] == "stabilized" and "reference frame" in data["summary"]
-    assert data["summary"]["frames (time order)"].startswith("0: 00.jpg, 1/2000 s")
+    assert data["summary"]["frames (by exposure time)"].startswith("image 1 (00.jpg): 1/2000 s")
     assert (data["width"], data["height"], data["factor"]) == (96, 64, 1)
     code, _, err = run_cli(["merge", *bracket_paths(tmp_path / "b", "jpeg"), "-o", tmp_path / "n.exr",
                             "--report", tmp_path / "r.txt"], capsys)
@@ -203,7 +203,7 @@ def test_merge_report_shows_the_ghosts(tmp_path, capsys):
     assert code == 0, err
     page = (tmp_path / "r.html").read_text()
     data = json.loads(re.search(r"const D = (\{.*?\});\n", page, flags=re.S).group(1))
-    assert data["summary"]["reference frame"].endswith("(image 3 as given)")
+    assert data["summary"]["reference frame"] == f"image 3 ({paths[2].name})"
     assert "ghost removal" in data["summary"]
     overlays = np.frombuffer(gzip.decompress(base64.b64decode(data["overlays"])), np.uint8).reshape(64, 96)
     res = merge_files(paths, reference=2, align="translation", deghost=True)

@@ -11,8 +11,10 @@ that works offline (no server, no CDN: data and script are embedded) and shows
   the variance of ``Y = w . RGB``, channels independent: one plane, not three);
 * overlays of the masks (pixels over-exposed in every frame, ghosts, uncovered);
 * the response curves, when the merge recovered some;
-* a summary (method, frames with exposure times, f-numbers and ISO, reference, alignment
-  shifts, clipped share, illuminance with its uncertainty when a view is known);
+* a summary: a merge's one record (:class:`derender.hdr.summary.MergeSummary`: method, frames
+  with exposure times, f-numbers and ISO, reference, alignment shifts, clipped and taken
+  pixels, numbered and counted as ``derender merge`` prints them), read from the map's header
+  by ``derender report``; the illuminance with its uncertainty when a view is known;
 * a readout under the cursor (mouse, or the arrow keys on the focused image): linear RGB,
   luminance and its standard deviation at that pixel.
 
@@ -41,18 +43,24 @@ import numpy as np
 
 from derender.core.errors import InputError
 
-__all__ = ["REPORT_MAX_PIXELS", "RGB_MANTISSA_BITS", "VAR_MANTISSA_BITS", "reduce_map", "pack_half", "write_report", "merge_summary"]
+__all__ = ["REPORT_MAX_PIXELS", "RGB_MANTISSA_BITS", "VAR_MANTISSA_BITS", "reduce_map", "pack_half", "write_report"]
 
-#: Default largest number of pixels the page holds (a 24 MP merge is reduced by 4: 1.5 MP).
-REPORT_MAX_PIXELS = 2_000_000
+#: Default largest number of pixels the page holds (a 24 MP merge is reduced by 5: 0.96 MP; the
+#: iPhone bracket's 8 MP by 3: 816x1088, still more than the page shows at 1:1). The page data
+#: is the map's noise, which no lossless coder removes, so its size follows the pixel count:
+#: the iPhone report with a variance was 9.76 MB at 2 MP (radiance 7.08 MB, standard
+#: deviation 2.66 MB) and is 3.7 MB at 1 MP with the bits below (issue 37).
+REPORT_MAX_PIXELS = 1_000_000
 
-#: Mantissa bits kept of the radiance's half floats: relative error <= 0.2 % (the readout's
-#: 1 % promise), 22 % smaller pages than all 10 bits (the iPhone bracket's 2 MP: 8.9 -> 7.0 MB).
-RGB_MANTISSA_BITS = 8
+#: Mantissa bits kept of the radiance's half floats: relative error <= 2^-8 = 0.4 % (the
+#: readout's 1 % promise); 7 bits instead of 8 saved 13 % of the radiance's bytes on the
+#: iPhone bracket (3.13 -> 2.73 MB at 1 MP).
+RGB_MANTISSA_BITS = 7
 
 #: Mantissa bits kept of the luminance's standard deviation (stored instead of the variance: a
-#: variance spans twice the decades, and dark pixels fell into the half floats' subnormals).
-VAR_MANTISSA_BITS = 8
+#: variance spans twice the decades, and dark pixels fell into the half floats' subnormals):
+#: relative error <= 2^-7 = 0.8 % of an uncertainty (within the readout's 1 %).
+VAR_MANTISSA_BITS = 6
 
 
 def reduce_map(image: np.ndarray, max_pixels: int = REPORT_MAX_PIXELS) -> tuple[np.ndarray, int]:
@@ -98,40 +106,6 @@ def _half_scale(values: np.ndarray) -> float:
 def _pack_bytes(values: np.ndarray) -> str:
     return base64.b64encode(gzip.compress(np.ascontiguousarray(values, dtype=np.uint8).tobytes(), 6,
                                           mtime=0)).decode("ascii")
-
-
-def merge_summary(result_info: dict, frames: list[dict]) -> dict[str, Any]:
-    """The summary rows of a merge's report: ``result_info`` an ``HDRResult.info``, ``frames``
-    per frame in time order ``{"name", "time", "FNumber", "ISO"}`` (EXIF, when known)."""
-    out: dict[str, Any] = {"method": result_info.get("method", "?")}
-    rows = []
-    for j, f in enumerate(frames):
-        t = f.get("time")
-        text = f"{j}: {f.get('name', '?')}, " + (f"1/{1 / t:.4g} s" if t and t < 1 else f"{t:.4g} s" if t else "?")
-        if f.get("FNumber"):
-            text += f", f/{f['FNumber']:g}"
-        if f.get("ISO"):
-            text += f", ISO {f['ISO']:g}"
-        rows.append(text)
-    out["frames (time order)"] = "; ".join(rows)
-    if "reference" in result_info:
-        k = result_info.get("reference_input")
-        out["reference frame"] = (f"{result_info['reference']} in time order"
-                                  + (f" (image {k + 1} as given)" if k is not None else ""))
-    shifts = result_info.get("shifts") or (result_info.get("alignment") or {}).get("shifts")
-    if shifts is not None:
-        out["alignment shifts (dy, dx) px"] = json.dumps(shifts)
-    dg = result_info.get("deghost")
-    if dg:
-        out["ghost removal"] = (f"threshold {dg.get('threshold')}, {100 * float(dg.get('rejected', 0.0)):.1f} % of "
-                                "the other frames' pixels left out (overlay: ghosts)")
-    for key, label in (("n_bright", "pixels over-exposed in every frame"), ("n_dark", "pixels under-exposed "
-                                                                                      "everywhere")):
-        if key in result_info:
-            out[label] = str(result_info[key])
-    if "photometric_factor" in result_info:
-        out["photometric factor (spot)"] = f"{result_info['photometric_factor']:.6g}"
-    return out
 
 
 def write_report(path: str | os.PathLike, radiance: np.ndarray, *, variance: np.ndarray | None = None,
@@ -191,11 +165,11 @@ def write_report(path: str | os.PathLike, radiance: np.ndarray, *, variance: np.
         if c.ndim == 2 and c.shape[1] == 3:
             data["curves"] = [[round(float(v), 5) for v in row] for row in c]
     info = dict(summary or {})
-    if mask is not None:
+    if mask is not None and "taken from the shortest exposure (mask)" not in info:
         m = np.asarray(mask)
         m = m[..., 0] if m.ndim == 3 else m
-        info.setdefault("clipped share", f"{100 * float(np.mean((m == 1) | (m == 128))):.2f} % of the pixels over-"
-                                         "exposed in every frame")
+        n = int(np.count_nonzero((m == 1) | (m == 128)))
+        info["taken from the shortest exposure (mask)"] = f"{n} px ({100 * n / m.size:.2f} %)"
     if view is not None:
         ev = vertical_illuminance(rad, view, primaries=primaries, variance=variance)
         sd = f" ± {ev.ev_sd:.4g}" if ev.ev_sd is not None else ""
@@ -336,7 +310,7 @@ function readout(x, y){
           (D.factor > 1 ? ` (mean of a ${D.factor}x${D.factor} block)` : "") + "\n";
   s += `linear RGB ${RGB[3*i].toPrecision(5)} ${RGB[3*i+1].toPrecision(5)} ${RGB[3*i+2].toPrecision(5)}\n`;
   s += `luminance <span id="lum">${L.toPrecision(5)}</span> ${unit}`;
-  if (VAR){ s += `\nstandard deviation <span id="lumsd">${(179 * Math.sqrt(VAR[i])).toPrecision(4)}</span> ${unit}`; }
+  if (VAR){ s += `\nstandard deviation <span id="lumsd">${(179 * Math.sqrt(VAR[i])).toPrecision(3)}</span> ${unit}`; }
   document.getElementById("readout").innerHTML = s;
 }
 img.addEventListener("mousemove", e => { const r = img.getBoundingClientRect();

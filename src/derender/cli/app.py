@@ -115,7 +115,9 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def check_choice(option: str, value: str, choices: tuple[str, ...]) -> None:
     if value not in choices:
-        raise InputError(f"{option} must be one of {', '.join(choices)}, got {value!r}")
+        from derender.core.options import did_you_mean
+
+        raise InputError(f"{option} must be one of {', '.join(choices)}, got {value!r}{did_you_mean(value, choices)}")
 
 
 def load_camera_cli(camera: str, camera_file: Optional[Path]):
@@ -163,15 +165,47 @@ def is_float(text: str) -> bool:
 
 def read_radiance_map(path: Path) -> tuple:
     """A radiance map (.exr or .hdr) as ``(image, header, primaries)``: the .hdr's header lines
-    (``VIEW``, ``EXPOSURE``, ...; empty for an EXR) and the primaries its RGB is in: the .hdr's
-    ``PRIMARIES`` line (None: Radiance's standard primaries), linear sRGB for an EXR (derender
-    writes its maps in linear sRGB)."""
+    (``VIEW``, ``EXPOSURE``, ...) or the EXR's header attributes, and the primaries its RGB is
+    in: the .hdr's ``PRIMARIES`` line (None: Radiance's standard primaries), linear sRGB for an
+    EXR (derender writes its maps in linear sRGB)."""
     from derender.io.rgbe import SRGB_PRIMARIES, read_hdr_header, read_radiance
 
     is_hdr = Path(path).suffix.lower() in (".hdr", ".pic")
-    header = read_hdr_header(path) if is_hdr else {}
+    image = read_radiance(path)
+    if is_hdr:
+        header = read_hdr_header(path)
+    else:
+        from derender.io.exr import read_exr_attributes
+
+        header = read_exr_attributes(path)
     primaries = header.get("PRIMARIES") if is_hdr else SRGB_PRIMARIES
-    return read_radiance(path), header, primaries
+    return image, header, primaries
+
+
+def map_is_absolute(header: dict) -> bool:
+    """Whether a map's header says it is in absolute units (cd/m2 = 179 w·RGB): an EXR's
+    ``whiteLuminance`` or ``derender:photometry`` attribute, a .hdr's ``DERENDER_PHOTOMETRY=``
+    line (what ``derender merge --spot``, ``--absolute exif`` or a ``--profile`` with a
+    factor write). Any other map is relative: its scale is the camera's, not a luminance."""
+    return any(k in header for k in ("whiteLuminance", "derender:photometry", "DERENDER_PHOTOMETRY"))
+
+
+def map_summary(header: dict):
+    """The merge's summary record a map's header holds (:mod:`derender.hdr.summary`), or None."""
+    from derender.hdr.summary import SUMMARY_ATTRIBUTE, SUMMARY_HEADER, MergeSummary
+
+    text = header.get(SUMMARY_ATTRIBUTE, header.get(SUMMARY_HEADER))
+    return MergeSummary.from_json(text) if isinstance(text, str) else None
+
+
+def absolute_units(header: dict, absolute: bool, relative: bool, path: Path) -> bool:
+    """The units a map's luminance is labelled in: ``--absolute`` or ``--relative`` when given
+    (not both), else what the map's header says (:func:`map_is_absolute`)."""
+    if absolute and relative:
+        raise InputError("give either --absolute or --relative, not both")
+    if absolute or relative:
+        return absolute
+    return map_is_absolute(header)
 
 
 def read_mask_codes(path: Path, option: str, shape: tuple | None = None):

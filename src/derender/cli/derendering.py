@@ -28,7 +28,7 @@ def chart_pairs_cmd(
     illuminants: int = typer.Option(16, "--illuminants", help="Number of gel-filtered tungsten illuminants."),
     exposures: int = typer.Option(22, "--exposures", help="Exposures from all-black to all-white."),
     render: str = typer.Option("camera", "--render", help="simple | camera."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed."),
 ) -> None:
     """Simulate paper 2's calibration session (ColorChecker SG, 16 illuminants) into RAW/JPEG pairs."""
     from derender.camera.chart import chart_pairs, save_pairs
@@ -60,7 +60,7 @@ def calibrate(
                                                  "record them, else random)."),
     cv_train: int = typer.Option(2000, "--cv-train", help="auto: training pairs per fold fit (seeded subsample; "
                                                           "bounds the time; capped at --n-train)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (subset, folds, k-means)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (subset, folds, k-means)."),
 ) -> None:
     """Learn a de-rendering model p(RAW colour | JPEG colour) from calibration pairs.
 

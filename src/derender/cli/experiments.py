@@ -28,7 +28,7 @@ def exp_derender_table(
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated cameras (default: S90, 5D II, D5100)."),
     n_train: int = typer.Option(5000, "--n-train", help="Training pairs."),
     methods: str = typer.Option("gp,poly,rbf", "--methods", help="Methods."),
-    seed: int = typer.Option(0, "--seed", help="Seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
     """Paper 2 Table 1: RMSE / relative RMSE, all and out-of-gamut, plus 95 % interval coverage."""
@@ -53,7 +53,7 @@ def exp_derender_families(
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated cameras (default: nikon-d5100)."),
     n_train: int = typer.Option(5000, "--n-train", help="Training pairs."),
     methods: str = typer.Option("gp,poly,rbf", "--methods", help="Methods."),
-    seed: int = typer.Option(0, "--seed", help="Seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:
     """Paper 2's de-rendering models on chart sessions rendered by every pipeline family
@@ -82,7 +82,7 @@ def exp_threshold_sweep(
     n_train: int = typer.Option(5000, "--n-train", help="Training pairs."),
     methods: str = typer.Option("gp,poly,rbf", "--methods", help="Methods."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Figure like paper 2 Fig. 4."),
-    seed: int = typer.Option(0, "--seed", help="Seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed."),
 ) -> None:
     """Paper 2 Fig. 4: relative RMSE of scene colour from exposure sequences vs the JPEG interval used."""
     from derender.evaluation.experiments import format_table, plot_threshold_sweep, threshold_sweep
@@ -105,7 +105,7 @@ def exp_photometric_stereo(
     lights: int = typer.Option(20, "--lights", help="Number of lights."),
     size: int = typer.Option(128, "--size", help="Image size (square)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Angular-error maps and depth cross-sections."),
-    seed: int = typer.Option(0, "--seed", help="Seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed."),
 ) -> None:
     """Paper 2 Sec. 4.3: GP weighted LS vs polynomial LS vs gamma-2.2 LS on a sphere and bumps."""
     from derender.evaluation.experiments import format_table, photometric_stereo_experiment

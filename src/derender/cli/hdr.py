@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sys
 import time
 from pathlib import Path
 from typing import List, Optional
@@ -62,7 +64,7 @@ def simulate(
     outdir: Path = typer.Argument(..., help="Output folder (raw/, jpeg/, truth.exr, scene.json)."),
     exposures: int = typer.Option(9, "--exposures", "-n", help="Number of exposures in the bracket."),
     size: str = typer.Option("384x256", "--size", help="Image size WxH."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (scene, pipeline, noise)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (scene, pipeline, noise)."),
     camera: str = typer.Option("nikon-d5100", "--camera", help="Built-in camera or rawtoaces camera name."),
     camera_file: Optional[Path] = typer.Option(None, "--camera-file", help="rawtoaces camera JSON."),
     pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto (camera changes WB, gain, gamma)."),
@@ -155,7 +157,7 @@ def merge_cmd(
     report: Optional[Path] = typer.Option(None, "--report", help="Self-contained HTML report of the merge (tone "
                                           "mapping, falsecolor, uncertainty, masks, curves, cursor readout)."),
     half: bool = typer.Option(False, "--half", help="Write half-float EXR."),
-    seed: int = typer.Option(0, "--seed", help="Seed for sampling / RANSAC."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed for sampling / RANSAC."),
     max_megapixels: float = typer.Option(DEFAULT_MAX_MEGAPIXELS, "--max-megapixels",
                                          help="Refuse images larger than this (decoded size, read from the header)."),
     strict_camera: bool = typer.Option(False, "--strict-camera",
@@ -190,9 +192,12 @@ def merge_cmd(
     from derender.io.preview import IMAGE8_SUFFIXES
 
     check_times_options(times, times_file, times_inverse)
+    if not max_megapixels > 0:
+        raise InputError(f"--max-megapixels must be positive, got {max_megapixels:g}")
     images = expand_image_paths(images)
     spec = method_spec(method)
     method_opts = parse_options(method, option)
+    _check_method_options(method, spec, method_opts, len(images), variance is not None)
     from derender.cli.profiles import apply_photometry, hdr_header_lines, merge_photometry, profile_options
 
     ph = merge_photometry(profile=profile, vignetting=vignetting, spot=spot, absolute=absolute, method=method,
@@ -210,7 +215,7 @@ def merge_cmd(
     motion_opts = _motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
     t0 = time.perf_counter()
     inputs = list(images) + [p for p in (times_file, model, vignetting, profile) if p]
-    with OutputTransaction(inputs) as tx:
+    with OutputTransaction(inputs) as tx, compile_notice():
         out_tmp = tx.add(output, "--output", (".exr", ".hdr"))
         as_hdr = output.suffix.lower() == ".hdr"
         view = view if view is not None or not as_hdr or ph.profile is None else ph.profile.view
@@ -244,6 +249,8 @@ def merge_cmd(
                              hold_outputs=preview_tmp is not None or report_tmp is not None or not direct,
                              **extra)
         absolute_source = apply_photometry(ph, result, images, method) if ph.active else None
+        result.info["summary"] = result.info["summary"].with_photometry(result.info.get("photometric_factor"),
+                                                                        absolute_source)
         if profile_tmp is not None:
             from derender.cli.profiles import save_merge_profile
 
@@ -260,9 +267,88 @@ def merge_cmd(
         _side_outputs(result, images, inputs, preview=preview_tmp, mask=mask_tmp, ghost_mask=ghost_tmp,
                       plot=plot_tmp)
         if report_tmp is not None:
-            _merge_report(report_tmp, result, images, method, absolute_source is not None, view, inputs,
-                          times=(parse_times(times) if times is not None else None, times_file, times_inverse))
+            _merge_report(report_tmp, result, method, absolute_source is not None, view, inputs)
     _merge_summary(result, images, method, output, time.perf_counter() - t0, variance is not None)
+
+
+@contextlib.contextmanager
+def compile_notice():
+    """A context in which the first compilation of a kernel prints one stderr line: a numba
+    ``numba:compile`` event listener (a kernel found in numba's disk cache, ``cache=True``, is
+    loaded without that event). The first merge with ``--variance --deghost`` sat silent for
+    28 s here, compiling. Merges that need no kernel never import numba (0.2-0.6 s): the
+    listener is registered when numba's event module is first imported, if ever
+    (:class:`_AfterImport`)."""
+    said = []
+
+    def register(event) -> object:
+        class CompileNotice(event.Listener):
+            def on_start(self, ev) -> None:
+                if not said:
+                    said.append(True)
+                    typer.echo("compiling kernels (first run only; cached afterwards) ...", err=True)
+
+            def on_end(self, ev) -> None:
+                pass
+
+        listener = CompileNotice()
+        event.register("numba:compile", listener)
+        return listener
+
+    registered: list = []
+    hook = None
+    if "numba.core.event" in sys.modules:
+        registered.append(register(sys.modules["numba.core.event"]))
+    else:
+        hook = _AfterImport("numba.core.event", lambda module: registered.append(register(module)))
+        sys.meta_path.insert(0, hook)
+    try:
+        yield
+    finally:
+        if hook is not None and hook in sys.meta_path:
+            sys.meta_path.remove(hook)
+        for listener in registered:
+            sys.modules["numba.core.event"].unregister("numba:compile", listener)
+
+
+class _AfterImport:
+    """A one-shot import hook: ``callback(module)`` right after module ``name`` is first
+    executed (the module is found and loaded by the usual path finder)."""
+
+    def __init__(self, name: str, callback) -> None:
+        self.name, self.callback = name, callback
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname != self.name:
+            return None
+        import importlib.machinery
+
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.machinery.PathFinder.find_spec(fullname, path, target)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run, callback = spec.loader.exec_module, self.callback
+
+        def exec_module(module) -> None:
+            run(module)
+            callback(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+def _check_method_options(method: str, spec, method_opts: dict, n_images: int, with_variance: bool) -> None:
+    """Every ``--option`` value checked before any file is decoded (its record's checks), and
+    the per-frame ones against the number of images."""
+    from derender.hdr.registry import check_method_options
+
+    check_method_options(method, {**method_opts, **({"variance": True} if with_variance and spec.has_option("variance")
+                                             else {})})
+    gammas = method_opts.get("gammas")
+    if gammas is not None and len(gammas) != n_images:
+        raise InputError(f"--option gammas lists {len(gammas)} value(s) for {n_images} images (one per image, "
+                         "in exposure order)")
 
 
 def _side_outputs(result: HDRResult, images: list, inputs: list, *, preview, mask, ghost_mask, plot) -> None:
@@ -289,20 +375,18 @@ def _side_outputs(result: HDRResult, images: list, inputs: list, *, preview, mas
 
 def _merge_summary(result: HDRResult, images: list, method: str, output: Path, seconds: float,
                    with_variance: bool) -> None:
-    """The lines ``derender merge`` prints when done: sizes, time, clipped and taken pixels, the
-    variance's sources, the motion path's reference, alignment and ghosts."""
-    n_bright = int((result.mask == HDRResult.MASK_BRIGHT).sum())
-    n_dark = int((result.mask == HDRResult.MASK_DARK).sum())
-    n_clipped = result.info.get("n_clipped")
-    clipped = f"{n_clipped} px clipped even in the shortest exposure; " if n_clipped is not None else ""
-    typer.echo(f"{method}: {len(images)} images {result.mask.shape[1]}x{result.mask.shape[0]} -> {output} "
-               f"({seconds:.2f} s; {clipped}{n_bright} px taken from the shortest exposure, "
-               f"{n_dark} px from the longest (mask))")
+    """The lines ``derender merge`` prints when done, from the merge's one summary record
+    (:class:`derender.hdr.summary.MergeSummary`, the same the output and the report hold):
+    sizes, time, clipped and taken pixels, the variance's sources, the reference frame,
+    alignment and ghosts."""
+    rec = result.info["summary"]
+    typer.echo(f"{method}: {len(images)} images {rec.width}x{rec.height} -> {output} ({seconds:.2f} s; "
+               f"{rec.counts_text()})")
     sources = result.info.get("variance_sources")
     if with_variance and sources:
         typer.echo("variance by source (median share of a pixel's): "
                    + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
-    motion_line = _motion_summary(result.info, images)
+    motion_line = rec.motion_text()
     if motion_line:
         typer.echo(motion_line)
 
@@ -334,6 +418,8 @@ def _motion_options(reference: Optional[str], align: Optional[str], deghost: boo
     if threshold is not None:
         if not deghost:
             raise InputError("--ghost-threshold sets the test of --deghost; add --deghost")
+        if not threshold > 0:
+            raise InputError(f"--ghost-threshold must be a positive number, got {threshold:g}")
         out["ghost_threshold"] = threshold
     if ghost_mask is not None and not deghost and align in (None, "none"):
         raise InputError("--ghost-mask shows where --deghost or --align left frames out; add one of them")
@@ -349,40 +435,15 @@ def _ghost_png(ghosts, n_images: int):
     return np.repeat(v[:, :, None], 3, axis=2)
 
 
-def _motion_summary(info: dict, images) -> str:
-    """One line on the reference frame, the alignment and ghost removal (motion path only)."""
-    if info.get("engine_path") != "motion":
-        return ""
-    parts = []
-    k = info.get("reference_input")
-    if k is not None:
-        parts.append(f"reference frame {k + 1} ({images[k].name})")
-    al = info.get("alignment", {})
-    if al.get("align") == "translation":
-        shifts = al.get("shifts") or [[0, 0]]
-        parts.append(f"aligned by translation (largest shift {max(max(abs(a), abs(b)) for a, b in shifts)} px)")
-    elif al.get("align") == "homography":
-        parts.append("aligned by homography")
-    dg = info.get("deghost")
-    if dg:
-        parts.append(f"ghost removal left out {100 * dg.get('rejected', 0.0):.1f} % of the other frames' pixels")
-    return "; ".join(parts)
-
-
-def _merge_report(path, result, images, method: str, absolute: bool, view: str | None, inputs, times) -> None:
-    from derender.applications.report import merge_summary, write_report
-    from derender.io.exif import file_times, read_exif
+def _merge_report(path, result, method: str, absolute: bool, view: str | None, inputs) -> None:
+    """``--report``: the page of the merged map, its summary table the merge's one record."""
+    from derender.applications.report import write_report
     from derender.io.rgbe import SRGB_PRIMARIES
     from derender.photometry.projection import parse_view
 
-    exifs = [read_exif(p) for p in images]
-    exposures = file_times(images, times[0], times[1], times[2])      # as the merge took them
-    order = sorted(range(len(images)), key=lambda j: exposures[j])
-    frames = [{"name": images[j].name, "time": float(exposures[j]), "FNumber": exifs[j].get("FNumber"),
-               "ISO": exifs[j].get("ISO")} for j in order]
     curves = result.info.get("curves")
     write_report(path, result.radiance, variance=result.variance, mask=result.mask, ghost_mask=result.ghosts,
-                 absolute=absolute, primaries=SRGB_PRIMARIES, summary=merge_summary(result.info, frames),
+                 absolute=absolute, primaries=SRGB_PRIMARIES, summary=result.info["summary"].rows(),
                  curves=getattr(curves, "log_inverse", None), view=parse_view(view) if view else None,
                  title=f"derender merge --method {method}", inputs=inputs)
 
@@ -492,7 +553,7 @@ def diagnose(
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
-    seed: int = typer.Option(0, "--seed", help="Sampling seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Sampling seed."),
 ) -> None:
     """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response)."""
     from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
@@ -570,7 +631,7 @@ def simulate_dataset_cmd(
     size: str = typer.Option("384x256", "--size", help="Image size WxH."),
     pipelines: str = typer.Option("auto,fixed", "--pipelines", help="Pipelines to cycle through."),
     renders: str = typer.Option("camera", "--renders", help="Rendering styles to cycle through (simple, camera)."),
-    seed: int = typer.Option(0, "--seed", help="Dataset seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Dataset seed."),
 ) -> None:
     """Simulate a dataset of brackets (raw/ + jpeg/ + truth per scene) for 'derender benchmark'."""
     from derender.evaluation.table1 import simulate_dataset
@@ -597,7 +658,7 @@ def benchmark(
     methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated merge methods (default: all)."),
     scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
     workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
-    seed: int = typer.Option(0, "--seed", help="Seed passed to every method."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed passed to every method."),
 ) -> None:
     """Paper 1's Table 1: every method on every scene, PSNR R/G/B/L against the RAW ground truth."""
     from derender.evaluation.table1 import run_benchmark, write_benchmark_outputs
@@ -617,7 +678,7 @@ def benchmark(
 def demo(
     outdir: Path = typer.Option(Path("derender-demo"), "--outdir", "-o", help="Where to write the demo outputs."),
     size: str = typer.Option("480x320", "--size", help="Image size WxH."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed."),
     pipeline: str = typer.Option("auto", "--pipeline", help="fixed | auto."),
     render: str = typer.Option("camera", "--render", help="simple | camera."),
     no_model: bool = typer.Option(False, "--no-model",
@@ -668,7 +729,7 @@ def merge_batch_cmd(
     method: str = typer.Option("debevec", "--method", help="Merge method."),
     scheduler: str = typer.Option("local", "--scheduler", help="'local' (Dask local cluster), 'serial', or a Dask scheduler address."),
     workers: int = typer.Option(2, "--workers", help="Workers of the local cluster."),
-    seed: int = typer.Option(0, "--seed", help="Seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed."),
     half: bool = typer.Option(False, "--half", help="Half-float EXR."),
 ) -> None:
     """Merge many brackets in parallel (Dask); one EXR per stack folder; identical to a serial run."""

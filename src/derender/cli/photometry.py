@@ -13,8 +13,10 @@ from derender.cli.app import (
     INVERSE_HELP,
     TIMES_FILE_HELP,
     TIMES_HELP,
+    absolute_units,
     app,
     check_times_options,
+    map_summary,
     read_mask_codes,
     read_radiance_map,
 )
@@ -64,20 +66,27 @@ def falsecolor(
     log: float = typer.Option(4.0, "--log", help="Decades shown below the top of the scale (0: linear scale)."),
     top: Optional[float] = typer.Option(None, "--max", help="Top of the scale (cd/m2; default: the 99.9th "
                                         "percentile rounded up to 1, 2 or 5 x 10^n)."),
-    relative: bool = typer.Option(False, "--relative", help="Label the scale as relative luminance (a map "
-                                  "without a --spot calibration)."),
+    relative: bool = typer.Option(False, "--relative", help="Label the scale as relative luminance, whatever "
+                                  "the map's header says."),
+    absolute: bool = typer.Option(False, "--absolute", help="Label the scale in cd/m2, whatever the map's header "
+                                  "says (a map calibrated by another program)."),
 ) -> None:
-    """Falsecolor luminance map with a legend in cd/m2 (179 (w·RGB), as Radiance's falsecolor)."""
+    """Falsecolor luminance map with a legend (179 (w·RGB), as Radiance's falsecolor).
+
+    The legend is in cd/m2 only when the map says it is absolute (derender merge --spot,
+    --absolute exif or a --profile with a factor: the EXR's whiteLuminance, the .hdr's
+    DERENDER_PHOTOMETRY line) or --absolute is given; any other map is labelled relative."""
     from derender.io.files import OutputTransaction
     from derender.photometry.falsecolor import falsecolor_figure
 
     if log < 0:
         raise InputError(f"--log takes a number of decades >= 0, got {log}")
-    rad, _, primaries = read_radiance_map(radiance_map)
+    rad, header, primaries = read_radiance_map(radiance_map)
+    in_cd = absolute_units(header, absolute, relative, radiance_map)
     with OutputTransaction([radiance_map]) as tx:
         tmp = tx.add(output, "--output", (".png", ".pdf", ".svg"))
         scale = falsecolor_figure(rad, tmp, primaries=primaries, top=top, decades=log if log > 0 else None,
-                                  absolute=not relative, title=radiance_map.name, inputs=[radiance_map])
+                                  absolute=in_cd, title=radiance_map.name, inputs=[radiance_map])
     typer.echo(f"falsecolor {'log' if scale['log'] else 'linear'} scale {scale['bottom']:.4g}..{scale['top']:.4g} "
                f"{scale['units']} -> {output}")
 
@@ -128,9 +137,11 @@ def report(
     ghost_mask: Optional[Path] = typer.Option(None, "--ghost-mask", help="PNG, nonzero where frames were rejected."),
     view: Optional[str] = typer.Option(None, "--view", help="Radiance view for the illuminance in the summary "
                                        "(default: the .hdr's VIEW= line)."),
-    absolute: bool = typer.Option(False, "--absolute", help="The map is in absolute units (after --spot): legends "
-                                  "and readout in cd/m2."),
-    max_pixels: int = typer.Option(2_000_000, "--max-pixels", help="Largest page image (the map is reduced by an "
+    absolute: bool = typer.Option(False, "--absolute", help="Legends and readout in cd/m2 whatever the map's header "
+                                  "says (default: cd/m2 only for a map that says it is absolute, e.g. after --spot)."),
+    relative: bool = typer.Option(False, "--relative", help="Legends and readout in relative units whatever the "
+                                  "map's header says."),
+    max_pixels: int = typer.Option(1_000_000, "--max-pixels", help="Largest page image (the map is reduced by an "
                                    "integer factor)."),
 ) -> None:
     """A self-contained HTML report of a radiance map, to look at it in any browser, offline.
@@ -144,12 +155,16 @@ def report(
     rad, extras, header, primaries = _report_inputs(radiance_map, variance, mask, ghost_mask)
     v = _report_view(view, header)
     inputs = [p for p in (radiance_map, variance, mask, ghost_mask) if p is not None]
+    in_cd = absolute_units(header, absolute, relative, radiance_map)
     summary = {"map": str(radiance_map), "size": f"{rad.shape[1]}x{rad.shape[0]}"}
     if "SOFTWARE" in header:
         summary["software"] = header["SOFTWARE"]
+    record = map_summary(header)       # the merge's own record, as 'derender merge' printed it
+    if record is not None:
+        summary.update(record.rows())
     with OutputTransaction(inputs) as tx:
         tmp = tx.add(output, "--output", (".html", ".htm"))
-        info = write_report(tmp, rad, **extras, absolute=absolute, primaries=primaries,
+        info = write_report(tmp, rad, **extras, absolute=in_cd, primaries=primaries,
                             summary=summary, view=v, title=f"derender report: {radiance_map.name}",
                             max_pixels=max_pixels, inputs=inputs)
     typer.echo(f"report {info['width']}x{info['height']} (reduced {info['factor']}x), {info['bytes'] / 1e6:.2f} MB "

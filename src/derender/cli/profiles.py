@@ -204,9 +204,13 @@ def apply_photometry(ph: Photometry, result, images: list, method: str) -> str |
 
 
 def hdr_header_lines(info: dict) -> list[str]:
-    """The .hdr header line recording the photometric calibration (``DERENDER_PHOTOMETRY=``), if any."""
+    """The .hdr header lines recording the photometric calibration (``DERENDER_PHOTOMETRY=``), if
+    any, and the merge's summary record (``DERENDER_SUMMARY=``, :mod:`derender.hdr.summary`)."""
     text = (info.get("exr_attributes") or {}).get("derender:photometry")
-    return [] if text is None else [f"DERENDER_PHOTOMETRY= {text}"]
+    lines = [] if text is None else [f"DERENDER_PHOTOMETRY= {text}"]
+    if info.get("summary") is not None:
+        lines.append(f"DERENDER_SUMMARY= {info['summary'].to_json()}")
+    return lines
 
 
 def _exif_factor(result, images: list):

@@ -27,13 +27,15 @@ from typing import Any, Callable
 import numpy as np
 
 from derender.core.errors import InputError
+from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.reference import merge_linear
-from derender.engine.run import run_stack
+from derender.engine.run import ENGINES, run_stack
 from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
+from derender.engine.weights import WEIGHTS
 from derender.hdr.registry import record_values
 from derender.response.curves import (
     DEFAULT_SAMPLES,
@@ -67,6 +69,10 @@ __all__ = ["MERGE_LAMBDA", "DebevecOptions", "RobertsonOptions", "DebevecMethod"
            "debevec_engine", "robertson_engine"]
 
 
+#: The ways a pixel's channels share their weights (the table engine's modes).
+CHANNEL_WEIGHTS = ("mean", "min", "independent", "brightest", "min_else_brightest")
+
+
 @dataclass(frozen=True, kw_only=True)
 class DebevecOptions:
     """The options of :func:`merge_debevec` (each described there), as its engine method and
@@ -90,6 +96,10 @@ class DebevecOptions:
             raise InputError(f"unknown sampling method {self.sampling!r}; use 'grid' or 'histogram'")
         if self.n_samples is not None and int(self.n_samples) < 1:
             raise InputError(f"n_samples must be positive, got {self.n_samples}")
+        _check_common(self)
+        check_choice("domain", self.domain, ("log", "linear"))
+        check_choice("channel_weights", self.channel_weights, CHANNEL_WEIGHTS)
+        check_at_least("lam", self.lam, 0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -105,6 +115,19 @@ class RobertsonOptions:
     engine: str = "auto"
     tie: float | None = None
     variance: bool = False
+
+    def __post_init__(self) -> None:
+        _check_common(self)
+        check_at_least("n_iter", self.n_iter, 1)
+        check_at_least("max_pixels", self.max_pixels, 1)
+
+
+def _check_common(opts) -> None:
+    """The checks both classic records share (made before any file is read)."""
+    check_choice("weight", opts.weight, WEIGHTS, allow_callable=True)
+    check_choice("engine", opts.engine, ENGINES)
+    check_at_least("block_rows", opts.block_rows, 1)
+    check_at_least("tie", opts.tie, 0.0)
 
 
 class DebevecMethod(MethodDefaults):

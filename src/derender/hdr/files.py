@@ -25,6 +25,7 @@ from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import NotStreamable
 from derender.engine.run import FileFrames, run, write_outputs
 from derender.hdr.registry import merge, method_options, method_spec
+from derender.hdr.summary import attach_summary
 from derender.io.exif import file_times
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
@@ -155,5 +156,6 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
         write_outputs(res, output, variance_output, half=half, compression=compression, inputs=all_inputs,
                       threads=threads, name=method)
     res.info.setdefault("outputs_held", True)
+    attach_summary(res, paths, t, method, (output, variance_output))    # one record for the CLI, files, report
     res.info["total_seconds"] = time.perf_counter() - t_start
     return res

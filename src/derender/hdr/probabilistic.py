@@ -146,6 +146,7 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.memory import thread_count
+from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import NotStreamable
@@ -292,6 +293,18 @@ class ProbabilisticOptions:
     k_model: float = K_MODEL
     k_pipe: float = K_PIPE
     k_spatial: float = K_SPATIAL
+
+    def __post_init__(self) -> None:
+        """Every value checked when the record is made, before any file is read."""
+        check_choice("colour_space", self.colour_space, ("linear_srgb", "camera_rgb"))
+        check_choice("domain", self.domain, (None, "log", "linear"))
+        check_choice("variance_model", self.variance_model, ("shared", "independent"))
+        if not 1 <= int(self.clip_code) <= 255:
+            raise InputError(f"clip_code must be a code 1..255, got {self.clip_code}")
+        if not float(self.target_time) > 0:
+            raise InputError(f"target_time must be positive seconds, got {self.target_time}")
+        for name in ("floor", "code_noise", "k_model", "k_pipe", "k_spatial"):
+            check_at_least(name, getattr(self, name), 0.0, optional=False)
 
 
 def probabilistic_engine(options: ProbabilisticOptions) -> "ProbabilisticMethod":

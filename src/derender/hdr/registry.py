@@ -36,6 +36,7 @@ __all__ = [
     "merge_seeded",
     "settable_options",
     "parse_options",
+    "check_method_options",
 ]
 
 #: Keywords of merge functions that are not user options: set by their own CLI flags
@@ -213,7 +214,10 @@ def method_spec(method: str) -> MethodSpec:
     """The :class:`MethodSpec` registered as ``method``; an :class:`InputError` lists the known ones."""
     spec = METHODS.get(method)
     if spec is None:
-        raise InputError(f"unknown merge method {method!r}; known: {', '.join(sorted(METHODS))}")
+        from derender.core.options import did_you_mean
+
+        raise InputError(f"unknown merge method {method!r}{did_you_mean(method, METHODS)}; known: "
+                         f"{', '.join(sorted(METHODS))}")
     return spec
 
 
@@ -237,6 +241,16 @@ def method_options(method: str, options: dict) -> Any:
     if missing:
         raise InputError(_missing_message(method, missing))
     return cls(**options)
+
+
+def check_method_options(method: str, options: dict) -> None:
+    """Check ``options`` (names and values) of ``method`` as its options record does, before any
+    work: the record is made with every required option it lacks (a de-rendering model, given
+    later) as None, and dropped."""
+    cls = method_spec(method).options_class()
+    required = {f.name: None for f in fields(cls)
+                if f.default is MISSING and f.default_factory is MISSING and f.name not in options}
+    method_options(method, {**required, **options})
 
 
 def _missing_message(method: str, missing: list[str]) -> str:
@@ -450,8 +464,11 @@ def parse_options(method: str, items: list[str] | tuple[str, ...]) -> dict[str, 
         if not sep or not name:
             raise InputError(f"--option takes NAME=VALUE, got {item!r}")
         if name not in valid:
+            from derender.core.options import did_you_mean
+
             listing = ", ".join(f"{k} ({_type_name(t)}, default {d!r})" for k, (t, d) in valid.items()) or "none"
-            raise InputError(f"method {method!r} has no option {name!r}; its options: {listing}")
+            raise InputError(f"method {method!r} has no option {name!r}{did_you_mean(name, valid)}; its options: "
+                             f"{listing}")
         if name in out:
             raise InputError(f"option {name} given twice")
         out[name] = _parse_value(value, valid[name][0], name, method)

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from derender.core.errors import InputError
+from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess
@@ -181,6 +182,11 @@ class StabilizedProbabilisticOptions:
     align: str = "mtb"
     seed: int = 0
     variance: bool = False
+
+    def __post_init__(self) -> None:
+        """Every value checked when the record is made, before any file is read."""
+        check_at_least("reference", self.reference, 0)
+        check_choice("align", self.align, ("mtb", "translation", "none", "homography"))
 
 
 def stabilized_probabilistic_engine(options: StabilizedProbabilisticOptions) -> StabilizedProbabilisticMethod:

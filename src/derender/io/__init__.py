@@ -8,7 +8,8 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "exif": ["read_exif", "read_exposure_time", "parse_times", "read_times_file", "file_times"],
     "exr": ["write_exr", "read_exr", "EXR_COMPRESSION", "write_exr_fast", "write_exr_lines", "SRGB_CHROMATICITIES",
-            "colour_attributes", "exr_attributes"],
+            "colour_attributes", "exr_attributes", "read_exr_attributes", "fill_exr_attribute", "reserved_text",
+            "SUMMARY_BYTES"],
     "files": ["RASTER_SUFFIXES", "RAW_SUFFIXES", "atomic_output", "check_output", "check_not_input",
               "resolve_path", "OutputTransaction", "TEMP_PREFIX",
               "check_input_file", "read_bytes"],

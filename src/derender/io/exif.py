@@ -232,9 +232,58 @@ def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None
                 missing.append(p.name)
             t.append(v if v is not None else 0.0)
         if missing:
+            from derender.io.headers import probe_image
+
+            for p in paths:
+                if p.name in missing:
+                    _check_readable(probe_image(p, max_megapixels=None))   # the real cause first
             raise InputError(f"no EXIF ExposureTime in {', '.join(missing)}; give --times or --times-file")
         t = [ti * f for ti, f in zip(t, exposure_factors(paths, exifs))]
+    source = "--times" if times is not None else f"times file {times_file}" if times_file is not None else "EXIF"
+    _check_distinct(paths, t, source)
     return validate_times(t, len(paths))
+
+
+def _check_readable(info) -> None:
+    """A file without EXIF times whose header reads but whose data does not (a damaged HEIC,
+    AVIF or TIFF): "not a readable image" is its real cause, not the missing times. Only on
+    the way to an error: the merge decodes every frame anyway."""
+    if info.format in ("jpeg", "png"):
+        return                      # their probe checked the data's end; the decoder names damage inside
+    from derender.io.headers import pillow_image
+
+    try:
+        with pillow_image().open(info.path) as im:
+            im.load()
+    except Exception as exc:  # noqa: BLE001 - Pillow, libheif and libavif raise assorted types
+        raise InputError(f"not a readable image ({str(exc).strip()[:120] or 'corrupt data'}): {info.path}") from None
+
+
+def _check_distinct(paths: Sequence[Path], t: Sequence[float], source: str) -> None:
+    """Refuse two frames with one exposure time, naming the frames (and, for EXIF times, a
+    times file beside them: the sculpture-garden bracket's EXIF gives all five frames 1/20 s,
+    its ``times.txt`` the real times)."""
+    groups: dict[float, list[str]] = {}
+    for p, v in zip(paths, t):
+        if np.isfinite(v) and v > 0:
+            groups.setdefault(float(v), []).append(Path(p).name)
+    dups = {v: names for v, names in groups.items() if len(names) > 1}
+    if not dups:
+        return
+    parts = "; ".join(f"{', '.join(names)} all have {_seconds(v)}" for v, names in sorted(dups.items()))
+    if source == "EXIF":
+        folders = sorted({Path(p).parent for p in paths})
+        files = [f / "times.txt" for f in folders if (f / "times.txt").is_file()]
+        hint = ("the EXIF times are wrong (a camera or converter that rewrote them); give the real times with "
+                + (f"--times-file {files[0]}" if files else "--times-file FILE ('NAME SECONDS' lines)")
+                + " or --times")
+    else:
+        hint = "every exposure needs its own time"
+    raise InputError(f"duplicate exposure times from {source}: {parts}; {hint}")
+
+
+def _seconds(v: float) -> str:
+    return f"1/{1 / v:.4g} s" if v < 1 else f"{v:g} s"
 
 
 def exposure_factors(paths: Sequence[str | os.PathLike], exifs: Sequence[dict]) -> list[float]:

@@ -18,7 +18,7 @@ import zlib
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -35,6 +35,10 @@ __all__ = [
     "SRGB_CHROMATICITIES",
     "colour_attributes",
     "exr_attributes",
+    "read_exr_attributes",
+    "fill_exr_attribute",
+    "reserved_text",
+    "SUMMARY_BYTES",
 ]
 
 #: OpenEXR ``chromaticities`` of linear sRGB / Rec. 709 (x, y of red, green, blue, white D65).
@@ -57,9 +61,19 @@ def colour_attributes(colour_space: str | None = "linear_srgb", white_luminance:
 def exr_attributes(info: dict) -> dict:
     """A merge result's attributes from its ``info``: :func:`colour_attributes` (``chromaticities``
     unless ``info["colour_space"]`` is camera RGB, ``whiteLuminance`` when ``info`` holds a
-    ``white_luminance``, set by an absolute calibration) and any ``info["exr_attributes"]``."""
+    ``white_luminance``, set by an absolute calibration), the merge's summary record
+    (``derender:summary``, :class:`derender.hdr.summary.MergeSummary` as JSON; spaces reserved
+    for it while it is not made yet) and any ``info["exr_attributes"]``."""
+    summary = info.get("summary")
     return {**colour_attributes(info.get("colour_space", "linear_srgb"), info.get("white_luminance")),
+            "derender:summary": summary.to_json() if summary is not None else reserved_text(SUMMARY_BYTES),
             **dict(info.get("exr_attributes") or {})}
+
+
+#: Bytes reserved for a merge's summary record (``derender:summary``: JSON, about 110 bytes a
+#: frame, so about 140 frames) in an EXR written before the record exists; filled by
+#: :func:`fill_exr_attribute` (a record that does not fit is left out of that file).
+SUMMARY_BYTES = 16384
 
 
 class Chromaticities(tuple):
@@ -112,6 +126,72 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
     if "Y" in ch:
         return ch["Y"].astype(np.float32)
     raise InputError(f"{path}: expected R, G, B channels, found {sorted(ch)}")
+
+
+def read_exr_attributes(path: str | os.PathLike) -> dict[str, Any]:
+    """The header attributes of an OpenEXR file's first part, without its pixels: ``string``
+    attributes as text, ``float`` ones as floats, ``chromaticities`` as 8 floats, others as
+    their raw bytes (``whiteLuminance``, ``derender:photometry``, ``derender:summary``, ...)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    out: dict[str, Any] = {}
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 20)
+    if head[:4] != struct.pack("<i", 20000630):
+        raise InputError(f"not an OpenEXR file: {path}")
+    pos = 8
+    try:
+        while pos < len(head) and head[pos] != 0:
+            end = head.index(b"\0", pos)
+            name = head[pos:end].decode("utf-8", "replace")
+            tend = head.index(b"\0", end + 1)
+            typ = head[end + 1:tend].decode("ascii", "replace")
+            (size,) = struct.unpack_from("<i", head, tend + 1)
+            data = head[tend + 5:tend + 5 + size]
+            if len(data) != size:
+                break
+            if typ == "string":
+                out[name] = data.decode("utf-8", "replace")
+            elif typ == "float":
+                out[name] = struct.unpack("<f", data)[0]
+            elif typ == "chromaticities":
+                out[name] = struct.unpack("<8f", data)
+            else:
+                out[name] = data
+            pos = tend + 5 + size
+    except (ValueError, struct.error):
+        raise InputError(f"not a readable OpenEXR header: {path}") from None
+    return out
+
+
+def fill_exr_attribute(path: str | os.PathLike, name: str, text: str) -> bool:
+    """Write ``text`` into the reserved ``string`` attribute ``name`` of an EXR written with
+    :func:`reserved_text` as its value, in place (padded with spaces to the reserved length;
+    nothing else in the file moves). False when the file has no such attribute or ``text``
+    does not fit."""
+    raw = text.encode("utf-8")
+    key = name.encode() + b"\0string\0"
+    with open(path, "r+b") as fh:
+        head = fh.read(1 << 20)
+        at = head.find(key)
+        if at < 0:
+            return False
+        (size,) = struct.unpack_from("<i", head, at + len(key))
+        if len(raw) > size:
+            return False
+        fh.seek(at + len(key) + 4)
+        fh.write(raw + b" " * (size - len(raw)))
+    return True
+
+
+class reserved_text(str):
+    """An attribute value of :func:`_exr_header` that reserves ``size`` bytes of spaces, to be
+    filled after the pixels are written (:func:`fill_exr_attribute`): a merge's summary, known
+    only once the map is done, in a file written while merging."""
+
+    def __new__(cls, size: int):
+        return super().__new__(cls, " " * int(size))
 
 
 # --------------------------------------------------------------------------- EXR

@@ -72,6 +72,8 @@ def expand_image_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
     out: list[Path] = []
     for p in paths:
         p = Path(p)
+        if not p.exists() and not p.is_symlink():
+            raise InputError(f"no such file or folder: {p}")
         if p.is_dir():
             found = folder_images(p)
             if not found:

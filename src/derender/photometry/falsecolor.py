@@ -39,7 +39,7 @@ def scale_top(lum: np.ndarray) -> float:
 
 
 def falsecolor_figure(radiance: np.ndarray, path: str | os.PathLike, *, primaries=None, top: float | None = None,
-                      decades: float | None = 4.0, absolute: bool = True, cmap: str = "viridis",
+                      decades: float | None = 4.0, absolute: bool = False, cmap: str = "viridis",
                       title: str | None = None, inputs=()) -> dict:
     """Write a falsecolor image of the map's luminance with a colour bar (PNG/PDF/SVG by
     suffix), atomically. ``decades=None``: linear scale from 0 to ``top``. Returns the scale

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from derender.core.errors import InputError
+from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.matrix import matrix_output_bytes, merge_matrix_frames, warm_up_kernels
@@ -22,6 +23,7 @@ from derender.engine.plans import FrameAccess, MatrixPlan, MethodDefaults
 from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
+from derender.engine.weights import WEIGHTS
 from derender.hdr.registry import record_values
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
 from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference, joint_colour_matrices
@@ -533,6 +535,20 @@ class StabilizedOptions:
     exposure_rounds: int | None = None
     exponent_rounds: int | None = None
     variance: bool = False
+
+    def __post_init__(self) -> None:
+        """Every value checked when the record is made, before any file is read."""
+        check_at_least("reference", self.reference, 0)
+        check_choice("align", self.align, ("mtb", "translation", "none", "homography"))
+        check_choice("response", self.response, ("auto", "power", "curve"))
+        check_choice("path", self.path, ("auto", "direct", "chain"))
+        check_choice("weight", self.weight, WEIGHTS, allow_callable=True)
+        for name in ("block", "max_blocks", "ransac_iter"):
+            check_at_least(name, getattr(self, name), 1)
+        for name in ("exposure_rounds", "exponent_rounds"):
+            check_at_least(name, getattr(self, name), 0)
+        if self.gammas is not None and not all(float(g) > 0 for g in self.gammas):
+            raise InputError(f"gammas must be positive numbers, got {list(self.gammas)}")
 
 
 def stabilized_engine(options: StabilizedOptions) -> StabilizedMethod:
