@@ -2,8 +2,9 @@
 
 :func:`read_raw` returns a :class:`~derender.core.types.RawFrame`: the Bayer mosaic
 (uint16), CFA pattern, black and white level, as-shot white balance, the DNG
-``ColorMatrix`` (XYZ -> camera) and the exposure time. RAW *development* (merging, white
-balance, demosaicing, colour) is :mod:`derender.raw`.
+``ColorMatrix`` (XYZ -> camera), the exposure time and, when the DNG has one, its
+``NoiseProfile`` (``extra["noise_profile"]``: ``(S, O)`` of ``Var[x] = S x + O``). RAW
+*development* (merging, white balance, demosaicing, colour) is :mod:`derender.raw`.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ def _dng_tags(path: Path) -> dict:
             for page in tif.pages:
                 for tag in page.tags.values():
                     if tag.name in ("ColorMatrix1", "ColorMatrix2", "AsShotNeutral", "CalibrationIlluminant1",
-                                    "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel"):
+                                    "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel",
+                                    "NoiseProfile"):
                         tags.setdefault(tag.name, tag.value)
                 exif = page.tags.get("ExifTag")
                 if exif is not None and isinstance(exif.value, dict) and "ExposureTime" in exif.value:
@@ -114,6 +116,11 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
         exposure = shutter
     if exposure is None:
         exposure = read_exposure_time(path)
+    extra = {}
+    if "NoiseProfile" in tags:
+        npf = np.asarray(tags["NoiseProfile"], dtype=np.float64).reshape(-1)
+        if npf.size >= 2 and np.all(np.isfinite(npf[:2])) and npf[0] > 0 and npf[1] > 0:
+            extra["noise_profile"] = (float(npf[0]), float(npf[1]))    # Var[x] = S x + O, x in white-level units
     make = str(tags.get("Make", "")).strip("\x00 ")
     model = str(tags.get("Model", tags.get("UniqueCameraModel", ""))).strip("\x00 ")
     return RawFrame(
@@ -127,6 +134,7 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
         path=str(path),
         make=make,
         model=model,
+        extra=extra,
     )
 
 

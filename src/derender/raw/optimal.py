@@ -224,7 +224,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
 
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
     estimates from the frames themselves (:func:`derender.raw.noise.estimate_noise`); give both
-    to use known values. White balance (``linear_srgb``, ``xyz``): ``wb`` multipliers (R, G, B),
+    to use known values. A single frame takes its DNG ``NoiseProfile`` when it has one, else
+    the green-pair estimate, an upper bound where the scene has texture. White balance (``linear_srgb``, ``xyz``): ``wb`` multipliers (R, G, B),
     default the as-shot ones of the middle frame of the time-sorted stack, or ``wb_patch``
     ``(x, y, w, h)``, a neutral region of the merged mosaic; it is applied on the mosaic before
     demosaicing, as :func:`derender.raw.groundtruth.raw_ground_truth` does. ``censored=False``
@@ -236,7 +237,11 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     d, sat, ceil = mosaic_observations(frames)
     if (gain is None) != (read_noise is None):
         raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
-    if gain is None:
+    profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
+    if gain is None and len(frames) == 1 and profile is not None:
+        span0 = float(np.median(ceil[0]))
+        noise = NoiseModel(profile[0] * span0, profile[1] * span0 ** 2, "NoiseProfile")
+    elif gain is None:
         noise = estimate_noise(d, sat, ceil, times, pattern)
     else:
         noise = NoiseModel(float(gain), float(read_noise) ** 2, "given")
