@@ -140,7 +140,9 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
 
 def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None) -> list[RawFrame]:
     """Read RAW frames sorted by exposure time (times from the files unless given); the same
-    file given twice (also through a symlink) is refused, as for rendered brackets."""
+    file given twice (also through a symlink), frames of different cameras (EXIF make and
+    model) or sizes, and several frames without exposure times (the error names the files)
+    are refused."""
     from derender.io.files import check_input_file, resolve_path
 
     seen: set = set()
@@ -157,6 +159,12 @@ def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | 
         t = validate_times(times, len(frames))
         for f, v in zip(frames, t):
             f.exposure_time = float(v)
+    named = [f for f in frames if f.make or f.model]
+    other = next((f for f in named if (f.make, f.model) != (named[0].make, named[0].model)), None)
+    if other is not None:
+        first = named[0]
+        raise InputError(f"the bracket mixes cameras: {Path(first.path).name} is {first.make} {first.model}, "
+                         f"{Path(other.path).name} is {other.make} {other.model}")
     shapes = {f.mosaic.shape for f in frames}
     if len(shapes) > 1:
         raise InputError(f"RAW frames differ in size: {sorted(shapes)}")
