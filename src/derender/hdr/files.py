@@ -53,7 +53,7 @@ def check_raw_bracket(paths: Sequence[Path], method: str) -> bool:
 def _merge_raw_paths(spec, paths, times, times_file, times_file_inverse, output, variance_output, half, inputs,
                      threads, compression, t_start, options) -> HDRResult:
     """:func:`merge_files` for a bracket of RAW files: the method's own file path (no engine yet)."""
-    from derender.hdr.registry import MOTION_OPTIONS, _resolve
+    from derender.hdr.registry import MOTION_OPTIONS
     from derender.io.exif import read_times_file
 
     asked = [k for k in MOTION_OPTIONS if options.get(k) not in (None, False)]
@@ -78,7 +78,7 @@ def _merge_raw_paths(spec, paths, times, times_file, times_file_inverse, output,
         if missing:
             raise InputError(f"times file {times_file} has no entry for: {', '.join(missing)}")
         times = [table[Path(p).name] for p in paths]
-    res = _resolve(spec.files)(paths, times, output=output, variance_output=variance_output, half=half,
+    res = spec.files_function()(paths, times, output=output, variance_output=variance_output, half=half,
                                compression=compression, inputs=all_inputs, threads=threads, **options)
     res.info.setdefault("outputs_held", True)
     res.info["total_seconds"] = time.perf_counter() - t_start

@@ -104,6 +104,10 @@ class MethodSpec:
         """The merge function (its module imported on first use)."""
         return _resolve(self.function)
 
+    def files_function(self) -> Callable[..., HDRResult] | None:
+        """The merge of files for a RAW method (``files``), or None."""
+        return _resolve(self.files)
+
     def engine_factory(self) -> Callable[[Any], Any] | None:
         """The engine factory (``factory(options_record) -> EngineMethod``), or None."""
         return _resolve(self.engine)
