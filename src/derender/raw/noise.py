@@ -14,8 +14,8 @@ texture and
     Var[r] = g * X * (1/t_j + 1/t_k) + sigma^2 * (1/t_j^2 + 1/t_k^2)          (2)
 
 -- a linear model in ``(g, sigma^2)``. :func:`estimate_noise` fits it by weighted least
-squares on ``r^2`` over every photosite unsaturated in both frames of each adjacent pair
-(weights ``1 / Var[r]^2``, the variance of ``r^2`` for Gaussian ``r``; two rounds, samples
+squares on ``r^2`` over the photosites unsaturated in both frames of each adjacent pair
+(a regular subsample of at most :data:`_MAX_SAMPLES` per pair; weights ``1 / Var[r]^2``, the variance of ``r^2`` for Gaussian ``r``; two rounds, samples
 beyond 6 sigma -- motion, hot pixels -- left out), ``X`` from the pooled Poisson estimate
 ``sum d / sum t``. This is the self-calibration of Granados et al. 2010 ("Optimal HDR
 reconstruction with linear digital cameras", CVPR, Sec. 4) and Hanji, Zhong & Mantiuk 2020
@@ -76,6 +76,10 @@ class NoiseModel:
                 "source": self.source, "samples": int(self.samples)}
 
 
+#: At most about this many photosites per frame pair enter the fit (every k-th of the usable ones).
+_MAX_SAMPLES = 1 << 18
+
+
 #: Fraction of the saturation level above which samples do not enter the noise fit (the
 #: clipped tail would shrink their variance).
 _FIT_CEILING = 0.85
@@ -118,11 +122,13 @@ def estimate_noise_pairs(d: list[np.ndarray], saturated: list[np.ndarray], ceili
         k = j + 1
         ok = ~saturated[j] & ~saturated[k] & (d[j] < _FIT_CEILING * ceilings[j]) \
             & (d[k] < _FIT_CEILING * ceilings[k]) & (den > 0)
-        if not np.any(ok):
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
             continue
-        r = d[k][ok] / times[k] - d[j][ok] / times[j]
+        idx = idx[::max(1, idx.size // _MAX_SAMPLES)]         # a regular subsample: deterministic, ample
+        r = d[k].ravel()[idx] / times[k] - d[j].ravel()[idx] / times[j]
         r2s.append(r * r)
-        as_.append(np.maximum(x[ok], 0.0) * (1.0 / times[j] + 1.0 / times[k]))
+        as_.append(np.maximum(x.ravel()[idx], 0.0) * (1.0 / times[j] + 1.0 / times[k]))
         bs.append(np.full(r.shape, 1.0 / times[j] ** 2 + 1.0 / times[k] ** 2))
     n = sum(len(r) for r in r2s)
     if n < 64:

@@ -68,6 +68,10 @@ __all__ = [
 #: Output colour spaces of :func:`raw_merge`.
 OUTPUT_SPACES = ("linear_srgb", "camera_rgb", "xyz")
 
+#: Saturated samples further than this many sigma below their expected value carry no information.
+_NEAR = 8.0
+
+
 #: Newton steps of the censored likelihood (converged to < 1e-6 relative on simulated brackets).
 _ITERATIONS = 6
 
@@ -119,30 +123,46 @@ def merge_mosaic_optimal(d: list[np.ndarray], saturated: list[np.ndarray], ceili
     x = np.divide(num, den, out=np.zeros_like(num), where=~allsat)      # pooled Poisson start
     bound = np.max([c / t for c, t in zip(ceilings, times)], axis=0)
     x[allsat] = bound[allsat]
-    any_sat = np.zeros(x.shape, bool)
-    for sj in saturated:
-        any_sat |= sj
+    # two reweighted rounds on every photosite (exact for those without a censored sample) ...
     info = np.zeros_like(x)
-    for _ in range(max(int(iterations), 1)):
+    for _ in range(2):
         score = np.zeros_like(x)
         info = np.zeros_like(x)
-        for dj, sj, cj, tj in zip(d, saturated, ceilings, times):
-            v = g * np.maximum(x * tj, 0.0) + s2
-            u = ~sj
-            score += np.where(u, tj * (dj - x * tj) / v, 0.0)
-            info += np.where(u, tj * tj / v, 0.0)
-            if censored and np.any(sj & ~allsat):
-                sd = np.sqrt(v)
-                z = (cj - x * tj) / sd
-                lam = _inverse_mills(z)
-                c = sj & ~allsat
-                score += np.where(c, tj * lam / sd, 0.0)
-                info += np.where(c, tj * tj * lam * np.clip(lam - z, 0.0, None) / v, 0.0)
-        step = np.divide(score, info, out=np.zeros_like(score), where=info > 0)
-        step[allsat] = 0.0
-        x = x + step
-        if not np.any(any_sat) and _ > 0:
-            break          # no censored sample: the reweighted mean has converged after two rounds
+        for dj, sj, tj in zip(d, saturated, times):
+            w = np.where(sj, 0.0, tj / (g * np.maximum(x * tj, 0.0) + s2))
+            score += w * (dj - x * tj)
+            info += w * tj
+        x = np.where(allsat, x, x + np.divide(score, info, out=np.zeros_like(score), where=info > 0))
+    # ... then Newton steps on the censored likelihood where some but not every sample saturated
+    # (only where a saturated sample lies within 8 sigma of its level: elsewhere lambda(z) < 1e-14)
+    near = np.zeros(x.shape, bool)
+    if censored:
+        for sj, cj, tj in zip(saturated, ceilings, times):
+            near |= sj & (cj - x * tj > -_NEAR * np.sqrt(g * np.maximum(x * tj, 0.0) + s2))
+    cen = np.flatnonzero(near & ~allsat)
+    if cen.size:
+        xs = x.ravel()[cen]
+        ds = [dj.ravel()[cen] for dj in d]
+        ss = [sj.ravel()[cen] for sj in saturated]
+        cs = [cj.ravel()[cen] for cj in ceilings]
+        inf_s = np.zeros_like(xs)
+        for _ in range(max(int(iterations), 1)):
+            score = np.zeros_like(xs)
+            inf_s = np.zeros_like(xs)
+            for dj, sj, cj, tj in zip(ds, ss, cs, times):
+                v = g * np.maximum(xs * tj, 0.0) + s2
+                u = ~sj
+                score += np.where(u, tj * (dj - xs * tj) / v, 0.0)
+                inf_s += np.where(u, tj * tj / v, 0.0)
+                if np.any(sj):
+                    sd = np.sqrt(v)
+                    z = (cj - xs * tj) / sd
+                    lam = _inverse_mills(z)
+                    score += np.where(sj, tj * lam / sd, 0.0)
+                    inf_s += np.where(sj, tj * tj * lam * np.clip(lam - z, 0.0, None) / v, 0.0)
+            xs = xs + np.divide(score, inf_s, out=np.zeros_like(score), where=inf_s > 0)
+        x.ravel()[cen] = xs
+        info.ravel()[cen] = inf_s
     var = np.divide(1.0, info, out=np.zeros_like(info), where=info > 0)
     var[allsat] = bound[allsat] ** 2
     mask = np.zeros(x.shape, np.uint8)
