@@ -177,3 +177,24 @@ def test_single_frame_is_a_linear_map_with_sigma(tmp_path):
     up = raw_merge([frame], clip_negative=False)
     assert up.info["noise"]["source"] == "green-pairs"
     assert up.info["noise"]["gain_dn_per_electron"] > g
+
+
+def test_real_dng_single_frame_keeps_its_colorchecker(colorchecker_dng):
+    """The real DNG (no exposure time, no NoiseProfile): one frame develops to the same linear map as
+    paper 1's pipeline (so its ColorChecker CIEDE2000 is kept) with a variance from its green pairs."""
+    pytest.importorskip("rawpy")
+    colour = pytest.importorskip("colour")
+    from derender.io.raw import read_raw
+
+    from tests.raw.test_groundtruth import _chart_delta_e, _patch_means
+
+    frame = read_raw(colorchecker_dng)
+    assert frame.exposure_time is None
+    ours = raw_merge([frame], variance=True)
+    p1 = raw_ground_truth(frame)
+    np.testing.assert_allclose(ours.radiance, p1.radiance, rtol=1e-4, atol=1e-6)
+    assert ours.info["noise"]["source"] == "green-pairs"
+    assert np.all(np.isfinite(ours.variance)) and ours.variance.min() > 0
+    de = _chart_delta_e(_patch_means(ours.radiance), colour).mean()
+    assert de == pytest.approx(_chart_delta_e(_patch_means(p1.radiance), colour).mean(), abs=1e-3)
+    assert de < 6.0
