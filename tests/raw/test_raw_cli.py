@@ -101,3 +101,12 @@ def test_frames_without_exposure_time(bracket_dir, tmp_path, capsys):
     code, out, err = run_cli(["merge", stripped[0], "-o", tmp_path / "b.exr"], capsys)
     assert code == 0, err
     assert "relative units" in out
+
+
+def test_a_bracket_varying_aperture_is_refused(tmp_path, capsys):
+    from derender.camera.luminance import simulate_luminance
+
+    write_bracket(simulate_luminance(mode="aperture-iso", size=(64, 48), exposures=3, seed=0), tmp_path / "b")
+    code, _, err = run_cli(["merge", tmp_path / "b" / "raw", "-o", tmp_path / "a.exr"], capsys)
+    assert code == 2 and "vary the f-number" in err, err
+    assert not (tmp_path / "a.exr").exists()

@@ -329,7 +329,8 @@ def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_qua
         dng = write_dng(outdir / "raw" / f"{j:02d}.dng", bracket.mosaics[j], cfa_pattern=CFA_PATTERN,
                         black_level=cam.black_level, white_level=cam.white_level,
                         xyz_to_camera=bracket.xyz_to_camera, as_shot_neutral=neutral, exposure_time=t_exif,
-                        make=cam.make, model=cam.model, bits=cam.bits, noise_profile=noise_profile)
+                        make=cam.make, model=cam.model, bits=cam.bits, noise_profile=noise_profile,
+                        fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None)
         jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j],
                          t_exif, cam.make, cam.model, quality=jpeg_quality,
                          fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None,
