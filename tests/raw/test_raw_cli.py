@@ -110,3 +110,19 @@ def test_a_bracket_varying_aperture_is_refused(tmp_path, capsys):
     code, _, err = run_cli(["merge", tmp_path / "b" / "raw", "-o", tmp_path / "a.exr"], capsys)
     assert code == 2 and "vary the f-number" in err, err
     assert not (tmp_path / "a.exr").exists()
+
+
+def test_vignetting_fitted_on_a_raw_flat_field_and_divided_out(tmp_path, capsys):
+    from derender.camera.luminance import simulate_luminance
+
+    write_bracket(simulate_luminance(mode="flat-field", size=(96, 64), exposures=3, seed=0, falloff=0.55),
+                  tmp_path / "ff")
+    code, out, err = run_cli(["vignetting", tmp_path / "ff" / "raw", "-o", tmp_path / "v.json"], capsys)
+    assert code == 0, err
+    corner = float(out.split("corner ")[1].split(",")[0])
+    assert abs(corner - 0.55) < 0.01                       # measured 0.547
+    code, out, err = run_cli(["merge", tmp_path / "ff" / "raw", "-o", tmp_path / "m.exr", "--vignetting",
+                              tmp_path / "v.json"], capsys)
+    assert code == 0, err
+    lum = read_exr(tmp_path / "m.exr").mean(-1)
+    assert abs(lum[2:8, 2:8].mean() / lum[28:36, 44:52].mean() - 1) < 0.01     # measured 1.0005
