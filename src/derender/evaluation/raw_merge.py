@@ -54,7 +54,9 @@ def true_noise(camera: Any) -> tuple[float, float]:
 
 def demosaiced_truth(bracket: Any, result_info: dict) -> np.ndarray:
     """The merge's noise-free output: its white balance, demosaic and matrix (``result_info``) on the
-    true mosaic (``bracket.camera_rgb_per_s`` sampled on the CFA)."""
+    true mosaic (``bracket.camera_rgb_per_s`` sampled on the CFA; a lens falloff the simulator put
+    on the sensor, :func:`derender.camera.luminance.radial_falloff`, is not in it: multiply it in
+    first for such a bracket)."""
     from derender.camera.sensor import mosaic_signal
     from derender.raw.mosaic import cfa_channel_index, demosaic_bayer
 
