@@ -98,6 +98,11 @@ def test_frames_without_exposure_time(bracket_dir, tmp_path, capsys):
     assert code == 2 and "no exposure time in 00.dng, 01.dng" in err, err
     code, out, err = run_cli(["merge", *stripped, "-o", tmp_path / "a.exr", "--times", "0.001,0.01"], capsys)
     assert code == 0, err
+    (tmp_path / "times.txt").write_text("00.dng 1000\n01.dng 100\n")
+    code, out, err = run_cli(["merge", *stripped, "-o", tmp_path / "c.exr", "--times-file", tmp_path / "times.txt",
+                              "--times-inverse"], capsys)
+    assert code == 0, err
+    np.testing.assert_array_equal(read_exr(tmp_path / "c.exr"), read_exr(tmp_path / "a.exr"))
     code, out, err = run_cli(["merge", stripped[0], "-o", tmp_path / "b.exr"], capsys)
     assert code == 0, err
     assert "relative units" in out
