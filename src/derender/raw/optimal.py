@@ -87,12 +87,17 @@ def mosaic_observations(frames: Sequence[RawFrame]) -> tuple[list[np.ndarray], l
     """Per frame: ``d`` (DN above black, float64), the saturated samples (``y >= white``) and
     the censoring level ``c = white - black`` (DN above black), black and white read per frame."""
     ds, sats, cs = [], [], []
+    shared: dict = {}                  # frames with the same levels share one ceiling array
     for f in frames:
         y = np.asarray(f.mosaic)
-        black = _black_mosaic(f, y.shape)
+        key = (tuple(np.asarray(f.black_level, dtype=np.float64).reshape(-1).tolist()), float(f.white_level))
+        if key not in shared:
+            black = _black_mosaic(f, y.shape)
+            shared[key] = (black, float(f.white_level) - black)
+        black, ceiling = shared[key]
         ds.append(y.astype(np.float64) - black)
         sats.append(y >= float(f.white_level))
-        cs.append(float(f.white_level) - black)
+        cs.append(ceiling)
     return ds, sats, cs
 
 
