@@ -31,6 +31,7 @@ __getattr__, __dir__, _names = attach(__name__, {
     "io.preview": ["write_png", "write_preview"],
     "camera.bracket": ["simulate_bracket"],
     "raw.groundtruth": ["raw_ground_truth", "raw_to_camera_rgb"],
+    "raw.optimal": ["raw_merge"],
     "response.debevec1997": ["calibrate_debevec"],
     "response.robertson2003": ["calibrate_robertson"],
     "engine.reference": ["merge_linear"],

@@ -27,6 +27,9 @@ def test_options_record_is_the_merge_functions_keywords(name):
         want = dataclasses.MISSING if p.default is inspect.Parameter.empty else p.default
         assert f.default == want, (name, f.name)
     factory = spec.engine_factory()
+    if spec.inputs == "raw":       # the RAW method runs outside the engine for now (its plans read 8-bit codes)
+        assert factory is None and spec.files is not None
+        return
     assert factory is not None and callable(factory)
 
 

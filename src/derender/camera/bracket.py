@@ -3,7 +3,8 @@
 :func:`simulate_bracket` chooses the exposure times (:func:`bracket_times`), exposes the
 scene's camera RGB onto Bayer mosaics with noise (:mod:`derender.camera.sensor`), renders
 each frame in camera (:mod:`derender.camera.rendering`, per-exposure pipeline settings) and
-keeps the exact truth; :func:`write_bracket` writes ``raw/NN.dng``, ``jpeg/NN.jpg`` (EXIF
+keeps the exact truth; :func:`write_bracket` writes ``raw/NN.dng`` (with the sensor's true
+NoiseProfile), ``jpeg/NN.jpg`` (EXIF
 ``ExposureTime``), ``truth.exr`` and ``scene.json``. See :mod:`derender.camera` for the
 pipelines and rendering styles.
 """
@@ -321,12 +322,15 @@ def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_qua
     neutral = 1.0 / np.asarray(bracket.wb_true)
     files = {"raw": [], "jpeg": []}
     lum = bracket.params.get("luminance") or {}
+    span = float(cam.white_level - cam.black_level)
+    noise_profile = (1.0 / cam.full_well, (cam.read_noise ** 2 + 1.0 / 12.0) / span ** 2)   # S, O of x
     for j, t in enumerate(bracket.times):
         t_exif = float(lum["exif_times"][j]) if lum else float(t)
         dng = write_dng(outdir / "raw" / f"{j:02d}.dng", bracket.mosaics[j], cfa_pattern=CFA_PATTERN,
                         black_level=cam.black_level, white_level=cam.white_level,
                         xyz_to_camera=bracket.xyz_to_camera, as_shot_neutral=neutral, exposure_time=t_exif,
-                        make=cam.make, model=cam.model, bits=cam.bits)
+                        make=cam.make, model=cam.model, bits=cam.bits, noise_profile=noise_profile,
+                        fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None)
         jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j],
                          t_exif, cam.make, cam.model, quality=jpeg_quality,
                          fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None,

@@ -4,7 +4,9 @@ Writes DNG 1.4 with: NewSubfileType 0, PhotometricInterpretation CFA (32803),
 CFARepeatPatternDim / CFAPattern, BlackLevelRepeatDim / BlackLevel, WhiteLevel,
 ColorMatrix1 (XYZ -> camera, SRATIONAL), CalibrationIlluminant1 (21 = D65),
 AsShotNeutral, ExposureTime (tag 33434 in IFD0, as TIFF/EP allows), Make, Model,
-UniqueCameraModel. Adobe DNG Specification 1.4, chapter 4.
+UniqueCameraModel and, when given, FNumber, ISOSpeedRatings and NoiseProfile (51041: ``Var[x] = S x + O`` for the signal
+``x = (raw - black) / (white - black)``, as Adobe's converter writes it). Adobe DNG
+Specification 1.4, chapter 4.
 """
 
 from __future__ import annotations
@@ -42,8 +44,12 @@ def _srational_list(values) -> tuple[int, ...]:
 
 def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, cfa_pattern: str, black_level: int,
               white_level: int, xyz_to_camera: np.ndarray, as_shot_neutral: np.ndarray,
-              exposure_time: float, make: str, model: str, bits: int = 14) -> Path:
-    """Write ``mosaic`` (H, W) uint16 as an uncompressed single-IFD DNG, atomically."""
+              exposure_time: float, make: str, model: str, bits: int = 14,
+              noise_profile: tuple[float, float] | None = None, fnumber: float | None = None,
+              iso: int | None = None) -> Path:
+    """Write ``mosaic`` (H, W) uint16 as an uncompressed single-IFD DNG, atomically
+    (``noise_profile``: the (S, O) of the NoiseProfile tag; ``fnumber``, ``iso``: FNumber and
+    ISOSpeedRatings in IFD0, as TIFF/EP allows)."""
     import tifffile
 
     mosaic = np.ascontiguousarray(mosaic, dtype=np.uint16)
@@ -73,6 +79,12 @@ def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, cfa_pattern: str, 
         (50728, "2I", 3, tuple(neutral), True),                   # AsShotNeutral
         (50778, "H", 1, 21, True),                                # CalibrationIlluminant1 = D65
     ]
+    if fnumber is not None:
+        extratags.append((33437, "2I", 1, to_rational(fnumber, 1000), True))            # FNumber
+    if iso is not None:
+        extratags.append((34855, "H", 1, int(iso), True))                                # ISOSpeedRatings
+    if noise_profile is not None:
+        extratags.append((51041, "d", 2, tuple(float(v) for v in noise_profile), True))   # NoiseProfile
     path = Path(path)
     with atomic_output(path) as tmp:
         tifffile.imwrite(

@@ -126,11 +126,13 @@ def simulate(
 
 @app.command("merge")
 def merge_cmd(
-    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them."),
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF) or RAW files (DNG, CR2, "
+                                        "CR3, NEF, ARW, RAF, ...), or folders of them."),
     output: Path = typer.Option(..., "--output", "-o",
                                 help="Output radiance map: OpenEXR (.exr) or Radiance RGBE (.hdr, with FORMAT, "
                                      "EXPOSURE, PRIMARIES and --view in its header)."),
-    method: str = typer.Option("debevec", "--method", help="Merge method (see 'derender methods')."),
+    method: Optional[str] = typer.Option(None, "--method", help="Merge method (see 'derender methods'; default: "
+                                         "debevec, or raw for RAW files)."),
     view: Optional[str] = typer.Option(None, "--view", help="Radiance view of a .hdr output, e.g. "
                                        "'-vta -vh 180 -vv 180' (equidistant 180-degree fisheye), for evalglare."),
     vignetting: Optional[Path] = typer.Option(None, "--vignetting", help="Vignetting profile ('derender "
@@ -194,7 +196,11 @@ def merge_cmd(
     check_times_options(times, times_file, times_inverse)
     if not max_megapixels > 0:
         raise InputError(f"--max-megapixels must be positive, got {max_megapixels:g}")
-    images = expand_image_paths(images)
+    images = expand_image_paths(images, raw=True)
+    if method is None:
+        from derender.io.files import RAW_SUFFIXES
+
+        method = "raw" if any(p.suffix.lower() in RAW_SUFFIXES for p in images) else "debevec"
     spec = method_spec(method)
     method_opts = parse_options(method, option)
     _check_method_options(method, spec, method_opts, len(images), variance is not None)
@@ -386,6 +392,15 @@ def _merge_summary(result: HDRResult, images: list, method: str, output: Path, s
     if with_variance and sources:
         typer.echo("variance by source (median share of a pixel's): "
                    + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
+    noise = result.info.get("noise") if result.info.get("engine_path") == "raw" else None
+    if noise:
+        how = {"pairs": "estimated from the frame pairs", "green-pairs": "estimated from one frame's green pairs "
+               "(an upper bound where the scene has texture)", "NoiseProfile": "from the DNG NoiseProfile",
+               "given": "as given"}.get(noise["source"], noise["source"])
+        typer.echo(f"sensor noise: gain {noise['gain_dn_per_electron']:.4g} DN/electron, read noise "
+                   f"{noise['read_noise_dn']:.3g} DN ({how})")
+    if result.info.get("note"):
+        typer.echo(f"note: {result.info['note']}")
     motion_line = rec.motion_text()
     if motion_line:
         typer.echo(motion_line)
@@ -548,7 +563,8 @@ def evaluate(
 
 @app.command()
 def diagnose(
-    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF), or folders of them."),
+    images: List[Path] = typer.Argument(..., help="Bracketed images (JPEG/PNG/TIFF/HEIC/AVIF) or RAW files (DNG, CR2, "
+                                        "CR3, NEF, ARW, RAF, ...), or folders of them."),
     output: Path = typer.Option(..., "--output", "-o", help="Figure (.png/.pdf/.svg)."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
@@ -571,21 +587,30 @@ def diagnose(
 def groundtruth(
     raws: List[Path] = typer.Argument(..., help="RAW/DNG frames of the bracket (or a single frame)."),
     output: Path = typer.Option(..., "--output", "-o", help="Output linear sRGB radiance (.exr)."),
+    method: str = typer.Option("optimal", "--method", help="optimal: the noise-optimal merge (censored "
+                               "Poisson-Gaussian ML, noise from the frames; docs/raw.md) | paper1: paper 1's eq. 11 "
+                               "(binary weights), to reproduce the paper."),
+    variance: Optional[Path] = typer.Option(None, "--variance", help="Per-pixel variance of the radiance (.exr; "
+                                            "--method optimal)."),
     wb: Optional[str] = typer.Option(None, "--wb", help="White-balance multipliers R,G,B (default: as shot)."),
     wb_patch: Optional[str] = typer.Option(None, "--wb-patch", help="Neutral region x,y,w,h for white balance."),
     times: Optional[str] = typer.Option(None, "--times", help="Exposure times (default: from the files)."),
     preview: Optional[Path] = typer.Option(None, "--preview", help="Tone-mapped PNG preview."),
 ) -> None:
-    """Ground truth from RAW (paper 1 Sec. 4.2, Alg. 2): binary-weight merge, WB, Malvar demosaic, sRGB."""
+    """Ground truth in linear sRGB from RAW: the noise-optimal merge, or paper 1's (Sec. 4.2, Alg. 2) with --method paper1."""
     from derender.io.files import OutputTransaction
     from derender.io.preview import IMAGE8_SUFFIXES
 
+    check_choice("--method", method, ("optimal", "paper1"))
+    if variance is not None and method != "optimal":
+        raise InputError("--variance needs --method optimal (paper 1's eq. 11 has no noise model)")
     wb_value, patch = _white_balance_options(wb, wb_patch)
     with OutputTransaction(raws) as tx:
         out_tmp = tx.add(output, "--output", (".exr",))
+        var_tmp = tx.add(variance, "--variance", (".exr",))
         preview_tmp = tx.add(preview, "--preview", IMAGE8_SUFFIXES)
-        n = _groundtruth(raws, out_tmp, wb_value, patch, times, preview_tmp)
-    typer.echo(f"ground truth from {n} RAW frame(s) -> {output}")
+        n = _groundtruth(raws, out_tmp, wb_value, patch, times, preview_tmp, method, var_tmp)
+    typer.echo(f"ground truth ({method}) from {n} RAW frame(s) -> {output}")
 
 
 def _white_balance_options(wb: Optional[str], wb_patch: Optional[str]):
@@ -605,7 +630,7 @@ def _white_balance_options(wb: Optional[str], wb_patch: Optional[str]):
 
 
 def _groundtruth(raws: List[Path], output: Path, wb_value, patch, times: Optional[str],
-                 preview: Optional[Path]) -> int:
+                 preview: Optional[Path], method: str = "optimal", variance: Optional[Path] = None) -> int:
     """The groundtruth command's work, writing to the transaction's temporaries."""
     from derender.io.exif import parse_times
     from derender.io.exr import write_exr
@@ -614,8 +639,18 @@ def _groundtruth(raws: List[Path], output: Path, wb_value, patch, times: Optiona
     from derender.raw.groundtruth import raw_ground_truth
 
     frames = read_raw_stack(raws, times=parse_times(times) if times else None)
-    result = raw_ground_truth(frames, wb=wb_value, wb_patch=patch)
+    if method == "paper1":
+        result = raw_ground_truth(frames, wb=wb_value, wb_patch=patch)
+    else:
+        from derender.hdr.raw import check_one_camera
+        from derender.raw.optimal import raw_merge
+
+        check_one_camera(frames)
+        result = raw_merge(frames, wb=None if wb_value == "as_shot" else wb_value, wb_patch=patch,
+                           variance=variance is not None)
     write_exr(output, result.radiance, inputs=raws)
+    if variance is not None:
+        write_exr(variance, result.variance, inputs=list(raws) + [output])
     if preview is not None:
         write_preview(preview, result.radiance, inputs=raws)
     return len(frames)

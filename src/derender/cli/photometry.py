@@ -96,7 +96,8 @@ def vignetting(
     images: List[Path] = typer.Argument(..., help="A bracket of a flat field: a uniform, evenly lit surface "
                                         "filling the frame (or a folder of it)."),
     output: Path = typer.Option(..., "--output", "-o", help="Vignetting profile to write (.json)."),
-    method: str = typer.Option("debevec", "--method", help="Merge method for the flat field."),
+    method: Optional[str] = typer.Option(None, "--method", help="Merge method for the flat field (default: "
+                                         "debevec, or raw for RAW files)."),
     times: Optional[str] = typer.Option(None, "--times", help=TIMES_HELP),
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
@@ -112,8 +113,12 @@ def vignetting(
     from derender.io.files import OutputTransaction, expand_image_paths
     from derender.photometry.vignetting import fit_vignetting, save_vignetting
 
+    from derender.io.files import RAW_SUFFIXES
+
     check_times_options(times, times_file, times_inverse)
-    images = expand_image_paths(images)
+    images = expand_image_paths(images, raw=True)
+    if method is None:
+        method = "raw" if any(p.suffix.lower() in RAW_SUFFIXES for p in images) else "debevec"
     inputs = list(images) + ([times_file] if times_file else [])
     with OutputTransaction(inputs) as tx:
         tmp = tx.add(output, "--output", (".json",))

@@ -6,7 +6,8 @@ Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluati
 :mod:`derender.evaluation.neutral` (do greys stay grey at every brightness), :mod:`derender.evaluation.oracle` (merge by
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`, :mod:`derender.evaluation.uncertainty`
 (coverage of a variance against the truth), :mod:`derender.evaluation.ghosts` (moving brackets by zone),
-:mod:`derender.evaluation.linearity` (absolute luminance over 5 decades, evalglare's fisheye maps).
+:mod:`derender.evaluation.linearity` (absolute luminance over 5 decades, evalglare's fisheye maps), :mod:`derender.evaluation.raw_merge` (RAW merges
+against the simulator's exact truth).
 """
 
 from derender.core.lazy import attach
@@ -22,6 +23,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "ghosts": ["GHOST_METHODS", "GHOST_SETTINGS", "zone_errors", "ghost_comparison", "summarise_ghosts"],
     "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table", "uncertainty_experiment"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
+    "raw_merge": ["bracket_raw_frames", "true_noise", "demosaiced_truth", "raw_scores"],
     "neutral": ["NeutralAxis", "neutral_pixels", "neutral_axis", "neutral_axis_truth", "scale_gap"],
     "linearity": ["DECADES", "LINEARITY_METHODS", "FISHEYE_VIEW", "linearity_scores", "linearity_experiment", "fisheye_maps", "render_chart_model", "format_decades"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],

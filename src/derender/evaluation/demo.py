@@ -3,7 +3,8 @@ score each against the exact scene radiance.
 
 The simulator (:func:`derender.camera.bracket.simulate_bracket`) writes real DNG and JPEG
 files and the exact truth (``truth.exr``); the RAW ground truth of paper 1 (Alg. 2,
-:func:`derender.raw.groundtruth.raw_ground_truth`) and every merge method are scored with
+:func:`derender.raw.groundtruth.raw_ground_truth`), every merge method of the JPEG frames
+and the ``raw`` method on the DNG frames (:mod:`derender.raw.optimal`) are scored with
 the PSNR protocol (:func:`derender.evaluation.metrics.psnr_rgbl`). The two methods of paper
 2 need a de-rendering model of the camera: the demo makes one as a user would, from paper 2's
 calibration session of the same simulated camera (:func:`derender.camera.chart.chart_pairs`,
@@ -61,11 +62,12 @@ def run_demo(outdir: str | Path, size: tuple[int, int] = (480, 320), seed: int =
     truth = read_exr(outdir / "truth.exr")
     write_preview(outdir / "truth.png", truth)
     stack = read_stack(bracket_paths(outdir, "jpeg"))
-    methods = default_methods() + (list(MODEL_METHODS) if with_model else [])
+    methods = default_methods() + (list(MODEL_METHODS) if with_model else []) + ["raw"]
     total = len(methods) + 1
     report("merging", 0, total)
     t0 = time.perf_counter()
-    gt = raw_ground_truth(read_raw_stack(bracket_paths(outdir, "raw")))
+    raw_frames = read_raw_stack(bracket_paths(outdir, "raw"))
+    gt = raw_ground_truth(raw_frames)
     rows: list[dict] = [{"method": "raw-groundtruth (DNG)", **psnr_rgbl(gt.radiance, truth),
                          "seconds": time.perf_counter() - t0}]
     write_exr(outdir / "groundtruth-from-raw.exr", gt.radiance)
@@ -82,7 +84,7 @@ def run_demo(outdir: str | Path, size: tuple[int, int] = (480, 320), seed: int =
                 model_seconds = time.perf_counter() - t0
                 report("calibrating a GP on the simulated chart", 1, 1)
             options["model"] = model
-        result = merge_seeded(stack, name, seed, **options)
+        result = merge_seeded(raw_frames if name == "raw" else stack, name, seed, **options)
         dt = time.perf_counter() - t0 if name != MODEL_METHODS[0] else time.perf_counter() - t0 - model_seconds
         write_exr(outdir / f"merge-{name}.exr", result.radiance)
         write_preview(outdir / f"merge-{name}.png", result.radiance)

@@ -69,11 +69,14 @@ PLANES = ("R", "G", "B", "L")
 
 
 def default_methods() -> list[str]:
-    """Registered merge methods that need no extra input (e.g. no de-rendering model)."""
+    """Registered merge methods of rendered images that need no extra input (e.g. no de-rendering
+    model; the RAW method merges the RAW frames, not the images)."""
     from derender.hdr.registry import METHODS
 
     out = []
     for name, spec in sorted(METHODS.items()):
+        if spec.inputs != "rendered":
+            continue
         params = list(inspect.signature(spec.load()).parameters.values())[1:]
         if any(p.default is inspect.Parameter.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
                for p in params):

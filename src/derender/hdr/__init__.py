@@ -1,6 +1,6 @@
 """HDR merge methods: the registry, the classic merges, paper 1 (stabilisation) and paper 2 (probabilistic HDR).
 
-Modules: :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.stabilized_probabilistic`, :mod:`derender.hdr.summary`.
+Modules: :mod:`derender.hdr.batch`, :mod:`derender.hdr.classic`, :mod:`derender.hdr.files`, :mod:`derender.hdr.probabilistic`, :mod:`derender.hdr.raw`, :mod:`derender.hdr.registry`, :mod:`derender.hdr.stabilize`, :mod:`derender.hdr.stabilized_probabilistic`, :mod:`derender.hdr.summary`.
 """
 
 from derender.core.lazy import attach
@@ -11,6 +11,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "ProbabilisticOptions", "probabilistic_engine", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
     "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "StabilizedProbabilisticOptions", "stabilized_probabilistic_engine", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
+    "raw": ["ESTIMATORS", "RawOptions", "merge_raw", "check_one_camera", "merge_raw_files"],
     "registry": ["MethodSpec", "METHODS", "record_values", "method_spec", "register_method", "get_method", "method_options", "merge", "merge_seeded", "settable_options", "parse_options", "check_method_options"],
     "summary": ["FrameRecord", "MergeSummary", "merge_summary_record", "attach_summary", "SUMMARY_ATTRIBUTE", "SUMMARY_HEADER"],
 })

@@ -29,7 +29,65 @@ from derender.hdr.summary import attach_summary
 from derender.io.exif import file_times
 from derender.io.headers import DEFAULT_MAX_MEGAPIXELS
 
-__all__ = ["merge_files"]
+__all__ = ["merge_files", "check_raw_bracket"]
+
+
+def check_raw_bracket(paths: Sequence[Path], method: str) -> bool:
+    """Whether the bracket is of RAW files (:data:`derender.io.files.RAW_SUFFIXES`); one error line
+    when it mixes RAW and rendered frames, or when the method does not take the kind given."""
+    from derender.io.files import RAW_SUFFIXES
+
+    raw = [p for p in paths if Path(p).suffix.lower() in RAW_SUFFIXES]
+    spec = method_spec(method)
+    if raw and len(raw) != len(paths):
+        other = next(p for p in paths if Path(p).suffix.lower() not in RAW_SUFFIXES)
+        raise InputError(f"the bracket mixes RAW and rendered frames ({Path(raw[0]).name}, {Path(other).name}); "
+                         "merge each kind on its own")
+    if raw and spec.inputs != "raw":
+        raise InputError(f"{Path(raw[0]).name} is a RAW file: merge RAW brackets with --method raw "
+                         f"(method {method!r} merges rendered images)")
+    if not raw and spec.inputs == "raw":
+        raise InputError(f"method {method!r} merges RAW files (DNG, CR2, NEF, ...); {Path(paths[0]).name} is not one")
+    return bool(raw)
+
+
+def _merge_raw_paths(spec, paths, times, times_file, times_file_inverse, output, variance_output, half, inputs,
+                     threads, compression, t_start, options) -> HDRResult:
+    """:func:`merge_files` for a bracket of RAW files: the method's own file path (no engine yet)."""
+    from derender.hdr.registry import MOTION_OPTIONS
+    from derender.io.exif import read_times_file
+
+    asked = [k for k in MOTION_OPTIONS if options.get(k) not in (None, False)]
+    if asked:
+        raise InputError(f"--{asked[0].replace('_', '-')} is not available on RAW brackets yet (the RAW merge runs "
+                         "outside the engine); merge without it")
+    options = {k: v for k, v in options.items() if k not in MOTION_OPTIONS and k != "seed"}
+    if variance_output is not None:
+        options["variance"] = True
+    method_options(spec.name, options)
+    all_inputs = list(paths) + list(inputs) + ([Path(times_file)] if times_file else [])
+    for out in (output, variance_output):
+        if out is not None:
+            from derender.io.files import check_not_input
+
+            if Path(out).suffix.lower() != ".exr":
+                raise InputError(f"output must end in .exr, got {Path(out).name}")
+            check_not_input(out, all_inputs)
+    if times is None and times_file is not None:
+        table = read_times_file(times_file, inverse=times_file_inverse)
+        missing = [Path(p).name for p in paths if Path(p).name not in table]
+        if missing:
+            raise InputError(f"times file {times_file} has no entry for: {', '.join(missing)}")
+        times = [table[Path(p).name] for p in paths]
+    res = spec.files_function()(paths, times, output=output, variance_output=variance_output, half=half,
+                               compression=compression, inputs=all_inputs, threads=threads, **options)
+    res.info.setdefault("outputs_held", True)
+    if times is None:                     # the times the merge read from the files, as given
+        by_name = dict(zip(res.info.get("frames", []), res.info.get("exposure_times", [])))
+        times = [float(by_name.get(Path(p).name, 0.0)) for p in paths]
+    attach_summary(res, paths, times, spec.name, (output, variance_output))   # one record for the CLI, files, report
+    res.info["total_seconds"] = time.perf_counter() - t_start
+    return res
 
 
 def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None,
@@ -97,7 +155,11 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     from derender.io.files import expand_image_paths
 
     spec = method_spec(method)   # an unknown method is an error before any file is read
-    paths = expand_image_paths(paths)
+    paths = expand_image_paths(paths, raw=spec.inputs == "raw")
+    raw_paths = check_raw_bracket(paths, method)
+    if raw_paths:
+        return _merge_raw_paths(spec, paths, times, times_file, times_file_inverse, output, variance_output, half,
+                                inputs, threads, compression, t_start, options)
     t = file_times(paths, times, times_file, times_file_inverse)
     all_inputs = list(paths) + list(inputs) + ([Path(times_file)] if times_file else [])
     for out in (output, variance_output):

@@ -6,8 +6,9 @@ space of its radiance. :func:`merge` dispatches an in-memory
 :class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files` image
 files. The built-in methods live in :mod:`derender.hdr.classic` (``debevec``, ``robertson``),
 :mod:`derender.hdr.stabilize` (``stabilized``, ``stabilized-joint``, paper 1),
-:mod:`derender.hdr.probabilistic` (``probabilistic``, paper 2) and
-:mod:`derender.hdr.stabilized_probabilistic` (``stabilized-probabilistic``, both papers); a
+:mod:`derender.hdr.probabilistic` (``probabilistic``, paper 2),
+:mod:`derender.hdr.stabilized_probabilistic` (``stabilized-probabilistic``, both papers) and
+:mod:`derender.hdr.raw` (``raw``: RAW frames, the noise-optimal merge on the mosaic); a
 module is imported when its method is first used. A method defined outside the package joins
 with the :func:`register_method` decorator.
 """
@@ -80,6 +81,14 @@ class MethodSpec:
         (``result.info["curves"]``, what ``derender merge --plot`` draws).
     output_space : str
         The colour space of its radiance, in words.
+    inputs : str
+        ``"rendered"`` (a :class:`~derender.core.types.Stack` of 8- or 16-bit images) or
+        ``"raw"`` (a list of :class:`~derender.core.types.RawFrame`; files through
+        ``files``, a ``"module:name"`` like :func:`derender.hdr.raw.merge_raw_files`).
+    files : str or callable or None
+        For RAW methods: ``fn(paths, times, *, output, variance_output, half, compression,
+        inputs, threads, **options) -> HDRResult``, what :func:`derender.hdr.files.merge_files`
+        calls.
     """
 
     name: str
@@ -89,10 +98,16 @@ class MethodSpec:
     gives_variance: bool = False
     gives_curves: bool = False
     output_space: str = "not stated"
+    inputs: str = "rendered"
+    files: Any = None
 
     def load(self) -> Callable[..., HDRResult]:
         """The merge function (its module imported on first use)."""
         return _resolve(self.function)
+
+    def files_function(self) -> Callable[..., HDRResult] | None:
+        """The merge of files for a RAW method (``files``), or None."""
+        return _resolve(self.files)
 
     def engine_factory(self) -> Callable[[Any], Any] | None:
         """The engine factory (``factory(options_record) -> EngineMethod``), or None."""
@@ -133,6 +148,7 @@ _CLASSIC = "derender.hdr.classic"
 _STABILIZED = "derender.hdr.stabilize.method"
 _PROBABILISTIC = "derender.hdr.probabilistic"
 _BOTH = "derender.hdr.stabilized_probabilistic"
+_RAW = "derender.hdr.raw"
 
 #: Every merge method by name. The built-in ones are listed here, one line each, and imported on
 #: first use; a method defined elsewhere joins with :func:`register_method`.
@@ -154,6 +170,10 @@ METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
     MethodSpec("stabilized-probabilistic", f"{_BOTH}:merge_stabilized_probabilistic",
                f"{_BOTH}:stabilized_probabilistic_engine", f"{_BOTH}:StabilizedProbabilisticOptions", gives_variance=True,
                output_space=_RENDERED + ", in the reference frame's white balance"),
+    MethodSpec("raw", f"{_RAW}:merge_raw", None, f"{_RAW}:RawOptions", gives_variance=True,
+               output_space=("linear sRGB through the files' own colour matrix and as-shot white balance (option "
+                             "output_space: camera_rgb, xyz); white level per second"),
+               inputs="raw", files=f"{_RAW}:merge_raw_files"),
 )}
 
 
@@ -328,7 +348,9 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     ----------
     stack : Stack
         The bracket: 8- or 16-bit images as float32 ``(N, H, W, 3)`` in [0, 1] and their
-        exposure times (:func:`derender.io.images.read_stack` makes one from files).
+        exposure times (:func:`derender.io.images.read_stack` makes one from files); for a
+        method on RAW frames (``raw``), a list of :class:`~derender.core.types.RawFrame`
+        (:func:`derender.io.raw.read_raw_stack`).
     method : str
         A name of :data:`METHODS` (``derender methods`` lists them with their options).
     **options
@@ -365,6 +387,14 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     (:mod:`derender.response.robertson2003`), paper 1 (:mod:`derender.hdr.stabilize`) and
     paper 2 (:mod:`derender.hdr.probabilistic`).
     """
+    spec = method_spec(method)
+    if spec.inputs == "raw":
+        motion, options = split_motion(method, options)
+        if motion is not None:
+            raise InputError(f"merge method {method!r} runs outside the engine for now: reference, align and "
+                             "deghost are not available on RAW frames")
+        method_options(method, options)
+        return spec.load()(stack, **options)
     if not isinstance(stack, Stack):
         raise InputError(f"merge() needs a Stack, got {type(stack).__name__}")
     fn = get_method(method)

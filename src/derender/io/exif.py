@@ -208,7 +208,8 @@ def file_times(paths: Sequence[str | os.PathLike], times: Sequence[float] | None
         seen.add(r)
     for p in paths:
         if p.suffix.lower() in RAW_SUFFIXES:
-            raise InputError(f"{p} is a RAW file; use 'derender groundtruth' for RAW brackets")
+            raise InputError(f"{p} is a RAW file; RAW brackets merge with 'derender merge' (method raw) or "
+                             "'derender groundtruth'")
     if times is not None:
         t = [float(x) for x in times]
         if len(t) != len(paths):

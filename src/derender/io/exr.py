@@ -47,12 +47,15 @@ SRGB_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 
 def colour_attributes(colour_space: str | None = "linear_srgb", white_luminance: float | None = None) -> dict:
     """The standard OpenEXR attributes that say what a map's RGB is: ``chromaticities`` (linear
-    sRGB / Rec. 709 primaries, D65 white; none for camera RGB, which has no stated primaries)
+    sRGB / Rec. 709 primaries, D65 white; CIE XYZ's for ``xyz``; none for camera RGB, which has
+    no stated primaries)
     and ``whiteLuminance`` (cd/m2 of RGB = (1, 1, 1); for an absolute map in Radiance's units,
     ``L = 179 w·RGB``, it is 179), as typed values for :func:`write_exr_fast`'s ``attributes``."""
     out: dict = {}
     if colour_space in (None, "linear_srgb"):
         out["chromaticities"] = Chromaticities(SRGB_CHROMATICITIES)
+    elif colour_space == "xyz":     # CIE XYZ as OpenEXR states it: primaries at X, Y, Z, white E
+        out["chromaticities"] = Chromaticities((1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0 / 3.0, 1.0 / 3.0))
     if white_luminance is not None:
         out["whiteLuminance"] = float(white_luminance)
     return out

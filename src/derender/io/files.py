@@ -32,6 +32,7 @@ __all__ = [
     "check_input_file",
     "read_bytes",
     "folder_images",
+    "folder_raw_files",
     "expand_image_paths",
 ]
 
@@ -64,11 +65,24 @@ def folder_images(folder: str | os.PathLike) -> list[Path]:
             and p.is_file()]
 
 
-def expand_image_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
+def folder_raw_files(folder: str | os.PathLike) -> list[Path]:
+    """The RAW files (:data:`RAW_SUFFIXES`, any case) directly inside ``folder`` (or in its
+    ``raw/`` subfolder, as ``derender simulate`` writes a bracket), by name."""
+    d = Path(folder)
+    src = d / "raw" if (d / "raw").is_dir() else d
+    try:
+        entries = sorted(src.iterdir())
+    except OSError as exc:
+        raise InputError(f"cannot list folder {d}: {exc.strerror or exc}") from None
+    return [p for p in entries if p.suffix.lower() in RAW_SUFFIXES and not p.name.startswith(".") and p.is_file()]
+
+
+def expand_image_paths(paths: Iterable[str | os.PathLike], raw: bool = False) -> list[Path]:
     """The image arguments of a command with every folder replaced by its images
     (:func:`folder_images`); files are kept as given. A folder without images is an error
     naming it and the suffixes looked for. The merge sorts the frames by exposure time
-    afterwards, so a folder's name order does not matter."""
+    afterwards, so a folder's name order does not matter. With ``raw``, a folder without
+    rendered images stands for its RAW files (:func:`folder_raw_files`)."""
     out: list[Path] = []
     for p in paths:
         p = Path(p)
@@ -76,9 +90,11 @@ def expand_image_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
             raise InputError(f"no such file or folder: {p}")
         if p.is_dir():
             found = folder_images(p)
+            if not found and raw:
+                found = folder_raw_files(p)
             if not found:
-                raise InputError(f"folder {p} holds no images (looked for "
-                                 f"{', '.join(sorted(RASTER_SUFFIXES))})")
+                looked = sorted(RASTER_SUFFIXES | (RAW_SUFFIXES if raw else set()))
+                raise InputError(f"folder {p} holds no images (looked for {', '.join(looked)})")
             out.extend(found)
         else:
             out.append(p)

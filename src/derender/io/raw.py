@@ -2,8 +2,9 @@
 
 :func:`read_raw` returns a :class:`~derender.core.types.RawFrame`: the Bayer mosaic
 (uint16), CFA pattern, black and white level, as-shot white balance, the DNG
-``ColorMatrix`` (XYZ -> camera) and the exposure time. RAW *development* (merging, white
-balance, demosaicing, colour) is :mod:`derender.raw`.
+``ColorMatrix`` (XYZ -> camera), the exposure time and, when the DNG has one, its
+``NoiseProfile`` (``extra["noise_profile"]``: ``(S, O)`` of ``Var[x] = S x + O``). RAW
+*development* (merging, white balance, demosaicing, colour) is :mod:`derender.raw`.
 """
 
 from __future__ import annotations
@@ -35,11 +36,14 @@ def _dng_tags(path: Path) -> dict:
             for page in tif.pages:
                 for tag in page.tags.values():
                     if tag.name in ("ColorMatrix1", "ColorMatrix2", "AsShotNeutral", "CalibrationIlluminant1",
-                                    "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel"):
+                                    "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel",
+                                    "NoiseProfile", "FNumber", "ISOSpeedRatings"):
                         tags.setdefault(tag.name, tag.value)
                 exif = page.tags.get("ExifTag")
-                if exif is not None and isinstance(exif.value, dict) and "ExposureTime" in exif.value:
-                    tags.setdefault("ExposureTime", exif.value["ExposureTime"])
+                if exif is not None and isinstance(exif.value, dict):
+                    for name in ("ExposureTime", "FNumber", "ISOSpeedRatings"):
+                        if name in exif.value:
+                            tags.setdefault(name, exif.value[name])
                 break
     except Exception:  # noqa: BLE001
         return {}
@@ -114,6 +118,25 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
         exposure = shutter
     if exposure is None:
         exposure = read_exposure_time(path)
+    extra = {}
+    if "NoiseProfile" in tags:
+        npf = np.asarray(tags["NoiseProfile"], dtype=np.float64).reshape(-1)
+        if npf.size >= 2 and np.all(np.isfinite(npf[:2])) and npf[0] > 0 and npf[1] > 0:
+            extra["noise_profile"] = (float(npf[0]), float(npf[1]))    # Var[x] = S x + O, x in white-level units
+    if path.suffix.lower() == ".dng":
+        fn = _rationals(tags["FNumber"]) if "FNumber" in tags else np.zeros(0)
+        iso = np.asarray(tags.get("ISOSpeedRatings", []), dtype=np.float64).reshape(-1)
+        if fn.size and np.isfinite(fn[0]) and fn[0] > 0:
+            extra["fnumber"] = float(fn[0])
+        if iso.size and iso[0] > 0:
+            extra["iso"] = float(iso[0])
+    else:
+        from derender.io.exif import read_exif
+
+        ex = read_exif(path)
+        for key, name in (("FNumber", "fnumber"), ("ISO", "iso")):
+            if ex.get(key):
+                extra[name] = float(ex[key])
     make = str(tags.get("Make", "")).strip("\x00 ")
     model = str(tags.get("Model", tags.get("UniqueCameraModel", ""))).strip("\x00 ")
     return RawFrame(
@@ -127,12 +150,25 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
         path=str(path),
         make=make,
         model=model,
+        extra=extra,
     )
+
+
+def _check_fixed_aperture_and_iso(frames: Sequence[RawFrame]) -> None:
+    """A RAW bracket's frames must share f-number and ISO: the RAW merges normalise by exposure
+    time only, and one noise model (gain, read noise) serves every frame."""
+    for key, what in (("fnumber", "f-number"), ("iso", "ISO")):
+        values = {f.extra[key] for f in frames if f.extra.get(key)}
+        if len(values) > 1:
+            raise InputError(f"the RAW frames vary the {what} ({', '.join(f'{v:g}' for v in sorted(values))}); "
+                             "RAW brackets are merged by exposure time with one noise model, so vary the time only")
 
 
 def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None) -> list[RawFrame]:
     """Read RAW frames sorted by exposure time (times from the files unless given); the same
-    file given twice (also through a symlink) is refused, as for rendered brackets."""
+    file given twice (also through a symlink), frames of different cameras (EXIF make and
+    model) or sizes, several frames without exposure times (the error names the files) and
+    frames that vary the f-number or ISO are refused."""
     from derender.io.files import check_input_file, resolve_path
 
     seen: set = set()
@@ -149,10 +185,17 @@ def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | 
         t = validate_times(times, len(frames))
         for f, v in zip(frames, t):
             f.exposure_time = float(v)
+    named = [f for f in frames if f.make or f.model]
+    other = next((f for f in named if (f.make, f.model) != (named[0].make, named[0].model)), None)
+    if other is not None:
+        first = named[0]
+        raise InputError(f"the bracket mixes cameras: {Path(first.path).name} is {first.make} {first.model}, "
+                         f"{Path(other.path).name} is {other.make} {other.model}")
     shapes = {f.mosaic.shape for f in frames}
     if len(shapes) > 1:
         raise InputError(f"RAW frames differ in size: {sorted(shapes)}")
     if len(frames) > 1:
+        _check_fixed_aperture_and_iso(frames)
         missing = [Path(f.path).name for f in frames if f.exposure_time is None]
         if missing:
             raise InputError(f"no exposure time in {', '.join(missing)}; give --times")

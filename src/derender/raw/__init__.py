@@ -1,11 +1,15 @@
-"""RAW development: the binary-weight merge of paper 1 (Sec. 4.2, Alg. 2), white balance, demosaicing, ground truth in linear sRGB.
+"""RAW development: the noise-optimal merge (censored Poisson-Gaussian ML, noise from the frames, a variance),
+paper 1's binary-weight merge (Sec. 4.2, Alg. 2), white balance, demosaicing, ground truth in linear sRGB.
 
-Modules: :mod:`derender.raw.groundtruth`, :mod:`derender.raw.mosaic`.
+Modules: :mod:`derender.raw.groundtruth`, :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`,
+:mod:`derender.raw.optimal`.
 """
 
 from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "groundtruth": ["raw_to_camera_rgb", "raw_ground_truth"],
+    "noise": ["NoiseModel", "estimate_noise", "estimate_noise_pairs", "estimate_noise_single"],
+    "optimal": ["OUTPUT_SPACES", "mosaic_observations", "merge_mosaic_optimal", "demosaic_variance", "output_matrix", "raw_merge"],
     "mosaic": ["LOW", "HIGH", "DEMOSAIC_METHODS", "sorted_raw_frames", "cfa_channel_index", "merge_raw_mosaics", "white_balance_mosaic", "wb_from_patch", "demosaic_bayer", "spread_mask", "finite_float32"],
 })

@@ -1,0 +1,189 @@
+"""The sensor's Poisson-Gaussian noise, estimated from the bracket itself (no calibration shots).
+
+A photosite's value above black, ``d = y - black`` (DN), is gain times a Poisson count of
+photo-electrons plus Gaussian read noise (and the ADC's rounding), so
+
+    Var[d] = g * E[d] + sigma^2                                               (1)
+
+with ``g`` in DN per electron and ``sigma^2`` (DN^2) the read noise plus the quantisation
+1/12 (Healey & Kondepudy 1994; Foi et al. 2008). In a still bracket two frames ``j``, ``k``
+(times ``t_j < t_k``) see the same radiance ``X`` (DN/s) at a photosite, so the
+exposure-normalised difference ``r = d_k / t_k - d_j / t_j`` has mean 0 whatever the scene's
+texture and
+
+    Var[r] = g * X * (1/t_j + 1/t_k) + sigma^2 * (1/t_j^2 + 1/t_k^2)          (2)
+
+-- a linear model in ``(g, sigma^2)``. :func:`estimate_noise` fits it by weighted least
+squares on ``r^2`` over the photosites unsaturated in both frames of each adjacent pair
+(a regular subsample of at most :data:`_MAX_SAMPLES` per pair; weights ``1 / Var[r]^2``, the variance of ``r^2`` for Gaussian ``r``; two rounds, samples
+beyond 6 sigma -- motion, hot pixels -- left out), ``X`` from the pooled Poisson estimate
+``sum d / sum t``. This is the self-calibration of Granados et al. 2010 ("Optimal HDR
+reconstruction with linear digital cameras", CVPR, Sec. 4) and Hanji, Zhong & Mantiuk 2020
+("Noise-aware merging of high dynamic range image stacks without camera calibration", ECCV
+workshops, Sec. 3-4), done on frame differences rather than on calibration frames.
+
+A single frame has no partner: :func:`estimate_noise` then uses the differences of the two
+green photosites of every 2x2 Bayer block (``Var[d_G1 - d_G2] = 2 Var[d]`` where the scene
+is smooth), with per-level medians (robust to edges, ``median(r^2) = 0.4549 Var[r]`` for
+Gaussian ``r``): a cruder estimate, since texture adds to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from derender.core.errors import InputError
+
+__all__ = [
+    "NoiseModel",
+    "estimate_noise",
+    "estimate_noise_pairs",
+    "estimate_noise_single",
+]
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Poisson-Gaussian sensor noise, eq. (1): ``Var[d] = gain * E[d] + read_variance`` (DN, DN^2).
+
+    ``source``: ``"pairs"`` (estimated from frame pairs), ``"green-pairs"`` (one frame),
+    ``"given"``."""
+
+    gain: float
+    read_variance: float
+    source: str = "given"
+    samples: int = 0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.gain) and self.gain > 0 and np.isfinite(self.read_variance)
+                and self.read_variance > 0):
+            raise InputError(f"a noise model needs gain > 0 and read variance > 0, got gain {self.gain}, "
+                             f"read variance {self.read_variance}")
+
+    @property
+    def read_noise(self) -> float:
+        """sigma (DN), read noise and quantisation together."""
+        return float(np.sqrt(self.read_variance))
+
+    def variance(self, expected_dn: np.ndarray) -> np.ndarray:
+        """Eq. (1) at the expected value above black (negative expectations count as 0)."""
+        return self.gain * np.maximum(expected_dn, 0.0) + self.read_variance
+
+    def as_dict(self) -> dict:
+        return {"gain_dn_per_electron": float(self.gain), "read_noise_dn": self.read_noise,
+                "source": self.source, "samples": int(self.samples)}
+
+
+#: At most about this many photosites per frame pair enter the fit (every k-th of the usable ones).
+_MAX_SAMPLES = 1 << 18
+
+
+#: Fraction of the saturation level above which samples do not enter the noise fit (the
+#: clipped tail would shrink their variance).
+_FIT_CEILING = 0.85
+
+
+def _wls(r2: np.ndarray, a: np.ndarray, b: np.ndarray, rounds: int = 3) -> tuple[float, float, int]:
+    """Fit ``E[r2] = g a + s2 b`` (weights 1/E^2, 6-sigma clipping); returns (g, s2, samples used)."""
+    keep = np.ones(r2.shape, bool)
+    g, s2 = None, None
+    for k in range(rounds):
+        if g is None:
+            w = 1.0 / np.maximum(b, 1e-30) ** 2           # first round: read-noise scale only
+        else:
+            pred = np.maximum(g * a + s2 * b, 1e-12)
+            w = 1.0 / pred ** 2
+            keep = r2 <= 36.0 * pred
+        aa, bb, rr, ww = a[keep], b[keep], r2[keep], w[keep]
+        m = np.array([[np.sum(ww * aa * aa), np.sum(ww * aa * bb)], [np.sum(ww * aa * bb), np.sum(ww * bb * bb)]])
+        v = np.array([np.sum(ww * aa * rr), np.sum(ww * bb * rr)])
+        try:
+            g, s2 = np.linalg.solve(m, v)
+        except np.linalg.LinAlgError:
+            raise InputError("the bracket does not constrain the noise model (give gain and read noise)") from None
+        g, s2 = float(max(g, 1e-6)), float(max(s2, 1.0 / 12.0))
+    return g, s2, int(np.count_nonzero(keep))
+
+
+def estimate_noise_pairs(d: list[np.ndarray], saturated: list[np.ndarray], ceilings: list[np.ndarray],
+                         times: np.ndarray) -> NoiseModel:
+    """Eq. (2) fitted on every adjacent pair of frames (``d``: DN above black, time-sorted)."""
+    times = np.asarray(times, dtype=np.float64)
+    num = np.zeros(d[0].shape, np.float64)
+    den = np.zeros(d[0].shape, np.float64)
+    for dj, sj, tj in zip(d, saturated, times):
+        num += np.where(sj, 0.0, dj)
+        den += np.where(sj, 0.0, tj)
+    x = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+    r2s, as_, bs = [], [], []
+    for j in range(len(d) - 1):
+        k = j + 1
+        ok = ~saturated[j] & ~saturated[k] & (d[j] < _FIT_CEILING * ceilings[j]) \
+            & (d[k] < _FIT_CEILING * ceilings[k]) & (den > 0)
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            continue
+        idx = idx[::max(1, idx.size // _MAX_SAMPLES)]         # a regular subsample: deterministic, ample
+        r = d[k].ravel()[idx] / times[k] - d[j].ravel()[idx] / times[j]
+        r2s.append(r * r)
+        as_.append(np.maximum(x.ravel()[idx], 0.0) * (1.0 / times[j] + 1.0 / times[k]))
+        bs.append(np.full(r.shape, 1.0 / times[j] ** 2 + 1.0 / times[k] ** 2))
+    n = sum(len(r) for r in r2s)
+    if n < 64:
+        raise InputError(f"too few unsaturated photosites shared by adjacent frames ({n}) to estimate the "
+                         "noise; give gain and read noise")
+    g, s2, used = _wls(np.concatenate(r2s), np.concatenate(as_), np.concatenate(bs))
+    return NoiseModel(g, s2, "pairs", used)
+
+
+#: median(r^2) / Var[r] for Gaussian r (chi-square with 1 degree of freedom).
+_CHI2_MEDIAN = 0.454936423119572
+
+
+def estimate_noise_single(d: np.ndarray, saturated: np.ndarray, ceiling: np.ndarray, pattern: str) -> NoiseModel:
+    """One frame: the two greens of every 2x2 block (eq. (1) with ``Var[dG1 - dG2] = 2 Var[d]``),
+    per-level robust (median) variances fitted by weighted least squares."""
+    p = pattern.upper()
+    greens = [i for i, c in enumerate(p) if c == "G"]
+    h2, w2 = (d.shape[0] // 2) * 2, (d.shape[1] // 2) * 2
+    pos = [(i // 2, i % 2) for i in greens]
+    g1 = d[pos[0][0]:h2:2, pos[0][1]:w2:2]
+    g2 = d[pos[1][0]:h2:2, pos[1][1]:w2:2]
+    ok = ~saturated[pos[0][0]:h2:2, pos[0][1]:w2:2] & ~saturated[pos[1][0]:h2:2, pos[1][1]:w2:2]
+    cap = _FIT_CEILING * float(np.min(ceiling))
+    ok &= (g1 < cap) & (g2 < cap)
+    if np.count_nonzero(ok) < 256:
+        raise InputError("too few unsaturated green pairs to estimate the noise of a single frame; give gain "
+                         "and read noise")
+    r = (g1 - g2)[ok].astype(np.float64)
+    lvl = np.maximum(0.5 * (g1 + g2)[ok].astype(np.float64), 0.0)
+    edges = np.unique(np.quantile(lvl, np.linspace(0.0, 1.0, 41)))
+    idx = np.clip(np.searchsorted(edges, lvl, side="right") - 1, 0, len(edges) - 2)
+    vs, ls, ns = [], [], []
+    for b in range(len(edges) - 1):
+        sel = idx == b
+        if np.count_nonzero(sel) < 32:
+            continue
+        vs.append(np.median(r[sel] ** 2) / _CHI2_MEDIAN / 2.0)
+        ls.append(np.mean(lvl[sel]))
+        ns.append(np.count_nonzero(sel))
+    if len(vs) < 2:
+        raise InputError("the frame's levels do not constrain the noise model; give gain and read noise")
+    v, lv, nn = np.array(vs), np.array(ls), np.array(ns, np.float64)
+    g, s2 = 1.0, 1.0
+    for _ in range(3):
+        w = nn / np.maximum(g * lv + s2, 1e-12) ** 2
+        m = np.array([[np.sum(w * lv * lv), np.sum(w * lv)], [np.sum(w * lv), np.sum(w)]])
+        g, s2 = np.linalg.solve(m, np.array([np.sum(w * lv * v), np.sum(w * v)]))
+        g, s2 = float(max(g, 1e-6)), float(max(s2, 1.0 / 12.0))
+    return NoiseModel(g, s2, "green-pairs", int(nn.sum()))
+
+
+def estimate_noise(d: list[np.ndarray], saturated: list[np.ndarray], ceilings: list[np.ndarray],
+                   times: np.ndarray, pattern: str) -> NoiseModel:
+    """:func:`estimate_noise_pairs` for two frames or more, :func:`estimate_noise_single` for one."""
+    if len(d) >= 2:
+        return estimate_noise_pairs(d, saturated, ceilings, times)
+    return estimate_noise_single(d[0], saturated[0], ceilings[0], pattern)

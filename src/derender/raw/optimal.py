@@ -1,0 +1,295 @@
+"""The noise-optimal RAW merge: censored maximum likelihood on the mosaic, a variance, one demosaic.
+
+Every photosite of frame ``j`` (exposure ``t_j``) gives ``d_j = y_j - black_j`` (DN, the
+black level per CFA colour and per frame, from LibRaw). Under the Poisson-Gaussian model of
+:mod:`derender.raw.noise`, ``d_j ~ N(X t_j, v_j)``, ``v_j = g X t_j + sigma^2``, for the
+radiance ``X`` (DN/s). A sample at or above its frame's white level is *censored*: it says
+only ``X t_j + noise >= c_j`` (``c_j = white_j - black_j``), which is information, not a
+missing value (Aguerrebere, Delon, Gousseau & Muse 2014, "Best algorithms for HDR image
+generation. A study of performance bounds", SIAM J. Imaging Sci. 7(1), Sec. 3-4). The
+log-likelihood
+
+    L(X) = sum_unsat -(d_j - X t_j)^2 / (2 v_j) + sum_sat log Q((c_j - X t_j) / sqrt(v_j))
+
+(``Q = 1 - Phi``) is maximised per photosite by Newton steps with ``v_j`` held at the current
+``X`` (iteratively reweighted; concave in ``X`` for fixed ``v_j``):
+
+    X <- X + S / I,  S = sum_unsat t_j (d_j - X t_j) / v_j + sum_sat t_j lambda(z_j) / sqrt(v_j),
+                     I = sum_unsat t_j^2 / v_j + sum_sat t_j^2 lambda(z_j) (lambda(z_j) - z_j) / v_j
+
+with ``z_j = (c_j - X t_j) / sqrt(v_j)`` and the inverse Mills ratio ``lambda = phi / Q``.
+Without censored samples this is the inverse-variance weighted mean of ``d_j / t_j`` with
+weights ``t_j^2 / v_j`` -- the minimum-variance unbiased merge of Granados et al. 2010
+(CVPR, eq. 9) and Hanji et al. 2020 (eq. 6). The variance of ``X`` is ``1 / I`` (the Fisher
+information, the censored samples' share included). Where every frame is saturated the
+estimate is the bound ``X = c / t_min`` (mask 1) with variance ``X^2`` (sigma = 100 %:
+it is a lower bound, not a measurement). ``g`` and ``sigma^2`` come from the bracket
+(:func:`derender.raw.noise.estimate_noise`) unless given.
+
+Then the mosaic is white-balanced (one multiplier per CFA colour; none for ``camera_rgb``),
+demosaiced once (Malvar, He & Cutler 2004, a linear filter) and put in the output space by
+the file's own matrices: ``camera_rgb``, ``linear_srgb`` (``XYZ_TO_LINEAR_SRGB @
+camera_to_xyz``, as :func:`derender.raw.groundtruth.raw_ground_truth`) or ``xyz`` (D65). All
+three steps are linear, so the variance goes through them exactly for independent
+photosites: ``Var[o] = sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` with Malvar's kernels
+``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). The radiance is in units of the white level per second,
+``X / (white - black)``, as :func:`derender.raw.mosaic.merge_raw_mosaics` gives it.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Sequence
+
+import numpy as np
+
+from derender.core.colorimetry import XYZ_TO_LINEAR_SRGB, camera_to_xyz_matrix
+from derender.core.errors import InputError
+from derender.core.types import HDRResult, RawFrame
+from derender.raw.mosaic import (
+    cfa_channel_index,
+    demosaic_bayer,
+    finite_float32,
+    sorted_raw_frames,
+    spread_mask,
+    wb_from_patch,
+)
+from derender.raw.noise import NoiseModel, estimate_noise
+
+__all__ = [
+    "OUTPUT_SPACES",
+    "mosaic_observations",
+    "merge_mosaic_optimal",
+    "demosaic_variance",
+    "output_matrix",
+    "raw_merge",
+]
+
+#: Output colour spaces of :func:`raw_merge`.
+OUTPUT_SPACES = ("linear_srgb", "camera_rgb", "xyz")
+
+#: Saturated samples further than this many sigma below their expected value carry no information.
+_NEAR = 8.0
+
+
+#: Newton steps of the censored likelihood (converged to < 1e-6 relative on simulated brackets).
+_ITERATIONS = 6
+
+
+def _black_mosaic(frame: RawFrame, shape: tuple[int, int]) -> np.ndarray:
+    bl = np.asarray(frame.black_level, dtype=np.float64)
+    bl = np.broadcast_to(bl.reshape(-1)[0], (2, 2)) if bl.size == 1 else bl.reshape(2, 2)
+    h, w = shape
+    return np.tile(bl, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+
+
+def mosaic_observations(frames: Sequence[RawFrame]) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Per frame: ``d`` (DN above black, float64), the saturated samples (``y >= white``) and
+    the censoring level ``c = white - black`` (DN above black), black and white read per frame."""
+    ds, sats, cs = [], [], []
+    shared: dict = {}                  # frames with the same levels share one ceiling array
+    for f in frames:
+        y = np.asarray(f.mosaic)
+        key = (tuple(np.asarray(f.black_level, dtype=np.float64).reshape(-1).tolist()), float(f.white_level))
+        if key not in shared:
+            black = _black_mosaic(f, y.shape)
+            shared[key] = (black, float(f.white_level) - black)
+        black, ceiling = shared[key]
+        ds.append(y.astype(np.float64) - black)
+        sats.append(y >= float(f.white_level))
+        cs.append(ceiling)
+    return ds, sats, cs
+
+
+def _inverse_mills(z: np.ndarray) -> np.ndarray:
+    """``phi(z) / (1 - Phi(z))``, stable for every z (erfcx)."""
+    from scipy.special import erfcx
+
+    with np.errstate(over="ignore"):
+        return np.sqrt(2.0 / np.pi) / erfcx(z / np.sqrt(2.0))
+
+
+def merge_mosaic_optimal(d: list[np.ndarray], saturated: list[np.ndarray], ceilings: list[np.ndarray],
+                         times: np.ndarray, noise: NoiseModel, censored: bool = True,
+                         iterations: int = _ITERATIONS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The censored maximum-likelihood radiance per photosite (DN/s), its variance and mask.
+
+    Returns ``(x, var, mask)``: (H, W) float64 ``X``, its variance ``1 / I`` ((DN/s)^2) and
+    uint8 mask (1 where every frame is saturated: ``X`` is the bound ``c / t_min``).
+    ``censored=False`` leaves saturated samples out (treated as missing, for comparison)."""
+    times = np.asarray(times, dtype=np.float64)
+    g, s2 = float(noise.gain), float(noise.read_variance)
+    num = np.zeros(d[0].shape, np.float64)
+    den = np.zeros(d[0].shape, np.float64)
+    for dj, sj, tj in zip(d, saturated, times):
+        num += np.where(sj, 0.0, dj)
+        den += np.where(sj, 0.0, tj)
+    allsat = den == 0
+    x = np.divide(num, den, out=np.zeros_like(num), where=~allsat)      # pooled Poisson start
+    bound = np.max([c / t for c, t in zip(ceilings, times)], axis=0)
+    x[allsat] = bound[allsat]
+    # two reweighted rounds on every photosite (exact for those without a censored sample) ...
+    info = np.zeros_like(x)
+    for _ in range(2):
+        score = np.zeros_like(x)
+        info = np.zeros_like(x)
+        for dj, sj, tj in zip(d, saturated, times):
+            w = np.where(sj, 0.0, tj / (g * np.maximum(x * tj, 0.0) + s2))
+            score += w * (dj - x * tj)
+            info += w * tj
+        x = np.where(allsat, x, x + np.divide(score, info, out=np.zeros_like(score), where=info > 0))
+    # ... then Newton steps on the censored likelihood where some but not every sample saturated
+    # (only where a saturated sample lies within 8 sigma of its level: elsewhere lambda(z) < 1e-14)
+    near = np.zeros(x.shape, bool)
+    if censored:
+        for sj, cj, tj in zip(saturated, ceilings, times):
+            near |= sj & (cj - x * tj > -_NEAR * np.sqrt(g * np.maximum(x * tj, 0.0) + s2))
+    cen = np.flatnonzero(near & ~allsat)
+    if cen.size:
+        xs = x.ravel()[cen]
+        ds = [dj.ravel()[cen] for dj in d]
+        ss = [sj.ravel()[cen] for sj in saturated]
+        cs = [cj.ravel()[cen] for cj in ceilings]
+        inf_s = np.zeros_like(xs)
+        for _ in range(max(int(iterations), 1)):
+            score = np.zeros_like(xs)
+            inf_s = np.zeros_like(xs)
+            for dj, sj, cj, tj in zip(ds, ss, cs, times):
+                v = g * np.maximum(xs * tj, 0.0) + s2
+                u = ~sj
+                score += np.where(u, tj * (dj - xs * tj) / v, 0.0)
+                inf_s += np.where(u, tj * tj / v, 0.0)
+                if np.any(sj):
+                    sd = np.sqrt(v)
+                    z = (cj - xs * tj) / sd
+                    lam = _inverse_mills(z)
+                    score += np.where(sj, tj * lam / sd, 0.0)
+                    inf_s += np.where(sj, tj * tj * lam * np.clip(lam - z, 0.0, None) / v, 0.0)
+            xs = xs + np.divide(score, inf_s, out=np.zeros_like(score), where=inf_s > 0)
+        x.ravel()[cen] = xs
+        info.ravel()[cen] = inf_s
+    var = np.divide(1.0, info, out=np.zeros_like(info), where=info > 0)
+    var[allsat] = bound[allsat] ** 2
+    mask = np.zeros(x.shape, np.uint8)
+    mask[allsat] = HDRResult.MASK_BRIGHT
+    return x, var, mask
+
+
+@lru_cache(maxsize=8)
+def _malvar_kernels(pattern: str, method: str) -> np.ndarray:
+    """(2, 2, 3, 5, 5): the demosaic's linear kernel for output phase (py, px) and channel c,
+    read off its responses to unit impulses (Malvar 2004 is linear and shift-invariant per phase)."""
+    n = 16
+    k = np.zeros((2, 2, 3, 5, 5))
+    for py in range(2):
+        for px in range(2):
+            cy, cx = 8 + py, 8 + px
+            for dy in range(-2, 3):
+                for dx in range(-2, 3):
+                    imp = np.zeros((n, n))
+                    imp[cy + dy, cx + dx] = 1.0
+                    k[py, px, :, dy + 2, dx + 2] = demosaic_bayer(imp, pattern, method)[cy, cx]
+    return k
+
+
+def demosaic_variance(var_mosaic: np.ndarray, pattern: str, matrix: np.ndarray | None = None,
+                      method: str = "malvar2004") -> np.ndarray:
+    """(H, W, 3) variance of ``matrix @ demosaic(mosaic)`` for independent photosites of variance
+    ``var_mosaic``: ``sum_p (sum_c M_oc K_c(p))^2 var(p)`` with the demosaic's kernels per CFA
+    phase (borders reflected, as the demosaic does)."""
+    from scipy.ndimage import correlate
+
+    m = np.eye(3) if matrix is None else np.asarray(matrix, dtype=np.float64)
+    ker = _malvar_kernels(pattern.upper(), method)
+    combined = np.einsum("oc,yxcij->yxoij", m, ker) ** 2
+    var_mosaic = np.asarray(var_mosaic, dtype=np.float64)
+    h, w = var_mosaic.shape
+    out = np.empty((h, w, 3), np.float32)
+    for py in range(2):
+        for px in range(2):
+            for o in range(3):
+                full = correlate(var_mosaic, combined[py, px, o], mode="reflect")
+                out[py::2, px::2, o] = full[py::2, px::2]
+    return out
+
+
+def output_matrix(frame: RawFrame, output_space: str,
+                  xyz_to_camera: np.ndarray | None = None) -> np.ndarray:
+    """The 3x3 matrix from white-balanced camera RGB to ``output_space`` (identity for ``camera_rgb``)."""
+    if output_space not in OUTPUT_SPACES:
+        raise InputError(f"output_space must be one of {', '.join(OUTPUT_SPACES)}, got {output_space!r}")
+    if output_space == "camera_rgb":
+        return np.eye(3)
+    m = frame.xyz_to_camera if xyz_to_camera is None else xyz_to_camera
+    if m is None:
+        raise InputError(f"{frame.path or 'RAW frame'} has no colour matrix (ColorMatrix); "
+                         "use output_space camera_rgb")
+    c2x = camera_to_xyz_matrix(m)
+    return c2x if output_space == "xyz" else XYZ_TO_LINEAR_SRGB @ c2x
+
+
+def _multipliers(frame: RawFrame, output_space: str, wb, wb_patch, x: np.ndarray, pattern: str,
+                 mask: np.ndarray) -> np.ndarray:
+    if output_space == "camera_rgb":
+        return np.ones(3)
+    if wb_patch is not None:
+        return wb_from_patch(x, pattern, wb_patch, mask)
+    mult = np.asarray(frame.as_shot_wb if wb is None else wb, dtype=np.float64).reshape(-1)
+    if mult.size != 3 or not np.all(np.isfinite(mult)) or np.any(mult <= 0):
+        raise InputError(f"white-balance multipliers must be 3 positive numbers (R, G, B), got {mult.tolist()}")
+    return mult
+
+
+def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "linear_srgb",
+              gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
+              wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
+              variance: bool = True, clip_negative: bool = True, censored: bool = True,
+              xyz_to_camera: np.ndarray | None = None) -> HDRResult:
+    """Noise-optimal merge of RAW frames: censored Poisson-Gaussian ML on the mosaic, demosaiced once.
+
+    ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
+    estimates from the frames themselves (:func:`derender.raw.noise.estimate_noise`); give both
+    to use known values. A single frame takes its DNG ``NoiseProfile`` when it has one, else
+    the green-pair estimate, an upper bound where the scene has texture. White balance (``linear_srgb``, ``xyz``): ``wb`` multipliers (R, G, B),
+    default the as-shot ones of the middle frame of the time-sorted stack, or ``wb_patch``
+    ``(x, y, w, h)``, a neutral region of the merged mosaic; it is applied on the mosaic before
+    demosaicing, as :func:`derender.raw.groundtruth.raw_ground_truth` does. ``censored=False``
+    drops saturated samples instead (for comparison). ``info["noise"]`` holds the noise model
+    used. The ``variance`` is that of ``radiance`` before negative values are clipped to 0.
+    """
+    frames, times = sorted_raw_frames(frames)
+    pattern = frames[0].cfa_pattern.upper()
+    d, sat, ceil = mosaic_observations(frames)
+    if (gain is None) != (read_noise is None):
+        raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
+    profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
+    if gain is None and len(frames) == 1 and profile is not None:
+        span0 = float(np.median(ceil[0]))
+        noise = NoiseModel(profile[0] * span0, profile[1] * span0 ** 2, "NoiseProfile")
+    elif gain is None:
+        noise = estimate_noise(d, sat, ceil, times, pattern)
+    else:
+        noise = NoiseModel(float(gain), float(read_noise) ** 2, "given")
+    x, var, mmask = merge_mosaic_optimal(d, sat, ceil, times, noise, censored=censored)
+    del d, sat
+    span = ceil[int(np.argmax([f.white_level for f in frames]))]      # white - black per photosite
+    x /= span
+    var /= span * span
+    ref = frames[len(frames) // 2]
+    mat = output_matrix(ref, output_space, xyz_to_camera)
+    mult = _multipliers(ref, output_space, wb, wb_patch, x, pattern, mmask)
+    gains = mult[cfa_channel_index(x.shape, pattern)]
+    cam = demosaic_bayer(x * gains, pattern, demosaic)
+    h, w, _ = cam.shape
+    out = (cam.reshape(-1, 3).astype(np.float64) @ mat.T).reshape(h, w, 3)
+    var_out = None
+    if variance:
+        var_out = np.nan_to_num(demosaic_variance(var * gains * gains, pattern, mat, demosaic),
+                                nan=0.0, posinf=0.0, neginf=0.0)
+    info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": demosaic,
+            "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
+            "units": "white level per second", "white_minus_black_dn": float(np.median(span)),
+            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
+            "output_matrix": mat.tolist()}
+    return HDRResult(radiance=finite_float32(out, clip_negative), mask=spread_mask(mmask),
+                     variance=None if var_out is None else np.ascontiguousarray(var_out, np.float32), info=info)
