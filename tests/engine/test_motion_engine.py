@@ -32,8 +32,8 @@ def _stack(b):
 def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     """Where ``valid`` leaves frame j out, each kernel's result is the merge of the other frames
     with the same plan (table, matrix and Gaussian plans)."""
-    from derender.engine.motion import _access, _merge
-    from derender.engine.run import ArrayFrames
+    from derender.engine.frames import ArrayFrames, merge_held
+    from derender.engine.motion import _access
     from derender.hdr.classic import DebevecMethod, DebevecOptions
     from derender.hdr.registry import method_options
     from derender.hdr.stabilize.method import StabilizedMethod
@@ -50,12 +50,12 @@ def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     methods = [DebevecMethod(DebevecOptions()), StabilizedMethod("stabilized", method_options("stabilized", {"align": "none"}))]
     for method in methods:
         plan = method.plan(_access(method, src, frames, None, n // 2, 1))
-        full = _merge(plan, frames, t, valid, 1)
+        full = merge_held(plan, frames, t, threads=1, valid=valid)
         sub_plan = _subset_plan(plan, keep)
-        sub = _merge(sub_plan, frames[keep], t[keep], None, 1)
+        sub = merge_held(sub_plan, frames[keep], t[keep], threads=1)
         np.testing.assert_allclose(full.radiance[:, : w // 2], sub.radiance[:, : w // 2], rtol=2e-6, atol=1e-7)
         np.testing.assert_array_equal(full.mask[:, : w // 2], sub.mask[:, : w // 2])
-        ref = _merge(plan, frames, t, None, 1)
+        ref = merge_held(plan, frames, t, threads=1)
         np.testing.assert_array_equal(full.radiance[:, w // 2:], ref.radiance[:, w // 2:])
 
 
@@ -88,9 +88,9 @@ def tiny_model():
 
 
 def test_gaussian_kernel_valid_planes_exclude_a_frame_exactly(tiny_model):
+    from derender.engine.frames import ArrayFrames
     from derender.engine.gaussian import merge_gaussian_frames
     from derender.engine.motion import _access
-    from derender.engine.run import ArrayFrames
     from derender.hdr.probabilistic import ProbabilisticMethod
     from derender.hdr.registry import method_options
 
@@ -282,12 +282,12 @@ def test_motion_errors_are_clear():
 
 
 def test_callers_frames_are_not_modified():
-    from derender.engine.motion import MotionOptions
-    from derender.engine.run import ArrayFrames, run
+    from derender.engine.frames import ArrayFrames
+    from derender.engine.motion import MotionOptions, run_motion
     from derender.hdr.classic import DebevecMethod, DebevecOptions
 
     b = _bracket(setting="handheld", size=(64, 48))
     codes = np.ascontiguousarray(b.jpeg_codes)
     before = codes.copy()
-    run(DebevecMethod(DebevecOptions()), ArrayFrames(codes, b.times), motion=MotionOptions(align="translation", deghost=True))
+    run_motion(DebevecMethod(DebevecOptions()), ArrayFrames(codes, b.times), MotionOptions(align="translation", deghost=True))
     np.testing.assert_array_equal(codes, before)

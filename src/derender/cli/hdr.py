@@ -249,7 +249,7 @@ def merge_cmd(
 
             save_merge_profile(profile_tmp, ph, result, images, method, view, inputs)
         if not direct:
-            from derender.engine.run import write_outputs
+            from derender.engine.outputs import write_outputs
 
             write_outputs(result, None if as_hdr else out_tmp, var_tmp, half=half, inputs=inputs, name=method)
         if as_hdr:

@@ -6,7 +6,8 @@ Modules: :mod:`derender.engine.align`, :mod:`derender.engine.compensation`, :mod
 from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "frames": ["NotStreamable", "prefetch", "FramePool", "read_frames"],
+    "frames": ["NotStreamable", "prefetch", "FramePool", "read_frames", "FileFrames", "ArrayFrames", "clipped_pixels", "frame_brightness", "merge_held", "STREAMED_BYTES_PER_PIXEL"],
+    "outputs": ["write_outputs", "write_while_merging", "motion_attributes"],
     "kernels": ["MERGE_TILE", "stabilized_merge_rows", "mtb_band_counts", "table_merge_rows", "gaussian_band", "mark_colours", "normal_cdf", "table_mu"],
     "merge_parts": ["add_frame_to_tile", "add_table_observation", "fallback_frame"],
     "compensation": ["FLOW_CHECK", "FLOW_PIXELS", "compensate_frames"],
@@ -20,11 +21,11 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "EngineMethod", "MethodDefaults"],
     "align": ["ALIGN_METHODS", "Alignment", "shift_into", "shift_valid", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
     "ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
-    "run": ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels", "frame_brightness", "ENGINES"],
+    "run": ["run", "run_stack", "ENGINES", "HOLD_BYTES", "KERNEL_MIN_PIXEL_FRAMES"],
     "table_kernel": ["table_kernel_merge", "warm_up_kernel"],
     "variance": ["VarianceModel", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "add_edge_term", "source_shares", "SOURCES", "SHOT", "READ", "SHARED", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "EDGE", "CENSORED", "R_FLOOR", "SOURCE_STRIDE"],
     "variance_kernels": ["table_merge_var_rows", "stabilized_merge_var_rows"],
-    "motion": ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement", "check_one_scene", "run_motion", "motion_attributes"],
+    "motion": ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement", "check_one_scene", "run_motion"],
     "ghost_kernels": ["ghost_statistic"],
     "deghost": ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "MAX_REJECTED", "frame_estimates", "detect_ghosts", "merge_valid"],
 })

@@ -21,7 +21,8 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
    stabiliser's gamma/3x3 fits read only consistent pixels) and the decision is made once
    more with the refitted model.
 4. **Merge**: the method's plan on the engine's kernels with the ``valid`` planes
-   (:func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
+   (:func:`derender.engine.frames.merge_held`, the plain run's dispatch:
+   :func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
    ``gaussian_moments_band``); where no frame that takes part has weight, the shortest
    (bright) or longest (dark) frame that takes part gives the value, as before.
 
@@ -31,18 +32,21 @@ The frames are held in memory (N x H x W x 3 bytes, plus one byte per pixel and 
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
 from derender.core.errors import InputError, StackError
 from derender.core.memory import check_memory
 from derender.core.types import HDRResult, check_brightness_order
+from derender.engine.frames import ArrayFrames, FileFrames, clipped_pixels, frame_brightness, merge_held
+from derender.engine.outputs import write_outputs
 
 __all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
-           "check_one_scene", "run_motion", "motion_attributes", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
+           "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
            "SCENE_CHECK_PIXELS"]
 
 #: ``align=`` choices (``"mtb"`` is accepted as another name for ``"translation"``).
@@ -300,25 +304,6 @@ def check_one_scene(frames: np.ndarray, names: list[str]) -> list[float | None]:
     return out
 
 
-def motion_attributes(info: dict) -> dict[str, str]:
-    """The EXR header attributes that record the engine's reference frame, alignment and ghost
-    removal (``derender:reference``: the frame's name and its place among the images as given,
-    from 1; ``derender:alignment``; ``derender:deghost``); empty for a plain merge."""
-    if info.get("engine_path") != "motion" and "reference_name" not in info:
-        return {}
-    out = {}
-    if info.get("reference_input") is not None:
-        out["derender:reference"] = f"{info.get('reference_name', 'frame')} (image {info['reference_input'] + 1})"
-    al = info.get("alignment") or {}
-    if al.get("align"):
-        out["derender:alignment"] = str(al["align"])
-    dg = info.get("deghost")
-    if dg:
-        out["derender:deghost"] = (f"threshold {dg.get('threshold')}, "
-                                   f"{100 * float(dg.get('rejected', 0.0)):.2f} % of the other frames' pixels left out")
-    return out
-
-
 def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: int, threads: int | None):
     """The :class:`~derender.engine.plans.FrameAccess` a method plans from on the motion path:
     held (aligned) frames, the reference, ``valid``; streamed methods' samples only at
@@ -346,31 +331,35 @@ def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: i
                        reference=ref, valid=valid, aligned=True)
 
 
-def _merge(plan, frames: np.ndarray, times: np.ndarray, valid: np.ndarray | None, threads: int | None,
-           ref: int = -1) -> HDRResult:
-    from derender.engine.plans import GaussianPlan, MatrixPlan, TablePlan
+def run_motion(method, source, motion: MotionOptions, *, threads: int | None = None,
+               order_hint: str | None = None, output: str | os.PathLike | None = None,
+               variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
+               inputs: Iterable[str | os.PathLike] = ()) -> HDRResult:
+    """Merge ``source`` (:class:`~derender.engine.frames.FileFrames` or
+    :class:`~derender.engine.frames.ArrayFrames`) with ``method`` on the motion path, and
+    optionally write the radiance to ``output`` and the variance to ``variance_output``
+    (OpenEXR, :func:`derender.engine.outputs.write_outputs`, with the attributes of
+    :func:`~derender.engine.outputs.motion_attributes`).
 
-    n = frames.shape[0]
-    if isinstance(plan, MatrixPlan):
-        from derender.engine.matrix import merge_matrix_frames
+    The motion run of the engine, beside the plain run (:func:`derender.engine.run.run`): the
+    caller chooses between them (:func:`derender.hdr.files.merge_files`,
+    :func:`derender.hdr.registry.merge`), when ``motion`` asks for a reference frame,
+    alignment or ghost removal. ``info["engine_path"]`` is ``"motion"``; the outputs are held
+    (``info["outputs_held"]``)."""
+    t0 = time.perf_counter()
+    if source.n < 2:
+        raise StackError("an exposure stack needs at least two images")
+    res = _merge_motion(method, source, motion, threads, order_hint)
+    res.info["engine_path"] = "motion"
+    res.info["reference_name"] = source.name(res.info["reference"])
+    res.info["outputs_held"] = True
+    write_outputs(res, output, variance_output, half=half, compression=compression, inputs=list(inputs),
+                  threads=threads, name=method.name)
+    res.info["total_seconds"] = time.perf_counter() - t0
+    return res
 
-        return merge_matrix_frames(frames, plan, times, valid=valid, threads=threads, ref=ref)
-    if isinstance(plan, GaussianPlan):
-        from derender.engine.gaussian import merge_gaussian_frames
 
-        return merge_gaussian_frames(frames, plan, threads=threads, valid=valid)
-    if isinstance(plan, TablePlan):
-        from derender.engine.run import table_kernel_merge
-
-        if plan.channel_weights not in ("mean", "independent"):
-            raise InputError(f"channel_weights={plan.channel_weights!r} cannot be merged with alignment or "
-                             "ghost removal; use 'mean' or 'independent'")
-        return table_kernel_merge(frames, plan, list(range(n - 1, -1, -1)), threads, valid=valid, ref=ref)
-    raise TypeError(f"unknown plan {type(plan).__name__}")
-
-
-def run_motion(method, source, motion: MotionOptions, threads: int | None = None,
-               order_hint: str | None = None) -> HDRResult:
+def _merge_motion(method, source, motion: MotionOptions, threads: int | None, order_hint: str | None) -> HDRResult:
     """Merge ``source`` with ``method`` on the motion path (module docstring): every frame held,
     the reference chosen, the frames aligned, inconsistent pixels excluded, the method
     calibrated on what is left. ``info`` records ``reference`` (index by time),
@@ -378,8 +367,6 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     homographies) and ``deghost`` (threshold, rejected fraction per frame, rounds);
     ``result.ghosts`` is the (H, W) uint8 count of frames excluded at each pixel (rejected
     as inconsistent or not covered after warping)."""
-    from derender.engine.run import ArrayFrames, FileFrames, clipped_pixels, frame_brightness
-
     t0 = time.perf_counter()
     n = source.n
     if isinstance(source, FileFrames):
@@ -469,7 +456,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
         ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
     t4 = time.perf_counter()
-    res = _merge(plan, frames, source.times, valid, threads, ref)
+    res = merge_held(plan, frames, source.times, threads=threads, valid=valid, ref=ref, name=method.name)
     t45 = time.perf_counter()
     cinfo = None
     if motion.consensus and ghosts_rejected is not None:

@@ -148,9 +148,9 @@ from derender.core.errors import InputError
 from derender.core.memory import thread_count
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
-from derender.engine.frames import NotStreamable
+from derender.engine.frames import ArrayFrames, NotStreamable
 from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults, SharedVariance
-from derender.engine.run import ArrayFrames, run
+from derender.engine.run import run
 from derender.hdr.probabilistic_variance import K_MODEL, K_PIPE, K_SPATIAL
 from derender.hdr.registry import record_values
 

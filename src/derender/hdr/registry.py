@@ -288,9 +288,10 @@ def split_motion(method: str, options: dict, engine_reference: bool = False) -> 
 
 
 def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRResult:
-    """:func:`merge` on the engine's motion path (reference, alignment, ghost removal)."""
-    from derender.engine.frames import NotStreamable
-    from derender.engine.run import ArrayFrames, run
+    """:func:`merge` on the engine's motion run (reference, alignment, ghost removal:
+    :func:`derender.engine.motion.run_motion`; the plain run is the method's own ``merge_*``)."""
+    from derender.engine.frames import ArrayFrames, NotStreamable
+    from derender.engine.motion import run_motion
     from derender.engine.tables import stack_codes_exact
 
     factory = method_spec(method).engine_factory()
@@ -302,7 +303,7 @@ def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRRe
         raise InputError("alignment and ghost removal need 8-bit images (every value a code / 255)")
     opts = method_options(method, options)
     try:
-        return run(factory(opts), ArrayFrames(codes, stack.times), motion=motion)
+        return run_motion(factory(opts), ArrayFrames(codes, stack.times), motion)
     except NotStreamable as exc:
         raise InputError(f"merge method {method!r} cannot align or remove ghosts with these options ({exc})") from None
 
