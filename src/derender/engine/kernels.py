@@ -386,7 +386,7 @@ def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor,
     per pixel and channel what :func:`derender.hdr.probabilistic.log_product_moments` and
     :func:`derender.hdr.probabilistic.finite_outputs` compute from them: ``v = 1 / prec``,
     ``m = acc v`` (``inf``, 0 where ``prec`` is 0); with ``censor`` the truncated-normal
-    moments below ``bound`` (``_truncate_below_log``); ``m`` clipped to ``+-max_log``, ``v`` to
+    moments below ``bound`` (:func:`derender.hdr.lognormal.truncate_below_log`); ``m`` clipped to ``+-max_log``, ``v`` to
     ``[0, max_v]``; raw moments ``e = exp(m + v/2)``, ``expm1(v) e^2``; through ``a`` (3x3,
     camera -> output, variance by ``a * a``) if ``use_a``; the mean projected onto ``>= 0`` (a
     projected channel's variance plus its squared distance, as ``finite_outputs``); clipped to ``f32max/4`` and written
