@@ -33,7 +33,7 @@ def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     """Where ``valid`` leaves frame j out, each kernel's result is the merge of the other frames
     with the same plan (table, matrix and Gaussian plans)."""
     from derender.engine.frames import ArrayFrames, merge_held
-    from derender.engine.motion import _access
+    from derender.engine.motion.run import _access
     from derender.hdr.classic import DebevecMethod, DebevecOptions
     from derender.hdr.registry import method_options
     from derender.hdr.stabilize.method import StabilizedMethod
@@ -90,7 +90,7 @@ def tiny_model():
 def test_gaussian_kernel_valid_planes_exclude_a_frame_exactly(tiny_model):
     from derender.engine.frames import ArrayFrames
     from derender.engine.gaussian import merge_gaussian_frames
-    from derender.engine.motion import _access
+    from derender.engine.motion.run import _access
     from derender.hdr.probabilistic import ProbabilisticMethod
     from derender.hdr.registry import method_options
 
@@ -141,7 +141,7 @@ def _q_numpy(mu_j, sd_j, cj, mu_r, sd_r, cr, b, s2, edge, cap):
 
 
 def test_ghost_statistic_kernel_matches_its_numpy_transcription():
-    from derender.engine.ghost_kernels import ghost_statistic
+    from derender.engine.motion.ghost_kernels import ghost_statistic
 
     rng = np.random.default_rng(3)
     h, w = 17, 23
@@ -166,7 +166,7 @@ def test_upsample_into_equals_opencv_nearest(h, w, step):
     the grid (what ghost removal wrote before), on the bench's 24 MP size and odd sizes."""
     import cv2
 
-    from derender.engine.ghost_kernels import upsample_into
+    from derender.engine.motion.ghost_kernels import upsample_into
 
     rng = np.random.default_rng(step)
     hs, ws = -(-h // step), -(-w // step)
@@ -179,7 +179,7 @@ def test_upsample_into_equals_opencv_nearest(h, w, step):
 
 
 def test_merge_valid_in_place_reuses_the_rejection_plane():
-    from derender.engine.deghost import merge_valid
+    from derender.engine.motion.deghost import merge_valid
 
     rng = np.random.default_rng(0)
     rejected = rng.random((3, 5, 7)) < 0.3
@@ -283,7 +283,7 @@ def test_motion_errors_are_clear():
 
 def test_callers_frames_are_not_modified():
     from derender.engine.frames import ArrayFrames
-    from derender.engine.motion import MotionOptions, run_motion
+    from derender.engine.motion.run import MotionOptions, run_motion
     from derender.hdr.classic import DebevecMethod, DebevecOptions
 
     b = _bracket(setting="handheld", size=(64, 48))

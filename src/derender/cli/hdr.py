@@ -324,7 +324,7 @@ def _motion_options(reference: Optional[str], align: Optional[str], deghost: boo
                 raise InputError(f"--reference {k} is out of range: {n_images} images given (1..{n_images})")
             out["reference"] = k - 1
     if align is not None:
-        from derender.engine.motion import ALIGNMENTS
+        from derender.engine.motion.run import ALIGNMENTS
 
         if align not in ALIGNMENTS + ("mtb",):
             raise InputError(f"--align takes {', '.join(ALIGNMENTS)}, got {align!r}")

@@ -9,7 +9,7 @@
   on the plan type (:class:`~derender.engine.plans.MatrixPlan`,
   :class:`~derender.engine.plans.GaussianPlan`, :class:`~derender.engine.plans.TablePlan`)
   that the plain run (:func:`derender.engine.run.run`) and the motion run
-  (:func:`derender.engine.motion.run_motion`) share.
+  (:func:`derender.engine.motion.run.run_motion`) share.
 * :func:`read_frames` -- decode a bracket into one (N, H, W, 3) uint8 array (and, on
   request, Ward's grey images made in the decoding threads).
 * :func:`prefetch` -- ``fn(item)`` for each item in order, the next ones computed ahead.
@@ -104,7 +104,7 @@ def read_frames(paths: list[Path], threads: int | None,
     """Decode 8-bit frames (in threads) into one (N, H, W, 3) uint8 array (pages populated
     up front, :func:`populated_zeros`) and, with ``derive(frame, out)``, one uint8 plane
     (N, H, W) per frame computed in the decoding threads (e.g. Ward's grey images for MTB
-    registration, :func:`derender.engine.ward2003.grey8_codes`). The first frame gives the size;
+    registration, :func:`derender.engine.motion.ward2003.grey8_codes`). The first frame gives the size;
     the others are decoded straight into their slot. ``derive_alloc(H, W, nbytes)``, if
     given, returns the uint8 memory (at least ``nbytes``) the planes go to, so that a later
     stage can reuse it. ``infos`` are the files' probed headers

@@ -162,7 +162,7 @@ def _shift_words(src, shift, dst):  # pragma: no cover - compiled
 @njit(nogil=True, cache=True)
 def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margin, cand_y, cand_x,
                     out):  # pragma: no cover - compiled
-    """Ward's MTB scores on bands of rows (:func:`derender.engine.ward2003._mtb_counts_bands`), from the greys.
+    """Ward's MTB scores on bands of rows (:func:`derender.engine.motion.ward2003._mtb_counts_bands`), from the greys.
 
     For every candidate shift ``c`` adds to ``out[c, 0]`` the pixels whose threshold bits
     (``g > med``) differ and to ``out[c, 1]`` the pixels outside both exclusion bitmaps

@@ -10,7 +10,7 @@
   (reference frame, alignment, ghost removal), read from the result's ``info``.
 
 Both the plain run (:func:`derender.engine.run.run`) and the motion run
-(:func:`derender.engine.motion.run_motion`) write here, and so does the CLI for results it
+(:func:`derender.engine.motion.run.run_motion`) write here, and so does the CLI for results it
 changes after merging.
 """
 

@@ -1,5 +1,5 @@
 """The engine's plain run: every method merges through :func:`run` (or, with a reference frame,
-alignment or ghost removal, through :func:`derender.engine.motion.run_motion`; the caller
+alignment or ghost removal, through :func:`derender.engine.motion.run.run_motion`; the caller
 chooses, and this module knows nothing of motion).
 
 A method (:class:`~derender.engine.plans.EngineMethod`) says how it needs the frames and

@@ -2,7 +2,7 @@
 
 :func:`merge_files` reads the exposure times without decoding, sorts the frames and runs
 the method on the engine (:func:`derender.engine.run.run`, or
-:func:`derender.engine.motion.run_motion` when a reference frame, alignment or ghost removal
+:func:`derender.engine.motion.run.run_motion` when a reference frame, alignment or ghost removal
 is asked for: the choice is made here): the method's
 :class:`~derender.engine.plans.EngineMethod` (registered with it, see
 :func:`derender.hdr.registry.register_method`) says whether the frames stream (Debevec,
@@ -141,7 +141,7 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                           output=output, variance_output=variance_output, half=half, compression=compression,
                           inputs=all_inputs, order_hint=hint, hold_outputs=hold_outputs or output is None)
             else:                        # reference frame, alignment, ghost removal: the motion run
-                from derender.engine.motion import run_motion
+                from derender.engine.motion.run import run_motion
 
                 res = run_motion(engine_method, source, motion, threads=threads, order_hint=hint, output=output,
                                  variance_output=variance_output, half=half, compression=compression,

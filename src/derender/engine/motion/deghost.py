@@ -367,7 +367,7 @@ class ConsistencyTest:
         radiance estimates (mu, sd, cens) and its :class:`FrameAgreement` (estimated here unless
         given). ``codes`` is the whole (H, W, 3) frame (``on_grid``: already the grid's (hs, ws, 3));
         ``ok`` (hs, ws) uint8 where it may be compared."""
-        from derender.engine.ghost_kernels import ghost_statistic
+        from derender.engine.motion.ghost_kernels import ghost_statistic
 
         mu_j, sd_j, cens_j = _estimates32(self.plan, codes if on_grid else self.grid(codes), j)
         if ok is None:
@@ -425,7 +425,7 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     grid's rejections are written to full resolution in place
     (:func:`derender.engine.ghost_kernels.upsample_into`), no temporary planes."""
     from derender.core.memory import populated_zeros
-    from derender.engine.ghost_kernels import upsample_into
+    from derender.engine.motion.ghost_kernels import upsample_into
 
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)

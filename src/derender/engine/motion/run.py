@@ -6,15 +6,15 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
 
 1. **Reference frame** (:func:`resolve_reference`): the result shows the scene at that
    frame's instant, on its pixel grid. ``"auto"`` is paper 1's rule (Sec. 3.1,
-   :func:`derender.engine.reference_frame.select_reference`: fewest over- and
+   :func:`derender.engine.motion.reference_frame.select_reference`: fewest over- and
    under-exposed pixels, ties to the middle of the bracket).
 2. **Alignment** (:func:`align_frames`): every frame is registered to the reference and
    warped in place (8-bit codes): ``"translation"`` by Ward's median threshold bitmaps
-   (:mod:`derender.engine.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
-   features and a seeded RANSAC (:func:`derender.engine.align.estimate_homography`,
+   (:mod:`derender.engine.motion.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
+   features and a seeded RANSAC (:func:`derender.engine.motion.align.estimate_homography`,
    bilinear on the codes). Pixels a frame does not cover after warping are left out of that
    frame (``valid``).
-3. **Ghost removal** (:mod:`derender.engine.deghost`): per pixel and frame, the frame's
+3. **Ghost removal** (:mod:`derender.engine.motion.deghost`): per pixel and frame, the frame's
    radiance against the reference's under the method's own noise model, pooled over a window,
    cleaned into regions; inconsistent frames get no weight there. The method is then
    *calibrated again without them* (fit, detect, refit: its response samples, the
@@ -66,13 +66,13 @@ class MotionOptions:
         Exclude, per pixel, the frames inconsistent with the reference.
     ghost_threshold : float
         The pooled statistic's threshold: a frame is rejected where the window mean of
-        ``z^2`` per channel exceeds it (:data:`derender.engine.deghost.GHOST_THRESHOLD`).
+        ``z^2`` per channel exceeds it (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`).
     compensate : bool
         With ``deghost``: fill the rejected pixels of each frame from its own view of the moved
-        thing, found by optical flow and tested again (:mod:`derender.engine.compensation`).
+        thing, found by optical flow and tested again (:mod:`derender.engine.motion.compensation`).
     consensus : bool
         With ``deghost``: pixels where ghost removal left frames out lose the rendering bias of
-        the frames that remain (:mod:`derender.engine.consensus`; methods with one curve for
+        the frames that remain (:mod:`derender.engine.motion.consensus`; methods with one curve for
         the bracket).
     seed : int
         Seeds the homography's RANSAC.
@@ -112,7 +112,7 @@ class MotionOptions:
 def resolve_reference(option: int | None, frames: np.ndarray, order: np.ndarray | None = None) -> int:
     """The reference frame's index among ``frames`` (sorted by time): ``option`` is an index
     among the frames as given (``order[k]`` is frame k's given index), None for paper 1's rule."""
-    from derender.engine.reference_frame import select_reference
+    from derender.engine.motion.reference_frame import select_reference
 
     n = frames.shape[0]
     if option is None:
@@ -128,14 +128,14 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
                  threads: int | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Register ``frames`` (N, H, W, 3) uint8 to frame ``ref`` and warp them **in place**.
 
-    ``grey``: (N, H, W) uint8 grey images (:func:`derender.engine.ward2003.grey8_codes`),
+    ``grey``: (N, H, W) uint8 grey images (:func:`derender.engine.motion.ward2003.grey8_codes`),
     made here when None. Returns ``valid`` ((N, H, W) uint8, 1 where the warped pixel comes
     from inside frame j; None when no frame moved) and the details (per-frame shifts or
     homographies, per-pair registration). ``"homography"`` refuses a bracket in which no pair
     of neighbouring frames has features to match (:class:`InputError`); a single dark or
     bright frame falls back to a translation (recorded per pair)."""
-    from derender.engine.align import chain_transforms, shift_into, shift_valid, transforms_to_shifts
-    from derender.engine.ward2003 import grey8_codes
+    from derender.engine.motion.align import chain_transforms, shift_into, shift_valid, transforms_to_shifts
+    from derender.engine.motion.ward2003 import grey8_codes
 
     n, h, w = frames.shape[:3]
     info: dict[str, Any] = {"align": align}
@@ -201,11 +201,11 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     its shift by a pixel or two (measured on the simulator: a tripod bracket's darkest frame moved
     by (2, -2) while the static scene had not). Here every correction within
     :data:`REFINE_REACH` pixels of the current registration is scored by the mean capped ``z^2``
-    of :func:`derender.engine.ghost_kernels.ghost_statistic` over the pixels no frame has rejected (on
+    of :func:`derender.engine.motion.ghost_kernels.ghost_statistic` over the pixels no frame has rejected (on
     at most :data:`REFINE_PIXELS` of them), ties keeping the registration as it is; the frames
     move **in place** and ``valid`` with them. Returns ``valid`` and the corrections."""
-    from derender.engine.align import shift_into, shift_valid
-    from derender.engine.deghost import ConsistencyTest, map_frames
+    from derender.engine.motion.align import shift_into, shift_valid
+    from derender.engine.motion.deghost import ConsistencyTest, map_frames
 
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, pixels=REFINE_PIXELS)
@@ -270,9 +270,9 @@ SCENE_CHECK_PIXELS = 1 << 18
 def bitmap_agreement(grey_a: np.ndarray, grey_b: np.ndarray) -> float | None:
     """How alike two exposures of one scene look: the fraction of pixels, among those neither
     frame has near its threshold, on the same side of it, over Ward's thresholds at
-    :func:`~derender.engine.ward2003.common_percentiles` (exposure-invariant; 1 for one scene,
+    :func:`~derender.engine.motion.ward2003.common_percentiles` (exposure-invariant; 1 for one scene,
     about 0.5 for unrelated images). None when they share fewer than 256 such pixels."""
-    from derender.engine.ward2003 import common_percentiles, median_threshold_bitmaps
+    from derender.engine.motion.ward2003 import common_percentiles, median_threshold_bitmaps
 
     agree = total = 0
     for q in common_percentiles(grey_a, grey_b):
@@ -288,7 +288,7 @@ def check_one_scene(frames: np.ndarray, names: list[str]) -> list[float | None]:
     """Refuse (:class:`StackError`) a bracket whose neighbouring frames (by time, after
     alignment) disagree in structure: :func:`bitmap_agreement` below
     :data:`MIN_BITMAP_AGREEMENT`. Returns the agreements of the neighbouring pairs."""
-    from derender.engine.ward2003 import grey8_codes
+    from derender.engine.motion.ward2003 import grey8_codes
 
     n, h, w = frames.shape[:3]
     s = max(1, int(np.ceil(np.sqrt(h * w / SCENE_CHECK_PIXELS))))
@@ -378,7 +378,7 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     check_memory(n * h * w * 5 + h * w * 16, f"aligning and checking {n} frames of {w}x{h} for motion")
     derive = None
     if motion.align != "none":
-        from derender.engine.ward2003 import grey8_codes
+        from derender.engine.motion.ward2003 import grey8_codes
 
         derive = lambda frame, out: grey8_codes(frame, out=out)  # noqa: E731 - made in the decoding threads
     frames, grey = source.read_all(threads, derive=derive)
@@ -403,7 +403,7 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     ghosts_rejected = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
-        from derender.engine.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
+        from derender.engine.motion.deghost import GHOST_THRESHOLD, ConsistencyTest, detect_ghosts, merge_valid
 
         threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
 
@@ -414,7 +414,7 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
                                  out=spare.pop() if spare else None)
 
         def fill(plan, rejected, info) -> None:
-            from derender.engine.compensation import compensate_frames
+            from derender.engine.motion.compensation import compensate_frames
 
             info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
                                                      rejected, valid, info["agreements"], threads=threads)
@@ -460,7 +460,7 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     t45 = time.perf_counter()
     cinfo = None
     if motion.consensus and ghosts_rejected is not None:
-        from derender.engine.consensus import consensus_correct
+        from derender.engine.motion.consensus import consensus_correct
 
         cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=ghosts_rejected,
                                   threads=threads)

@@ -1,4 +1,4 @@
-"""The compiled per-pixel test of ghost removal (:mod:`derender.engine.deghost`).
+"""The compiled per-pixel test of ghost removal (:mod:`derender.engine.motion.deghost`).
 
 :func:`ghost_statistic` turns two frames' log radiance, its standard deviation and clipping
 flags into the capped ``z^2`` of the consistency test in one pass per pixel. It is compiled
@@ -40,7 +40,7 @@ def _interval_gap(lo_j, hi_j, lo_r, hi_r):  # pragma: no cover - compiled
 # Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(nogil=True, cache=True, error_model="numpy")
 def ghost_statistic(mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, offset, extra_var, edge_shift, cap, ok, out):  # pragma: no cover - compiled
-    """Per pixel of the detection grid, :mod:`derender.engine.deghost`'s ``min(Q, cap)`` of frame j
+    """Per pixel of the detection grid, :mod:`derender.engine.motion.deghost`'s ``min(Q, cap)`` of frame j
     against the reference (0 where ``ok`` is 0, e.g. a pixel one frame does not cover).
 
     ``mu_*``, ``sd_*`` (h, w, 3) float32 log radiance and its standard deviation, ``cens_*``
