@@ -4,7 +4,7 @@ The plain run is :func:`derender.engine.run.run`; the motion run, with its own m
 the subpackage :mod:`derender.engine.motion`. Every public name of the modules below is
 re-exported here (loaded on first use, :mod:`derender.core.lazy`).
 
-Modules: :mod:`derender.engine.run`, :mod:`derender.engine.frames`, :mod:`derender.engine.outputs`, :mod:`derender.engine.plans`, :mod:`derender.engine.tables`, :mod:`derender.engine.table_kernel`, :mod:`derender.engine.matrix`, :mod:`derender.engine.gaussian`, :mod:`derender.engine.kernels`, :mod:`derender.engine.merge_parts`, :mod:`derender.engine.gaussian_kernels`, :mod:`derender.engine.variance`, :mod:`derender.engine.variance_kernels`, :mod:`derender.engine.overlap`, :mod:`derender.engine.weights`, :mod:`derender.engine.reference`, :mod:`derender.engine.motion`, :mod:`derender.engine.motion.run`, :mod:`derender.engine.motion.reference_frame`, :mod:`derender.engine.motion.ward2003`, :mod:`derender.engine.motion.align`, :mod:`derender.engine.motion.deghost`, :mod:`derender.engine.motion.ghost_kernels`, :mod:`derender.engine.motion.compensation`, :mod:`derender.engine.motion.consensus`.
+Modules: :mod:`derender.engine.run`, :mod:`derender.engine.frames`, :mod:`derender.engine.outputs`, :mod:`derender.engine.plans`, :mod:`derender.engine.tables`, :mod:`derender.engine.table_kernel`, :mod:`derender.engine.matrix`, :mod:`derender.engine.gaussian`, :mod:`derender.engine.kernels`, :mod:`derender.engine.merge_parts`, :mod:`derender.engine.gaussian_kernels`, :mod:`derender.engine.variance`, :mod:`derender.engine.variance_kernels`, :mod:`derender.engine.overlap`, :mod:`derender.engine.weights`, :mod:`derender.engine.float_merge`, :mod:`derender.engine.motion`, :mod:`derender.engine.motion.run`, :mod:`derender.engine.motion.reference_frame`, :mod:`derender.engine.motion.ward2003`, :mod:`derender.engine.motion.align`, :mod:`derender.engine.motion.deghost`, :mod:`derender.engine.motion.ghost_kernels`, :mod:`derender.engine.motion.compensation`, :mod:`derender.engine.motion.consensus`.
 """
 
 from derender.core.lazy import attach
@@ -14,7 +14,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "frames": ["NotStreamable", "prefetch", "FramePool", "read_frames", "FileFrames", "ArrayFrames", "clipped_pixels", "frame_brightness", "merge_held", "STREAMED_BYTES_PER_PIXEL"],
     "outputs": ["write_outputs", "write_while_merging", "motion_attributes"],
     "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "SharedVariance", "EngineMethod", "MethodDefaults"],
-    "tables": ["code_histograms", "code_table", "F32_MAX", "code_values", "weight_table", "curve_value_tables", "stack_codes_exact", "TableMerge", "merge_codes", "merge_curves_table"],
+    "tables": ["code_histograms", "code_table", "code_values", "weight_table", "curve_value_tables", "stack_codes_exact", "TableMerge", "merge_codes", "merge_curves_table"],
     "table_kernel": ["table_kernel_merge", "warm_up_kernel"],
     "matrix": ["merge_matrix_frames", "matrix_output_bytes", "KERNEL_LOCK", "set_numba_threads", "warm_up_kernels"],
     "gaussian": ["LogGaussianProduct", "merge_gaussian_frames", "mark_colours_held", "variance_sources"],
@@ -25,7 +25,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "variance_kernels": ["table_merge_var_rows", "stabilized_merge_var_rows", "variance_finish_rows"],
     "overlap": ["OVERLAP_ROWS", "RING_SLOTS", "RowsDone", "OutputRing", "merge_writing", "run_bands"],
     "weights": ["F32_MAX", "weight_hat", "weight_trapezoid", "weight_gaussian", "WEIGHTS", "get_weight"],
-    "reference": ["merge_linear"],
+    "float_merge": ["merge_linear"],
     "motion": [],
     "motion.run": ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement", "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT", "SCENE_CHECK_PIXELS"],
     "motion.reference_frame": ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fractions", "select_reference", "reasonable_references"],

@@ -1,16 +1,26 @@
-"""Compiled per-pixel loops (numba) for the streaming merges of :mod:`derender.fastmerge`.
+"""Compiled per-pixel loops (numba) of the engine's merges: tables, 3x3 matrices, Gaussians, Ward's bitmaps.
+
+The table plan's merge (:func:`table_merge_rows`, run by
+:func:`derender.engine.table_kernel.table_kernel_merge`), the matrix plan's
+(:func:`stabilized_merge_rows`, run by :func:`derender.engine.matrix.merge_matrix_frames`), the
+Gaussian plan's (:func:`gaussian_band`, run by
+:func:`derender.engine.gaussian.merge_gaussian_frames`) and the MTB registration's counts
+(:func:`mtb_band_counts`, :mod:`derender.engine.motion.ward2003`); their shared inlined steps
+are in :mod:`derender.engine.merge_parts`, the variance passes in
+:mod:`derender.engine.variance_kernels`.
 
 Where a merge is a short chain of table look-ups per pixel and exposure, one compiled
 pass that keeps the pixel's sums in registers beats a chain of whole-array NumPy or
 OpenCV passes (each of which reads and writes every plane). The kernels are compiled on
 first use and cached on disk (``cache=True``). The merge runs its rows in parallel
 (``prange``), every pixel independently, so results do not depend on the thread count;
-callers serialise its launches (:data:`derender.fastmerge._KERNEL_LOCK`), since numba's
+callers serialise its launches (:data:`derender.engine.matrix.KERNEL_LOCK`), since numba's
 fallback thread pool cannot run two parallel kernels at once. The merge divides only by
 quantities it has bounded away from 0, so it uses NumPy's error model (no zero-division
 check per division; bit-identical results, 2-3 % faster). Importing numba and loading
-a cached kernel costs ~0.5-0.8 s here, so the streaming merge does it in a background
-thread while it decodes (:func:`derender.fastmerge._warm_up_stabilized`).
+a cached kernel costs ~0.5-0.8 s here, so the merges do it in a background thread while
+they decode (:func:`derender.engine.matrix.warm_up_kernels`,
+:func:`derender.engine.table_kernel.warm_up_kernel`).
 """
 
 from __future__ import annotations

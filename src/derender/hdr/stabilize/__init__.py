@@ -29,7 +29,7 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not bias
   the colours (times serve the gamma level, the noise weights and the joint gauge).
 * Step 4, :mod:`.method` -- :func:`stabilized_merge`, trapezoid-weighted average through
-  :func:`derender.engine.reference.merge_linear` (method ``"stabilized"``), by default also
+  :func:`derender.engine.float_merge.merge_linear` (method ``"stabilized"``), by default also
   weighted by each estimate's inverse noise variance; :func:`stabilize` runs steps 1-3.2.
 
 Fits use 2x2-pixel block means of the linearised values (:mod:`.blocks`: noise in both

@@ -430,7 +430,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
 def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
                      pixel_weights: np.ndarray | None = None) -> HDRResult:
     """Paper 1, Algorithm 1 step 4: weighted average of the stabilised linear images through
-    :func:`derender.engine.reference.merge_linear`. H_j mixes channels, so a pixel of image j gets one
+    :func:`derender.engine.float_merge.merge_linear`. H_j mixes channels, so a pixel of image j gets one
     weight for all channels, times its registration mask: the smallest trapezoid weight
     of its three channels (every channel usable), or, for pixels that no image exposes
     well in all channels, the trapezoid of the *brightest* channel. The latter keeps
@@ -447,7 +447,7 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
     weights (normalised per pixel). 8-bit stacks with integer alignment and no
     ``pixel_weights`` take the table path of :func:`merge_stabilized_table` (same result to 1e-5)."""
-    from derender.engine.reference import merge_linear
+    from derender.engine.float_merge import merge_linear
     from derender.engine.weights import get_weight
 
     if pixel_weights is None:
