@@ -49,7 +49,7 @@ def test_table_engine_add_one_frame(benchmark, frames, acc):
 
 
 def test_reference_engine_two_frames(benchmark, frames):
-    from derender.engine.reference import merge_linear
+    from derender.engine.float_merge import merge_linear
 
     imgs = np.stack(frames[1][:2]).astype(np.float32) / 255
     benchmark.pedantic(merge_linear, args=(lambda j, z: np.log(np.maximum(z, 1e-3)), [0.01, 0.04], imgs, "gaussian"),

@@ -34,7 +34,7 @@ __getattr__, __dir__, _names = attach(__name__, {
     "raw.optimal": ["raw_merge"],
     "response.debevec1997": ["calibrate_debevec"],
     "response.robertson2003": ["calibrate_robertson"],
-    "engine.reference": ["merge_linear"],
+    "engine.float_merge": ["merge_linear"],
     "hdr.registry": ["merge", "register_method", "METHODS", "MethodSpec"],
     "hdr.files": ["merge_files"],
     "derendering.base": ["MODEL_TYPES", "DerenderModel", "fit_model", "load_model"],

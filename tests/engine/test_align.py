@@ -1,4 +1,4 @@
-"""Registration (derender.engine.align, derender.engine.ward2003): Ward's MTB and homography alignment on simulated brackets."""
+"""Registration (derender.engine.motion.align, derender.engine.motion.ward2003): Ward's MTB and homography alignment on simulated brackets."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 
 from derender.camera import simulate_bracket
 from derender.core.errors import InputError
-from derender.engine.align import align_images, shift_image
-from derender.engine.ward2003 import median_threshold_bitmaps, mtb_shift, to_grey8
+from derender.engine.motion.align import align_images, shift_image
+from derender.engine.motion.ward2003 import median_threshold_bitmaps, mtb_shift, to_grey8
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_align_rejects_bad_arguments(wide_bracket):
 def test_mtb_band_scoring_on_large_frames_recovers_shifts(wide_bracket, monkeypatch):
     """Levels above MTB_PIXELS are scored on bands of rows (lazy bitmaps); forced here on
     small frames, the shifts are still recovered exactly."""
-    import derender.engine.ward2003 as A
+    import derender.engine.motion.ward2003 as A
 
     monkeypatch.setattr(A, "MTB_PIXELS", 4096)
     rng = np.random.default_rng(2)

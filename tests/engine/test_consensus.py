@@ -1,4 +1,4 @@
-"""The consensus correction of pixels merged from a subset of the frames (engine/consensus.py).
+"""The consensus correction of pixels merged from a subset of the frames (engine/motion/consensus.py).
 
 Oracle: a bracket rendered through one known curve with a known gain per frame. Where every
 frame takes part, the merge carries the weighted mean of the frames' log gains; a pixel left
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derender.engine.consensus import consensus_correct, frame_biases
+from derender.engine.motion.consensus import consensus_correct, frame_biases
 from derender.engine.plans import MatrixPlan, TablePlan
 
 GAMMA = 2.2

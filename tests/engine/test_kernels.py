@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from helpers import write_png_codes
 
-from derender.engine.ward2003 import _half, grey8_codes, to_grey8
+from derender.engine.motion.ward2003 import _half, grey8_codes, to_grey8
 from derender.hdr.files import merge_files as merge_files_fast
 
 
@@ -60,7 +60,7 @@ def test_compiled_mtb_counts_equal_bitmap_counts(percentile, step):
     scorer counts on explicit bitmaps, for every candidate shift (width not a multiple of 64)."""
     import cv2
 
-    from derender.engine import ward2003 as A
+    from derender.engine.motion import ward2003 as A
 
     rng = np.random.default_rng(int(percentile))
     h, w = 300, 901
@@ -83,7 +83,7 @@ def test_compiled_mtb_counts_with_shifts_across_words():
     them): the compiled scorer still counts exactly what the NumPy scorer counts."""
     import cv2
 
-    from derender.engine import ward2003 as A
+    from derender.engine.motion import ward2003 as A
 
     rng = np.random.default_rng(7)
     h, w = 96, 301

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from derender.core.errors import DerenderError
 from derender.core.types import Stack
-from derender.engine.reference import merge_linear
+from derender.engine.float_merge import merge_linear
 from derender.hdr.registry import merge
 
 _codes = st.sampled_from(["random", "zeros", "full", "binary", "one-channel-dead", "ramp"])

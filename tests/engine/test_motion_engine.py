@@ -32,8 +32,8 @@ def _stack(b):
 def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     """Where ``valid`` leaves frame j out, each kernel's result is the merge of the other frames
     with the same plan (table, matrix and Gaussian plans)."""
-    from derender.engine.motion import _access, _merge
-    from derender.engine.run import ArrayFrames
+    from derender.engine.frames import ArrayFrames, merge_held
+    from derender.engine.motion.run import _access
     from derender.hdr.classic import DebevecMethod, DebevecOptions
     from derender.hdr.registry import method_options
     from derender.hdr.stabilize.method import StabilizedMethod
@@ -50,12 +50,12 @@ def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     methods = [DebevecMethod(DebevecOptions()), StabilizedMethod("stabilized", method_options("stabilized", {"align": "none"}))]
     for method in methods:
         plan = method.plan(_access(method, src, frames, None, n // 2, 1))
-        full = _merge(plan, frames, t, valid, 1)
+        full = merge_held(plan, frames, t, threads=1, valid=valid)
         sub_plan = _subset_plan(plan, keep)
-        sub = _merge(sub_plan, frames[keep], t[keep], None, 1)
+        sub = merge_held(sub_plan, frames[keep], t[keep], threads=1)
         np.testing.assert_allclose(full.radiance[:, : w // 2], sub.radiance[:, : w // 2], rtol=2e-6, atol=1e-7)
         np.testing.assert_array_equal(full.mask[:, : w // 2], sub.mask[:, : w // 2])
-        ref = _merge(plan, frames, t, None, 1)
+        ref = merge_held(plan, frames, t, threads=1)
         np.testing.assert_array_equal(full.radiance[:, w // 2:], ref.radiance[:, w // 2:])
 
 
@@ -88,9 +88,9 @@ def tiny_model():
 
 
 def test_gaussian_kernel_valid_planes_exclude_a_frame_exactly(tiny_model):
+    from derender.engine.frames import ArrayFrames
     from derender.engine.gaussian import merge_gaussian_frames
-    from derender.engine.motion import _access
-    from derender.engine.run import ArrayFrames
+    from derender.engine.motion.run import _access
     from derender.hdr.probabilistic import ProbabilisticMethod
     from derender.hdr.registry import method_options
 
@@ -112,53 +112,6 @@ def test_gaussian_kernel_valid_planes_exclude_a_frame_exactly(tiny_model):
     np.testing.assert_allclose(full.variance[h // 2 + 1:], sub.variance[h // 2 + 1:], rtol=1e-6)
 
 
-def _q_numpy(mu_j, sd_j, cj, mu_r, sd_r, cr, b, s2, edge, cap):
-    """NumPy transcription of ghost_kernels.ghost_statistic (the test's oracle)."""
-    def grad2(mu):
-        gy, gx = np.gradient(mu.astype(np.float64), axis=(0, 1))
-        return gy * gy + gx * gx
-
-    mj = mu_j.astype(np.float64) - b
-    mr = mu_r.astype(np.float64)
-    var = sd_j.astype(np.float64) ** 2 + sd_r.astype(np.float64) ** 2 + s2 + edge ** 2 * (grad2(mu_j) + grad2(mu_r))
-    bj = (cj > 0).any(-1, keepdims=True)
-    br = (cr > 0).any(-1, keepdims=True)
-    inf = np.inf
-    lo_j = np.where(bj, -inf, np.where(cj >= 0, mj, -inf))
-    hi_j = np.where(bj, np.where(cj > 0, inf, mj), mj)
-    lo_r = np.where(br, -inf, np.where(cr >= 0, mr, -inf))
-    hi_r = np.where(br, np.where(cr > 0, inf, mr), mr)
-    gap = np.where(lo_j - hi_r > 0, lo_j - hi_r, np.where(hi_j - lo_r < 0, hi_j - lo_r, 0.0))
-    q = (gap * gap / var).sum(-1) / 3.0
-    kj, kr = mj.argmax(-1)[..., None], mr.argmax(-1)[..., None]
-    tj, tr = np.take_along_axis(mj, kj, -1)[..., 0], np.take_along_axis(mr, kr, -1)[..., 0]
-    vt = 0.5 * (np.take_along_axis(var, kj, -1)[..., 0] + np.take_along_axis(var, kr, -1)[..., 0])
-    gt = np.where(tj - np.where(br[..., 0], inf, tr) > 0, tj - np.where(br[..., 0], inf, tr),
-                  np.where(np.where(bj[..., 0], inf, tj) - tr < 0, np.where(bj[..., 0], inf, tj) - tr, 0.0))
-    qt = gt * gt / vt
-    q = np.where(bj[..., 0] | br[..., 0], np.maximum(q, qt), q)
-    return np.minimum(q, cap)
-
-
-def test_ghost_statistic_kernel_matches_its_numpy_transcription():
-    from derender.engine.ghost_kernels import ghost_statistic
-
-    rng = np.random.default_rng(3)
-    h, w = 17, 23
-    mu_j = rng.normal(0, 1, (h, w, 3)).astype(np.float32)
-    mu_r = (mu_j + rng.normal(0, 1.0, (h, w, 3))).astype(np.float32)
-    sd_j = rng.uniform(0.01, 0.3, (h, w, 3)).astype(np.float32)
-    sd_r = rng.uniform(0.01, 0.3, (h, w, 3)).astype(np.float32)
-    cj = rng.choice([-1, 0, 0, 0, 1], (h, w, 3)).astype(np.int8)
-    cr = rng.choice([-1, 0, 0, 0, 1], (h, w, 3)).astype(np.int8)
-    b = rng.normal(0, 0.1, (h, w, 3)).astype(np.float32)            # per-pixel offsets (FrameAgreement.maps)
-    s2 = rng.uniform(0, 0.02, (h, w, 3)).astype(np.float32)
-    q = np.empty((h, w), np.float32)
-    ghost_statistic(mu_j, sd_j, cj, mu_r, sd_r, cr, b, s2, 0.5, 16.0, np.ones((h, w), np.uint8), q)
-    np.testing.assert_allclose(q, _q_numpy(mu_j, sd_j, cj, mu_r, sd_r, cr, b, s2, 0.5, 16.0), rtol=1e-5, atol=1e-6)
-    assert 0 < (q == 16.0).mean() < 0.5 and (q == 0).any()
-
-
 @pytest.mark.parametrize("h,w", [(4000, 6000), (37, 53), (101, 64)])
 @pytest.mark.parametrize("step", [1, 2, 3, 7, 9])
 def test_upsample_into_equals_opencv_nearest(h, w, step):
@@ -166,7 +119,7 @@ def test_upsample_into_equals_opencv_nearest(h, w, step):
     the grid (what ghost removal wrote before), on the bench's 24 MP size and odd sizes."""
     import cv2
 
-    from derender.engine.ghost_kernels import upsample_into
+    from derender.engine.motion.ghost_kernels import upsample_into
 
     rng = np.random.default_rng(step)
     hs, ws = -(-h // step), -(-w // step)
@@ -179,7 +132,7 @@ def test_upsample_into_equals_opencv_nearest(h, w, step):
 
 
 def test_merge_valid_in_place_reuses_the_rejection_plane():
-    from derender.engine.deghost import merge_valid
+    from derender.engine.motion.deghost import merge_valid
 
     rng = np.random.default_rng(0)
     rejected = rng.random((3, 5, 7)) < 0.3
@@ -282,12 +235,12 @@ def test_motion_errors_are_clear():
 
 
 def test_callers_frames_are_not_modified():
-    from derender.engine.motion import MotionOptions
-    from derender.engine.run import ArrayFrames, run
+    from derender.engine.frames import ArrayFrames
+    from derender.engine.motion.run import MotionOptions, run_motion
     from derender.hdr.classic import DebevecMethod, DebevecOptions
 
     b = _bracket(setting="handheld", size=(64, 48))
     codes = np.ascontiguousarray(b.jpeg_codes)
     before = codes.copy()
-    run(DebevecMethod(DebevecOptions()), ArrayFrames(codes, b.times), motion=MotionOptions(align="translation", deghost=True))
+    run_motion(DebevecMethod(DebevecOptions()), ArrayFrames(codes, b.times), MotionOptions(align="translation", deghost=True))
     np.testing.assert_array_equal(codes, before)

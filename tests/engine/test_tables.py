@@ -8,7 +8,7 @@ from helpers import run_cli, write_png_codes
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
-from derender.engine.reference import merge_linear
+from derender.engine.float_merge import merge_linear
 from derender.engine.tables import (
     TableMerge,
     code_values,

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from conftest import require_shared
 
-from derender.engine.deghost import GHOST_THRESHOLD, GHOST_WINDOW, _box_mean
-from derender.engine.intensity_mapping import mapping_tables, mapping_z2
+from derender.engine.motion.deghost import GHOST_THRESHOLD, GHOST_WINDOW, _box_mean
+from derender.engine.motion.intensity_mapping import mapping_tables, mapping_z2
 from derender.evaluation.consistency import BLOCK, compare_maps
 
 

@@ -77,7 +77,7 @@ def test_clipped_count_is_the_same_for_every_method_and_engine_path(tmp_path):
     count of the shortest frame's pixels with a channel at 255 (issue 24 item 7: the summary said
     0, 9528 and 3221 for one bracket)."""
     from derender.camera import bracket_paths, simulate_bracket, write_bracket
-    from derender.engine.run import clipped_pixels
+    from derender.engine.frames import clipped_pixels
     from derender.hdr.files import merge_files
     from derender.io.images import read_codes
 

@@ -8,7 +8,7 @@ import pytest
 from derender.core.colorimetry import luminance
 from derender.core.errors import InputError, StackError
 from derender.core.types import HDRResult, Stack
-from derender.engine.reference import merge_linear
+from derender.engine.float_merge import merge_linear
 from derender.engine.weights import WEIGHTS, weight_gaussian, weight_hat, weight_trapezoid
 from derender.evaluation.metrics import psnr_rgbl
 from derender.hdr.registry import METHODS, merge, register_method

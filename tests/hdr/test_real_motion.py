@@ -6,7 +6,7 @@ person swinging a paddle; ``motion-sculpture-garden``: 5 tripod TIFFs with pedes
 EXIF times are wrong (given here from ``times.txt``). Neither has a ground truth, so the oracle
 is the reference frame itself: a merge that shows the scene at the reference's instant has the
 reference's structure. Measured with Ward's threshold bitmaps
-(:func:`derender.engine.motion.bitmap_agreement`: the fraction of pixels on the same side of
+(:func:`derender.engine.motion.run.bitmap_agreement`: the fraction of pixels on the same side of
 common percentile thresholds, exposure-invariant), the map against the reference frame:
 
 ========================  ==========  ====================  ===========================
@@ -32,8 +32,8 @@ import numpy as np
 import pytest
 from conftest import require_shared
 
-from derender.engine.motion import bitmap_agreement
-from derender.engine.ward2003 import common_percentiles, grey8_codes, median_threshold_bitmaps
+from derender.engine.motion.run import bitmap_agreement
+from derender.engine.motion.ward2003 import common_percentiles, grey8_codes, median_threshold_bitmaps
 from derender.hdr.files import merge_files
 from derender.io.images import read_codes
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import derender.engine.reference_frame as RF
+import derender.engine.motion.reference_frame as RF
 import derender.hdr.stabilize as S
 import derender.hdr.stabilize.blocks as SB
 import derender.hdr.stabilize.exponents as SX

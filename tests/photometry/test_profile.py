@@ -233,7 +233,7 @@ def test_relative_map_has_chromaticities_and_no_white_luminance(brackets, capsys
     assert code == 0, err
     assert _exr_header(root / "abs.exr")["whiteLuminance"] == 179.0
     from derender.core.types import HDRResult
-    from derender.engine.run import write_outputs
+    from derender.engine.outputs import write_outputs
 
     ones = np.ones((8, 8, 3), np.float32)
     res = HDRResult(radiance=ones, mask=np.zeros((8, 8), np.uint8), variance=ones,

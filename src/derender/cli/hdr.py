@@ -262,7 +262,7 @@ def merge_cmd(
 
             save_merge_profile(profile_tmp, ph, result, images, method, view, inputs)
         if not direct:
-            from derender.engine.run import write_outputs
+            from derender.engine.outputs import write_outputs
 
             write_outputs(result, None if as_hdr else out_tmp, var_tmp, half=half, inputs=inputs, name=method)
         if as_hdr:
@@ -423,7 +423,7 @@ def _motion_options(reference: Optional[str], align: Optional[str], deghost: boo
                 raise InputError(f"--reference {k} is out of range: {n_images} images given (1..{n_images})")
             out["reference"] = k - 1
     if align is not None:
-        from derender.engine.motion import ALIGNMENTS
+        from derender.engine.motion.run import ALIGNMENTS
 
         if align not in ALIGNMENTS + ("mtb",):
             raise InputError(f"--align takes {', '.join(ALIGNMENTS)}, got {align!r}")

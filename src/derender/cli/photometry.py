@@ -110,10 +110,8 @@ def vignetting(
     'derender merge --vignetting V' divides it out."""
     from derender.hdr.files import merge_files
     from derender.io.exif import parse_times
-    from derender.io.files import OutputTransaction, expand_image_paths
+    from derender.io.files import RAW_SUFFIXES, OutputTransaction, expand_image_paths
     from derender.photometry.vignetting import fit_vignetting, save_vignetting
-
-    from derender.io.files import RAW_SUFFIXES
 
     check_times_options(times, times_file, times_inverse)
     images = expand_image_paths(images, raw=True)

@@ -85,7 +85,7 @@ def model_sd_rows(colours, s0, s1, tab_lv, tab_mu, lut_lo, lut_w, eps, floor, cl
 
 @njit(inline="always")
 def _truncated(m, v, bd, max_log):  # pragma: no cover - compiled
-    """``_truncate_below_log`` of one channel: (m, v) truncated below at ``bd`` (see the kernel)."""
+    """:func:`derender.hdr.lognormal.truncate_below_log` of one channel: (m, v) truncated below at ``bd`` (see the kernel)."""
     active = np.isfinite(bd)
     finite = np.isfinite(v)
     om = m

@@ -1,16 +1,26 @@
-"""Compiled per-pixel loops (numba) for the streaming merges of :mod:`derender.fastmerge`.
+"""Compiled per-pixel loops (numba) of the engine's merges: tables, 3x3 matrices, Gaussians, Ward's bitmaps.
+
+The table plan's merge (:func:`table_merge_rows`, run by
+:func:`derender.engine.table_kernel.table_kernel_merge`), the matrix plan's
+(:func:`stabilized_merge_rows`, run by :func:`derender.engine.matrix.merge_matrix_frames`), the
+Gaussian plan's (:func:`gaussian_band`, run by
+:func:`derender.engine.gaussian.merge_gaussian_frames`) and the MTB registration's counts
+(:func:`mtb_band_counts`, :mod:`derender.engine.motion.ward2003`); their shared inlined steps
+are in :mod:`derender.engine.merge_parts`, the variance passes in
+:mod:`derender.engine.variance_kernels`.
 
 Where a merge is a short chain of table look-ups per pixel and exposure, one compiled
 pass that keeps the pixel's sums in registers beats a chain of whole-array NumPy or
 OpenCV passes (each of which reads and writes every plane). The kernels are compiled on
 first use and cached on disk (``cache=True``). The merge runs its rows in parallel
 (``prange``), every pixel independently, so results do not depend on the thread count;
-callers serialise its launches (:data:`derender.fastmerge._KERNEL_LOCK`), since numba's
+callers serialise its launches (:data:`derender.engine.matrix.KERNEL_LOCK`), since numba's
 fallback thread pool cannot run two parallel kernels at once. The merge divides only by
 quantities it has bounded away from 0, so it uses NumPy's error model (no zero-division
 check per division; bit-identical results, 2-3 % faster). Importing numba and loading
-a cached kernel costs ~0.5-0.8 s here, so the streaming merge does it in a background
-thread while it decodes (:func:`derender.fastmerge._warm_up_stabilized`).
+a cached kernel costs ~0.5-0.8 s here, so the merges do it in a background thread while
+they decode (:func:`derender.engine.matrix.warm_up_kernels`,
+:func:`derender.engine.table_kernel.warm_up_kernel`).
 """
 
 from __future__ import annotations
@@ -162,7 +172,7 @@ def _shift_words(src, shift, dst):  # pragma: no cover - compiled
 @njit(nogil=True, cache=True)
 def mtb_band_counts(grey_a, grey_b, med_a, med_b, exclusion, starts, band, margin, cand_y, cand_x,
                     out):  # pragma: no cover - compiled
-    """Ward's MTB scores on bands of rows (:func:`derender.engine.ward2003._mtb_counts_bands`), from the greys.
+    """Ward's MTB scores on bands of rows (:func:`derender.engine.motion.ward2003._mtb_counts_bands`), from the greys.
 
     For every candidate shift ``c`` adds to ``out[c, 0]`` the pixels whose threshold bits
     (``g > med``) differ and to ``out[c, 1]`` the pixels outside both exclusion bitmaps
@@ -386,7 +396,7 @@ def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor,
     per pixel and channel what :func:`derender.hdr.probabilistic.log_product_moments` and
     :func:`derender.hdr.probabilistic.finite_outputs` compute from them: ``v = 1 / prec``,
     ``m = acc v`` (``inf``, 0 where ``prec`` is 0); with ``censor`` the truncated-normal
-    moments below ``bound`` (``_truncate_below_log``); ``m`` clipped to ``+-max_log``, ``v`` to
+    moments below ``bound`` (:func:`derender.hdr.lognormal.truncate_below_log`); ``m`` clipped to ``+-max_log``, ``v`` to
     ``[0, max_v]``; raw moments ``e = exp(m + v/2)``, ``expm1(v) e^2``; through ``a`` (3x3,
     camera -> output, variance by ``a * a``) if ``use_a``; the mean projected onto ``>= 0`` (a
     projected channel's variance plus its squared distance, as ``finite_outputs``); clipped to ``f32max/4`` and written

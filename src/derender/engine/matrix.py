@@ -36,7 +36,7 @@ def matrix_output_bytes(h: int, w: int) -> int:
     return 13 * int(h) * int(w)
 
 
-#: Serialises launches of the parallel numba kernels (see :mod:`derender.kernels`).
+#: Serialises launches of the parallel numba kernels (see :mod:`derender.engine.kernels`).
 KERNEL_LOCK = threading.Lock()
 
 

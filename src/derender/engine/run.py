@@ -1,9 +1,13 @@
-"""The one merge engine: every method runs through :func:`run`.
+"""The engine's plain run: every method merges through :func:`run` (or, with a reference frame,
+alignment or ghost removal, through :func:`derender.engine.motion.run.run_motion`; the caller
+chooses, and this module knows nothing of motion).
 
 A method (:class:`~derender.engine.plans.EngineMethod`) says how it needs the frames and
-returns a plan; :func:`run` does the rest, for files (:class:`FileFrames`, decoded with
-:func:`derender.io.images.read_codes`) and in-memory 8-bit stacks (:class:`ArrayFrames`)
-alike, so the two give the same numbers by construction:
+returns a plan; :func:`run` does the rest, for files
+(:class:`~derender.engine.frames.FileFrames`, decoded with
+:func:`derender.io.images.read_codes`) and in-memory 8-bit stacks
+(:class:`~derender.engine.frames.ArrayFrames`) alike, so the two give the same numbers by
+construction:
 
 * **streamed** methods (``holds_frames=False``, e.g. Debevec & Malik, Robertson): pass 1
   decodes each frame (in threads, in time order), keeps the codes at the method's sample
@@ -17,12 +21,12 @@ alike, so the two give the same numbers by construction:
   samples the frames; paper 2's probabilistic merge, which de-renders every distinct
   colour once): every frame is decoded once into one (N, H, W, 3) uint8 array (plus the
   method's derived planes, e.g. grey images for registration, made in the decoding
-  threads); the plan then runs on the held codes
-  (:func:`~derender.engine.matrix.merge_matrix_frames`,
+  threads); the plan then runs on the held codes (:func:`~derender.engine.frames.merge_held`:
+  :func:`~derender.engine.matrix.merge_matrix_frames`,
   :func:`~derender.engine.gaussian.merge_gaussian_frames`, or the table engine).
 
 :func:`run` writes the radiance (and the variance) to OpenEXR when asked
-(:func:`derender.io.exr.write_exr_fast`, blocks of lines compressed in threads).
+(:mod:`derender.engine.outputs`: while merging where a compiled kernel merges, else after).
 """
 
 from __future__ import annotations
@@ -31,34 +35,32 @@ import functools
 import os
 import threading
 import time
-from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable
 
 import numpy as np
 
 from derender.core.errors import InputError, StackError
-from derender.core.memory import N_CODES, check_memory, populated_zeros, thread_count
+from derender.core.memory import N_CODES, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack, check_brightness_order
-from derender.engine.frames import FramePool, NotStreamable, prefetch, read_frames
-from derender.engine.motion import motion_attributes
-from derender.engine.overlap import RowsDone
-from derender.engine.plans import EngineMethod, FrameAccess, GaussianPlan, MatrixPlan, TablePlan
+from derender.engine.frames import (
+    ArrayFrames,
+    FileFrames,
+    FramePool,
+    NotStreamable,
+    clipped_pixels,
+    frame_brightness,
+    merge_held,
+    prefetch,
+)
+from derender.engine.outputs import write_outputs, write_while_merging
+from derender.engine.plans import EngineMethod, FrameAccess, TablePlan
 from derender.engine.table_kernel import table_kernel_merge, warm_up_kernel
 from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
-from derender.io.exr import exr_attributes, write_exr_fast
-from derender.io.headers import DEFAULT_MAX_MEGAPIXELS, probe_images
-from derender.io.images import read_codes
 
-__all__ = ["FileFrames", "ArrayFrames", "run", "run_stack", "write_outputs", "clipped_pixels",
-           "frame_brightness", "ENGINES"]
+__all__ = ["run", "run_stack", "ENGINES", "HOLD_BYTES", "KERNEL_MIN_PIXEL_FRAMES"]
 
 #: ``engine=`` choices of the in-memory merge methods.
 ENGINES = ("auto", "table", "reference")
-
-#: The least memory a streamed merge needs per pixel: the float32 RGB result and its
-#: weight sums (24 bytes) and the frame being decoded (3 bytes), rounded up; checked
-#: against the available memory before any frame is decoded.
-STREAMED_BYTES_PER_PIXEL = 32
 
 #: Default budget of a streamed method's held frames (8-bit codes of the whole bracket):
 #: within it every frame is decoded once and merged by a compiled kernel (13 frames of
@@ -74,94 +76,9 @@ HOLD_BYTES = 1 << 30
 KERNEL_MIN_PIXEL_FRAMES = 150_000_000
 
 
-class FileFrames:
-    """8-bit frames of image files, sorted by exposure time (``times`` in the order of ``paths``).
-
-    Decoding a 16-bit file raises :class:`~derender.engine.frames.NotStreamable` (the caller
-    falls back to the float reference engine)."""
-
-    def __init__(self, paths: Sequence[str | os.PathLike], times: Sequence[float],
-                 max_megapixels: float | None = DEFAULT_MAX_MEGAPIXELS):
-        t = np.asarray(times, dtype=np.float64).reshape(-1)
-        order = np.argsort(t, kind="stable")
-        self.order = order                   # frame k (by time) is paths[order[k]]
-        self.paths = [Path(paths[i]) for i in order]
-        self.times = t[order]
-        # every header before any pixel: truncation, forged sizes, the megapixel and memory budgets
-        self.infos = probe_images(self.paths, max_megapixels)
-        w, h = self.infos[0].width, self.infos[0].height
-        check_memory(w * h * STREAMED_BYTES_PER_PIXEL, f"merging {w}x{h} images")
-
-    @property
-    def n(self) -> int:
-        return len(self.paths)
-
-    def name(self, j: int) -> str:
-        return self.paths[j].name
-
-    def read(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
-        codes = read_codes(self.paths[j], out=out, info=self.infos[j])
-        if codes is None:
-            raise NotStreamable("16-bit input")
-        return codes
-
-    def read_all(self, threads: int | None, derive=None, derive_alloc=None) -> tuple[np.ndarray, np.ndarray | None]:
-        return read_frames(self.paths, threads, derive=derive, derive_alloc=derive_alloc, infos=self.infos)
-
-
-class ArrayFrames:
-    """In-memory 8-bit frames (N, H, W, 3) uint8 with their times (sorted here by time)."""
-
-    def __init__(self, codes: np.ndarray, times: Sequence[float]):
-        t = np.asarray(times, dtype=np.float64).reshape(-1)
-        codes = np.asarray(codes)
-        if codes.dtype != np.uint8 or codes.ndim != 4 or codes.shape[-1] != 3 or codes.shape[0] != t.size:
-            raise InputError(f"frames must be (N, H, W, 3) uint8 with one time each, got {codes.dtype} {codes.shape}")
-        order = np.argsort(t, kind="stable")
-        self.order = order                   # frame k (by time) is codes[order[k]]
-        self.codes = codes if np.all(order == np.arange(t.size)) else codes[order]
-        self.times = t[order]
-
-    @property
-    def n(self) -> int:
-        return int(self.codes.shape[0])
-
-    def name(self, j: int) -> str:
-        return f"frame {j}"
-
-    def read(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
-        return self.codes[j]
-
-    def read_all(self, threads: int | None, derive=None, derive_alloc=None) -> tuple[np.ndarray, np.ndarray | None]:
-        frames = np.ascontiguousarray(self.codes)
-        planes = None
-        if derive is not None:
-            n_plane = int(np.prod(frames.shape[:3]))
-            mem = (populated_zeros(n_plane, np.uint8) if derive_alloc is None
-                   else derive_alloc(*frames.shape[1:3], n_plane))
-            planes = mem.reshape(-1)[:n_plane].reshape(frames.shape[:3])
-            for j in range(self.n):
-                derive(frames[j], planes[j])
-        return frames, planes
-
-
 def _size_error(source, shape: tuple, j: int, got: tuple) -> InputError:
     return InputError(f"images differ in size: {source.name(0)} is {shape[1]}x{shape[0]}, "
                       f"{source.name(j)} is {got[1]}x{got[0]}")
-
-
-def clipped_pixels(codes: np.ndarray) -> int:
-    """Pixels of an (H, W, 3) uint8 frame with a channel at 255: in the shortest exposure, the
-    pixels over-exposed in every frame. The engine counts them once, the same way for every
-    method (``info["n_clipped"]``), whatever each method's weights make of them (its mask marks
-    where *its* weights left no frame: ``info["n_bright"]``)."""
-    full = np.uint8(255)
-    return int(np.count_nonzero((codes[..., 0] == full) | (codes[..., 1] == full) | (codes[..., 2] == full)))
-
-
-def frame_brightness(codes: np.ndarray) -> float:
-    """Mean code of a frame on a 1/64 subsample (about 1 ms per 24 MP frame)."""
-    return float(codes[::8, ::8].mean())
 
 
 class _FirstPass:
@@ -397,25 +314,10 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     buffer = held.pop("buffer", None)
     if ring:
         buffer = None        # the derived planes' memory is released: the outputs are band buffers
-    if isinstance(plan, MatrixPlan):
-        from derender.engine.matrix import merge_matrix_frames
-
-        res = merge_matrix_frames(frames, plan, source.times, threads=threads, buffer=buffer, write=write, ring=ring)
+    res = merge_held(plan, frames, source.times, threads=threads, compiled_tables=False, buffer=buffer,
+                     outputs=tuple(outputs) if len(outputs) == 2 else None, write=write, ring=ring, name=method.name)
+    if not isinstance(plan, TablePlan):      # the matrix and Gaussian merges write while merging
         res.info["overlapped_write"] = write is not None
-    elif isinstance(plan, GaussianPlan):
-        from derender.engine.gaussian import merge_gaussian_frames
-
-        res = merge_gaussian_frames(frames, plan, threads=threads, write=write,
-                                    outputs=tuple(outputs) if len(outputs) == 2 else None, ring=ring)
-        res.info["overlapped_write"] = write is not None
-    elif isinstance(plan, TablePlan):
-        from derender.engine.tables import merge_codes
-
-        res = merge_codes(frames, source.times, plan.values, plan.weights, image_weights=plan.image_weights,
-                          channel_weights=plan.channel_weights, domain=plan.domain, threads=threads,
-                          block_rows=plan.block_rows, contiguous=False)
-    else:
-        raise TypeError(f"{method.name} returned an unknown plan {type(plan).__name__}")
     del buffer
     t3 = time.perf_counter()
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "plan_s": t2 - t1, "merge_s": t3 - t2})
@@ -424,92 +326,12 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     method.finish(res, access)
     return res
 
-
-def _write_radiance_while_merging(res: HDRResult, done: RowsDone, output, *, half: bool, compression: str,
-                                  inputs, threads: int | None, arr: np.ndarray | None = None, k: int = 0) -> None:
-    """:func:`write_outputs`' radiance file (or ``arr``, e.g. the variance), each block of lines
-    read once the merge has finished it; from ``done.ring`` (output ``k``: 0 radiance, 1
-    variance) when the merge fills band slots instead of whole arrays."""
-    from derender.io.exr import write_exr_lines
-
-    ring = done.ring
-    if ring is None:
-        arr = res.radiance if arr is None else arr
-        h, w = arr.shape[:2]
-    else:
-        h, w = ring.h, ring.w
-
-    def bgr_lines(y0: int, y1: int, buf: np.ndarray) -> None:
-        done.wait(y1)
-        if ring is None:
-            for kk, c in enumerate((2, 1, 0)):  # channels in alphabetical order: B, G, R
-                buf[:, kk, :] = arr[y0:y1, :, c]
-            return
-        for ya, yb, view in ring.segments(k, y0, y1):
-            for kk, c in enumerate((2, 1, 0)):
-                buf[ya - y0:yb - y0, kk, :] = view[:, :, c]
-
-    write_exr_lines(output, w, h, bgr_lines, half=half, inputs=list(inputs), compression=compression, threads=threads,
-                    rows_read=None if ring is None else (lambda y: ring.read(k, y)), attributes=exr_attributes(res.info))
-
-
-def _write_while_merging(res: HDRResult, done: RowsDone, *, output, variance_output, half: bool, compression: str,
-                         inputs: list, threads: int | None) -> None:
-    """The writer a compiled merge runs in a thread (``write(result, rows_done)``): the radiance
-    to ``output`` band by band as rows are done and, when the result has a variance from the
-    start (or the ring carries one), the variance to ``variance_output`` in a second thread."""
-    tw = time.perf_counter()
-    var_thread, var_error = None, []
-    has_variance = res.variance is not None or (done.ring is not None and len(done.ring.rows_read) > 1)
-    if variance_output is not None and has_variance:
-        def write_variance() -> None:
-            try:
-                _write_radiance_while_merging(res, done, variance_output, half=half, compression=compression,
-                                              inputs=inputs + [output], threads=threads, arr=res.variance, k=1)
-            except BaseException as exc:  # noqa: BLE001 - re-raised below, after the radiance's writer
-                var_error.append(exc)
-                if done.ring is not None:
-                    done.ring.fail()      # the merge waits for this writer's rows
-
-        var_thread = threading.Thread(target=write_variance, name="derender-exr-variance", daemon=True)
-        var_thread.start()
-    try:
-        _write_radiance_while_merging(res, done, output, half=half, compression=compression, inputs=inputs,
-                                      threads=threads)
-    finally:
-        if var_thread is not None:
-            var_thread.join()
-    if var_error:
-        raise var_error[0]
-    if var_thread is not None:
-        res.info["overlapped_variance_write"] = True
-    res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
-
-
-def write_outputs(res: HDRResult, output: str | os.PathLike | None = None,
-                  variance_output: str | os.PathLike | None = None, *, half: bool = False, compression: str = "zip",
-                  inputs: Iterable[str | os.PathLike] = (), threads: int | None = None, name: str = "this method") -> None:
-    """Write a result's radiance (and variance) to OpenEXR (:func:`derender.io.exr.write_exr_fast`)."""
-    inputs = list(inputs)
-    if variance_output is not None and res.variance is None:
-        raise InputError(f"method {name!r} gives no variance")
-    attributes = {**exr_attributes(res.info), **motion_attributes(res.info)}
-    if output is not None:
-        tw = time.perf_counter()
-        write_exr_fast(output, res.radiance, half=half, inputs=inputs, compression=compression, threads=threads,
-                       attributes=attributes)
-        res.info.setdefault("timings", {})["write_s"] = time.perf_counter() - tw
-    if variance_output is not None:
-        write_exr_fast(variance_output, res.variance, half=half, inputs=inputs + ([output] if output else []),
-                       compression=compression, threads=threads, attributes=dict(attributes, whiteLuminance=None))
-
-
 def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,
         keep_frames: int | None = None, keep_bytes: int = 256 << 20, hold_bytes: int = HOLD_BYTES,
         output: str | os.PathLike | None = None,
         variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
         inputs: Iterable[str | os.PathLike] = (), order_hint: str | None = None,
-        hold_outputs: bool = True, motion=None) -> HDRResult:
+        hold_outputs: bool = True) -> HDRResult:
     """Merge ``source`` with ``method`` (see the module docstring); optionally write the
     radiance to ``output`` and the variance to ``variance_output`` (OpenEXR).
 
@@ -544,12 +366,6 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
         (:class:`~derender.engine.overlap.OutputRing`) straight into the files and are never
         held whole (9 x 24 MP: 288 MB less memory per output); the result's ``radiance``
         (and ``variance``) are then None.
-    motion : MotionOptions, optional
-        A reference frame, alignment or ghost removal
-        (:class:`~derender.engine.motion.MotionOptions`); when it asks for any, every frame
-        is held and :func:`derender.engine.motion.run_motion` merges
-        (``info["engine_path"]`` ``"motion"``).
-
     Returns
     -------
     HDRResult
@@ -565,21 +381,10 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     t0 = time.perf_counter()
     if source.n < 2:
         raise StackError("an exposure stack needs at least two images")
-    if motion is not None and motion.active:
-        from derender.engine.motion import run_motion
-
-        res = run_motion(method, source, motion, threads=threads, order_hint=order_hint)
-        res.info["engine_path"] = "motion"
-        res.info["reference_name"] = source.name(res.info["reference"])
-        res.info["outputs_held"] = True
-        write_outputs(res, output, variance_output, half=half, compression=compression, inputs=list(inputs),
-                      threads=threads, name=method.name)
-        res.info["total_seconds"] = time.perf_counter() - t0
-        return res
     inputs = list(inputs)
     write = None
     if output is not None:
-        write = functools.partial(_write_while_merging, output=output, variance_output=variance_output, half=half,
+        write = functools.partial(write_while_merging, output=output, variance_output=variance_output, half=half,
                                   compression=compression, inputs=inputs, threads=threads)
     # outputs streamed through band buffers: how many files read them (the variance's too if asked)
     ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)

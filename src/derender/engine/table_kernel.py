@@ -16,7 +16,8 @@ from derender.core.memory import N_CODES, populated_zeros, thread_count
 from derender.core.types import HDRResult
 from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing, run_bands
 from derender.engine.plans import TablePlan
-from derender.engine.tables import F32_MAX, code_table
+from derender.engine.tables import code_table
+from derender.engine.weights import F32_MAX
 
 __all__ = ["table_kernel_merge", "warm_up_kernel"]
 

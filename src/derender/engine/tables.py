@@ -8,7 +8,7 @@ accumulators (OpenCV's ``LUT``, ``accumulate`` and ``accumulateProduct``, which 
 the GIL), run on blocks of rows by a thread pool.
 
 * :class:`TableMerge` -- ``add(codes, values, weights)`` per exposure, ``finish()``
-  applies the saturation policy exactly as :func:`~derender.engine.reference.merge_linear`
+  applies the saturation policy exactly as :func:`~derender.engine.float_merge.merge_linear`
   and returns an :class:`~derender.core.types.HDRResult`. An optional per-image 3x3
   matrix is applied to the linearised values per block.
 * :func:`merge_codes` -- the table merge of in-memory 8-bit exposures.
@@ -30,11 +30,11 @@ import numpy as np
 from derender.core.errors import InputError
 from derender.core.memory import N_CODES, import_cv2, opencv_single_thread, populated_zeros, thread_count
 from derender.core.types import HDRResult, Stack
+from derender.engine.weights import F32_MAX
 
 __all__ = [
     "code_histograms",
     "code_table",
-    "F32_MAX",
     "code_values",
     "weight_table",
     "curve_value_tables",
@@ -45,17 +45,13 @@ __all__ = [
 ]
 
 
-#: Largest finite float32: radiance values are clipped to it so that outputs stay finite.
-F32_MAX = float(np.finfo(np.float32).max)
-
-
 def code_values() -> np.ndarray:
     """The 256 normalised values of 8-bit codes, float32 ``k * float32(1/255)`` (as :func:`derender.io.read_image`)."""
     return np.arange(N_CODES, dtype=np.float32) * np.float32(1.0 / 255.0)
 
 
 def weight_table(weight: str | Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """(256, 3) float32 table of a weight (name in :data:`~derender.merge.WEIGHTS` or pointwise callable) on the codes."""
+    """(256, 3) float32 table of a weight (name in :data:`~derender.engine.weights.WEIGHTS` or pointwise callable) on the codes."""
     from derender.engine.weights import get_weight
 
     fn = get_weight(weight)
@@ -138,7 +134,7 @@ class TableMerge:
 
     ``add(codes, values, weights)`` accumulates one exposure: ``codes`` (H, W, 3)
     uint8 RGB, ``values`` (256, 3) the per-channel value ``v_j(z)`` of each code (what
-    :func:`~derender.merge.merge_linear` averages: ``g(z) - ln t_j`` in the log domain,
+    :func:`~derender.engine.float_merge.merge_linear` averages: ``g(z) - ln t_j`` in the log domain,
     ``lin(z) / t_j`` in the linear one), ``weights`` (256, 3) ``w(z)``. With ``matrix``
     (3, 3), ``values`` is a per-channel linearisation and the averaged value is
     ``matrix @ values(z)`` (linear domain only). ``image_weight`` multiplies the weights
@@ -429,7 +425,7 @@ def merge_codes(codes: Sequence[np.ndarray] | np.ndarray, times: Any, values: np
 
     ``values`` (N, 256, 3) per-exposure value tables, ``weights`` (256, 3) or (N, 256, 3),
     ``image_weights`` (N,), ``matrices`` (N, 3, 3) or None. Same result as
-    :func:`~derender.merge.merge_linear` on the corresponding linearisation.
+    :func:`~derender.engine.float_merge.merge_linear` on the corresponding linearisation.
     """
     t0 = time.perf_counter()
     n = len(codes)
@@ -467,7 +463,7 @@ def merge_codes(codes: Sequence[np.ndarray] | np.ndarray, times: Any, values: np
 def merge_curves_table(stack: Stack, curves, weight: Any = "gaussian", *, domain: str = "log",
                        channel_weights: str = "mean", image_weights: Any = None, bright_threshold: float = 0.5,
                        block_rows: int | None = None, threads: int | None = None) -> HDRResult | None:
-    """The table path of :func:`~derender.merge.merge_linear` for per-channel response curves.
+    """The table path of :func:`~derender.engine.float_merge.merge_linear` for per-channel response curves.
 
     Equivalent to ``merge_linear(lambda j, z: curves.log_linearise(z), stack.times,
     stack.images, weight, log_input=True, ...)``. Returns None when the stack is not

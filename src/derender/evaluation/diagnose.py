@@ -19,7 +19,7 @@ and channel; also per exposure, per channel, the weighted median of ``|y - x|``
 shows up there).
 
 The weight ``w`` is, by default, a "well exposed" trapezoid on the code value
-(:func:`~derender.merge.weight_trapezoid` with ``low=0.1, high=0.9, ramp=0.1``):
+(:func:`~derender.engine.weights.weight_trapezoid` with ``low=0.1, high=0.9, ramp=0.1``):
 like the colour-checker patches of the paper's Fig. 2, only codes between 10 % and
 90 % of full scale count. Near-black codes would otherwise dominate: there ``g`` is
 steep and poorly determined (film toe, black offset; e.g. Debevec's Memorial stack,

@@ -5,7 +5,7 @@ No method can beat knowing the pipeline: :func:`oracle_merge` inverts every fram
 settings), weights each channel with the engine's weights on its code (trapezoid by
 default, :mod:`derender.engine.weights`) times the frame's validity mask (no clipped code,
 no clipped sensor or white-balanced channel), divides by the exposure time and averages
-with the float reference engine (:func:`derender.engine.reference.merge_linear`), whose
+with the float reference engine (:func:`derender.engine.float_merge.merge_linear`), whose
 saturation policy gives pixels no frame exposes the shortest (bright) or longest (dark)
 exposure's value and marks them in the mask; as in the table engine's ``"brightest"`` mode,
 the choice looks at the pixel's largest code in the shortest exposure. The radiance is finite and never negative. Its
@@ -42,7 +42,7 @@ def oracle_merge(codes: np.ndarray, times: Sequence[float], frame_settings: Sequ
     :class:`~derender.core.types.HDRResult` in the truth's space (linear sRGB per second).
     """
     from derender.camera.oracle import invert_frame_codes
-    from derender.engine.reference import merge_linear
+    from derender.engine.float_merge import merge_linear
     from derender.engine.weights import get_weight
 
     codes = np.asarray(codes)

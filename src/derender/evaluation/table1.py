@@ -326,9 +326,9 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), *, kinds: Sequence
 def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = "stabilized",
                      references: Sequence[int] | None = None, **options: Any) -> dict:
     """PSNR (R, G, B, L; :func:`derender.evaluation.metrics.psnr_rgbl`) of ``method`` for every
-    reference in ``references`` (default :func:`derender.engine.reference_frame.reasonable_references`) and the spread
+    reference in ``references`` (default :func:`derender.engine.motion.reference_frame.reasonable_references`) and the spread
     (max - min) of each plane over them (paper 1, Fig. 5)."""
-    from derender.engine.reference_frame import reasonable_references
+    from derender.engine.motion.reference_frame import reasonable_references
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.registry import merge
 

@@ -14,7 +14,7 @@ channels over the near-neutral, well-exposed sampled pixels of every frame, else
 the grey axis), instead of the paper's ``g(128) = 0`` in every channel.
 
 Stacks whose values are not 8-bit codes (16-bit TIFFs) have no table form: they go to
-the float reference engine (:func:`derender.engine.reference.merge_linear`), which is
+the float reference engine (:func:`derender.engine.float_merge.merge_linear`), which is
 also what the table engine is tested against.
 """
 
@@ -29,9 +29,9 @@ import numpy as np
 from derender.core.errors import InputError
 from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
+from derender.engine.float_merge import merge_linear
 from derender.engine.frames import NotStreamable
 from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
-from derender.engine.reference import merge_linear
 from derender.engine.run import ENGINES, run_stack
 from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
@@ -331,7 +331,7 @@ def merge_debevec(
     engine : {"auto", "table", "reference"}
         ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to the reference
         to ~1e-6 relative), ``"table"`` insists on it, ``"reference"`` always uses
-        :func:`~derender.engine.reference.merge_linear`.
+        :func:`~derender.engine.float_merge.merge_linear`.
     variance : bool
         Also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`: noise,
         quantisation, frame disagreement, shared model error; 8-bit stacks).

@@ -1,7 +1,9 @@
 """Merging image files: the product path of ``derender merge``.
 
 :func:`merge_files` reads the exposure times without decoding, sorts the frames and runs
-the method on the engine (:func:`derender.engine.run.run`): the method's
+the method on the engine (:func:`derender.engine.run.run`, or
+:func:`derender.engine.motion.run.run_motion` when a reference frame, alignment or ghost removal
+is asked for: the choice is made here): the method's
 :class:`~derender.engine.plans.EngineMethod` (registered with it, see
 :func:`derender.hdr.registry.register_method`) says whether the frames stream (Debevec,
 Robertson: two passes, a few frames held) or are held once as 8-bit codes (paper 1's and
@@ -22,8 +24,9 @@ import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, check_brightness_order
-from derender.engine.frames import NotStreamable
-from derender.engine.run import FileFrames, run, write_outputs
+from derender.engine.frames import FileFrames, NotStreamable
+from derender.engine.outputs import write_outputs
+from derender.engine.run import run
 from derender.hdr.registry import merge, method_options, method_spec
 from derender.hdr.summary import attach_summary
 from derender.io.exif import file_times
@@ -194,10 +197,18 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
                          "align and deghost need the engine")
     if factory is not None and not on_reference:
         try:
-            res = run(factory(opts), FileFrames(paths, t, max_megapixels), threads=threads, keep_frames=keep_frames,
-                      keep_bytes=keep_bytes, output=output, variance_output=variance_output, half=half,
-                      compression=compression, inputs=all_inputs, order_hint=hint,
-                      hold_outputs=hold_outputs or output is None, motion=motion)
+            engine_method = factory(opts)
+            source = FileFrames(paths, t, max_megapixels)
+            if motion is None:           # the plain run
+                res = run(engine_method, source, threads=threads, keep_frames=keep_frames, keep_bytes=keep_bytes,
+                          output=output, variance_output=variance_output, half=half, compression=compression,
+                          inputs=all_inputs, order_hint=hint, hold_outputs=hold_outputs or output is None)
+            else:                        # reference frame, alignment, ghost removal: the motion run
+                from derender.engine.motion.run import run_motion
+
+                res = run_motion(engine_method, source, motion, threads=threads, order_hint=hint, output=output,
+                                 variance_output=variance_output, half=half, compression=compression,
+                                 inputs=all_inputs)
         except NotStreamable as exc:
             if motion is not None:
                 raise InputError(f"merge method {method!r} cannot align or remove ghosts on these images "

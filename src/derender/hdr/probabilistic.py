@@ -149,9 +149,10 @@ from derender.core.memory import thread_count
 from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
-from derender.engine.frames import NotStreamable
+from derender.engine.frames import ArrayFrames, NotStreamable
 from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults, SharedVariance
-from derender.engine.run import ArrayFrames, run
+from derender.engine.run import run
+from derender.hdr.lognormal import MAX_LOG, MAX_V, truncate_below, truncate_below_log
 from derender.hdr.probabilistic_variance import K_MODEL, K_PIPE, K_SPATIAL
 from derender.hdr.registry import record_values
 
@@ -167,12 +168,7 @@ __all__ = [
     "check_options",
     "ProbabilisticMethod",
     "log_product_moments",
-    "truncate_below_log",
 ]
-
-
-_MAX_LOG = 80.0   # cap on |log raw| of the log-space product (keeps exp finite)
-_MAX_V = 60.0     # cap on the log variance of the product
 
 
 _BOUND_SIGMAS = 1.0   # censoring bound: the GP's mu - k sigma quantile (module docstring)
@@ -201,68 +197,6 @@ def _lower_quantile(model, codes: np.ndarray, mean: np.ndarray) -> np.ndarray:
         mu, s2 = model.predict_log(codes)
         return np.maximum(np.exp(np.asarray(mu) - 2.0 * np.sqrt(np.maximum(s2, 0.0))) - model.eps, 0.0)
     return np.maximum(np.asarray(mean, dtype=np.float64), 0.0)
-
-
-def _truncnorm_moments(mean, var, sd, alpha):
-    """Mean and variance of N(mean, var) truncated below at ``mean + alpha sd``."""
-    from scipy.special import ndtr
-
-    tail = np.maximum(1.0 - ndtr(alpha), 1e-300)
-    lam = np.exp(-0.5 * alpha * alpha) / np.sqrt(2 * np.pi) / tail
-    return mean + sd * lam, var * np.maximum(1.0 + alpha * lam - lam * lam, 1e-6)
-
-
-def _truncate_below(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Moments of N(mean, var) truncated to [bound, inf); see the module doc for conflicts."""
-    out_m = mean.copy()
-    out_v = var.copy()
-    active = bound > 0
-    finite = np.isfinite(var)
-    sd = np.sqrt(np.where(finite, var, 1.0))
-    alpha = np.where(finite, (bound - mean) / np.maximum(sd, 1e-300), np.inf)
-    ok = active & finite & (alpha < 3.0)
-    if ok.any():
-        out_m[ok], out_v[ok] = _truncnorm_moments(mean[ok], var[ok], sd[ok], alpha[ok])
-    conflict = active & ~ok
-    out_m[conflict] = bound[conflict]
-    out_v[conflict] = np.maximum(np.where(finite[conflict], var[conflict], 0.0), bound[conflict] ** 2)
-    nothing = ~np.isfinite(out_v)
-    out_m[nothing] = 0.0
-    out_v[nothing] = np.finfo(np.float32).max / 8
-    return out_m, out_v
-
-
-def _truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Log-space moments of N(mean, var) truncated to [bound, inf) (bound -inf: none; var inf: no evidence).
-
-    A bound more than 3 sigma above the mean (conflict) is dropped: the Gaussian evidence
-    stands. A bound without Gaussian evidence gives the bound with log variance 1.
-    """
-    out_m = mean.copy()
-    out_v = var.copy()
-    active = np.isfinite(bound)
-    finite = np.isfinite(var)
-    sd = np.sqrt(np.where(finite, var, 1.0))
-    with np.errstate(invalid="ignore"):
-        alpha = np.where(active & finite, (bound - np.where(finite, mean, 0.0)) / np.maximum(sd, 1e-300), np.inf)
-    # a bound more than 8 sigma below the mean changes it by < 1e-14 sigma: skip the work
-    ok = active & finite & (alpha < 3.0) & (alpha > -8.0)
-    if ok.any():
-        out_m[ok], out_v[ok] = _truncnorm_moments(mean[ok], var[ok], sd[ok], alpha[ok])
-    only_bound = active & ~finite
-    out_m[only_bound] = bound[only_bound] - 0.5   # mean exp(m + v/2) = exp(bound): the bound itself
-    out_v[only_bound] = 1.0
-    nothing = ~np.isfinite(out_v) | ~np.isfinite(out_m)
-    out_m[nothing] = -_MAX_LOG   # no evidence at all (cannot happen with censoring; keeps outputs finite)
-    out_v[nothing] = 1.0
-    return out_m, out_v
-
-
-def truncate_below_log(mean: np.ndarray, var: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Log-space moments of N(mean, var) truncated below at ``bound`` (the merge's censoring; public
-    for :mod:`derender.hdr.probabilistic_variance`)."""
-    return _truncate_below_log(mean, var, bound)
 
 
 def as_model(model: Any):
@@ -513,7 +447,7 @@ class ProbabilisticMethod(MethodDefaults):
             if extra is not None:        # shared-error variance, spatial term on the block's output
                 mean0, var0, terms = shared_log_moments(prec, acc, bound, extra, censor=censor,
                                                         k_model=shared.k_model, k_pipe=shared.k_pipe,
-                                                        max_log=_MAX_LOG, max_v=_MAX_V)
+                                                        max_log=MAX_LOG, max_v=MAX_V)
                 rad, var = finite_outputs(mean0, var0, a)
                 add_spatial(rad, var, terms, extra[4], shared.k_spatial, shared.floor_share)
                 return rad, var
@@ -522,7 +456,7 @@ class ProbabilisticMethod(MethodDefaults):
         return GaussianPlan(planes=None if fused else planes, table=planes if fused else None, index=index,
                             log_scales=np.array([np.log(opts.target_time / t) for t in access.times]),
                             moments=moments, mask=saturation_mask,
-                            lognormal=LogNormalMoments(censor, _MAX_LOG, _MAX_V, a), shared=shared)
+                            lognormal=LogNormalMoments(censor, MAX_LOG, MAX_V, a), shared=shared)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         info = _info(self.options, self.domain, time.perf_counter() - self.t_plan)
@@ -557,7 +491,7 @@ def _product_linear(model, codes: np.ndarray, times: np.ndarray, target_time: fl
         var0 = np.where(prec > 0, 1.0 / prec, np.inf)
         mean0 = np.where(prec > 0, acc * var0, 0.0)
     if censor:
-        mean0, var0 = _truncate_below(mean0, var0, bound)
+        mean0, var0 = truncate_below(mean0, var0, bound)
     return mean0, var0
 
 
@@ -574,7 +508,7 @@ def _log_slope(model, colours: np.ndarray, mu: np.ndarray, step: int = 2) -> np.
             x = c16.copy()
             x[:, ch] = np.clip(x[:, ch] + d, 0, 255)
             m = model.predict_log(x.astype(np.uint8))[0][:, ch]
-            m = np.clip(np.nan_to_num(np.asarray(m, dtype=np.float64), nan=0.0), -_MAX_LOG, _MAX_LOG)
+            m = np.clip(np.nan_to_num(np.asarray(m, dtype=np.float64), nan=0.0), -MAX_LOG, MAX_LOG)
             ends.append((np.log(np.maximum(np.exp(m) - eps, 1e-30)), x[:, ch]))
         (lu, cu), (ld, cd) = ends
         out[:, ch] = (lu - ld) / np.maximum(cu - cd, 1)
@@ -591,7 +525,7 @@ def _log_tables(model, colours: np.ndarray, floor: float, clip_code: int, censor
     eps = float(getattr(model, "eps", 0.0))
     tiny = 1e-30
     mu, s2 = model.predict_log(colours)
-    mu = np.clip(np.nan_to_num(np.asarray(mu, dtype=np.float64), nan=0.0), -_MAX_LOG, _MAX_LOG)
+    mu = np.clip(np.nan_to_num(np.asarray(mu, dtype=np.float64), nan=0.0), -MAX_LOG, MAX_LOG)
     s2 = np.clip(np.nan_to_num(np.asarray(s2, dtype=np.float64), nan=1e6), 1e-12, 1e6)
     # log of the raw median, var by the delta method
     e = np.exp(mu)
@@ -625,9 +559,9 @@ def log_product_moments(prec: np.ndarray, acc: np.ndarray, bound: np.ndarray, ce
         v = np.where(prec > 0, 1.0 / prec, np.inf)
         m = np.where(prec > 0, acc * v, 0.0)
     if censor:
-        m, v = _truncate_below_log(m, v, bound)
-    m = np.clip(m, -_MAX_LOG, _MAX_LOG)
-    v = np.clip(v, 0.0, _MAX_V)
+        m, v = truncate_below_log(m, v, bound)
+    m = np.clip(m, -MAX_LOG, MAX_LOG)
+    v = np.clip(v, 0.0, MAX_V)
     with np.errstate(over="ignore"):
         mean0 = np.exp(m + 0.5 * v)
         var0 = np.expm1(v) * np.exp(2.0 * m + v)
@@ -676,7 +610,7 @@ def _log_planes(model, colours: np.ndarray, floor: float, clip_code: int, censor
 
         chunk = max(1, min(chunk, -(-colours.shape[0] // max(1, 4 * thread_count(threads)))))
         args = (*compiled, float(getattr(model, "eps", 0.0)), float(floor), int(clip_code), bool(censor),
-                bool(per_channel), float(code_noise), 2, _BOUND_SIGMAS, _MAX_LOG, planes, bool(colour_major))
+                bool(per_channel), float(code_noise), 2, _BOUND_SIGMAS, MAX_LOG, planes, bool(colour_major))
 
     def one(s: int) -> None:
         if compiled is not None:

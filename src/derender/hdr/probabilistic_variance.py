@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from derender.hdr.lognormal import MAX_LOG, truncate_below_log
+
 __all__ = ["K_MODEL", "K_PIPE", "K_SPATIAL", "add_spatial", "model_sd", "fill_model_sd", "shared_log_moments"]
 
 #: Inflation of the shared model term (tuning families; docs/uncertainty.md).
@@ -47,8 +49,6 @@ K_PIPE = 0.01
 #: Weight of the spatial-mixing term (tuning families; docs/uncertainty.md).
 K_SPATIAL = 0.3
 
-_MAX_LOG = 80.0
-
 
 def model_sd(model, colours: np.ndarray, floor: float, clip_code: int, censor: bool, per_channel: bool = True
              ) -> np.ndarray:
@@ -56,7 +56,7 @@ def model_sd(model, colours: np.ndarray, floor: float, clip_code: int, censor: b
     censored): the model part of the log variance, NumPy (any model with ``predict_log``)."""
     eps = float(getattr(model, "eps", 0.0))
     mu, s2 = model.predict_log(colours)
-    mu = np.clip(np.nan_to_num(np.asarray(mu, dtype=np.float64), nan=0.0), -_MAX_LOG, _MAX_LOG)
+    mu = np.clip(np.nan_to_num(np.asarray(mu, dtype=np.float64), nan=0.0), -MAX_LOG, MAX_LOG)
     s2 = np.clip(np.nan_to_num(np.asarray(s2, dtype=np.float64), nan=1e6), 1e-12, 1e6)
     e = np.exp(mu)
     r = np.maximum(e - eps, 1e-30)
@@ -88,7 +88,7 @@ def fill_model_sd(model, colours: np.ndarray, planes: np.ndarray, floor: float, 
 
         def one(i: int) -> None:
             model_sd_rows(colours, cuts[i], cuts[i + 1], tab_lv, tab_mu, lut_lo, lut_w, eps, float(floor),
-                          int(clip_code), bool(censor), True, _MAX_LOG, planes)
+                          int(clip_code), bool(censor), True, MAX_LOG, planes)
 
         if nthreads > 1:
             from concurrent.futures import ThreadPoolExecutor
@@ -158,8 +158,6 @@ def shared_log_moments(prec, acc, bound, extra, *, censor: bool, k_model: float,
     ``extra = (sum p y^2, sum p sm, sum p^2 vn, sum p vn)``, and the model / noise / pipeline terms of ``V``
     (rows, W, 3, 3) for :func:`add_spatial` (NumPy
     :func:`~derender.engine.gaussian_kernels.gaussian_variance_band`)."""
-    from derender.hdr.probabilistic import truncate_below_log as _truncate_below_log
-
     sq, shm, noi, nw = extra[:4]
     with np.errstate(divide="ignore", invalid="ignore"):
         ok = prec > 0
@@ -173,8 +171,8 @@ def shared_log_moments(prec, acc, bound, extra, *, censor: bool, k_model: float,
         vv = np.where(ok, np.maximum(vv, v), np.inf)
     mv = m
     if censor:
-        m, v = _truncate_below_log(m, v, bound)
-        mv, vv = _truncate_below_log(mv, vv, bound)
+        m, v = truncate_below_log(m, v, bound)
+        mv, vv = truncate_below_log(mv, vv, bound)
     m, mv = np.clip(m, -max_log, max_log), np.clip(mv, -max_log, max_log)
     v, vv = np.clip(v, 0.0, max_v), np.clip(vv, 0.0, max_v)
     with np.errstate(over="ignore", invalid="ignore"):

@@ -278,21 +278,21 @@ def _missing_message(method: str, missing: list[str]) -> str:
     return f"merge method {method!r} needs option(s) {', '.join(missing)}{hint}"
 
 
-#: Options the engine takes for every method (:class:`derender.engine.motion.MotionOptions`).
+#: Options the engine takes for every method (:class:`derender.engine.motion.run.MotionOptions`).
 MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold", "ghost_fill", "ghost_consensus")
 
 
 def split_motion(method: str, options: dict, engine_reference: bool = False) -> tuple[Any, dict]:
     """The engine's motion options (:data:`MOTION_OPTIONS`) of a merge call and the method's own.
 
-    Returns ``(motion, options)``: ``motion`` a :class:`~derender.engine.motion.MotionOptions`
+    Returns ``(motion, options)``: ``motion`` a :class:`~derender.engine.motion.run.MotionOptions`
     when the call asks the engine for a reference frame, alignment or ghost removal, else None.
     Paper 1's methods choose a reference and register the frames themselves (their own
     ``reference`` and ``align`` options, ``"mtb"`` by default, ``"translation"`` accepted); the
     engine takes these over when ghost removal is asked for, and for a ``reference`` when
     ``engine_reference`` (files, whose order as given the engine knows: the reference then
     counts the images as given, not by exposure time)."""
-    from derender.engine.motion import MotionOptions
+    from derender.engine.motion.run import MotionOptions
 
     fn = get_method(method)
     params = inspect.signature(fn).parameters
@@ -322,9 +322,10 @@ def split_motion(method: str, options: dict, engine_reference: bool = False) -> 
 
 
 def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRResult:
-    """:func:`merge` on the engine's motion path (reference, alignment, ghost removal)."""
-    from derender.engine.frames import NotStreamable
-    from derender.engine.run import ArrayFrames, run
+    """:func:`merge` on the engine's motion run (reference, alignment, ghost removal:
+    :func:`derender.engine.motion.run.run_motion`; the plain run is the method's own ``merge_*``)."""
+    from derender.engine.frames import ArrayFrames, NotStreamable
+    from derender.engine.motion.run import run_motion
     from derender.engine.tables import stack_codes_exact
 
     factory = method_spec(method).engine_factory()
@@ -336,7 +337,7 @@ def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRRe
         raise InputError("alignment and ghost removal need 8-bit images (every value a code / 255)")
     opts = method_options(method, options)
     try:
-        return run(factory(opts), ArrayFrames(codes, stack.times), motion=motion)
+        return run_motion(factory(opts), ArrayFrames(codes, stack.times), motion)
     except NotStreamable as exc:
         raise InputError(f"merge method {method!r} cannot align or remove ghosts with these options ({exc})") from None
 
@@ -362,7 +363,7 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
         ``ghost_threshold``, ``ghost_fill`` (bool, default True: rejected pixels filled from
         each frame's flow-compensated view) and ``ghost_consensus`` (bool, default True: pixels
         merged from a subset of the frames lose that subset's rendering bias,
-        :mod:`derender.engine.consensus`); paper 1's methods register to their own reference by
+        :mod:`derender.engine.motion.consensus`); paper 1's methods register to their own reference by
         default.
 
     Returns

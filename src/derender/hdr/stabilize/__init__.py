@@ -8,10 +8,10 @@ display gamma, ~2.2). Undoing the gamma gives linear images ``L_j = J_j ** gamma
 which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
 ``H_j = A_ref A_j^-1 t_ref / t_j``. Algorithm 1, one module per step:
 
-* Step 1, :mod:`derender.engine.reference_frame` -- :func:`~derender.engine.reference_frame.select_reference`, the best-exposed image (fewest
+* Step 1, :mod:`derender.engine.motion.reference_frame` -- :func:`~derender.engine.motion.reference_frame.select_reference`, the best-exposed image (fewest
   over/under-exposed pixels).
-* Step 2, registration -- :func:`derender.engine.align.align_images` (Ward's MTB translation by
-  default, :mod:`derender.engine.ward2003`).
+* Step 2, registration -- :func:`derender.engine.motion.align.align_images` (Ward's MTB translation by
+  default, :mod:`derender.engine.motion.ward2003`).
 * Step 3.1, per-image linearisation, :mod:`.exponents` -- :func:`estimate_gammas` (a display gamma
   per image, blind pairwise searches; absolute level with times or blind), read through
   the :class:`Curve` linearisations of :mod:`.curves`. When those gammas drift steadily
@@ -29,7 +29,7 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not bias
   the colours (times serve the gamma level, the noise weights and the joint gauge).
 * Step 4, :mod:`.method` -- :func:`stabilized_merge`, trapezoid-weighted average through
-  :func:`derender.engine.reference.merge_linear` (method ``"stabilized"``), by default also
+  :func:`derender.engine.float_merge.merge_linear` (method ``"stabilized"``), by default also
   weighted by each estimate's inverse noise variance; :func:`stabilize` runs steps 1-3.2.
 
 Fits use 2x2-pixel block means of the linearised values (:mod:`.blocks`: noise in both

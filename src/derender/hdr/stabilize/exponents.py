@@ -23,7 +23,7 @@ import numpy as np
 
 from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709
 from derender.core.errors import InputError
-from derender.engine.reference_frame import check_images
+from derender.engine.motion.reference_frame import check_images
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks, make_blocks
 from derender.hdr.stabilize.curves import Curve, as_curve
 from derender.hdr.stabilize.pair_fit import effective_codes, fit_pair, pair_cost, pair_costs_power, pair_residuals

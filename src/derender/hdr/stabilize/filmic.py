@@ -74,7 +74,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from derender.core.types import Stack
-from derender.engine.reference_frame import REF_HIGH
+from derender.engine.motion.reference_frame import REF_HIGH
 from derender.hdr.stabilize import frame_exponents as fe
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve

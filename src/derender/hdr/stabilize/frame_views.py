@@ -1,10 +1,10 @@
 """Views of a bracket's aligned 8-bit frames for the stabilised merges, without making them whole.
 
 :class:`ShiftedFrames` reads frames through integer registration shifts (what
-:func:`derender.engine.align.align_images` would produce, pixel by pixel), :class:`ShiftedValid`
+:func:`derender.engine.motion.align.align_images` would produce, pixel by pixel), :class:`ShiftedValid`
 and :class:`HeldValid` the matching registration / ghost-removal masks, :class:`CodeFrameRows`
 every k-th row of the shifted frames, and :class:`LazyAlignment` bundles them as the
-:class:`~derender.engine.align.Alignment` that :func:`.method.stabilize_aligned` reads.
+:class:`~derender.engine.motion.align.Alignment` that :func:`.method.stabilize_aligned` reads.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ __all__ = ["ShiftedFrames", "ShiftedValid", "HeldValid", "CodeFrameRows", "LazyA
 
 class ShiftedFrames:
     """8-bit frames seen through integer registration shifts, as the float images
-    :func:`derender.engine.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
+    :func:`derender.engine.motion.align.align_images` would produce (``out[y, x] = frame[clip(y + dy),
     clip(x + dx)]``, codes as ``k * float32(1/255)``), without making them: ``shape`` and
     ``pixels(j, ys, xs)`` for :func:`stabilize_aligned`; ``codes(j)`` gives the aligned
     uint8 frame."""
@@ -46,7 +46,7 @@ class ShiftedFrames:
         return self.frames[j][yy, xx]
 
     def codes(self, j: int, out: np.ndarray | None = None) -> np.ndarray:
-        from derender.engine.align import shift_into
+        from derender.engine.motion.align import shift_into
 
         dy, dx = self.shifts[j]
         if dy == 0 and dx == 0:
@@ -89,7 +89,7 @@ class CodeFrameRows:
     def __getitem__(self, j: int) -> np.ndarray:
         if self.rows == 1:
             return self.view.codes(j)
-        from derender.engine.align import shift_into
+        from derender.engine.motion.align import shift_into
 
         # the rows of the shifted frame, without shifting the whole frame first (at 24 MP that
         # copied 72 MB per frame to keep one row in ``rows``): shift_into's clipped source rows
@@ -106,7 +106,7 @@ class CodeFrameRows:
 
 @dataclass
 class LazyAlignment:
-    """What :func:`stabilize_aligned` reads of an :class:`~derender.engine.align.Alignment`."""
+    """What :func:`stabilize_aligned` reads of an :class:`~derender.engine.motion.align.Alignment`."""
 
     images: ShiftedFrames
     valid: ShiftedValid

@@ -19,8 +19,8 @@ from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.matrix import matrix_output_bytes, merge_matrix_frames, warm_up_kernels
+from derender.engine.motion.reference_frame import REF_PIXELS, select_reference
 from derender.engine.plans import FrameAccess, MatrixPlan, MethodDefaults
-from derender.engine.reference_frame import REF_PIXELS, select_reference
 from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
 from derender.engine.weights import WEIGHTS
@@ -122,7 +122,7 @@ class StabilizedMethod(MethodDefaults):
 
     Every frame is held once as 8-bit codes (72 MB per 24 MP frame, a quarter of the
     float image the reference path holds); Ward's grey images are made in the decoding
-    threads (registration, :func:`derender.engine.align.chain_transforms`); the reference is
+    threads (registration, :func:`derender.engine.motion.align.chain_transforms`); the reference is
     chosen on the codes as :func:`select_reference` does; the gamma / matrix fits read
     only their sampled blocks through :class:`ShiftedFrames`; the Debevec curve (filmic
     cameras) comes from grid samples of the aligned frames; the merge is the engine's
@@ -145,12 +145,12 @@ class StabilizedMethod(MethodDefaults):
     def derive(self):
         if self.align != "mtb":
             return None
-        from derender.engine.ward2003 import grey8_codes
+        from derender.engine.motion.ward2003 import grey8_codes
 
         return lambda frame, out: grey8_codes(frame, out=out)
 
     def plan(self, access: FrameAccess) -> MatrixPlan:
-        from derender.engine.align import chain_transforms, transforms_to_shifts
+        from derender.engine.motion.align import chain_transforms, transforms_to_shifts
         from derender.response.curves import DEFAULT_LAMBDA, DEFAULT_SAMPLES, check_usable_samples, grid_positions
         from derender.response.debevec1997 import calibrate_debevec_from_samples
 
@@ -242,7 +242,7 @@ class Stabilization:
     matrices : numpy.ndarray
         (N, 3, 3) H_j or K_j.
     alignment : Alignment
-        :class:`derender.engine.align.Alignment` (or :class:`LazyAlignment`).
+        :class:`derender.engine.motion.align.Alignment` (or :class:`LazyAlignment`).
     times : numpy.ndarray
         (N,) exposure times (s).
     curves : list
@@ -324,7 +324,7 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb",
     if not isinstance(stack, Stack):
         raise InputError(f"stabilize() needs a Stack, got {type(stack).__name__}")
     _check_modes(mode, response)
-    from derender.engine.align import align_images
+    from derender.engine.motion.align import align_images
     from derender.response.curves import check_usable
 
     check_usable(stack)
@@ -366,7 +366,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
                       exponent_rounds: int | None = None) -> Stabilization:
     """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
 
-    ``al`` is an :class:`derender.engine.align.Alignment`, or a lazy equivalent with ``images``
+    ``al`` is an :class:`derender.engine.motion.align.Alignment`, or a lazy equivalent with ``images``
     and ``valid`` offering ``shape`` and ``pixels(j, ys, xs)`` (the streaming path of
     :func:`derender.hdr.files.merge_files`, which also passes ``calibrate``, see
     :func:`curve_model`). The reference is ``al.reference``.
@@ -432,7 +432,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
 def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
                      pixel_weights: np.ndarray | None = None) -> HDRResult:
     """Paper 1, Algorithm 1 step 4: weighted average of the stabilised linear images through
-    :func:`derender.engine.reference.merge_linear`. H_j mixes channels, so a pixel of image j gets one
+    :func:`derender.engine.float_merge.merge_linear`. H_j mixes channels, so a pixel of image j gets one
     weight for all channels, times its registration mask: the smallest trapezoid weight
     of its three channels (every channel usable), or, for pixels that no image exposes
     well in all channels, the trapezoid of the *brightest* channel. The latter keeps
@@ -449,7 +449,7 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     average rendering (``mode="joint"``). ``pixel_weights`` (N, H, W) multiplies the
     weights (normalised per pixel). 8-bit stacks with integer alignment and no
     ``pixel_weights`` take the table path of :func:`merge_stabilized_table` (same result to 1e-5)."""
-    from derender.engine.reference import merge_linear
+    from derender.engine.float_merge import merge_linear
     from derender.engine.weights import get_weight
 
     if pixel_weights is None:

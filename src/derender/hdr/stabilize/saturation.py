@@ -33,7 +33,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from derender.engine.reference_frame import REF_HIGH
+from derender.engine.motion.reference_frame import REF_HIGH
 from derender.hdr.stabilize.blocks import FIT_HIGH
 
 __all__ = ["STAGNATION_CODES", "STAGNATION_FLOOR", "STAGNATION_CEILING", "STAGNATION_RATIO", "HIDDEN_FRACTION",
@@ -46,7 +46,7 @@ STAGNATION_CODES = 2.0
 #: a floor of 0.1 flagged 8 % of pixels below FIT_HIGH in some frame, 0.2 1.4 %, 0.3 0.65 %;
 #: the ``phone-local`` gain (clipped codes at 0.5-0.8) is the same for all three.
 STAGNATION_FLOOR = 0.3
-#: ... and below this one (:data:`~derender.engine.reference_frame.REF_HIGH`): near white a
+#: ... and below this one (:data:`~derender.engine.motion.reference_frame.REF_HIGH`): near white a
 #: code has no room to grow, and the code thresholds handle it (Memorial: 14 % flagged in
 #: its shortest frame without this ceiling, 0.003 % with it).
 STAGNATION_CEILING = REF_HIGH

@@ -30,7 +30,7 @@ The test reads codes only, so every method gets the same ghost mask for a bracke
 each method's own noise model and four-bin offsets rejected 1-25 % of still real brackets,
 differently per method, and recoloured them: measured in ``docs/ghosts.md``). The method's plan
 still gives each frame's log radiance and a per-code log offset against the reference
-(:meth:`FrameAgreement.maps`), which the flow fill (:mod:`derender.engine.compensation`) reads.
+(:meth:`FrameAgreement.maps`), which the flow fill (:mod:`derender.engine.motion.compensation`) reads.
 
 The reference frame always takes part. Where every other frame is rejected the reference
 alone gives the value (its mask rule as usual: a clipped reference gives the bound).
@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from derender.core.errors import StackError
-from derender.engine.intensity_mapping import MappingTables, mapping_tables, mapping_z2
+from derender.engine.motion.intensity_mapping import MappingTables, mapping_tables, mapping_z2
 
 __all__ = ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED", "REFIT_MIN_REJECTED",
            "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_MIN_PIXELS",
@@ -407,7 +407,7 @@ def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, 
     grid's rejections are written to full resolution in place
     (:func:`derender.engine.ghost_kernels.upsample_into`), no temporary planes."""
     from derender.core.memory import populated_zeros
-    from derender.engine.ghost_kernels import upsample_into
+    from derender.engine.motion.ghost_kernels import upsample_into
 
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, threshold, window, dilate)

@@ -1,6 +1,6 @@
 """Consensus correction: pixels merged from a subset of the frames carry that subset's rendering bias; remove it.
 
-Beyond both papers. Ghost removal (:mod:`derender.engine.deghost`) and alignment leave
+Beyond both papers. Ghost removal (:mod:`derender.engine.motion.deghost`) and alignment leave
 frames out of a pixel: where an object moved only the reference frame (and the frames that
 agree with it) is merged. A method with one response curve for the whole bracket
 (Debevec & Malik, Robertson) renders each frame through that common curve, but a camera that

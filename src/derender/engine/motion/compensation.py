@@ -1,12 +1,12 @@
 """Motion-compensated fill: where ghost removal left a frame out, that frame's own view of the
 moved thing, found by dense optical flow and kept only if it passes the consistency test.
 
-Ghost removal (:mod:`derender.engine.deghost`) keeps the scene of the reference instant but,
+Ghost removal (:mod:`derender.engine.motion.deghost`) keeps the scene of the reference instant but,
 where something moved, leaves only the reference frame: an object clipped or too dark in
 the reference has no other measurement, and its radiance is the reference's bound or noise.
 The object is still in the other frames, elsewhere. Per frame ``j`` with rejected pixels:
 
-1. both frames as log radiance under the method's plan (:func:`derender.engine.deghost.frame_estimates`,
+1. both frames as log radiance under the method's plan (:func:`derender.engine.motion.deghost.frame_estimates`,
    mean of the channels, frame j's global offset removed), clipped to the range *both* frames
    observe and scaled to 8 bits: a short exposure's unclipped object and the reference's clipped
    one then look alike (the exposure normalisation of Kalantari & Ramamoorthi 2017);
@@ -14,7 +14,7 @@ The object is still in the other frames, elsewhere. Per frame ``j`` with rejecte
    detection grid, brought to full resolution;
 3. frame j's codes sampled through the flow (nearest code: the colours stay ones the frame
    has, as paper 2's per-colour tables need), tested against the reference with the same
-   test and the same offset and spread as frame j itself (:class:`~derender.engine.deghost.ConsistencyTest`);
+   test and the same offset and spread as frame j itself (:class:`~derender.engine.motion.deghost.ConsistencyTest`);
 4. where the warped frame agrees and the frame had been rejected, its warped codes replace its
    own and it takes part again.
 
@@ -60,12 +60,12 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
                       offsets: dict, threads: int | None = None) -> dict[str, Any]:
     """Fill the ``rejected`` pixels of every frame from its flow-compensated view (module
     docstring), **in place**: ``frames[j]`` takes the warped codes and ``rejected[j]`` turns
-    False where they pass ``test`` (a :class:`~derender.engine.deghost.ConsistencyTest` of the
-    reference). ``offsets[j]``: frame j's :class:`~derender.engine.deghost.FrameAgreement` of the
+    False where they pass ``test`` (a :class:`~derender.engine.motion.deghost.ConsistencyTest` of the
+    reference). ``offsets[j]``: frame j's :class:`~derender.engine.motion.deghost.FrameAgreement` of the
     detection. Returns the filled fraction per frame."""
     import cv2
 
-    from derender.engine.deghost import frame_estimates, map_frames
+    from derender.engine.motion.deghost import frame_estimates, map_frames
 
     n, h, w = frames.shape[:3]
     ref = test.ref

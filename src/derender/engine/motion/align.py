@@ -5,10 +5,10 @@ The paper registers the images with Ward's (2003) median threshold bitmaps (its 
 (:func:`align_images`):
 
 * ``"mtb"`` (default): Ward's median threshold bitmap alignment, integer translations
-  (:mod:`derender.engine.ward2003`, :func:`~derender.engine.ward2003.mtb_shift`). In a bracket
+  (:mod:`derender.engine.motion.ward2003`, :func:`~derender.engine.motion.ward2003.mtb_shift`). In a bracket
   one image of a pair is often more than half clipped (its median is 255 or 0), so the
   bitmaps are thresholded at several common percentiles inside both images' usable range
-  (:func:`~derender.engine.ward2003.common_percentiles`; one percentile still splits both
+  (:func:`~derender.engine.motion.ward2003.common_percentiles`; one percentile still splits both
   images at one radiance) and the bit errors summed.
 * ``"homography"``: ORB features (on histogram-equalised grey images, so that different
   exposures match), Hamming matching with Lowe's ratio test and a seeded RANSAC on
@@ -35,8 +35,8 @@ from typing import Sequence
 import numpy as np
 
 from derender.core.errors import InputError, StackError
-from derender.engine import ward2003
-from derender.engine.ward2003 import common_percentiles_hist, mtb_shift, to_grey8
+from derender.engine.motion import ward2003
+from derender.engine.motion.ward2003 import common_percentiles_hist, mtb_shift, to_grey8
 
 __all__ = [
     "ALIGN_METHODS",

@@ -21,7 +21,7 @@ is far from what its code in the other predicts:
 
 ``z_{j->r} = (c_r - m_{jr}(c_j)) / sqrt(s_{jr}(c_j)^2 + (e |grad c_r|)^2)``, likewise ``z_{r->j}``,
 and ``z_c^2 = min(z_{j->r}^2, z_{r->j}^2)``, with ``e`` the misregistration an edge may show
-(:data:`derender.engine.deghost.EDGE_SHIFT` pixels). The minimum makes clipping harmless: a
+(:data:`derender.engine.motion.deghost.EDGE_SHIFT` pixels). The minimum makes clipping harmless: a
 code clipped in one frame predicts the other frame's code badly (its spread is wide, or its
 median far), but the other frame's unclipped code predicts the clipped one exactly; a real ghost
 is inconsistent both ways.
@@ -48,7 +48,7 @@ __all__ = ["MIN_PIXELS", "SIGMA_FLOOR", "MappingTables", "mapping_tables", "mapp
 MIN_PIXELS = 64
 
 #: The smallest spread (codes) of a mapping: 8-bit quantisation of both frames and a code of
-#: sensor and JPEG noise (what :data:`derender.engine.deghost.CODE_SIGMA` says).
+#: sensor and JPEG noise (what :data:`derender.engine.motion.deghost.CODE_SIGMA` says).
 SIGMA_FLOOR = 1.0
 
 _MAD_TO_SIGMA = 1.4826

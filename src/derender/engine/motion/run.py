@@ -6,22 +6,23 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
 
 1. **Reference frame** (:func:`resolve_reference`): the result shows the scene at that
    frame's instant, on its pixel grid. ``"auto"`` is paper 1's rule (Sec. 3.1,
-   :func:`derender.engine.reference_frame.select_reference`: fewest over- and
+   :func:`derender.engine.motion.reference_frame.select_reference`: fewest over- and
    under-exposed pixels, ties to the middle of the bracket).
 2. **Alignment** (:func:`align_frames`): every frame is registered to the reference and
    warped in place (8-bit codes): ``"translation"`` by Ward's median threshold bitmaps
-   (:mod:`derender.engine.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
-   features and a seeded RANSAC (:func:`derender.engine.align.estimate_homography`,
+   (:mod:`derender.engine.motion.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
+   features and a seeded RANSAC (:func:`derender.engine.motion.align.estimate_homography`,
    bilinear on the codes). Pixels a frame does not cover after warping are left out of that
    frame (``valid``).
-3. **Ghost removal** (:mod:`derender.engine.deghost`): per pixel and frame, the frame's
+3. **Ghost removal** (:mod:`derender.engine.motion.deghost`): per pixel and frame, the frame's
    radiance against the reference's under the method's own noise model, pooled over a window,
    cleaned into regions; inconsistent frames get no weight there. The method is then
    *calibrated again without them* (fit, detect, refit: its response samples, the
    stabiliser's gamma/3x3 fits read only consistent pixels) and the decision is made once
    more with the refitted model.
 4. **Merge**: the method's plan on the engine's kernels with the ``valid`` planes
-   (:func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
+   (:func:`derender.engine.frames.merge_held`, the plain run's dispatch:
+   :func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
    ``gaussian_moments_band``); where no frame that takes part has weight, the shortest
    (bright) or longest (dark) frame that takes part gives the value, as before.
 
@@ -31,18 +32,21 @@ The frames are held in memory (N x H x W x 3 bytes, plus one byte per pixel and 
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
 from derender.core.errors import InputError, StackError
 from derender.core.memory import check_memory
 from derender.core.types import HDRResult, check_brightness_order
+from derender.engine.frames import ArrayFrames, FileFrames, clipped_pixels, frame_brightness, merge_held
+from derender.engine.outputs import write_outputs
 
 __all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
-           "check_one_scene", "run_motion", "motion_attributes", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
+           "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
            "SCENE_CHECK_PIXELS"]
 
 #: ``align=`` choices (``"mtb"`` is accepted as another name for ``"translation"``).
@@ -62,13 +66,13 @@ class MotionOptions:
         Exclude, per pixel, the frames inconsistent with the reference.
     ghost_threshold : float
         The pooled statistic's threshold: a frame is rejected where the window mean of
-        ``z^2`` per channel exceeds it (:data:`derender.engine.deghost.GHOST_THRESHOLD`).
+        ``z^2`` per channel exceeds it (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`).
     compensate : bool
         With ``deghost``: fill the rejected pixels of each frame from its own view of the moved
-        thing, found by optical flow and tested again (:mod:`derender.engine.compensation`).
+        thing, found by optical flow and tested again (:mod:`derender.engine.motion.compensation`).
     consensus : bool
         With ``deghost``: pixels where ghost removal left frames out lose the rendering bias of
-        the frames that remain (:mod:`derender.engine.consensus`; methods with one curve for
+        the frames that remain (:mod:`derender.engine.motion.consensus`; methods with one curve for
         the bracket).
     seed : int
         Seeds the homography's RANSAC.
@@ -108,7 +112,7 @@ class MotionOptions:
 def resolve_reference(option: int | None, frames: np.ndarray, order: np.ndarray | None = None) -> int:
     """The reference frame's index among ``frames`` (sorted by time): ``option`` is an index
     among the frames as given (``order[k]`` is frame k's given index), None for paper 1's rule."""
-    from derender.engine.reference_frame import select_reference
+    from derender.engine.motion.reference_frame import select_reference
 
     n = frames.shape[0]
     if option is None:
@@ -124,14 +128,14 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
                  threads: int | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Register ``frames`` (N, H, W, 3) uint8 to frame ``ref`` and warp them **in place**.
 
-    ``grey``: (N, H, W) uint8 grey images (:func:`derender.engine.ward2003.grey8_codes`),
+    ``grey``: (N, H, W) uint8 grey images (:func:`derender.engine.motion.ward2003.grey8_codes`),
     made here when None. Returns ``valid`` ((N, H, W) uint8, 1 where the warped pixel comes
     from inside frame j; None when no frame moved) and the details (per-frame shifts or
     homographies, per-pair registration). ``"homography"`` refuses a bracket in which no pair
     of neighbouring frames has features to match (:class:`InputError`); a single dark or
     bright frame falls back to a translation (recorded per pair)."""
-    from derender.engine.align import chain_transforms, shift_into, shift_valid, transforms_to_shifts
-    from derender.engine.ward2003 import grey8_codes
+    from derender.engine.motion.align import chain_transforms, shift_into, shift_valid, transforms_to_shifts
+    from derender.engine.motion.ward2003 import grey8_codes
 
     n, h, w = frames.shape[:3]
     info: dict[str, Any] = {"align": align}
@@ -197,11 +201,11 @@ def refine_shifts(frames: np.ndarray, valid: np.ndarray | None, plan, ref: int, 
     its shift by a pixel or two (measured on the simulator: a tripod bracket's darkest frame moved
     by (2, -2) while the static scene had not). Here every correction within
     :data:`REFINE_REACH` pixels of the current registration is scored by the mean capped ``z^2``
-    of :func:`derender.engine.intensity_mapping.mapping_z2` over the pixels no frame has rejected (on
+    of :func:`derender.engine.motion.intensity_mapping.mapping_z2` over the pixels no frame has rejected (on
     at most :data:`REFINE_PIXELS` of them), ties keeping the registration as it is; the frames
     move **in place** and ``valid`` with them. Returns ``valid`` and the corrections."""
-    from derender.engine.align import shift_into, shift_valid
-    from derender.engine.deghost import ConsistencyTest, map_frames
+    from derender.engine.motion.align import shift_into, shift_valid
+    from derender.engine.motion.deghost import ConsistencyTest, map_frames
 
     n, h, w = frames.shape[:3]
     test = ConsistencyTest(plan, frames[ref], ref, pixels=REFINE_PIXELS)
@@ -266,9 +270,9 @@ SCENE_CHECK_PIXELS = 1 << 18
 def bitmap_agreement(grey_a: np.ndarray, grey_b: np.ndarray) -> float | None:
     """How alike two exposures of one scene look: the fraction of pixels, among those neither
     frame has near its threshold, on the same side of it, over Ward's thresholds at
-    :func:`~derender.engine.ward2003.common_percentiles` (exposure-invariant; 1 for one scene,
+    :func:`~derender.engine.motion.ward2003.common_percentiles` (exposure-invariant; 1 for one scene,
     about 0.5 for unrelated images). None when they share fewer than 256 such pixels."""
-    from derender.engine.ward2003 import common_percentiles, median_threshold_bitmaps
+    from derender.engine.motion.ward2003 import common_percentiles, median_threshold_bitmaps
 
     agree = total = 0
     for q in common_percentiles(grey_a, grey_b):
@@ -284,7 +288,7 @@ def check_one_scene(frames: np.ndarray, names: list[str]) -> list[float | None]:
     """Refuse (:class:`StackError`) a bracket whose neighbouring frames (by time, after
     alignment) disagree in structure: :func:`bitmap_agreement` below
     :data:`MIN_BITMAP_AGREEMENT`. Returns the agreements of the neighbouring pairs."""
-    from derender.engine.ward2003 import grey8_codes
+    from derender.engine.motion.ward2003 import grey8_codes
 
     n, h, w = frames.shape[:3]
     s = max(1, int(np.ceil(np.sqrt(h * w / SCENE_CHECK_PIXELS))))
@@ -297,25 +301,6 @@ def check_one_scene(frames: np.ndarray, names: list[str]) -> list[float | None]:
             raise StackError(f"{names[j]} and {names[j + 1]} do not show one scene (their structure agrees on "
                              f"{100 * a:.0f} % of the pixels, one scene gives over {100 * MIN_BITMAP_AGREEMENT:.0f} %): "
                              "these images are not one bracket")
-    return out
-
-
-def motion_attributes(info: dict) -> dict[str, str]:
-    """The EXR header attributes that record the engine's reference frame, alignment and ghost
-    removal (``derender:reference``: the frame's name and its place among the images as given,
-    from 1; ``derender:alignment``; ``derender:deghost``); empty for a plain merge."""
-    if info.get("engine_path") != "motion" and "reference_name" not in info:
-        return {}
-    out = {}
-    if info.get("reference_input") is not None:
-        out["derender:reference"] = f"{info.get('reference_name', 'frame')} (image {info['reference_input'] + 1})"
-    al = info.get("alignment") or {}
-    if al.get("align"):
-        out["derender:alignment"] = str(al["align"])
-    dg = info.get("deghost")
-    if dg:
-        out["derender:deghost"] = (f"threshold {dg.get('threshold')}, "
-                                   f"{100 * float(dg.get('rejected', 0.0)):.2f} % of the other frames' pixels left out")
     return out
 
 
@@ -346,31 +331,35 @@ def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: i
                        reference=ref, valid=valid, aligned=True)
 
 
-def _merge(plan, frames: np.ndarray, times: np.ndarray, valid: np.ndarray | None, threads: int | None,
-           ref: int = -1) -> HDRResult:
-    from derender.engine.plans import GaussianPlan, MatrixPlan, TablePlan
+def run_motion(method, source, motion: MotionOptions, *, threads: int | None = None,
+               order_hint: str | None = None, output: str | os.PathLike | None = None,
+               variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
+               inputs: Iterable[str | os.PathLike] = ()) -> HDRResult:
+    """Merge ``source`` (:class:`~derender.engine.frames.FileFrames` or
+    :class:`~derender.engine.frames.ArrayFrames`) with ``method`` on the motion path, and
+    optionally write the radiance to ``output`` and the variance to ``variance_output``
+    (OpenEXR, :func:`derender.engine.outputs.write_outputs`, with the attributes of
+    :func:`~derender.engine.outputs.motion_attributes`).
 
-    n = frames.shape[0]
-    if isinstance(plan, MatrixPlan):
-        from derender.engine.matrix import merge_matrix_frames
+    The motion run of the engine, beside the plain run (:func:`derender.engine.run.run`): the
+    caller chooses between them (:func:`derender.hdr.files.merge_files`,
+    :func:`derender.hdr.registry.merge`), when ``motion`` asks for a reference frame,
+    alignment or ghost removal. ``info["engine_path"]`` is ``"motion"``; the outputs are held
+    (``info["outputs_held"]``)."""
+    t0 = time.perf_counter()
+    if source.n < 2:
+        raise StackError("an exposure stack needs at least two images")
+    res = _merge_motion(method, source, motion, threads, order_hint)
+    res.info["engine_path"] = "motion"
+    res.info["reference_name"] = source.name(res.info["reference"])
+    res.info["outputs_held"] = True
+    write_outputs(res, output, variance_output, half=half, compression=compression, inputs=list(inputs),
+                  threads=threads, name=method.name)
+    res.info["total_seconds"] = time.perf_counter() - t0
+    return res
 
-        return merge_matrix_frames(frames, plan, times, valid=valid, threads=threads, ref=ref)
-    if isinstance(plan, GaussianPlan):
-        from derender.engine.gaussian import merge_gaussian_frames
 
-        return merge_gaussian_frames(frames, plan, threads=threads, valid=valid)
-    if isinstance(plan, TablePlan):
-        from derender.engine.run import table_kernel_merge
-
-        if plan.channel_weights not in ("mean", "independent"):
-            raise InputError(f"channel_weights={plan.channel_weights!r} cannot be merged with alignment or "
-                             "ghost removal; use 'mean' or 'independent'")
-        return table_kernel_merge(frames, plan, list(range(n - 1, -1, -1)), threads, valid=valid, ref=ref)
-    raise TypeError(f"unknown plan {type(plan).__name__}")
-
-
-def run_motion(method, source, motion: MotionOptions, threads: int | None = None,
-               order_hint: str | None = None) -> HDRResult:
+def _merge_motion(method, source, motion: MotionOptions, threads: int | None, order_hint: str | None) -> HDRResult:
     """Merge ``source`` with ``method`` on the motion path (module docstring): every frame held,
     the reference chosen, the frames aligned, inconsistent pixels excluded, the method
     calibrated on what is left. ``info`` records ``reference`` (index by time),
@@ -378,8 +367,6 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     homographies) and ``deghost`` (threshold, rejected fraction per frame, rounds);
     ``result.ghosts`` is the (H, W) uint8 count of frames excluded at each pixel (rejected
     as inconsistent or not covered after warping)."""
-    from derender.engine.run import ArrayFrames, FileFrames, clipped_pixels, frame_brightness
-
     t0 = time.perf_counter()
     n = source.n
     if isinstance(source, FileFrames):
@@ -391,7 +378,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     check_memory(n * h * w * 5 + h * w * 16, f"aligning and checking {n} frames of {w}x{h} for motion")
     derive = None
     if motion.align != "none":
-        from derender.engine.ward2003 import grey8_codes
+        from derender.engine.motion.ward2003 import grey8_codes
 
         derive = lambda frame, out: grey8_codes(frame, out=out)  # noqa: E731 - made in the decoding threads
     frames, grey = source.read_all(threads, derive=derive)
@@ -416,7 +403,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
     ghosts_rejected = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
-        from derender.engine.deghost import (
+        from derender.engine.motion.deghost import (
             GHOST_THRESHOLD,
             REFIT_MIN_REJECTED,
             ConsistencyTest,
@@ -433,7 +420,7 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
                                  out=spare.pop() if spare else None)
 
         def fill(plan, rejected, info) -> None:
-            from derender.engine.compensation import compensate_frames
+            from derender.engine.motion.compensation import compensate_frames
 
             info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
                                                      rejected, valid, info["agreements"], threads=threads)
@@ -475,11 +462,11 @@ def run_motion(method, source, motion: MotionOptions, threads: int | None = None
         uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
         ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
     t4 = time.perf_counter()
-    res = _merge(plan, frames, source.times, valid, threads, ref)
+    res = merge_held(plan, frames, source.times, threads=threads, valid=valid, ref=ref, name=method.name)
     t45 = time.perf_counter()
     cinfo = None
     if motion.consensus and ghosts_rejected is not None:
-        from derender.engine.consensus import consensus_correct
+        from derender.engine.motion.consensus import consensus_correct
 
         cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=ghosts_rejected,
                                   threads=threads)
