@@ -570,17 +570,72 @@ def diagnose(
     times_file: Optional[Path] = typer.Option(None, "--times-file", help=TIMES_FILE_HELP),
     times_inverse: bool = typer.Option(False, "--times-inverse", help=INVERSE_HELP),
     seed: int = typer.Option(0, "--seed", min=0, help="Sampling seed."),
+    round_trip: Optional[str] = typer.Option(None, "--round-trip", help="Also merge with this method and render the "
+                                             "map back through its own forward model (curve and exposure, or per-frame "
+                                             "gamma and 3x3): per frame and region, how far the codes come back from "
+                                             "each frame's own (median, p95; codes)."),
+    reference: Optional[str] = typer.Option(None, "--reference", help="With --round-trip: the reference frame (N from "
+                                            "1, or auto)."),
+    align: str = typer.Option("none", "--align", help="With --round-trip: none or translation."),
+    deghost: bool = typer.Option(False, "--deghost", help="With --round-trip: merge with ghost removal (pixels any "
+                                 "frame was left out of are not scored)."),
+    fail_map: Optional[Path] = typer.Option(None, "--fail-map", help="With --round-trip: a PNG of where the round trip "
+                                            "fails (grey level: how many frames miss by more than 4 codes)."),
 ) -> None:
-    """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response)."""
+    """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response).
+    With --round-trip METHOD: does the merge give back each frame's codes?"""
     from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
+    from derender.io.files import OutputTransaction
 
+    check_choice("--align", align, ("none", "translation"))
+    if round_trip is None and (fail_map is not None or deghost or reference is not None):
+        raise InputError("--fail-map, --deghost and --reference need --round-trip METHOD")
+    if round_trip is not None:
+        from derender.hdr.registry import method_spec
+
+        method_spec(round_trip)             # an unknown method is an error before any work
     stack = read_stack_from_cli(images, times, times_file, times_inverse)
     result = diagnose_constant_response(stack, seed=seed)
     inputs = list(images) + ([times_file] if times_file else [])
-    plot_diagnose(result, output, inputs=inputs)
-    per = ", ".join(f"{v:.3f}" for v in result.rms_stops_per_exposure)
-    typer.echo(f"spread (RMS deviation from slope-1 line): {result.rms_stops:.3f} stops overall; "
-               f"median {result.median_stops:.3f}; per exposure [{per}] -> {output}")
+    with OutputTransaction() as tx:
+        fig_tmp = tx.add(output, "-o", None)
+        map_tmp = tx.add(fail_map, "--fail-map", (".png",))
+        plot_diagnose(result, fig_tmp, inputs=inputs)
+        per = ", ".join(f"{v:.3f}" for v in result.rms_stops_per_exposure)
+        typer.echo(f"spread (RMS deviation from slope-1 line): {result.rms_stops:.3f} stops overall; "
+                   f"median {result.median_stops:.3f}; per exposure [{per}] -> {output}")
+        if round_trip is not None:
+            _round_trip_report(images, round_trip, times, times_file, times_inverse, reference, align, deghost,
+                               (map_tmp, fail_map), inputs)
+
+
+def _round_trip_report(images, method, times, times_file, times_inverse, reference, align, deghost, map_path,
+                       inputs) -> None:
+    """`diagnose --round-trip`: the per-frame and per-region table, and the failure map
+    (``map_path``: the transaction's temporary and the user's name, or (None, None))."""
+    from derender.evaluation.roundtrip import FAIL_CODES, REGIONS, bracket_round_trip
+    from derender.io.files import expand_image_paths
+    from derender.io.preview import write_png
+
+    images = expand_image_paths(images)
+    opts = _motion_options(reference, align, deghost, None, None, len(images))
+    tlist = [float(x) for x in times.split(",")] if times else None
+    rt, res, names = bracket_round_trip(images, method, times=tlist, times_file=times_file,
+                                        times_file_inverse=times_inverse, **opts)
+    typer.echo(f"round trip through {method}'s forward model (codes; the issue's line: median <= 1.5, p95 <= 4):")
+    for row in rt.rows(names):
+        typer.echo(f"  {row['frame']}: median {row['median']:.2f}  p95 {row['p95']:.2f}  ({row['pixels']} px)")
+    import numpy as np
+
+    worst = np.nanmax(rt.regions, axis=0)
+    typer.echo(f"  worst frame's median per region ({REGIONS}x{REGIONS}, top row first): "
+               + " | ".join(" ".join("  - " if not np.isfinite(v) else f"{v:4.1f}" for v in r) for r in worst))
+    tmp, final = map_path
+    if tmp is not None:
+        n = max(1, len(names))
+        grey = np.clip(np.rint(255.0 * rt.fail.astype(np.float64) / n), 0, 255).astype(np.uint8)
+        write_png(tmp, np.repeat(grey[..., None], 3, axis=-1), inputs)
+        typer.echo(f"  pixels some frame misses by more than {FAIL_CODES:g} codes -> {final}")
 
 
 @app.command()

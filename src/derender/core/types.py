@@ -218,6 +218,10 @@ class HDRResult:
         (H, W) uint8, how many frames did not take part at each pixel because they disagreed
         with the reference frame (ghost removal) or did not cover it after alignment; None
         when the engine neither aligned nor removed ghosts (:mod:`derender.engine.motion`).
+    plan : object or None
+        The engine's plan the map was merged with (:mod:`derender.engine.plans`: how each
+        frame's codes become radiance); None for merges outside the engine. The round trip
+        (:mod:`derender.evaluation.roundtrip`) renders the map back through it.
     """
 
     radiance: np.ndarray
@@ -225,6 +229,7 @@ class HDRResult:
     variance: np.ndarray | None = None
     info: dict = field(default_factory=dict)
     ghosts: np.ndarray | None = None
+    plan: Any = None
 
     MASK_OK = 0
     MASK_BRIGHT = 1

@@ -173,6 +173,7 @@ def _run_streamed_held(method: EngineMethod, source, threads: int | None, order_
     res.info.update({"merge_seconds": t3 - t2,
                      "streaming": {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0},
                      "n_clipped": first.n_clipped})
+    res.plan = plan            # the forward model the map was merged with (evaluation.roundtrip)
     method.finish(res, access)
     return res
 
@@ -262,6 +263,7 @@ def _run_streamed(method: EngineMethod, source, threads: int | None, keep_frames
         "streaming": {"frames_kept": keep, "decodes": n + n - keep},
         "n_clipped": first.n_clipped,
     })
+    res.plan = plan            # the forward model the map was merged with (evaluation.roundtrip)
     method.finish(res, access)
     return res
 
@@ -323,6 +325,7 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "plan_s": t2 - t1, "merge_s": t3 - t2})
     res.info["streaming"] = {"frames_kept": source.n, "decodes": source.n if isinstance(source, FileFrames) else 0}
     res.info["n_clipped"] = n_clipped
+    res.plan = plan            # the forward model the map was merged with (evaluation.roundtrip)
     method.finish(res, access)
     return res
 

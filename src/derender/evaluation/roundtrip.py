@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FAIL_CODES", "REGIONS", "RoundTrip", "round_trip", "inverse_tables"]
+__all__ = ["FAIL_CODES", "REGIONS", "RoundTrip", "round_trip", "inverse_tables", "bracket_round_trip"]
 
 #: A frame misses a pixel when its re-rendered code is further than this from its own.
 FAIL_CODES = 4.0
@@ -171,3 +171,58 @@ def round_trip(plan, frames: np.ndarray, radiance: np.ndarray, *, reference: int
                 regions[j].flat[r] = float(np.median(d[ok & (cell == r)]))
         fail += (ok & (d.max(axis=-1) > FAIL_CODES)).astype(np.uint8)
     return RoundTrip(median=med, p95=p95, pixels=cnt, regions=regions, fail=fail)
+
+
+def bracket_round_trip(paths, method: str = "debevec", *, times=None, times_file=None, times_file_inverse: bool = False,
+                       **options) -> tuple[RoundTrip, "object", list[str]]:
+    """Merge the image files ``paths`` with ``method`` (:func:`derender.hdr.files.merge_files`,
+    its ``options``: reference, align, deghost, ...), then render the map back through the
+    method's plan against the files' own codes (:func:`round_trip`): the frames in exposure
+    order, moved by the engine's integer registration, pixels where ghost removal or alignment
+    left any frame out excluded. Returns the :class:`RoundTrip`, the merge result and the frames'
+    names in exposure order."""
+    from pathlib import Path
+
+    from derender.core.errors import InputError
+    from derender.hdr.files import merge_files
+    from derender.io.exif import file_times
+    from derender.io.files import expand_image_paths
+    from derender.io.images import read_codes
+
+    paths = expand_image_paths(paths)
+    res = merge_files(paths, times, method=method, times_file=times_file, times_file_inverse=times_file_inverse,
+                      **options)
+    if res.plan is None:
+        raise InputError(f"merge method {method!r} has no engine plan to render back")
+    try:
+        _plan_kind(res.plan)
+    except TypeError as exc:
+        raise InputError(f"merge method {method!r}: {exc}") from None
+    t = np.asarray(file_times(paths, times, times_file, times_file_inverse), dtype=np.float64)
+    order = np.argsort(t, kind="stable")
+    frames = []
+    for i in order:
+        codes = read_codes(paths[i])
+        if codes is None:
+            raise InputError(f"{Path(paths[i]).name} is not an 8-bit image: the round trip reads 8-bit codes")
+        frames.append(codes)
+    frames = np.stack(frames)
+    al = res.info.get("alignment") or {}
+    if al.get("homographies") is not None and al.get("shifts") is None:
+        raise InputError("the round trip follows integer registrations only: merge with --align none or translation")
+    shifts = al.get("shifts")
+    if shifts is not None:
+        from derender.engine.motion.align import shift_into
+
+        tmp = np.empty_like(frames[0])
+        for j, (dy, dx) in enumerate(shifts):
+            if dy or dx:
+                tmp[...] = frames[j]
+                shift_into(frames[j], tmp, int(dy), int(dx))
+    exclude = None
+    if res.ghosts is not None and np.any(res.ghosts):
+        exclude = np.broadcast_to(res.ghosts != 0, frames.shape[:3])
+    ref = res.info.get("reference")
+    ref = int(ref) if ref is not None else frames.shape[0] // 2
+    rt = round_trip(res.plan, frames, res.radiance, reference=ref, exclude=exclude)
+    return rt, res, [Path(paths[i]).name for i in order]

@@ -486,5 +486,6 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
                                                "deghost_s": t4 - t3, "merge_s": t45 - t4,
                                                "consensus_s": t5 - t45})
     res.info["streaming"] = {"frames_kept": n, "decodes": n if isinstance(source, FileFrames) else 0}
+    res.plan = plan            # the forward model the map was merged with (evaluation.roundtrip)
     method.finish(res, access)
     return res
