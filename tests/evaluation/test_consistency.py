@@ -113,6 +113,50 @@ def test_the_gallery_still_brackets_do_not_change_with_deghost():
         assert row["chroma_p95"] <= 0.03, row
         assert row["chroma_p99"] <= P99_CHROMA_TODAY, row
         assert row["luminance_p99"] <= P99_LUMINANCE_TODAY, row
-    for row in rows:                      # the motion brackets: ghost removal did something
-        if not row["still"]:
+    for row in rows:                      # the motion brackets: ghost removal did something, and the map
+        if not row["still"]:              # shows the reference: one monotone curve per channel within 3 codes
             assert row["rejected"] > 0.0, row
+            assert row["fidelity_blocks"] >= 40 and row["fidelity_curve_p95"] <= 3.0, row
+
+
+def _table_plan(times):
+    from derender.engine.plans import TablePlan
+
+    z = np.arange(256) / 255.0
+    with np.errstate(divide="ignore"):
+        g = np.log(np.maximum(z, 1e-4) ** 2.2)
+    values = np.stack([np.repeat(g[:, None], 3, axis=1) - np.log(t) for t in times]).astype(np.float32)
+    w = np.minimum(np.arange(256), 255 - np.arange(256)).astype(np.float64)
+    return TablePlan(values=values, weights=np.repeat(w[:, None], 3, axis=1), domain="log")
+
+
+def test_flicker_bands_are_given_back_and_a_moving_thing_is_not():
+    """Two frames of one textured scene; the reference sees dark vertical bands (a PWM-driven
+    light under a rolling shutter: one gain per column) and a moved textured patch. Ghost
+    removal must keep the bands (they are flicker) and leave out the patch (it moved)."""
+    from derender.engine.motion.deghost import detect_ghosts
+
+    rng = np.random.default_rng(5)
+    h, w = 240, 320
+    scene = np.clip(rng.normal(0.25, 0.08, (h, w, 3)), 0.02, 0.6)
+    scene = np.repeat(np.repeat(scene[::4, ::4], 4, 0), 4, 1)[:h, :w]       # texture of 4 px cells
+    times = np.array([1.0, 2.0])
+    def render(x, t):
+        return np.clip(np.rint(255 * np.clip(x * t, 0, 1) ** (1 / 2.2) + rng.normal(0, 0.7, x.shape)), 0, 255).astype(np.uint8)
+    long_ = render(scene, 2.0)
+    ref_scene = scene.copy()
+    for x0 in (40, 150, 260):                                           # three bands, 12 px wide, 60 % bright
+        ref_scene[30:210, x0:x0 + 12] *= 0.6
+    ref_scene[60:120, 200:240] = scene[150:210, 20:60]                   # a textured patch moved in
+    ref = render(ref_scene, 1.0)
+    frames = np.stack([ref, long_])
+    rejected, info = detect_ghosts(frames, _table_plan(times), 0, None, threads=1)
+    assert rejected is not None
+    band = np.zeros((h, w), bool)
+    for x0 in (40, 150, 260):
+        band[40:200, x0 + 2:x0 + 10] = True
+    patch = np.zeros((h, w), bool)
+    patch[66:114, 206:234] = True
+    assert rejected[1][patch].mean() > 0.9
+    assert rejected[1][band].mean() < 0.1
+    assert info["frames"][1]["flicker"] > 0

@@ -10,7 +10,7 @@ import pytest
 from conftest import require_shared
 
 from derender.engine.plans import MatrixPlan, TablePlan
-from derender.evaluation.roundtrip import FAIL_CODES, bracket_round_trip, round_trip
+from derender.evaluation.roundtrip import bracket_round_trip, round_trip
 
 
 def _bracket(seed=0, n=4, h=40, w=56):

@@ -206,3 +206,53 @@ def method_agreement(name: str, methods=("debevec", "robertson", "stabilized"), 
                          "rel_sigma_a": float(np.median(np.sqrt(va) / xa)),
                          "rel_sigma_b": float(np.median(np.sqrt(vb) / xb))})
     return rows
+
+
+#: Reference blocks scored by :func:`reference_fidelity`: every code of the block's median within
+#: [FIDELITY_LOW, FIDELITY_HIGH] and the block smooth (each channel's codes' interdecile range
+#: at most FIDELITY_FLAT codes).
+FIDELITY_LOW, FIDELITY_HIGH, FIDELITY_FLAT = 20, 235, 12
+
+#: A reference block is neutral when its median codes are within this many codes of each other.
+NEUTRAL_CODES = 3
+
+
+def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block: int = BLOCK) -> dict:
+    """How faithfully a merge shows its reference frame (``--deghost``: the scene at the reference's
+    instant), on blocks where the reference is smooth and well exposed (:data:`FIDELITY_LOW` ..
+    :data:`FIDELITY_FLAT`):
+
+    * ``neutral_p95``: over the blocks the reference renders neutral (median codes within
+      :data:`NEUTRAL_CODES`), the p95 of ``max(|ln(R/G) - m_rg|, |ln(B/G) - m_bg|)`` of the merge,
+      ``m`` the medians over those blocks (a method's map is linear in its own rendering, known up
+      to a factor per channel): 0.05 is a 5 % tint;
+    * ``curve_p95``: after one monotone curve per channel (isotonic regression of the reference's
+      block codes on the merge's log block values), the p95 of ``|code - curve|`` (codes).
+    Also the block counts (``blocks``, ``neutral_blocks``)."""
+    from sklearn.isotonic import IsotonicRegression
+
+    rad = block_medians(radiance, block)
+    codes = np.asarray(reference_codes)
+    h, w = rad.shape[:2]
+    tiles = codes[:h * block, :w * block].reshape(h, block, w, block, 3).swapaxes(1, 2).reshape(h, w, -1, 3)
+    med = np.median(tiles, axis=2)
+    spread = np.quantile(tiles, 0.9, axis=2) - np.quantile(tiles, 0.1, axis=2)
+    ok = (np.all((med >= FIDELITY_LOW) & (med <= FIDELITY_HIGH), axis=-1) & np.all(spread <= FIDELITY_FLAT, axis=-1)
+          & np.all(rad > 0, axis=-1) & np.all(np.isfinite(rad), axis=-1))
+    out = {"blocks": int(ok.sum()), "neutral_blocks": 0, "neutral_p95": float("nan"), "curve_p95": float("nan")}
+    if ok.sum() < 16:
+        return out
+    lr = np.log(rad[ok])
+    resid = []
+    for c in range(3):
+        iso = IsotonicRegression(increasing=True, out_of_bounds="clip").fit(lr[:, c], med[ok][:, c])
+        resid.append(np.abs(med[ok][:, c] - iso.predict(lr[:, c])))
+    out["curve_p95"] = float(np.quantile(np.concatenate(resid), 0.95))
+    neutral = ok & (np.ptp(med, axis=-1) <= NEUTRAL_CODES)
+    out["neutral_blocks"] = int(neutral.sum())
+    if neutral.sum() >= 8:
+        ln = np.log(rad[neutral])
+        rg, bg = ln[:, 0] - ln[:, 1], ln[:, 2] - ln[:, 1]
+        dev = np.maximum(np.abs(rg - np.median(rg)), np.abs(bg - np.median(bg)))
+        out["neutral_p95"] = float(np.quantile(dev, 0.95))
+    return out

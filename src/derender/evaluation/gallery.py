@@ -5,7 +5,9 @@ every method of :data:`~derender.evaluation.consistency.FLAG_METHODS`, with and 
 removal, and writes small JPEG crops of the tone-mapped maps at the trouble spots (the iPhone's
 flickering monitor, the sculpture garden's facade, the ping-pong player), side by side, plus the
 still brackets' flag-invariance table (:func:`derender.evaluation.consistency.flag_invariance`,
-the table ``tests/evaluation/test_consistency.py`` checks) as a Markdown page fragment. The
+the table ``tests/evaluation/test_consistency.py`` checks) and, on the motion brackets, how
+faithfully the ``--deghost`` map shows the reference frame
+(:func:`derender.evaluation.consistency.reference_fidelity`), as a Markdown page fragment. The
 documentation build runs it (``docs/conf.py``); without the data the page says so.
 
 Both maps of a pair are tone-mapped together (Reinhard 2002 on the two crops side by side, the
@@ -21,7 +23,13 @@ from typing import Callable
 
 import numpy as np
 
-from derender.evaluation.consistency import FLAG_METHODS, STILL_BRACKETS, compare_maps, shared_data_root
+from derender.evaluation.consistency import (
+    FLAG_METHODS,
+    STILL_BRACKETS,
+    compare_maps,
+    reference_fidelity,
+    shared_data_root,
+)
 
 __all__ = ["GALLERY", "THUMB_WIDTH", "build_gallery", "source_key"]
 
@@ -136,8 +144,15 @@ def build_gallery(out_dir: str | Path, root: str | Path | None = None, methods=F
             lines += [f"## {name}", "", f"*{root / spec['folder']} is absent on the machine that built these pages.*", ""]
             continue
         paths, kw = _inputs(name, root)
-        lines += [f"## {name}: {spec['note']}", "", "| method | plain | `--deghost` | left out | chroma p95 / p99 | luminance p99 |",
+        still = name in STILL_BRACKETS
+        last = "luminance p99" if still else "fidelity: neutral p95 / curve p95"
+        lines += [f"## {name}: {spec['note']}", "", f"| method | plain | `--deghost` | left out | chroma p95 / p99 | {last} |",
                   "| --- | --- | --- | ---: | ---: | ---: |"]
+        ref_codes = None
+        if not still:
+            from derender.io.images import read_codes
+
+            ref_codes = read_codes(paths[kw["reference"]])
         for m in methods:
             if progress:
                 progress(f"gallery: {name} {m}")
@@ -145,14 +160,20 @@ def build_gallery(out_dir: str | Path, root: str | Path | None = None, methods=F
             clean = merge_files(paths, method=m, deghost=True, **kw)
             change = compare_maps(plain.radiance, clean.radiance)
             rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
-            row = {"bracket": name, "method": m, "still": name in STILL_BRACKETS, "rejected": rejected, **change.row()}
+            row = {"bracket": name, "method": m, "still": still, "rejected": rejected, **change.row()}
+            if not still:
+                fid = reference_fidelity(clean.radiance, ref_codes)
+                row.update({f"fidelity_{k}": v for k, v in fid.items()})
+                cell = f"{_fmt(fid['neutral_p95'])} / {fid['curve_p95']:.1f}"
+            else:
+                cell = _fmt(change.luminance_p99)
             rows.append(row)
             ta, tb = _pair_thumbnails(plain.radiance, clean.radiance, change.scale, spec["crop"])
             for tag, img in (("plain", ta), ("deghost", tb)):
                 _write_jpeg(img_dir / f"{name}-{m}-{tag}.jpg", img)
             lines.append(f"| {m} | ![{name} {m}](gallery/{name}-{m}-plain.jpg) | "
                          f"![{name} {m} deghost](gallery/{name}-{m}-deghost.jpg) | {100 * rejected:.1f} % | "
-                         f"{_fmt(change.chroma_p95)} / {_fmt(change.chroma_p99)} | {_fmt(change.luminance_p99)} |")
+                         f"{_fmt(change.chroma_p95)} / {_fmt(change.chroma_p99)} | {cell} |")
         lines.append("")
     frag.write_text("\n".join(lines) + "\n")
     cache.write_text(json.dumps({"key": key, "root": str(root), "rows": rows}, indent=2) + "\n")

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MIN_PIXELS", "SIGMA_FLOOR", "MappingTables", "mapping_tables", "mapping_z2"]
+__all__ = ["MIN_PIXELS", "SIGMA_FLOOR", "MappingTables", "mapping_tables", "mapping_z2", "gradient2"]
 
 #: A code's median and spread are read from at least this many pixels (of the nearest codes
 #: when that code alone has fewer).
@@ -130,7 +130,7 @@ def mapping_tables(pred: np.ndarray, target: np.ndarray, min_pixels: int = MIN_P
     return MappingTables(median=med, sigma=sig, count=cnt)
 
 
-def _gradient2(codes: np.ndarray) -> np.ndarray:
+def gradient2(codes: np.ndarray) -> np.ndarray:
     """Squared gradient magnitude (central differences, codes per grid pixel) of (h, w, 3) codes, float32."""
     import cv2
 
@@ -149,8 +149,8 @@ def mapping_z2(codes_j: np.ndarray, codes_r: np.ndarray, forward: MappingTables,
     e2 = np.float32(edge_shift * edge_shift)
     m_f, s_f = forward.predict(codes_j)
     m_b, s_b = backward.predict(codes_r)
-    z_f = (codes_r.astype(np.float32) - m_f) ** 2 / (s_f * s_f + e2 * _gradient2(codes_r))
-    z_b = (codes_j.astype(np.float32) - m_b) ** 2 / (s_b * s_b + e2 * _gradient2(codes_j))
+    z_f = (codes_r.astype(np.float32) - m_f) ** 2 / (s_f * s_f + e2 * gradient2(codes_r))
+    z_b = (codes_j.astype(np.float32) - m_b) ** 2 / (s_b * s_b + e2 * gradient2(codes_j))
     z2 = np.minimum(z_f, z_b).mean(axis=-1)
     np.minimum(z2, np.float32(cap), out=z2)
     if ok is not None:
