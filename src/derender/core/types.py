@@ -276,7 +276,7 @@ class HDRResult:
     True
     >>> result.radiance.shape, result.radiance.dtype, result.mask.shape
     ((8, 8, 3), dtype('float32'), (8, 8))
-    >>> result.variance is None   # Debevec's merge gives no variance
+    >>> result.variance is None   # unless asked for (variance=True)
     True
     """
 
