@@ -19,6 +19,14 @@ from __future__ import annotations
 
 from derender.core.lazy import attach
 
+#: The package's version (PEP 440), the one its installed metadata carries.
+#:
+#: Examples
+#: --------
+#: >>> import importlib.metadata
+#: >>> import derender
+#: >>> derender.__version__ == importlib.metadata.version("derender")
+#: True
 __version__ = "0.1.0"
 
 __getattr__, __dir__, _names = attach(__name__, {

@@ -197,6 +197,75 @@ def simulate_bracket(
     ``exposure = (times, scale)`` replaces :func:`bracket_times` (the luminance family,
     :mod:`derender.camera.luminance`, sets its exposures from EXIF t S / N^2); ``falloff``
     (H, W) multiplies the sensor signal (lens vignetting) but not the truth.
+
+    Parameters
+    ----------
+    camera : str or CameraSpectral
+        A camera of the spectral library by name, a rawtoaces JSON file
+        (:func:`~derender.camera.spectral.load_camera`), or a loaded camera.
+    kind : str
+        The scene: ``"outdoor"``, ``"indoor"`` or ``"night"``
+        (:data:`~derender.camera.scene.SCENE_KINDS`).
+    size : (int, int)
+        Width and height in pixels (at least 32x32).
+    exposures : int
+        Frames in the bracket.
+    pipeline : str
+        ``"auto"`` (per-frame auto exposure, white balance and gamma) or ``"fixed"``.
+    style : str
+        Rendering style (:data:`~derender.camera.stages.STYLES`).
+    seed : int
+        Seeds the scene, the rendering parameters and the noise.
+    tone_curve : bool
+        Apply a tone curve after the gamma.
+    stops : float, optional
+        Stops between exposures (default: the bracket spans the scene).
+    noise : bool
+        Photon and read noise in the mosaics.
+    scene : SpectralScene, optional
+        A scene instead of ``kind``.
+    wb_preset : str, optional
+        A fixed white-balance preset (above).
+    progress : callable, optional
+        ``progress(done, total)`` after each frame.
+    peak_percentile : float
+        The scene percentile that sets the shortest exposure (above).
+    family : str, optional
+        A pipeline family (above).
+    motion : MotionSpec, optional
+        Moving objects and camera shake (above).
+    exposure : (array, float), optional
+        Exposure times and scene scale (above).
+    falloff : numpy.ndarray, optional
+        (H, W) lens falloff (above).
+
+    Returns
+    -------
+    SimulatedBracket
+        ``jpeg_codes`` (N, H, W, 3) uint8, ``mosaics`` (N, H, W) uint16, ``times`` (N,)
+        seconds, ``truth_linear_srgb`` (H, W, 3) float32 radiance per second, the camera's
+        matrices and white balance, and every frame's parameters.
+
+    Raises
+    ------
+    InputError
+        An unknown camera, scene kind, pipeline, style or family, a size below 32x32, fewer
+        than one exposure, inconsistent ``exposure`` or ``scene``.
+
+    Examples
+    --------
+    A 32x32 bracket of three frames in the ``paper`` family (paper 1's eq. 4), merged:
+
+    >>> import numpy as np
+    >>> import derender
+    >>> bracket = derender.simulate_bracket(size=(32, 32), exposures=3, family="paper", seed=0)
+    >>> bracket.jpeg_codes.shape, bracket.jpeg_codes.dtype, bracket.mosaics.shape
+    ((3, 32, 32, 3), dtype('uint8'), (3, 32, 32))
+    >>> bracket.truth_linear_srgb.shape, bool(np.all(np.diff(bracket.times) > 0))
+    ((32, 32, 3), True)
+    >>> stack = derender.Stack(bracket.jpeg_codes / 255, bracket.times)
+    >>> derender.merge(stack, "debevec").radiance.shape
+    (32, 32, 3)
     """
     if family is not None:
         from derender.camera.families import check_family

@@ -23,21 +23,96 @@ __all__ = [
 
 
 class DerenderError(Exception):
-    """A problem with the user's input or request; the message is shown as-is."""
+    """A problem with the user's input or request; the message is shown as-is.
+
+    The base class of :class:`InputError`, :class:`StackError` and :class:`ModelFileError`:
+    catch it to handle every mistake a user can make.
+
+    Parameters
+    ----------
+    message : str
+        One line, shown as ``error: <message>`` by the CLI.
+
+    Attributes
+    ----------
+    exit_code : int
+        The CLI's exit status for this error (2).
+
+    Examples
+    --------
+    >>> import derender
+    >>> try:
+    ...     derender.read_image("no-such-file.png")
+    ... except derender.DerenderError as error:
+    ...     print(type(error).__name__, error.exit_code, error)
+    InputError 2 no such file: no-such-file.png
+    """
 
     exit_code = 2
 
 
 class InputError(DerenderError):
-    """An input file or argument cannot be used (missing, corrupt, inconsistent)."""
+    """An input file or argument cannot be used (missing, corrupt, inconsistent).
+
+    Parameters
+    ----------
+    message : str
+        One line naming the input and what is wrong with it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import derender
+    >>> try:
+    ...     derender.Stack(np.zeros((2, 8, 8, 3), np.float32), np.array([0.01, 0.01]))
+    ... except derender.InputError as error:
+    ...     print(error)
+    duplicate exposure time(s): 0.01 s; every exposure needs its own time
+    """
 
 
 class StackError(DerenderError):
-    """An exposure stack cannot be merged (single image, all saturated, ...)."""
+    """An exposure stack cannot be merged (single image, all saturated, ...).
+
+    Parameters
+    ----------
+    message : str
+        One line saying why the stack cannot be merged.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import derender
+    >>> try:
+    ...     derender.Stack(np.full((1, 8, 8, 3), 0.5, np.float32), np.array([0.01]))
+    ... except derender.StackError as error:
+    ...     print(error)
+    an exposure stack needs at least two images
+    """
 
 
 class ModelFileError(DerenderError):
-    """A de-rendering model file is corrupt or of an incompatible version."""
+    """A de-rendering model file is corrupt or of an incompatible version.
+
+    Parameters
+    ----------
+    message : str
+        One line naming the file and what is wrong with it.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "not-a-model.npz")
+    ...     np.savez(path, a=np.zeros(2))
+    ...     try:
+    ...         derender.load_model(path)
+    ...     except derender.ModelFileError as error:
+    ...         print(str(error).split(": ", 1)[1])
+    not a derender model file (no format='derender-model' entry)
+    """
 
 
 class Interrupted(BaseException):

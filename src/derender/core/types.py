@@ -87,6 +87,30 @@ class Stack:
         Source file per image ("" for in-memory images).
     metadata : tuple of dict
         Per-image dict (camera make/model, EXIF fields found, ...).
+
+    Raises
+    ------
+    InputError
+        Images not of shape (N, H, W, 3), or exposure times that are missing, not positive,
+        not finite or repeated.
+    StackError
+        Fewer than two images.
+
+    Examples
+    --------
+    Two exposures of an 8x8 grey ramp through a gamma-2.2 camera, given longest first (the
+    stack sorts them):
+
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.linspace(0.05, 1.0, 64).reshape(8, 8, 1).repeat(3, axis=2)
+    >>> times = np.array([1.0, 0.25])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> stack = derender.Stack((codes / 255).astype(np.float32), times)
+    >>> stack.n, stack.shape, stack.times.tolist()
+    (2, (8, 8), [0.25, 1.0])
+    >>> stack.codes().dtype, int(stack.codes().max())
+    (dtype('uint8'), 255)
     """
 
     images: np.ndarray
@@ -162,6 +186,21 @@ class RawFrame:
         Source file, camera make and model ("" when unknown).
     extra : dict
         Other metadata of the file.
+
+    Examples
+    --------
+    A 4x4 RGGB mosaic with a black level of 64 and a white level of 1088:
+
+    >>> import numpy as np
+    >>> import derender
+    >>> frame = derender.RawFrame(
+    ...     mosaic=np.full((4, 4), 576, np.uint16), cfa_pattern="RGGB",
+    ...     black_level=np.full((2, 2), 64.0), white_level=1088.0,
+    ...     as_shot_wb=np.array([2.0, 1.0, 1.5]), xyz_to_camera=None, exposure_time=0.01)
+    >>> frame.cfa_channel_index()[:2, :2].tolist()
+    [[0, 1], [1, 2]]
+    >>> round(float(frame.normalised()[0, 0]), 3)
+    0.5
     """
 
     mosaic: np.ndarray
@@ -222,6 +261,23 @@ class HDRResult:
         The engine's plan the map was merged with (:mod:`derender.engine.plans`: how each
         frame's codes become radiance); None for merges outside the engine. The round trip
         (:mod:`derender.evaluation.roundtrip`) renders the map back through it.
+
+    Examples
+    --------
+    Every merge returns one (:func:`derender.hdr.registry.merge`):
+
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.linspace(0.05, 1.0, 64).reshape(8, 8, 1).repeat(3, axis=2)
+    >>> times = np.array([0.25, 1.0])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> result = derender.merge(derender.Stack((codes / 255).astype(np.float32), times), "debevec")
+    >>> isinstance(result, derender.HDRResult)
+    True
+    >>> result.radiance.shape, result.radiance.dtype, result.mask.shape
+    ((8, 8, 3), dtype('float32'), (8, 8))
+    >>> result.variance is None   # unless asked for (variance=True)
+    True
     """
 
     radiance: np.ndarray

@@ -51,7 +51,57 @@ def check_8bit_rgb(path: str | os.PathLike, max_megapixels: float | None = DEFAU
 
 def derender_image(image_path: str | os.PathLike, model_path: str | os.PathLike, srgb: bool = False
                    ) -> tuple[np.ndarray, np.ndarray, str]:
-    """Mean and variance (float32 (H, W, 3)) of the linear colour of every pixel, and the model used."""
+    """Mean and variance (float32 (H, W, 3)) of the linear colour of every pixel, and the model used.
+
+    Each distinct colour of the image is predicted once (:func:`index_colours`).
+
+    Parameters
+    ----------
+    image_path : path-like
+        An 8-bit RGB image (JPEG, PNG, TIFF) of the camera the model was fitted to.
+    model_path : path-like
+        A model file (:func:`derender.derendering.base.fit_model`, ``derender fit``), or a
+        folder of them, from which the model of the image's EXIF camera is taken
+        (:func:`derender.derendering.library.resolve_model`).
+    srgb : bool
+        Give linear sRGB through the model's camera matrix instead of camera RGB.
+
+    Returns
+    -------
+    mean : numpy.ndarray
+        (H, W, 3) float32 linear camera RGB (or linear sRGB), relative units.
+    variance : numpy.ndarray
+        (H, W, 3) float32 per-pixel variance of ``mean``.
+    used : str
+        The model file used.
+
+    Raises
+    ------
+    InputError
+        An unreadable or 16-bit image, no model (or none for the image's camera in a
+        folder), ``srgb`` with a model without camera colour metadata.
+    ModelFileError
+        A corrupt or incompatible model file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> rng = np.random.default_rng(0)
+    >>> raw = rng.uniform(0.01, 1.0, (100, 3))               # linear camera RGB
+    >>> jpeg = np.round(255 * raw ** (1 / 2.2)).astype(np.uint8)   # a gamma-2.2 camera
+    >>> folder = tempfile.TemporaryDirectory()
+    >>> model_path = derender.fit_model("poly", jpeg, raw, degree=4).save(os.path.join(folder.name, "camera.npz"))
+    >>> image_path = derender.write_png(os.path.join(folder.name, "photo.png"),
+    ...                                 np.full((4, 6, 3), 128, np.uint8))
+    >>> mean, variance, used = derender.derender_image(image_path, model_path)
+    >>> mean.shape, mean.dtype, used
+    ((4, 6, 3), dtype('float32'), 'camera.npz')
+    >>> bool(np.allclose(mean, 0.5 ** 2.2, atol=0.01)), bool(np.all(variance > 0))
+    (True, True)
+    >>> folder.cleanup()
+    """
     codes = check_8bit_rgb(image_path)
     model, used = resolve_model(model_path, image_path)
     index = index_colours(codes)
@@ -169,6 +219,61 @@ def derender_to_exr(image_path: str | os.PathLike, model_path: str | os.PathLike
     and each is gathered from the per-colour tables in its worker thread. Outputs are
     written atomically and never overwrite the input. Returns what was used and the
     timings of the stages.
+
+    Parameters
+    ----------
+    image_path : path-like
+        An 8-bit RGB image (JPEG, PNG, TIFF).
+    model_path : path-like
+        A model file, or a folder of them (as :func:`derender_image`).
+    output : path-like
+        The OpenEXR file of the mean.
+    variance : path-like, optional
+        The OpenEXR file of the variance (not written when None).
+    srgb : bool
+        Write linear sRGB through the model's camera matrix instead of camera RGB.
+    compression : str
+        The EXR compression (``"zip"``, ``"none"``, ...).
+    threads : int, optional
+        Threads that gather and compress the blocks (None: every CPU).
+    max_megapixels : float or None
+        The largest image accepted (None: no limit).
+
+    Returns
+    -------
+    dict
+        ``model`` (the file used), ``width``, ``height``, ``distinct_colours`` and
+        ``timings`` (seconds per stage).
+
+    Raises
+    ------
+    InputError
+        As :func:`derender_image`; also outputs that are the same file or would overwrite
+        the image.
+    ModelFileError
+        A corrupt or incompatible model file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> rng = np.random.default_rng(0)
+    >>> raw = rng.uniform(0.01, 1.0, (100, 3))               # linear camera RGB
+    >>> jpeg = np.round(255 * raw ** (1 / 2.2)).astype(np.uint8)   # a gamma-2.2 camera
+    >>> folder = tempfile.TemporaryDirectory()
+    >>> model_path = derender.fit_model("poly", jpeg, raw, degree=4).save(os.path.join(folder.name, "camera.npz"))
+    >>> image_path = derender.write_png(os.path.join(folder.name, "photo.png"),
+    ...                                 np.full((4, 6, 3), 128, np.uint8))
+    >>> mean_path = os.path.join(folder.name, "mean.exr")
+    >>> report = derender.derender_to_exr(image_path, model_path, mean_path,
+    ...                                   variance=os.path.join(folder.name, "variance.exr"))
+    >>> report["width"], report["height"], report["distinct_colours"]
+    (6, 4, 1)
+    >>> mean = derender.read_exr(mean_path)
+    >>> mean.shape, bool(np.allclose(mean, 0.5 ** 2.2, atol=0.01))
+    ((4, 6, 3), True)
+    >>> folder.cleanup()
     """
     from derender.io.exr import write_exr_lines
     from derender.io.files import check_output

@@ -333,6 +333,18 @@ class LocalGPModel(DerenderModel):
       2006, eqs. 2.25-2.26, 2.30, 5.8-5.9.
     * K. Kersting, C. Plagemann, P. Pfaff, W. Burgard, "Most likely heteroscedastic Gaussian
       process regression", ICML 2007. doi:10.1145/1273496.1273546
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import derender
+    >>> rng = np.random.default_rng(0)
+    >>> raw = rng.uniform(0.01, 1.0, (100, 3))               # linear camera RGB
+    >>> jpeg = np.round(255 * raw ** (1 / 2.2)).astype(np.uint8)   # a gamma-2.2 camera
+    >>> model = derender.LocalGPModel(n_clusters=2, table_size=0, n_jobs=1).fit(jpeg, raw)
+    >>> mean, variance = model.predict(np.array([[128, 128, 128], [255, 255, 255]], np.uint8))
+    >>> bool(np.allclose(mean[0], 0.5 ** 2.2, atol=0.01)), mean.dtype, variance.shape
+    (True, dtype('float32'), (2, 3))
     """
 
     method = "gp"

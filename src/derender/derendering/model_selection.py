@@ -100,7 +100,35 @@ def pair_arrays(pred, truth) -> tuple[np.ndarray, np.ndarray]:
 
 
 def relative_rmse(pred, truth) -> float:
-    """sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2) over colours with ||x_i|| > 0 (paper 2, Table 1)."""
+    """sqrt(mean_i ||x_hat_i - x_i||^2 / ||x_i||^2) over colours with ||x_i|| > 0 (paper 2, Table 1).
+
+    Parameters
+    ----------
+    pred : array_like
+        (..., 3) predicted linear colours (e.g. a de-rendering model's mean).
+    truth : array_like
+        (..., 3) true linear colours, the same shape.
+
+    Returns
+    -------
+    float
+        The relative RMSE (0: perfect); colours whose truth is black are left out.
+
+    Raises
+    ------
+    InputError
+        Arrays of different shapes.
+
+    Examples
+    --------
+    A prediction 10 % too bright everywhere (the black colour does not count):
+
+    >>> import numpy as np
+    >>> import derender
+    >>> truth = np.array([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0], [0.5, 0.5, 0.5]])
+    >>> round(derender.relative_rmse(1.1 * truth, truth), 6)
+    0.1
+    """
     p, t = pair_arrays(pred, truth)
     n2 = (t * t).sum(1)
     ok = n2 > 0
@@ -108,7 +136,41 @@ def relative_rmse(pred, truth) -> float:
 
 
 def interval_coverage(mean, var, truth, level: float = 0.95) -> np.ndarray:
-    """Per-channel fraction of truths inside the central Gaussian interval mean +- z sqrt(var)."""
+    """Per-channel fraction of truths inside the central Gaussian interval mean +- z sqrt(var).
+
+    ``z`` is the standard normal quantile of ``0.5 + level / 2`` (1.96 for 95 %); a
+    calibrated predictive variance covers ``level`` of the truths.
+
+    Parameters
+    ----------
+    mean, var : array_like
+        (..., 3) predicted means and variances (e.g. :meth:`DerenderModel.predict
+        <derender.derendering.base.DerenderModel.predict>`).
+    truth : array_like
+        (..., 3) true values, the shape of ``mean``.
+    level : float
+        The interval's probability, in (0, 1).
+
+    Returns
+    -------
+    numpy.ndarray
+        (3,) float64, the fraction of each channel's truths inside the interval.
+
+    Raises
+    ------
+    InputError
+        ``level`` outside (0, 1), or arrays of different shapes.
+
+    Examples
+    --------
+    Standard normal truths against the prediction N(0, 1): about 95 % inside.
+
+    >>> import numpy as np
+    >>> import derender
+    >>> truth = np.random.default_rng(0).normal(size=(1000, 3))
+    >>> derender.interval_coverage(np.zeros((1000, 3)), np.ones((1000, 3)), truth).round(2).tolist()
+    [0.95, 0.96, 0.96]
+    """
     if not 0 < level < 1:
         raise InputError("level must be in (0, 1)")
     m, t = pair_arrays(mean, truth)

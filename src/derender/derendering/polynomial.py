@@ -95,6 +95,41 @@ class PolynomialModel(DerenderModel):
     applies C^-1; 8-bit codes use a per-channel 256-entry table. Variance: constant per
     channel, the mean squared residual of the de-rendered training colours (all training
     pairs).
+
+    Parameters
+    ----------
+    degree : int
+        Degree n of each channel's Bernstein polynomial ``f_c`` (at least 1).
+    fit_range : (int, int)
+        The codes a training pair's three codes must all lie in (clipped codes excluded).
+    n_iter : int
+        Iterations of each nonlinear least-squares stage (at least 1).
+    lut_size : int
+        Entries of the look-up table that inverts ``f_c o s`` for real-valued inputs (at
+        least 16).
+    robust_scale : float
+        The Cauchy loss's final scale, in codes (positive).
+    seed : int
+        Seed of the fit's random steps.
+    metadata : dict, optional
+        Stored with the model (camera, illuminants, matrices).
+
+    Raises
+    ------
+    InputError
+        Settings out of range.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import derender
+    >>> rng = np.random.default_rng(0)
+    >>> raw = rng.uniform(0.01, 1.0, (100, 3))               # linear camera RGB
+    >>> jpeg = np.round(255 * raw ** (1 / 2.2)).astype(np.uint8)   # a gamma-2.2 camera
+    >>> model = derender.PolynomialModel(degree=4).fit(jpeg, raw)
+    >>> mean, variance = model.predict(np.array([[128, 128, 128]], np.uint8))
+    >>> bool(np.allclose(mean, 0.5 ** 2.2, atol=0.01)), variance.shape
+    (True, (1, 3))
     """
 
     method = "poly"

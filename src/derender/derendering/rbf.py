@@ -40,6 +40,40 @@ class RBFModel(DerenderModel):
     returned as log-normal moments (so the raw-space variance scales with the squared
     mean). Predictions go through the same interpolated table as the GP (``exact=True``
     evaluates the RBF itself).
+
+    Parameters
+    ----------
+    n_train : int
+        Training pairs at most (a random subset when there are more; at least 20).
+    smoothing : float
+        Added to the kernel diagonal (0: interpolation).
+    kernel : str
+        ``"thin_plate_spline"`` (the only one: scale-free, no shape parameter).
+    eps_rel : float
+        The log offset ``eps``, relative to the raw white level.
+    table_size : int
+        Nodes per axis of the prediction table (0: always exact).
+    seed : int
+        Seeds the subset.
+    metadata : dict, optional
+        Stored with the model (camera, illuminants, matrices).
+
+    Raises
+    ------
+    InputError
+        Settings out of range, or another kernel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import derender
+    >>> rng = np.random.default_rng(0)
+    >>> raw = rng.uniform(0.01, 1.0, (100, 3))               # linear camera RGB
+    >>> jpeg = np.round(255 * raw ** (1 / 2.2)).astype(np.uint8)   # a gamma-2.2 camera
+    >>> model = derender.RBFModel(table_size=0).fit(jpeg, raw)
+    >>> mean, variance = model.predict(np.array([[128, 128, 128]], np.uint8))
+    >>> bool(np.allclose(mean, 0.5 ** 2.2, atol=0.02)), mean.dtype
+    (True, dtype('float32'))
     """
 
     method = "rbf"

@@ -153,6 +153,26 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     InputError
         Unreadable or inconsistent files, times that disagree with the images' brightness,
         an output that would overwrite an input, an unknown method or option.
+
+    Examples
+    --------
+    Three PNG exposures of a 100:1 ramp merged into an OpenEXR file:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.geomspace(0.01, 1.0, 16 * 16).reshape(16, 16, 1).repeat(3, axis=2)   # 100:1
+    >>> times = np.array([0.25, 1.0, 4.0])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     paths = [derender.write_png(os.path.join(folder, f"{i}.png"), frame.astype(np.uint8))
+    ...              for i, frame in enumerate(codes)]
+    ...     result = derender.merge_files(paths, times, "debevec", output=os.path.join(folder, "hdr.exr"))
+    ...     written = derender.read_exr(os.path.join(folder, "hdr.exr"))
+    >>> result.radiance.shape, bool(np.array_equal(written, result.radiance))
+    ((16, 16, 3), True)
+    >>> bool(abs(result.radiance[15, 15, 1] / result.radiance[0, 0, 1] / 100 - 1) < 0.02)
+    True
     """
     t_start = time.perf_counter()
     from derender.io.files import expand_image_paths

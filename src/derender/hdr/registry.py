@@ -58,7 +58,7 @@ def _resolve(target: Any) -> Any:
 class MethodSpec:
     """One merge method: what ``derender methods`` prints and what the engine and the CLI read.
 
-    Parameters
+    Attributes
     ----------
     name : str
         The method's name (``derender merge --method NAME``).
@@ -89,6 +89,17 @@ class MethodSpec:
         For RAW methods: ``fn(paths, times, *, output, variance_output, half, compression,
         inputs, threads, **options) -> HDRResult``, what :func:`derender.hdr.files.merge_files`
         calls.
+
+    Examples
+    --------
+    The records of the built-in methods are in :data:`METHODS`:
+
+    >>> import derender
+    >>> spec = derender.METHODS["debevec"]
+    >>> spec.name, spec.inputs, spec.gives_variance, spec.gives_curves
+    ('debevec', 'rendered', True, True)
+    >>> spec.load().__name__, spec.has_option("lam")
+    ('merge_debevec', True)
     """
 
     name: str
@@ -152,6 +163,15 @@ _RAW = "derender.hdr.raw"
 
 #: Every merge method by name. The built-in ones are listed here, one line each, and imported on
 #: first use; a method defined elsewhere joins with :func:`register_method`.
+#:
+#: Examples
+#: --------
+#: >>> import derender
+#: >>> sorted(derender.METHODS)  # doctest: +NORMALIZE_WHITESPACE
+#: ['debevec', 'probabilistic', 'raw', 'robertson', 'stabilized', 'stabilized-joint',
+#:  'stabilized-probabilistic']
+#: >>> derender.METHODS["raw"].inputs
+#: 'raw'
 METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
     MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:debevec_engine", f"{_CLASSIC}:DebevecOptions",
                gives_variance=True, gives_curves=True, output_space=_RENDERED),
@@ -181,7 +201,56 @@ def register_method(name: str, *, gives_variance: bool = False, engine: Callable
                     options: type | None = None, gives_curves: bool = False,
                     output_space: str | None = None) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
     """Decorator adding ``fn(stack, **options) -> HDRResult`` to :data:`METHODS` as ``name``
-    (a method defined outside the package; the fields are those of :class:`MethodSpec`)."""
+    (a method defined outside the package; the fields are those of :class:`MethodSpec`).
+
+    The method's options are its keywords after the stack; :func:`merge` refuses others.
+
+    Parameters
+    ----------
+    name : str
+        The method's name (replaces a method of that name).
+    gives_variance : bool
+        Its results carry a per-pixel variance.
+    engine : callable, optional
+        ``factory(options) -> EngineMethod``, its form on the merge engine (None: it runs in
+        memory only).
+    options : type, optional
+        Its options record (a frozen keyword-only dataclass); None: made from ``fn``'s signature.
+    gives_curves : bool
+        Its results carry response curves in ``info["curves"]``.
+    output_space : str, optional
+        The colour space of its radiance, in words.
+
+    Returns
+    -------
+    callable
+        The decorator; it registers ``fn`` and returns it unchanged.
+
+    Examples
+    --------
+    A toy method: undo a gamma, divide by the time, average the frames.
+
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.geomspace(0.01, 1.0, 16 * 16).reshape(16, 16, 1).repeat(3, axis=2)   # 100:1
+    >>> times = np.array([0.25, 1.0, 4.0])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> stack = derender.Stack((codes / 255).astype(np.float32), times)
+    >>> @derender.register_method("mean-linear", output_space="linear RGB of the rendering")
+    ... def mean_linear(stack, gamma=2.2):
+    ...     linear = stack.images ** gamma / stack.times[:, None, None, None]
+    ...     return derender.HDRResult(radiance=linear.mean(axis=0).astype(np.float32),
+    ...                               mask=np.zeros(stack.shape, np.uint8))
+    >>> result = derender.merge(stack, "mean-linear", gamma=2.2)
+    >>> result.radiance.shape, derender.METHODS["mean-linear"].gives_variance
+    ((16, 16, 3), False)
+    >>> try:
+    ...     derender.merge(stack, "mean-linear", gama=2.0)
+    ... except derender.InputError as error:
+    ...     print(error)
+    merge method 'mean-linear' does not accept option(s) gama; accepted: gamma
+    >>> del derender.METHODS["mean-linear"]   # unregister
+    """
 
     def deco(fn: Callable[..., HDRResult]) -> Callable[..., HDRResult]:
         METHODS[name] = MethodSpec(name, fn, engine, options, gives_variance=bool(gives_variance),
@@ -387,6 +456,29 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     (:mod:`derender.response.debevec1997`), Robertson et al. 2003
     (:mod:`derender.response.robertson2003`), paper 1 (:mod:`derender.hdr.stabilize`) and
     paper 2 (:mod:`derender.hdr.probabilistic`).
+
+    Examples
+    --------
+    Three exposures, two stops apart, of a 100:1 ramp through a gamma-2.2 camera; Debevec's
+    method recovers the response from the images and the ramp's range within 2 %:
+
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.geomspace(0.01, 1.0, 16 * 16).reshape(16, 16, 1).repeat(3, axis=2)   # 100:1
+    >>> times = np.array([0.25, 1.0, 4.0])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> stack = derender.Stack((codes / 255).astype(np.float32), times)
+    >>> result = derender.merge(stack, "debevec")
+    >>> result.radiance.shape, result.radiance.dtype, int(result.mask.max())
+    ((16, 16, 3), dtype('float32'), 0)
+    >>> contrast = result.radiance[15, 15, 1] / result.radiance[0, 0, 1]
+    >>> bool(abs(contrast / 100 - 1) < 0.02)
+    True
+    >>> try:
+    ...     derender.merge(stack, "no-such-method")
+    ... except derender.InputError as error:
+    ...     print(str(error).split(";")[0])
+    unknown merge method 'no-such-method'
     """
     spec = method_spec(method)
     if spec.inputs == "raw":

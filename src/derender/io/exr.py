@@ -90,6 +90,43 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False,
     """Write an (H, W, 3) or (H, W) float image to OpenEXR atomically (ZIP compression).
 
     Non-finite values are refused: no result of this library may hold NaN or inf.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.exr`` file to write (replaced atomically: a reader never sees half a file).
+    image : numpy.ndarray
+        (H, W, 3) linear RGB, or (H, W) one channel (written as ``Y``); finite.
+    half : bool
+        Store 16-bit half floats instead of 32-bit floats.
+    inputs : iterable of path-like
+        Input files the output must not overwrite.
+    channels : str
+        The channel names of a 3-channel image.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    InputError
+        An image of another shape, or ``path`` is one of ``inputs``.
+    ValueError
+        NaN or inf in ``image`` (a bug in the caller: no result may hold them).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.linspace(0.0, 100.0, 4 * 6 * 3, dtype=np.float32).reshape(4, 6, 3)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = derender.write_exr(os.path.join(folder, "radiance.exr"), radiance)
+    ...     back = derender.read_exr(path)
+    >>> path.name, back.shape, back.dtype, bool(np.array_equal(back, radiance))
+    ('radiance.exr', (4, 6, 3), dtype('float32'), True)
     """
     import OpenEXR
 
@@ -111,7 +148,37 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False,
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
-    """Read an OpenEXR file as float32 (H, W, 3) (RGB) or (H, W) (single channel)."""
+    """Read an OpenEXR file as float32 (H, W, 3) (RGB) or (H, W) (single channel).
+
+    Parameters
+    ----------
+    path : path-like
+        An OpenEXR file with R, G, B channels or a single channel (``Y`` is taken when there
+        are others but no R, G, B).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W, 3) float32 RGB, or (H, W) float32 for one channel.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, or one without R, G, B or a single channel.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     rgb = derender.read_exr(derender.write_exr(os.path.join(folder, "rgb.exr"),
+    ...                                                np.full((2, 3, 3), 0.5, np.float32)))
+    ...     grey = derender.read_exr(derender.write_exr(os.path.join(folder, "y.exr"),
+    ...                                                 np.full((2, 3), 2.0, np.float32)))
+    >>> rgb.shape, grey.shape, float(grey[0, 0])
+    ((2, 3, 3), (2, 3), 2.0)
+    """
     import OpenEXR
 
     path = Path(path)

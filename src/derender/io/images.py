@@ -45,9 +45,46 @@ def read_image(path: str | os.PathLike, max_megapixels: float | None = DEFAULT_M
                info: ImageInfo | None = None) -> tuple[np.ndarray, int]:
     """Read an 8- or 16-bit JPEG/PNG/TIFF/HEIC/AVIF as float32 (H, W, 3) RGB in [0, 1], upright.
 
-    Returns ``(image, bit_depth)``. Decoded by :func:`decode_image` (the one decoder every
-    reader uses): grey images are replicated to three channels, an alpha channel is dropped
-    only when fully opaque, EXIF orientation is applied.
+    Decoded by :func:`decode_image` (the one decoder every reader uses): grey images are
+    replicated to three channels, an alpha channel is dropped only when fully opaque, EXIF
+    orientation is applied.
+
+    Parameters
+    ----------
+    path : path-like
+        The image file.
+    max_megapixels : float or None
+        The largest image accepted, checked from the header before decoding (None: no limit).
+    info : ImageInfo, optional
+        The file's header as :func:`derender.io.headers.probe_image` read it (read here when
+        not given).
+
+    Returns
+    -------
+    image : numpy.ndarray
+        (H, W, 3) float32 rendered RGB, code values divided by 255 or 65535.
+    bit_depth : int
+        8 or 16.
+
+    Raises
+    ------
+    InputError
+        A missing, truncated, corrupt or too large file, or one with a transparent alpha
+        channel.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> codes = np.arange(8 * 8 * 3, dtype=np.uint8).reshape(8, 8, 3)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = derender.write_png(os.path.join(folder, "ramp.png"), codes)
+    ...     image, bit_depth = derender.read_image(path)
+    >>> image.shape, image.dtype, bit_depth
+    ((8, 8, 3), dtype('float32'), 8)
+    >>> bool(np.array_equal(np.rint(image * 255), codes))
+    True
     """
     img = decode_image(path, max_megapixels=max_megapixels, info=info)
     depth, scale = (8, 255.0) if img.dtype == np.uint8 else (16, 65535.0)
@@ -70,6 +107,52 @@ def read_stack(
     first (:func:`derender.io.headers.probe_images`): sizes, the ``max_megapixels`` limit
     and the memory the float stack needs are checked before any pixel is decoded. A folder
     among ``paths`` stands for the images in it (:func:`derender.io.files.expand_image_paths`).
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The bracket's images (JPEG, PNG, TIFF, HEIC, AVIF), in any order; a folder stands for
+        the images in it.
+    times : sequence of float, optional
+        Exposure times in seconds, one per path in the order given.
+    times_file : path-like, optional
+        A text file of ``name time`` lines (used when ``times`` is not given).
+    times_file_inverse : bool
+        The file holds ``1/t`` (e.g. ``250`` for 1/250 s).
+    max_megapixels : float or None
+        The largest frame accepted (None: no limit).
+
+    Returns
+    -------
+    Stack
+        The images as float32 (N, H, W, 3) in [0, 1], sorted by exposure time, with their
+        bit depth, paths and EXIF metadata.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable files, frames of different sizes or bit depths, missing,
+        repeated or contradictory exposure times, too little memory.
+    StackError
+        Fewer than two images.
+
+    Examples
+    --------
+    Two PNG exposures of a grey ramp written into a temporary folder, with the times given:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.linspace(0.05, 1.0, 64).reshape(8, 8, 1).repeat(3, axis=2)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     paths = [derender.write_png(os.path.join(folder, f"t{t}.png"),
+    ...                                 np.round(255 * np.clip(radiance * t, 0, 1) ** (1 / 2.2)).astype(np.uint8))
+    ...              for t in (1.0, 0.25)]
+    ...     stack = derender.read_stack(paths, times=[1.0, 0.25])
+    >>> stack.n, stack.shape, stack.bit_depth, stack.times.tolist()
+    (2, (8, 8), 8, [0.25, 1.0])
+    >>> [os.path.basename(p) for p in stack.paths]
+    ['t0.25.png', 't1.0.png']
     """
     paths = expand_image_paths(paths)
     t = file_times(paths, times, times_file, times_file_inverse)
@@ -105,6 +188,40 @@ def read_codes(path: str | os.PathLike, out: np.ndarray | None = None,
 
     :func:`decode_image` (the decoder of :func:`read_image` too), into ``out`` when it has the
     right shape (reusing memory avoids page faults).
+
+    Parameters
+    ----------
+    path : path-like
+        The image file.
+    out : numpy.ndarray, optional
+        (H, W, 3) uint8 buffer to decode 8-bit JPEGs into (used when its shape fits).
+    max_megapixels : float or None
+        The largest image accepted (None: no limit).
+    info : ImageInfo, optional
+        The file's header, as :func:`derender.io.headers.probe_image` read it.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (H, W, 3) uint8 codes, or None for a 16-bit file.
+
+    Raises
+    ------
+    InputError
+        A missing, truncated, corrupt or too large file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> codes = np.arange(8 * 8 * 3, dtype=np.uint8).reshape(8, 8, 3)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     eight = derender.read_codes(derender.write_png(os.path.join(folder, "a.png"), codes))
+    ...     sixteen = derender.read_codes(derender.write_png(os.path.join(folder, "b.png"),
+    ...                                                      codes.astype(np.uint16) * 257))
+    >>> eight.dtype, bool(np.array_equal(eight, codes)), sixteen
+    (dtype('uint8'), True, None)
     """
     img = decode_image(path, out=out, max_megapixels=max_megapixels, info=info)
     return None if img.dtype == np.uint16 else img

@@ -36,7 +36,41 @@ IMAGE8_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
 def write_png(path: str | os.PathLike, image: np.ndarray, inputs: Iterable[str | os.PathLike] = ()) -> Path:
     """Write an (H, W, 3) float image in [0, 1] (or uint8/uint16) atomically, as PNG, or as
-    JPEG (quality 95) / TIFF when the suffix says so (any other suffix is refused)."""
+    JPEG (quality 95) / TIFF when the suffix says so (any other suffix is refused).
+
+    Parameters
+    ----------
+    path : path-like
+        The file to write; its suffix (``.png``, ``.jpg``, ``.jpeg``, ``.tif``, ``.tiff``)
+        chooses the format.
+    image : numpy.ndarray
+        (H, W, 3) or (H, W) RGB: floats in [0, 1] (clipped, rounded to 8 bits; NaN as 0) or
+        uint8 / uint16 codes written as they are (16 bits in PNG and TIFF).
+    inputs : iterable of path-like
+        Input files the output must not overwrite.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    InputError
+        Another suffix, an image the encoder refuses, or ``path`` is one of ``inputs``.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> grey = np.full((4, 4, 3), 0.5, np.float32)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = derender.write_png(os.path.join(folder, "grey.png"), grey)
+    ...     image, bit_depth = derender.read_image(path)
+    >>> path.name, bit_depth, int(round(float(image[0, 0, 0]) * 255))
+    ('grey.png', 8, 128)
+    """
     import cv2
 
     arr = np.asarray(image)
@@ -59,7 +93,45 @@ def write_png(path: str | os.PathLike, image: np.ndarray, inputs: Iterable[str |
 
 def write_preview(path: str | os.PathLike, radiance: np.ndarray, inputs: Iterable[str | os.PathLike] = (),
                   key: float = 0.18) -> Path:
-    """Tone-map a linear-sRGB radiance map (Reinhard et al. 2002) and write it as 8-bit sRGB (PNG/JPEG/TIFF by suffix)."""
+    """Tone-map a linear-sRGB radiance map (Reinhard et al. 2002) and write it as 8-bit sRGB (PNG/JPEG/TIFF by suffix).
+
+    Parameters
+    ----------
+    path : path-like
+        The preview to write (``.png``, ``.jpg``, ``.jpeg``, ``.tif``, ``.tiff``).
+    radiance : numpy.ndarray
+        (H, W, 3) linear-sRGB radiance (relative units), e.g. ``HDRResult.radiance``.
+    inputs : iterable of path-like
+        Input files the preview must not overwrite.
+    key : float
+        The photographic key: the log-average luminance is mapped to this display value
+        (:func:`reinhard_photographic`).
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    InputError
+        As :func:`write_png`.
+
+    Examples
+    --------
+    Four decades of radiance in one 8-bit image:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.logspace(-2, 2, 8 * 8).reshape(8, 8, 1).repeat(3, axis=2)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     codes = derender.read_codes(derender.write_preview(os.path.join(folder, "preview.png"), radiance))
+    >>> codes.shape, codes.dtype
+    ((8, 8, 3), dtype('uint8'))
+    >>> bool(np.all(np.diff(codes[..., 0].ravel().astype(int)) >= 0))   # order kept
+    True
+    """
     return write_png(path, encode_srgb8(reinhard_photographic(radiance, key=key)), inputs)
 
 

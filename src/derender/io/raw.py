@@ -60,7 +60,44 @@ def _rationals(values) -> np.ndarray:
 
 
 def read_raw(path: str | os.PathLike) -> RawFrame:
-    """Read a RAW/DNG file with rawpy (LibRaw): mosaic, CFA, levels, WB, colour matrix, time."""
+    """Read a RAW/DNG file with rawpy (LibRaw): mosaic, CFA, levels, WB, colour matrix, time.
+
+    Parameters
+    ----------
+    path : path-like
+        A camera RAW file (DNG, CR2, NEF, ARW, ... whatever LibRaw reads) with a Bayer sensor.
+
+    Returns
+    -------
+    RawFrame
+        The visible mosaic (uint16), its CFA pattern, black and white levels, as-shot white
+        balance, XYZ-to-camera matrix, exposure time and camera make and model.
+
+    Raises
+    ------
+    InputError
+        A missing file, one LibRaw cannot read, or a sensor that is not a 2x2 Bayer mosaic.
+
+    Examples
+    --------
+    A 32x32 DNG (LibRaw reads nothing smaller) written by :func:`derender.camera.dng.write_dng`:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> from derender.camera.dng import write_dng
+    >>> mosaic = np.full((32, 32), 1000, np.uint16)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = write_dng(os.path.join(folder, "frame.dng"), mosaic, cfa_pattern="RGGB",
+    ...                      black_level=64, white_level=4095, xyz_to_camera=np.eye(3),
+    ...                      as_shot_neutral=np.array([0.5, 1.0, 0.8]), exposure_time=0.01,
+    ...                      make="Sim", model="Cam", bits=12)
+    ...     frame = derender.read_raw(path)
+    >>> frame.mosaic.shape, frame.cfa_pattern, frame.white_level, frame.exposure_time
+    ((32, 32), 'RGGB', 4095.0, 0.01)
+    >>> frame.as_shot_wb.round(2).tolist(), (frame.make, frame.model)
+    ([2.0, 1.0, 1.25], ('Sim', 'Cam'))
+    """
     import rawpy
 
     path = Path(path)
@@ -168,7 +205,46 @@ def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | 
     """Read RAW frames sorted by exposure time (times from the files unless given); the same
     file given twice (also through a symlink), frames of different cameras (EXIF make and
     model) or sizes, several frames without exposure times (the error names the files) and
-    frames that vary the f-number or ISO are refused."""
+    frames that vary the f-number or ISO are refused.
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The bracket's RAW files, in any order.
+    times : sequence of float, optional
+        Exposure times in seconds, one per path in the order given (replacing the files').
+
+    Returns
+    -------
+    list of RawFrame
+        The frames (:func:`read_raw`), shortest exposure first.
+
+    Raises
+    ------
+    InputError
+        No files, a file given twice, frames of different cameras or sizes, missing or
+        repeated exposure times, frames that vary the f-number or ISO, or a file
+        :func:`read_raw` refuses.
+
+    Examples
+    --------
+    Two exposures of a ramp, given longest first:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> from derender.camera.dng import write_dng
+    >>> signal = np.linspace(0.02, 2.0, 32 * 32).reshape(32, 32)   # of white, in 0.04 s
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     paths = [write_dng(os.path.join(folder, f"{t}.dng"),
+    ...                        np.round(64 + np.clip(signal * t / 0.04, 0, 1) * 4031).astype(np.uint16),
+    ...                        cfa_pattern="RGGB", black_level=64, white_level=4095,
+    ...                        xyz_to_camera=np.eye(3), as_shot_neutral=np.ones(3), exposure_time=t,
+    ...                        make="Sim", model="Cam", bits=12) for t in (0.04, 0.01)]
+    ...     frames = derender.read_raw_stack(paths)
+    >>> [frame.exposure_time for frame in frames], frames[0].mosaic.shape
+    ([0.01, 0.04], (32, 32))
+    """
     from derender.io.files import check_input_file, resolve_path
 
     seen: set = set()

@@ -256,6 +256,65 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     demosaicing, as :func:`derender.raw.groundtruth.raw_ground_truth` does. ``censored=False``
     drops saturated samples instead (for comparison). ``info["noise"]`` holds the noise model
     used. The ``variance`` is that of ``radiance`` before negative values are clipped to 0.
+
+    Parameters
+    ----------
+    frames : RawFrame or sequence of RawFrame
+        The bracket (:func:`derender.io.raw.read_raw_stack`), with exposure times.
+    output_space : str
+        ``"linear_srgb"``, ``"camera_rgb"`` (no white balance, no matrix) or ``"xyz"``.
+    gain, read_noise : float, optional
+        The noise model (DN per electron; DN), both or neither.
+    wb : sequence of 3 floats, optional
+        White-balance multipliers (R, G, B).
+    wb_patch : (x, y, w, h), optional
+        A neutral region of the merged mosaic that sets the white balance.
+    demosaic : str
+        ``"malvar2004"`` or ``"bilinear"``.
+    variance : bool
+        Also give the per-pixel variance of the radiance.
+    clip_negative : bool
+        Set negative radiance to 0.
+    censored : bool
+        Saturated samples count as censored observations (else they are dropped).
+    xyz_to_camera : (3, 3) array, optional
+        The camera's ColorMatrix, replacing the frames'.
+
+    Returns
+    -------
+    HDRResult
+        ``radiance`` (H, W, 3) float32 in ``output_space`` (relative units), finite and
+        non-negative; ``variance`` (H, W, 3) float32 when asked for; ``mask``; ``info``
+        with ``noise``, the white balance and the matrices used.
+
+    Raises
+    ------
+    InputError
+        An unknown ``output_space`` or demosaicing method, only one of ``gain`` and
+        ``read_noise``, malformed white-balance multipliers, a frame without a colour
+        matrix when one is needed.
+
+    Examples
+    --------
+    With a known noise model (gain 0.5 DN per electron, read noise 2 DN), in camera RGB:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import derender
+    >>> from derender.camera.dng import write_dng
+    >>> signal = np.linspace(0.02, 2.0, 32 * 32).reshape(32, 32)   # of white, in 0.04 s
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     paths = [write_dng(os.path.join(folder, f"{t}.dng"),
+    ...                        np.round(64 + np.clip(signal * t / 0.04, 0, 1) * 4031).astype(np.uint16),
+    ...                        cfa_pattern="RGGB", black_level=64, white_level=4095,
+    ...                        xyz_to_camera=np.eye(3), as_shot_neutral=np.ones(3), exposure_time=t,
+    ...                        make="Sim", model="Cam", bits=12) for t in (0.04, 0.01)]
+    ...     frames = derender.read_raw_stack(paths)
+    >>> result = derender.raw_merge(frames, output_space="camera_rgb", gain=0.5, read_noise=2.0)
+    >>> result.radiance.shape, result.variance.shape, result.variance.dtype
+    ((32, 32, 3), (32, 32, 3), dtype('float32'))
+    >>> bool(np.all(result.variance > 0))
+    True
     """
     frames, times = sorted_raw_frames(frames)
     pattern = frames[0].cfa_pattern.upper()

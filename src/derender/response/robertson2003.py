@@ -125,6 +125,59 @@ def calibrate_robertson(stack: Stack, *, n_iter: int = 30, tol: float = 1e-6, ma
     weight. ``tie``: the channel tie of :func:`derender.response.curves.solve_tied` in the start
     and in every smoothing step (default :data:`~derender.response.curves.DEFAULT_TIE`; 0: the
     channels independent). The result is strictly increasing.
+
+    Parameters
+    ----------
+    stack : Stack
+        The bracket (8- or 16-bit images and their exposure times).
+    n_iter : int
+        Iterations at most.
+    tol : float
+        Stop when ``g`` changes by less than this (natural log units).
+    max_pixels : int
+        Pixels used at most (a regular grid).
+    weight : str or callable
+        The base weight of the ML merge (a name of :data:`derender.engine.weights.WEIGHTS`).
+    n_levels : int
+        Code levels of the curves (256 for 8-bit images).
+    seed : int
+        Seed of the sampling.
+    lam : float, optional
+        Smoothing weight (default :data:`ROBERTSON_LAMBDA`).
+    balance : bool
+        Offset R and B so that neutral colours stay neutral.
+    tie : float, optional
+        Channel tie of the smoothing (default
+        :data:`~derender.response.curves.DEFAULT_TIE`).
+
+    Returns
+    -------
+    ResponseCurves
+        ``log_inverse`` (n_levels, 3) ``g = ln f^-1``, strictly increasing, with
+        ``g_G(mid) = 0``; ``params`` records the iterations and settings.
+
+    Raises
+    ------
+    InputError
+        A stack too small or too poorly exposed to calibrate from, or bad settings.
+
+    Examples
+    --------
+    A gamma-2.2 camera: the recovered ``g`` rises by 2.2 natural-log units per unit of
+    ``ln z``, as ``g = 2.2 ln z + c`` does:
+
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.geomspace(0.01, 1.0, 16 * 16).reshape(16, 16, 1).repeat(3, axis=2)   # 100:1
+    >>> times = np.array([0.25, 1.0, 4.0])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> stack = derender.Stack((codes / 255).astype(np.float32), times)
+    >>> curves = derender.calibrate_robertson(stack, n_iter=5)
+    >>> g = curves.log_inverse[:, 1]
+    >>> curves.log_inverse.shape, curves.method, bool(np.all(np.diff(g) > 0))
+    ((256, 3), 'robertson', True)
+    >>> round(float((g[255] - g[128]) / np.log(255 / 128)), 1)
+    2.2
     """
     stack = as_stack(stack)
     check_usable(stack, n_levels)
