@@ -50,7 +50,7 @@ __all__ = [
 
 #: A kept observation in the upper half of the codes whose log exposure falls this far (natural
 #: log) below its pixel's estimate from the other frames is censored (:func:`censored_observations`).
-CENSOR_RESIDUAL = 0.15
+CENSOR_RESIDUAL = 0.3
 #: Rounds of the residual test (each solves the system again; they stop when nothing changes).
 CENSOR_ROUNDS = 3
 
