@@ -49,7 +49,7 @@ __all__ = [
 ]
 
 #: A kept observation in the upper half of the codes whose log exposure falls this far (natural
-#: log) below its pixel's estimate from the other frames is censored (:func:`censored_observations`).
+#: log) below its pixel's estimate from the other frames is censored (:func:`_residual_censor`).
 CENSOR_RESIDUAL = 0.3
 #: Rounds of the residual test (each solves the system again; they stop when nothing changes).
 CENSOR_ROUNDS = 3
@@ -131,21 +131,37 @@ def white_codes(codes: list[np.ndarray], keep: list[np.ndarray], log_times: np.n
     return out
 
 
+#: Hat weight from which an observation is well exposed enough to support the residual test.
+SUPPORT_WEIGHT = 0.25
+
+
 def _residual_censor(g: np.ndarray, codes: list[np.ndarray], keep: list[np.ndarray], log_t: np.ndarray,
                      weights: Any, n_levels: int) -> int:
     """Censor (in ``keep``, in place) the upper-half observations whose log exposure ``g(z) - ln t``
-    falls more than :data:`CENSOR_RESIDUAL` below their pixel's weighted mean over its kept
-    frames: a code held down by saturation, which :func:`censored_observations` cannot see in a
-    pixel's longest frame. Returns how many were censored."""
+    falls more than :data:`CENSOR_RESIDUAL` below the mean of at least two other kept, well-exposed
+    (hat weight >= :data:`SUPPORT_WEIGHT`) observations of the same pixel that agree with each other
+    within :data:`CENSOR_RESIDUAL`: a code held down by saturation that still rises with the
+    exposure, which :func:`censored_observations` cannot see (a channel mixed by the 3x3 matrix from
+    a clipped sensor channel, or the longest frame). Without that support (brackets whose steps
+    leave one well-exposed frame per pixel) nothing is censored. Returns how many were censored."""
     wl = level_weights(weights, n_levels)
     n_new = 0
     for c, zc in enumerate(codes):
         z = np.asarray(zc, dtype=np.int64)
         le = g[z, c] - log_t[:, None]
-        w2 = np.where(keep[c], wl[z] ** 2, 0.0)
-        tot = w2.sum(axis=0)
-        est = (w2 * le).sum(axis=0) / np.where(tot > 0, tot, 1.0)
-        bad = keep[c] & (z >= n_levels // 2) & (le - est[None, :] < -CENSOR_RESIDUAL) & (tot > 0)[None, :]
+        good = keep[c] & (wl[z] >= SUPPORT_WEIGHT)
+        cand = keep[c] & (z >= n_levels // 2)
+        bad = np.zeros_like(cand)
+        for j in range(z.shape[0]):
+            if not cand[j].any():
+                continue
+            oth = good.copy()
+            oth[j] = False
+            n = oth.sum(axis=0)
+            lo = np.where(oth, le, np.inf).min(axis=0)
+            hi = np.where(oth, le, -np.inf).max(axis=0)
+            mean = np.where(oth, le, 0.0).sum(axis=0) / np.maximum(n, 1)
+            bad[j] = cand[j] & (n >= 2) & (hi - lo <= CENSOR_RESIDUAL) & (le[j] < mean - CENSOR_RESIDUAL)
         keep[c] &= ~bad
         n_new += int(bad.sum())
     return n_new
