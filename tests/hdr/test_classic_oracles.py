@@ -173,7 +173,7 @@ def test_robertson_within_1db_of_debevec_on_the_paper_family():
     by inverse variance); -0.41 dB with the first alone; -1.11 dB with the merge's ``w / g'^2``
     averaged linearly, which hands that radiance to one frame's pipeline; -0.89 dB at c8b68da
     main (robertson 42.96, debevec 43.85). The debevec merge's bound-aware top (``censor=True``,
-    the default) gains 0.20 dB more on this family (44.05; per bracket -0.44 .. +0.93)."""
+    the default) reads 43.84 dB on this family (per bracket -0.33 .. +0.12 dB)."""
     from derender.camera import simulate_bracket
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.classic import merge_debevec, merge_robertson

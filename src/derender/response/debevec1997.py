@@ -10,6 +10,26 @@ Grid samples that see a clipped neighbour while unclipped themselves are left ou
 (:func:`~derender.response.curves.uniform_samples`): pixels at the rim of a window or a lamp,
 whose codes stop following the exposure once their clipped neighbour leaks into them through
 demosaicing and chroma noise reduction, bent the curve's top end (docs/luminance.md).
+
+The bound-aware top (``censor=True``, what :func:`derender.hdr.classic.merge_debevec` uses; the
+paper's system is ``censor=False``): an observation ``Z_ij`` whose code has stopped following the
+exposure is a *bound* (``ln E_i + ln t_j >= g(Z_ij)``), not a data row of eq. 3. Which they are:
+
+* :func:`censored_observations`: with the frames in order of exposure, an upper-half code that
+  rises by at most one code in the next longer frame, and every longer frame's code of that
+  pixel (a camera whose white is below 255, a colour clipped in the sensor before the 3x3 matrix,
+  noise added after clipping);
+* then up to :data:`CENSOR_ROUNDS` rounds of a residual test (:func:`_residual_censor`): an
+  upper-half code more than ``max(CENSOR_RESIDUAL, CENSOR_SPREAD * s)`` below the mean of at
+  least two other well-exposed, mutually agreeing observations of its pixel (``s``: the frames'
+  own disagreement on lower-half codes);
+* :func:`white_codes`: per channel, the code from which on most observations are censored; the
+  merge gives codes at or above it no weight (clipped, as 255 is).
+
+Why: those codes gave the curve's top its data, and the least-squares curve followed them (4x at
+code 250 on the luminance family's gamma camera), and which of them the grid happened to keep
+moved the whole curve: the evalglare illuminance of one bracket read -6.3 .. +12.1 % over sample
+grids (docs/luminance.md, "The top of Debevec's curve").
 """
 
 from __future__ import annotations
@@ -45,7 +65,10 @@ __all__ = [
     "solve_dense",
     "calibrate_debevec",
     "censored_observations",
+    "white_codes",
     "CENSOR_RESIDUAL",
+    "CENSOR_ROUNDS",
+    "CENSOR_SPREAD",
 ]
 
 #: A kept observation in the upper half of the codes whose log exposure falls this far (natural
