@@ -246,6 +246,22 @@ def _robertson_weight_fn(curves, weight: Any) -> Callable[[int, np.ndarray], np.
     return fn
 
 
+def _white_weight_fn(weight: Any, white: list[int]) -> Callable[[int, np.ndarray], np.ndarray]:
+    """``(j, block) -> weights`` of the named ``weight`` with none at or above each channel's white
+    code (:func:`white_weights` for :func:`merge_linear`: values binned to 8-bit codes)."""
+    from derender.engine.weights import get_weight
+
+    fn = get_weight(weight)
+    wc = np.asarray(white, dtype=np.float32)
+
+    def weights(j: int, block: np.ndarray) -> np.ndarray:
+        b = np.clip(np.asarray(block, dtype=np.float32), 0.0, 1.0)
+        w = np.asarray(fn(b), dtype=np.float32)
+        return np.where(np.rint(b * np.float32(255)) >= wc, np.float32(0), w)
+
+    return weights
+
+
 def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
     """``(j, block) -> g(block)`` (log exposure) for :func:`merge_linear` with ``log_input=True``."""
 
@@ -265,6 +281,9 @@ def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], An
     if curves is None:
         curves = calibrate()
     t1 = time.perf_counter()
+    white = getattr(curves, "params", {}).get("white_codes")
+    if white and merge_kw.get("weight_fn") is None:
+        merge_kw["weight_fn"] = _white_weight_fn(weight, white)
     res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
                        block_rows=block_rows, **merge_kw)
     res.info.update({"method": name, "curves": curves, "engine": "reference",
