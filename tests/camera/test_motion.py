@@ -65,7 +65,12 @@ def test_ghost_experiment_sees_the_ghosts_and_deghost_removes_them():
     """Without ghost removal every method blends the moving objects: the swept and object zones
     are far above the still twin's (same truth, objects frozen); with ``deghost`` they come
     down towards it while the static zone stays (issue 23). Measured here (96x64, 5 exposures,
-    camera family, tripod, debevec): swept 1.55 -> 1.04, object 1.93 -> 1.14, static 0.96 -> 0.86."""
+    camera family, tripod, debevec): swept 1.55 -> 1.04, object 1.93 -> 1.14, static 0.96 -> 0.86
+    when written; at c8b68da swept 1.75 -> 1.20, object 1.93 -> 1.35, static 0.99 -> 0.91. With the
+    bound-aware top of Debevec's curve (issues 36/37) the plain merge's swept zone is already 1.46
+    (a sample whose code a passing object stops from rising is censored, not fitted), and ghost
+    removal takes it to 1.22; object 1.92 -> 1.39, static 0.96 -> 0.91. So the swept zone's drop is
+    asked to be 0.2, not 0.3."""
     from derender.evaluation.ghosts import ghost_comparison
 
     kw = dict(families=("camera",), settings=("tripod",), size=(96, 64), exposures=5, methods=("debevec",))
@@ -73,7 +78,7 @@ def test_ghost_experiment_sees_the_ghosts_and_deghost_removes_them():
     (clean,) = ghost_comparison(**kw, options={"deghost": True})
     assert plain["object_ratio"] > 1.6 and plain["swept_ratio"] > 1.3
     assert clean["object_ratio"] < plain["object_ratio"] - 0.5
-    assert clean["swept_ratio"] < plain["swept_ratio"] - 0.3
+    assert clean["swept_ratio"] < plain["swept_ratio"] - 0.2
     assert clean["static_ratio"] < 1.1
     assert not plain["held_out"]
     assert 0 < clean["object_seen_pixels"] < sum(clean["zone_pixels"])

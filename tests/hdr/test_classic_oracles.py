@@ -167,11 +167,13 @@ def test_frobisher_robertson_has_no_contour_rings(frobisher_dir):
 def test_robertson_within_1db_of_debevec_on_the_paper_family():
     """Issue 16: on the ``paper`` family (auto pipeline: a gamma, gain and white balance per frame)
     robertson's PSNR L against the simulator's exact radiance, averaged over 12 brackets
-    (outdoor + indoor x seeds 0-5, 192x128, 7 exposures), is within 1 dB of debevec's.
-    Measured: -0.28 dB (the calibration's leave-one-out radiance a geometric mean of the
-    other frames weighted by ``w``, the smoother's data weighted by inverse variance); -0.41 dB
-    with the first alone; -1.11 dB with the merge's ``w / g'^2`` averaged linearly, which
-    hands that radiance to one frame's pipeline."""
+    (outdoor + indoor x seeds 0-5, 192x128, 7 exposures), is within 1 dB of Debevec & Malik's
+    (their system, ``censor=False``). Measured: -0.28 dB when written (the calibration's leave-one-out
+    radiance a geometric mean of the other frames weighted by ``w``, the smoother's data weighted
+    by inverse variance); -0.41 dB with the first alone; -1.11 dB with the merge's ``w / g'^2``
+    averaged linearly, which hands that radiance to one frame's pipeline; -0.89 dB at c8b68da
+    main (robertson 42.96, debevec 43.85). The debevec merge's bound-aware top (``censor=True``,
+    the default) reads 43.84 dB on this family (per bracket -0.33 .. +0.12 dB)."""
     from derender.camera import simulate_bracket
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.classic import merge_debevec, merge_robertson
@@ -182,6 +184,6 @@ def test_robertson_within_1db_of_debevec_on_the_paper_family():
             b = simulate_bracket("nikon-d5100", kind=kind, size=(192, 128), exposures=7, seed=seed, family="paper")
             st = Stack(images=code_values()[b.jpeg_codes], times=b.times)
             deb, rob = (psnr_rgbl(m(st, seed=seed).radiance, b.truth_linear_srgb)["L"]
-                        for m in (merge_debevec, merge_robertson))
+                        for m in (lambda s, seed: merge_debevec(s, seed=seed, censor=False), merge_robertson))
             diffs.append(rob - deb)
     assert np.mean(diffs) >= -1.0, np.round(diffs, 2)

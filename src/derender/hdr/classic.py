@@ -65,7 +65,7 @@ from derender.response.curves import (
 #: gammas and gains dominate: docs/luminance.md).
 MERGE_LAMBDA = 60.0
 
-__all__ = ["MERGE_LAMBDA", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
+__all__ = ["MERGE_LAMBDA", "white_weights", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
            "debevec_engine", "robertson_engine"]
 
 
@@ -89,6 +89,7 @@ class DebevecOptions:
     block_rows: int | None = None
     engine: str = "auto"
     tie: float | None = None
+    censor: bool = True
     variance: bool = False
 
     def __post_init__(self) -> None:
@@ -150,6 +151,7 @@ class DebevecMethod(MethodDefaults):
         self.sampling, self.seed = options.sampling, int(options.seed)
         self.weight, self.domain, self.channel_weights = options.weight, options.domain, options.channel_weights
         self.block_rows = options.block_rows
+        self.censor = bool(options.censor)
         self.wants_histograms = self.sampling == "histogram"
 
     def sample_positions(self, h: int, w: int):
@@ -166,16 +168,33 @@ class DebevecMethod(MethodDefaults):
         if curves is None:
             curves = calibrate_debevec_from_samples(samples, access.times, access.histograms, lam=self.lam,
                                                     n_samples=self.n_samples, sampling=self.sampling, seed=self.seed,
-                                                    balance=self.sampling == "grid", tie=self.tie)
+                                                    balance=self.sampling == "grid", tie=self.tie,
+                                                    censor=self.censor)
         self.fitted = curves
         values = curve_value_tables(curves, access.times, self.domain)
-        return TablePlan(values=values, weights=weight_table(self.weight), channel_weights=self.channel_weights,
+        return TablePlan(values=values, weights=white_weights(weight_table(self.weight), curves),
+                         channel_weights=self.channel_weights,
                          domain=self.domain, block_rows=self.block_rows,
                          variance=variance_tables(values, self.domain, "debevec") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "debevec", "curves": self.fitted,
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
+
+
+def white_weights(weights: np.ndarray, curves) -> np.ndarray:
+    """The merge's (256, 3) weight table with no weight at or above each channel's white code, where
+    the calibration found one (``curves.params["white_codes"]``,
+    :func:`~derender.response.debevec1997.white_codes`: a camera that saturates at 250-254, or
+    noise added after clipping): those codes are clipped, as 255 is, so the saturation policy and
+    ghost removal read them as bounds, not as values."""
+    white = getattr(curves, "params", {}).get("white_codes")
+    if not white:
+        return weights
+    out = np.array(weights, dtype=np.float32, copy=True)
+    for c, zw in enumerate(white):
+        out[int(zw):, c] = 0.0
+    return np.ascontiguousarray(out)
 
 
 class RobertsonMethod(MethodDefaults):
@@ -250,6 +269,22 @@ def _robertson_weight_fn(curves, weight: Any) -> Callable[[int, np.ndarray], np.
     return fn
 
 
+def _white_weight_fn(weight: Any, white: list[int]) -> Callable[[int, np.ndarray], np.ndarray]:
+    """``(j, block) -> weights`` of the named ``weight`` with none at or above each channel's white
+    code (:func:`white_weights` for :func:`merge_linear`: values binned to 8-bit codes)."""
+    from derender.engine.weights import get_weight
+
+    fn = get_weight(weight)
+    wc = np.asarray(white, dtype=np.float32)
+
+    def weights(j: int, block: np.ndarray) -> np.ndarray:
+        b = np.clip(np.asarray(block, dtype=np.float32), 0.0, 1.0)
+        w = np.asarray(fn(b), dtype=np.float32)
+        return np.where(np.rint(b * np.float32(255)) >= wc, np.float32(0), w)
+
+    return weights
+
+
 def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
     """``(j, block) -> g(block)`` (log exposure) for :func:`merge_linear` with ``log_input=True``."""
 
@@ -269,6 +304,9 @@ def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], An
     if curves is None:
         curves = calibrate()
     t1 = time.perf_counter()
+    white = getattr(curves, "params", {}).get("white_codes")
+    if white and merge_kw.get("weight_fn") is None:
+        merge_kw["weight_fn"] = _white_weight_fn(weight, white)
     res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
                        block_rows=block_rows, **merge_kw)
     res.info.update({"method": name, "curves": curves, "engine": "reference",
@@ -300,6 +338,7 @@ def merge_debevec(
     block_rows: int | None = None,
     engine: str = "auto",
     tie: float | None = None,
+    censor: bool = True,
     variance: bool = False,
 ) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
@@ -322,6 +361,10 @@ def merge_debevec(
         The calibration (:func:`~derender.response.debevec1997.calibrate_debevec`, always with the
         paper's hat weights): smoothness lambda (None: :data:`MERGE_LAMBDA`), number of samples (``"grid"`` samples in
         uniform regions, or ``"histogram"``), the grid's seed, the channel tie (None: the default).
+    censor : bool
+        Codes that stopped following the exposure (a channel saturated below the top code) are
+        bounds, not data, in the calibration
+        (:func:`~derender.response.debevec1997.censored_observations`); False: the paper's system.
     weight, domain, channel_weights
         The merge's weight (``"gaussian"``, ``"hat"``, ...), averaging domain (``"log"`` or
         ``"linear"``) and how a pixel's channels share weights (``"mean"``, ``"independent"``,
@@ -355,7 +398,7 @@ def merge_debevec(
 
     return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
         stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid",
-        tie=method.tie),
+        tie=method.tie, censor=censor),
         weight, block_rows,
         channel_weights=channel_weights, domain=domain, variance=variance)
 

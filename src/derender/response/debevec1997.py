@@ -10,6 +10,26 @@ Grid samples that see a clipped neighbour while unclipped themselves are left ou
 (:func:`~derender.response.curves.uniform_samples`): pixels at the rim of a window or a lamp,
 whose codes stop following the exposure once their clipped neighbour leaks into them through
 demosaicing and chroma noise reduction, bent the curve's top end (docs/luminance.md).
+
+The bound-aware top (``censor=True``, what :func:`derender.hdr.classic.merge_debevec` uses; the
+paper's system is ``censor=False``): an observation ``Z_ij`` whose code has stopped following the
+exposure is a *bound* (``ln E_i + ln t_j >= g(Z_ij)``), not a data row of eq. 3. Which they are:
+
+* :func:`censored_observations`: with the frames in order of exposure, an upper-half code that
+  rises by at most one code in the next longer frame, and every longer frame's code of that
+  pixel (a camera whose white is below 255, a colour clipped in the sensor before the 3x3 matrix,
+  noise added after clipping);
+* then up to :data:`CENSOR_ROUNDS` rounds of a residual test (:func:`_residual_censor`): an
+  upper-half code more than ``max(CENSOR_RESIDUAL, CENSOR_SPREAD * s)`` below the mean of at
+  least two other well-exposed, mutually agreeing observations of its pixel (``s``: the frames'
+  own disagreement on lower-half codes);
+* :func:`white_codes`: per channel, the code from which on most observations are censored; the
+  merge gives codes at or above it no weight (clipped, as 255 is).
+
+Why: those codes gave the curve's top its data, and the least-squares curve followed them (4x at
+code 250 on the luminance family's gamma camera), and which of them the grid happened to keep
+moved the whole curve: the evalglare illuminance of one bracket read -6.3 .. +12.1 % over sample
+grids (docs/luminance.md, "The top of Debevec's curve").
 """
 
 from __future__ import annotations
@@ -44,13 +64,24 @@ __all__ = [
     "debevec_system",
     "solve_dense",
     "calibrate_debevec",
+    "censored_observations",
+    "white_codes",
+    "CENSOR_RESIDUAL",
+    "CENSOR_ROUNDS",
+    "CENSOR_SPREAD",
 ]
+
+#: A kept observation in the upper half of the codes whose log exposure falls this far (natural
+#: log) below its pixel's estimate from the other frames is censored (:func:`_residual_censor`).
+CENSOR_RESIDUAL = 0.3
+#: Rounds of the residual test (each solves the system again; they stop when nothing changes).
+CENSOR_ROUNDS = 3
 
 
 def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray], *,
                                    lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
                                    sampling: str = "grid", seed: int = 0, balance: bool = False,
-                                   tie: float = 0.0) -> ResponseCurves:
+                                   tie: float = 0.0, censor: bool = False) -> ResponseCurves:
     """:func:`calibrate_debevec` (hat weights, monotonic) from pre-drawn samples (N, P, 3).
 
     ``hists_fn()`` gives the per-image code histograms (N, 3, 256), read only when some channel
@@ -58,16 +89,122 @@ def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists
     offset R and B so that neutral colours stay neutral
     (:func:`~derender.response.curves.balance_channels` on ``samples``; needs grid samples:
     every channel of a sample from the same pixel). ``tie``: weight of the channel tie of
-    :func:`solve_debevec_tied` (0: channels solved independently, the paper).
+    :func:`solve_debevec_tied` (0: channels solved independently, the paper). ``censor``: codes
+    that stopped following the exposure are bounds, not data (:func:`censored_observations`, then
+    up to :data:`CENSOR_ROUNDS` rounds of a residual test; module docstring).
     """
     return _calibrate(samples, times, lambda: histogram_samples(hists_fn(), n_samples), lam=lam,
                       n_samples=n_samples, sampling=sampling, seed=seed, weights="hat", n_levels=N_CODES,
-                      monotonic=True, balance=balance, tie=tie)
+                      monotonic=True, balance=balance, tie=tie, censor=censor)
+
+
+def censored_observations(codes: np.ndarray, log_times: np.ndarray, n_levels: int = N_CODES) -> np.ndarray:
+    """Which observations of one channel are data and which are censored bounds: (N, P) bool, True = data.
+
+    ``codes`` (N, P) of P pixels in N frames. With the frames in order of exposure, a pixel's
+    code in the upper half that does not rise by more than one code in the next longer frame has
+    stopped following the exposure: the
+    camera's channel has saturated there, below the top code (a colour clipped before the 3x3
+    matrix, a camera whose white is 250, noise added after clipping). That observation and
+    every longer frame's are bounds (the exposure is *at least* what the code says), not data.
+    """
+    z = np.asarray(codes, dtype=np.int64)
+    order = np.argsort(np.asarray(log_times, dtype=np.float64).reshape(-1), kind="stable")
+    zs = z[order]
+    mid = n_levels // 2
+    stuck = (zs[:-1] >= mid) & (zs[1:] <= zs[:-1] + 1)
+    cens = np.logical_or.accumulate(np.concatenate([stuck, np.zeros((1, z.shape[1]), bool)]), axis=0)
+    keep = np.empty_like(cens)
+    keep[order] = ~cens
+    return keep
+
+
+#: Fewest observations (with a longer frame after them) at or above a code for :func:`white_codes` to judge it.
+WHITE_MIN_COUNT = 8
+#: Share of censored observations at or above a code that makes it the channel's white.
+WHITE_SHARE = 0.5
+
+
+def white_codes(codes: list[np.ndarray], keep: list[np.ndarray], log_times: np.ndarray,
+                n_levels: int = N_CODES) -> list[int]:
+    """Per channel, the code ``z_w`` from which on the bracket's frames stop following the
+    exposure: the camera's white for that channel. Going down from the top code, every code
+    seen at least :data:`WHITE_MIN_COUNT` times (in frames with a longer one after them: the
+    longest frame's codes cannot show that they stopped) whose observations are censored
+    (:func:`censored_observations` and the residual test) at least :data:`WHITE_SHARE` of the
+    time extends the white down to it; the first such code censored less often ends the search
+    (codes seen fewer times are passed over). ``n_levels - 1`` when no code qualifies; never
+    below the upper quarter of the codes."""
+    order = np.argsort(np.asarray(log_times, dtype=np.float64).reshape(-1), kind="stable")
+    last = order[-1]
+    out = []
+    for zc, kc in zip(codes, keep):
+        z = np.delete(np.asarray(zc, dtype=np.int64), last, axis=0).ravel()
+        cens = ~np.delete(np.asarray(kc, dtype=bool), last, axis=0).ravel()
+        tot = np.bincount(z, minlength=n_levels)
+        bad = np.bincount(z[cens], minlength=n_levels)
+        white = n_levels - 1
+        for zz in range(n_levels - 2, (3 * n_levels) // 4 - 1, -1):
+            if tot[zz] < WHITE_MIN_COUNT:
+                continue
+            if bad[zz] < WHITE_SHARE * tot[zz]:
+                break
+            white = zz
+        out.append(int(white))
+    return out
+
+
+#: Hat weight from which an observation is well exposed enough to support the residual test.
+SUPPORT_WEIGHT = 0.25
+#: The residual test's threshold is at least this many times the frames' own disagreement (robust
+#: sd of the lower-half residuals): brackets whose frames disagree anyway (an auto pipeline) censor less.
+CENSOR_SPREAD = 6.0
+
+
+def _residual_censor(g: np.ndarray, codes: list[np.ndarray], keep: list[np.ndarray], log_t: np.ndarray,
+                     weights: Any, n_levels: int) -> int:
+    """Censor (in ``keep``, in place) the upper-half observations whose log exposure ``g(z) - ln t``
+    falls more than :data:`CENSOR_RESIDUAL` below the mean of at least two other kept, well-exposed
+    (hat weight >= :data:`SUPPORT_WEIGHT`) observations of the same pixel that agree with each other
+    within that threshold: a code held down by saturation that still rises with the exposure, which
+    :func:`censored_observations` cannot see (a channel mixed by the 3x3 matrix from a clipped
+    sensor channel, or the longest frame). Without that support (brackets whose steps leave one
+    well-exposed frame per pixel) nothing is censored. The threshold is at least
+    :data:`CENSOR_SPREAD` times the frames' own disagreement (the robust sd of the same residual on
+    lower-half codes, where nothing saturates): on an auto pipeline, whose frames disagree by 0.2-0.7
+    in ln there, the test then censors almost nothing. Returns how many were censored."""
+    wl = level_weights(weights, n_levels)
+    n_new = 0
+    for c, zc in enumerate(codes):
+        z = np.asarray(zc, dtype=np.int64)
+        le = g[z, c] - log_t[:, None]
+        good = keep[c] & (wl[z] >= SUPPORT_WEIGHT)
+        cand = keep[c] & (z >= n_levels // 2)
+        stats = []
+        for j in range(z.shape[0]):
+            oth = good.copy()
+            oth[j] = False
+            n = oth.sum(axis=0)
+            lo = np.where(oth, le, np.inf).min(axis=0)
+            hi = np.where(oth, le, -np.inf).max(axis=0)
+            mean = np.where(oth, le, 0.0).sum(axis=0) / np.maximum(n, 1)
+            stats.append((n, hi - lo, le[j] - mean))
+        # the frames' own disagreement where nothing saturates: lower-half, well-exposed, supported
+        low = [st[2][good[j] & (z[j] < n_levels // 2) & (st[0] >= 2)] for j, st in enumerate(stats)]
+        low = np.concatenate(low) if low else np.zeros(0)
+        spread = 1.4826 * float(np.median(np.abs(low - np.median(low)))) if low.size >= 16 else 0.0
+        thr = max(CENSOR_RESIDUAL, CENSOR_SPREAD * spread)
+        bad = np.zeros_like(cand)
+        for j, (n, rng_, res) in enumerate(stats):
+            bad[j] = cand[j] & (n >= 2) & (rng_ <= thr) & (res < -thr)
+        keep[c] &= ~bad
+        n_new += int(bad.sum())
+    return n_new
 
 
 def _calibrate(samples: np.ndarray, times: np.ndarray, extra_fn: Callable[[], np.ndarray], *, lam: float,
                n_samples: int, sampling: str, seed: int, weights: Any, n_levels: int, monotonic: bool,
-               balance: bool, tie: float) -> ResponseCurves:
+               balance: bool, tie: float, censor: bool = False) -> ResponseCurves:
     """The one body of :func:`calibrate_debevec` and :func:`calibrate_debevec_from_samples`:
     ``extra_fn()`` gives histogram samples for a channel the samples miss."""
     if lam < 0 or not np.isfinite(lam):
@@ -79,13 +216,23 @@ def _calibrate(samples: np.ndarray, times: np.ndarray, extra_fn: Callable[[], np
         if not np.any((zc > 0) & (zc < n_levels - 1)):
             zc = np.concatenate([zc, extra_fn()[:, :, c]], axis=1)
         per_channel.append(zc)
-    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie)
+    keep = [censored_observations(zc, log_t, n_levels) for zc in per_channel] if censor else None
+    g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie, keep=keep)
+    rounds = 0
+    if censor:
+        while rounds < CENSOR_ROUNDS and _residual_censor(g, per_channel, keep, log_t, weights, n_levels):
+            rounds += 1
+            g = solve_debevec_tied(per_channel, log_t, lam=lam, weights=weights, n_levels=n_levels, tie=tie, keep=keep)
     fixed = [bool(np.any(np.diff(g[:, c]) < 0)) for c in range(3)]
     if monotonic:
         g = make_monotonic(g)
     params = {"lambda": float(lam), "n_samples": int(n_samples), "sampling": sampling, "seed": int(seed),
               "weights": weights if isinstance(weights, str) else "custom", "monotonic_fixed": fixed,
               "tie": float(tie)}
+    if censor:
+        params["censored"] = [int((~k).sum()) for k in keep]
+        params["censor_rounds"] = rounds
+        params["white_codes"] = white_codes(per_channel, keep, log_t, n_levels)
     if balance:
         g, info = balance_channels(g, samples, mode="grey-axis" if tie > 0 else "neutral")
         params.update(info)
@@ -128,18 +275,19 @@ def solve_debevec(codes: np.ndarray, log_times: np.ndarray, lam: float = DEFAULT
 
 
 def _debevec_normal(codes: np.ndarray, log_times: np.ndarray, lam: float, weights: Any,
-                    n_levels: int) -> tuple[np.ndarray, np.ndarray]:
+                    n_levels: int, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The reduced normal equations ``(S, rhs)`` of :func:`solve_debevec` for one channel."""
     z = np.asarray(codes).astype(np.int64)
     b = np.asarray(log_times, dtype=np.float64).reshape(-1)
-    schur, m, w2, dinv = debevec_system(z, lam, weights, n_levels)
+    schur, m, w2, dinv = debevec_system(z, lam, weights, n_levels, keep)
     b_g = np.bincount(z.ravel(), weights=(w2 * b[:, None]).ravel(), minlength=n_levels)
     b_e = -(w2 * b[:, None]).sum(axis=0)
     return schur, b_g - m @ (dinv * b_e)
 
 
 def solve_debevec_tied(codes: list[np.ndarray], log_times: np.ndarray, lam: float = DEFAULT_LAMBDA,
-                       weights: Any = None, n_levels: int = 256, tie: float = DEFAULT_TIE) -> np.ndarray:
+                       weights: Any = None, n_levels: int = 256, tie: float = DEFAULT_TIE,
+                       keep: list[np.ndarray] | None = None) -> np.ndarray:
     """The three channels' curves of :func:`solve_debevec` in one system, tied.
 
     ``codes``: per channel an (N_img, P_c) array. Each channel keeps its own data rows,
@@ -150,23 +298,24 @@ def solve_debevec_tied(codes: list[np.ndarray], log_times: np.ndarray, lam: floa
     alone; where a channel has few samples (the ends of the range, a channel the scene
     hardly exposes) its curve then bends on its own, and grey pixels rendered with equal
     codes come out tinted at some levels and not at others. ``tie = 0``: the paper's
-    independent channels. Returns ``g`` (n_levels, 3).
+    independent channels. ``keep``: per channel an (N_img, P_c) bool mask of the observations
+    that have a data row (None: all). Returns ``g`` (n_levels, 3).
     """
     blocks, rhs = [], []
-    for zc in codes:
+    for c, zc in enumerate(codes):
         z = np.asarray(zc)
         if z.ndim != 2:
             raise InputError(f"codes must be (N_img, P), got {z.shape}")
         if z.size and (z.min() < 0 or z.max() >= n_levels):
             raise InputError(f"codes must lie in [0, {n_levels - 1}]")
-        a, r = _debevec_normal(z, log_times, lam, weights, n_levels)
+        a, r = _debevec_normal(z, log_times, lam, weights, n_levels, None if keep is None else keep[c])
         blocks.append(a)
         rhs.append(r)
     return solve_tied(blocks, rhs, tie)
 
 
-def debevec_system(codes: np.ndarray, lam: float, weights: Any = "hat",
-                   n_levels: int = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def debevec_system(codes: np.ndarray, lam: float, weights: Any = "hat", n_levels: int = 256,
+                   keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Debevec & Malik's normal equations for one channel with the diagonal ``ln E`` block
     eliminated (:func:`solve_debevec`): ``codes`` (N, P) integer, data rows weighted by
     ``w(Z)``, ``g(mid) = 0`` with weight 1, smoothness ``lam w(z) g''(z)``. Returns ``(S, M, w2,
@@ -175,11 +324,14 @@ def debevec_system(codes: np.ndarray, lam: float, weights: Any = "hat",
     block's diagonal (0 for samples with no weight). For log exposures ``b`` the right-hand
     side is ``b_g - M @ (dinv * b_e)`` with ``b_g[z] = sum w2 b_j [Z = z]``, ``b_e = -w2.T b``:
     one factorisation serves every ``b`` (:func:`derender.hdr.stabilize.filmic` re-estimates
-    exposures with it)."""
+    exposures with it). ``keep`` (N, P) bool: observations without it get no data row (censored
+    bounds, :func:`censored_observations`)."""
     z = np.asarray(codes, dtype=np.int64)
     p = z.shape[1]
     wl = level_weights(weights, n_levels)
     w2 = wl[z] ** 2  # (N, P) squared data-row weights
+    if keep is not None:
+        w2 = np.where(np.asarray(keep, dtype=bool), w2, 0.0)
     d = w2.sum(axis=0)  # diagonal of the ln E block
     # g-g block: data + constraint + smoothness
     a_gg = np.diag(np.bincount(z.ravel(), weights=w2.ravel(), minlength=n_levels))
@@ -217,7 +369,8 @@ def solve_dense(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 def calibrate_debevec(stack: Stack, *, lam: float = DEFAULT_LAMBDA, n_samples: int = DEFAULT_SAMPLES,
                       sampling: str = "grid", seed: int = 0, weights: Any = "hat", n_levels: int = 256,
-                      monotonic: bool = True, balance: bool = False, tie: float = 0.0) -> ResponseCurves:
+                      monotonic: bool = True, balance: bool = False, tie: float = 0.0,
+                      censor: bool = False) -> ResponseCurves:
     """Recover ``g = ln f^-1`` per channel with :func:`solve_debevec` (Debevec & Malik 1997).
 
     Samples by :func:`sample_pixels`; channels solved independently, each with
@@ -241,4 +394,4 @@ def calibrate_debevec(stack: Stack, *, lam: float = DEFAULT_LAMBDA, n_samples: i
     return _calibrate(samples, stack.times,
                       lambda: sample_pixels(stack, n_samples=n_samples, method="histogram", n_levels=n_levels),
                       lam=lam, n_samples=n_samples, sampling=sampling, seed=seed, weights=weights, n_levels=n_levels,
-                      monotonic=monotonic, balance=balance, tie=tie)
+                      monotonic=monotonic, balance=balance, tie=tie, censor=censor)
