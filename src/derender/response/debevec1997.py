@@ -385,6 +385,58 @@ def calibrate_debevec(stack: Stack, *, lam: float = DEFAULT_LAMBDA, n_samples: i
     offsets R and B by :func:`~derender.response.curves.balance_channels` so that the
     near-neutral, well-exposed sampled pixels of the bracket come out neutral
     (``g_G(mid) = 0`` stays; ``params["channel_offsets"]`` says by how much).
+
+    Parameters
+    ----------
+    stack : Stack
+        The bracket (8- or 16-bit images in [0, 1] and their exposure times).
+    lam : float
+        Weight of the smoothness term (the paper's lambda), non-negative.
+    n_samples : int
+        Pixels sampled for the system.
+    sampling : str
+        ``"grid"``, ``"random"`` or ``"histogram"`` (:func:`sample_pixels`).
+    seed : int
+        Seeds the sampling.
+    weights : str or callable
+        The weight of a code (``"hat"``: the paper's triangle).
+    n_levels : int
+        Codes per channel (256 for 8-bit images).
+    monotonic : bool
+        Replace a non-monotonic solution by its isotonic fit.
+    balance : bool
+        Offset R and B so that neutral colours stay neutral.
+    tie : float
+        Weight of the channel tie (:func:`solve_debevec_tied`; 0: the paper).
+    censor : bool
+        Codes that stopped following the exposure are bounds, not data (the bound-aware top of
+        the module docstring; False: the paper's system).
+
+    Returns
+    -------
+    ResponseCurves
+        ``log_inverse`` (n_levels, 3) ``g = ln f^-1``, ``method`` ``"debevec"`` and ``params``.
+
+    Raises
+    ------
+    InputError
+        A negative or non-finite ``lam``, or a bracket without usable codes.
+
+    Examples
+    --------
+    A gamma-2.2 camera: the recovered ``g`` rises by 2.2 natural-log units per unit of ``ln z``:
+
+    >>> import numpy as np
+    >>> import derender
+    >>> radiance = np.geomspace(0.01, 1.0, 32 * 32).reshape(32, 32, 1).repeat(3, axis=2)   # 100:1
+    >>> times = np.array([0.25, 1.0, 4.0])
+    >>> codes = np.round(255 * np.clip(radiance * times[:, None, None, None], 0, 1) ** (1 / 2.2))
+    >>> stack = derender.Stack((codes / 255).astype(np.float32), times)
+    >>> curves = derender.calibrate_debevec(stack)
+    >>> g = curves.log_inverse[:, 1]
+    >>> slope = (g[200] - g[50]) / (np.log(200) - np.log(50))
+    >>> curves.log_inverse.shape, bool(np.all(np.diff(g) >= 0)), round(float(slope), 1)
+    ((256, 3), True, 2.2)
     """
     stack = as_stack(stack)
     if lam < 0 or not np.isfinite(lam):
