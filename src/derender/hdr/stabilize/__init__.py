@@ -55,7 +55,8 @@ from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "blocks": ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"],
-    "colour_matrices": ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"],
+    "colour_matrices": ["DIAGONAL_GAIN", "fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices",
+                        "diagonal_bracket", "graph_gains"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "grey_balance": ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "GREY_MAX_GAIN", "grey_balance"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
