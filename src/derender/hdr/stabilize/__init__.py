@@ -28,6 +28,9 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   ``I'_j = H_j L_j`` (eq. 10) are all in the reference's exposure and colour rendering;
   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not bias
   the colours (times serve the gamma level, the noise weights and the joint gauge).
+  Brackets whose frames differ by per-channel gains only (one rendering: a fixed pipeline, a
+  film) take gains consistent over all neighbour pairs instead (:func:`diagonal_bracket`,
+  :func:`graph_gains`): then the map does not depend on the reference (beyond the paper).
 * Step 4, :mod:`.method` -- :func:`stabilized_merge`, trapezoid-weighted average through
   :func:`derender.engine.reference.merge_linear` (method ``"stabilized"``), by default also
   weighted by each estimate's inverse noise variance; :func:`stabilize` runs steps 1-3.2.

@@ -16,6 +16,24 @@ Beyond the paper (its Fig. 5: the result depends on the reference):
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
 all (method ``"stabilized-joint"``).
+
+**One rendering, one map** (beyond the paper, issue 36). When every frame has the same
+rendering up to exposure, gain and white balance (``A_j = D_j A`` with ``D_j`` diagonal: a
+fixed pipeline, one film), ``H_j = A D_ref D_j^-1 A^-1 t_ref / t_j`` is, for any reference, the
+same per-channel gains in the rendering's own basis, and the map must not depend on the
+reference. Fitting each ``H_j`` on its own path to the reference breaks that: the paths
+disagree (on Debevec's Memorial, loops of diagonal pair maps close to 0.95-1.11 per channel;
+full 3x3 maps of its near-collinear brown colours add off-diagonals the data do not fix), and
+references 7 and 9 gave block chroma changes of 0.92 (p95). Both modes therefore first fit
+the neighbour pairs of :func:`_pair_graph` (each a full map and, on the same inliers, a
+diagonal one); :func:`diagonal_bracket` calls the bracket diagonal when the median over the
+pairs of the diagonal map's robust code residual over the full map's is at most
+``1 + DIAGONAL_GAIN``, and then every matrix comes from one set of per-channel gains
+consistent over the whole graph (:func:`graph_gains`, ``ln G_j - ln G_k = ln h_jk`` by least
+squares): ``H_j = diag(G_j / G_ref)``, ``K_j = c t_j diag(G_j)``. Changing the reference then
+multiplies every matrix by one diagonal, which the grey balance (:mod:`.grey_balance`) takes
+out again: the map is the same to float32 rounding. Brackets whose rendering changes keep
+paper 1's per-reference fits (measured ratios in ``docs/paper1.md``).
 """
 
 from __future__ import annotations
@@ -317,7 +335,9 @@ def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: in
     ratio (and any gain change) is absorbed in H_j. An image that shares nothing usable
     with its neighbour gets the neighbour's matrix times ``t_neighbour / t_j``
     ("assumed"). ``gammas``: display gammas or :class:`Curve` objects. Returns (H, how)
-    with ``how[j]`` in {"reference", "direct", "chain", "assumed"}.
+    with ``how[j]`` in {"reference", "direct", "chain", "assumed"}; with ``path="auto"`` a bracket
+    that :func:`diagonal_bracket` finds diagonal takes :func:`graph_gains` instead (``"gains"``:
+    the same map for every reference). ``info`` receives ``diagonal`` and ``diagonal_ratio``.
     """
     n = blocks.codes.shape[0]
     if path == "auto":
@@ -383,7 +403,9 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
     equality-constrained least-squares problem (KKT system). The fit covers the longest
     run of neighbouring images that share pixels; images outside it (nearly black or
     white frames) are chained to their neighbour afterwards, or assumed to share its
-    rendering when nothing is usable in common.
+    rendering when nothing is usable in common. A bracket that :func:`diagonal_bracket` finds
+    diagonal takes ``K_j = c t_j diag(G_j)`` from :func:`graph_gains` (``c`` sets the gauge);
+    ``info`` receives ``diagonal`` and ``diagonal_ratio``.
     """
     n = blocks.codes.shape[0]
     t = np.asarray(times, dtype=np.float64).reshape(-1)
