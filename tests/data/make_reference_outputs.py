@@ -66,10 +66,10 @@ then ``debevec`` (issue 28, linearity: the Debevec merge's smoothness lambda 60 
 30, ``derender.hdr.classic.MERGE_LAMBDA``: a smoother curve; max relative change per pixel 0.266
 sim-camera, 0.151 sim-simple, 0.552 Memorial, 0.087 Frobisher); then issue 36 item 2 (reference
 invariance): ``stabilized``, ``stabilized-joint``, ``stabilized-probabilistic`` (brackets whose frames
-differ by per-channel gains only take gains consistent over the whole pair graph; film-base blocks
-left out of the pair fits; response-table weights floored: Memorial 0.748 / 0.513 and Frobisher
-0.076 / 0.018 max relative change per pixel (stabilized / stabilized-joint); both simulated
-auto-pipeline brackets unchanged, max relative change 0).
+differ by per-channel gains only take gains consistent over the whole pair graph; response-table
+weights floored: Memorial 0.765 / 0.455 and Frobisher 0.076 / 0.018 max relative change per pixel
+(stabilized / stabilized-joint); both simulated auto-pipeline brackets unchanged, max relative
+change 0).
 """
 
 from __future__ import annotations

@@ -188,41 +188,9 @@ def _plausible_matrix(h: np.ndarray) -> bool:
 
 def _pair_effective(blocks: Blocks, j: int, k: int, gammas: np.ndarray, low: float, high: float,
                     floor: float) -> tuple[np.ndarray, np.ndarray]:
-    common = _informative_pair(blocks, j, k, gammas, low, high, floor)
+    common = blocks.pair(j, k, low, high, floor)
     return (effective_codes(blocks.codes[j][common], gammas[j]),
             effective_codes(blocks.codes[k][common], gammas[k]))
-
-
-def _informative_pair(blocks: Blocks, j: int, k: int, gammas: Sequence, low: float, high: float,
-                      floor: float) -> np.ndarray:
-    """:meth:`Blocks.pair` restricted to blocks whose codes resolve exposure in both images.
-
-    The code thresholds ``low`` / ``floor`` stand for a noise bound on the linear values: for a
-    power law of display gamma ``g`` (``d ln L / dJ = g / J``) a code above ``floor`` has a relative
-    linear noise per code step below ``g / floor``. A response *table* (film, :mod:`.filmic`) can
-    be flat far above ``floor``: Memorial's film base and scanner put the short frames' blacks at
-    codes 13-19, where its Debevec curve's ``d ln L / dJ`` is 90-200 per unit code (a power law of
-    gamma 2 there: 25-40). Such blocks carry no colour, but every block of a dark frame passes
-    ``floor``: the direct fits of frames 3-9 stops from the reference took their 1465 fitting blocks
-    from the film base and came out with off-diagonal entries larger than the diagonal. The bound
-    is therefore applied to the curve's log slope itself, the darker image at
-    ``effective_gamma / floor`` and the brighter one at ``effective_gamma / low``: for power laws
-    that is exactly the code thresholds (no block changes)."""
-    common = blocks.pair(j, k, low, high, floor)
-    cj, ck = as_curve(gammas[j]), as_curve(gammas[k])
-    if cj.table is None and ck.table is None:
-        return common
-    dark, bright = (j, k) if blocks.brightness[j] <= blocks.brightness[k] else (k, j)
-    idx = np.flatnonzero(common)
-    for i, bound in ((dark, floor), (bright, low)):
-        c = as_curve(gammas[i])
-        if c.table is None:
-            continue
-        slope = c.log_slope(blocks.codes[i][idx]).max(axis=(1, 2))
-        idx = idx[slope <= c.effective_gamma / bound]
-    out = np.zeros_like(common)
-    out[idx] = True
-    return out
 
 
 def _pair_graph(blocks: Blocks, gammas: np.ndarray, n: int, *, low: float, high: float, floor: float,
@@ -362,7 +330,7 @@ def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: in
             if path == "direct":
                 need = min_blocks
             else:
-                need = max(4 * min_blocks, int(0.5 * _informative_pair(blocks, j, a, gammas, low, high, floor).sum()))
+                need = max(4 * min_blocks, int(0.5 * blocks.pair(j, a, low, high, floor).sum()))
             if jj.shape[0] >= need:
                 h, _ = fit_frame_matrix(jj, jr, gammas[j], gammas[reference], n_iter=n_iter,
                                         seed=seed + 101 * j + reference)
