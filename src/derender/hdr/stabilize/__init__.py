@@ -28,6 +28,9 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   ``I'_j = H_j L_j`` (eq. 10) are all in the reference's exposure and colour rendering;
   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not bias
   the colours (times serve the gamma level, the noise weights and the joint gauge).
+  Brackets whose frames differ by per-channel gains only (one rendering: a fixed pipeline, a
+  film) take gains consistent over all neighbour pairs instead (:func:`diagonal_bracket`,
+  :func:`graph_gains`): then the map does not depend on the reference (beyond the paper).
 * Step 4, :mod:`.method` -- :func:`stabilized_merge`, trapezoid-weighted average through
   :func:`derender.engine.float_merge.merge_linear` (method ``"stabilized"``), by default also
   weighted by each estimate's inverse noise variance; :func:`stabilize` runs steps 1-3.2.
@@ -55,7 +58,8 @@ from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "blocks": ["FIT_LOW", "FIT_HIGH", "FIT_FLOOR", "Blocks", "make_blocks"],
-    "colour_matrices": ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"],
+    "colour_matrices": ["DIAGONAL_GAIN", "fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices",
+                        "diagonal_bracket", "graph_gains"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "grey_balance": ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "GREY_MAX_GAIN", "grey_balance"],
     "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],

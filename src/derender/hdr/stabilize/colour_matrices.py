@@ -16,6 +16,24 @@ Beyond the paper (its Fig. 5: the result depends on the reference):
 every overlapping pair of images, with the gauge ``mean_j K_j = I`` (times folded in),
 i.e. a common linear space equal to the bracket's *average* rendering, no reference at
 all (method ``"stabilized-joint"``).
+
+**One rendering, one map** (beyond the paper, issue 36). When every frame has the same
+rendering up to exposure, gain and white balance (``A_j = D_j A`` with ``D_j`` diagonal: a
+fixed pipeline, one film), ``H_j = A D_ref D_j^-1 A^-1 t_ref / t_j`` is, for any reference, the
+same per-channel gains in the rendering's own basis, and the map must not depend on the
+reference. Fitting each ``H_j`` on its own path to the reference breaks that: the paths
+disagree (on Debevec's Memorial, loops of diagonal pair maps close to 0.95-1.11 per channel;
+full 3x3 maps of its near-collinear brown colours add off-diagonals the data do not fix), and
+references 7 and 9 gave block chroma changes of 0.92 (p95). Both modes therefore first fit
+the neighbour pairs of :func:`_pair_graph` (each a full map and, on the same inliers, a
+diagonal one); :func:`diagonal_bracket` calls the bracket diagonal when the median over the
+pairs of the diagonal map's robust code residual over the full map's is at most
+``1 + DIAGONAL_GAIN``, and then every matrix comes from one set of per-channel gains
+consistent over the whole graph (:func:`graph_gains`, ``ln G_j - ln G_k = ln h_jk`` by least
+squares): ``H_j = diag(G_j / G_ref)``, ``K_j = c t_j diag(G_j)``. Changing the reference then
+multiplies every matrix by one diagonal, which the grey balance (:mod:`.grey_balance`) takes
+out again: the map is the same to float32 rounding. Brackets whose rendering changes keep
+paper 1's per-reference fits (measured ratios in ``docs/paper1.md``).
 """
 
 from __future__ import annotations
@@ -30,17 +48,25 @@ from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve, as_curve
 from derender.hdr.stabilize.pair_fit import RIDGE, effective_codes, fit_pair, pair_weights, predict_codes
 
-__all__ = ["fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices"]
+__all__ = ["DIAGONAL_GAIN", "fit_frame_matrix", "colour_matrices_to_reference", "joint_colour_matrices",
+           "diagonal_bracket", "graph_gains"]
 
 
 _W = LUMINANCE_WEIGHTS_REC709
+
+
+#: A bracket counts as one rendering up to per-channel gains (:func:`diagonal_bracket`) when, over
+#: the pairs of :func:`_pair_graph`, the median ratio of the diagonal map's robust code residual to
+#: the full 3x3 map's is at most ``1 + DIAGONAL_GAIN`` (measured in ``docs/paper1.md``).
+DIAGONAL_GAIN = 0.07
 
 
 def fit_frame_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "float | Curve",
                      gamma_dst: "float | Curve",
                      *, n_iter: int = 100, sample: int = 4, threshold: float | None = None,
                      seed: int = 0, ridge: float | None = None,
-                     max_score: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+                     max_score: int = 1000, model: str = "full",
+                     info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """H with ``dst_codes ** gamma_dst ~ H @ src_codes ** gamma_src`` (paper 1, eq. 9), by
     weighted least squares inside a seeded RANSAC. ``gamma_*`` are display gammas or
     :class:`Curve` linearisations.
@@ -57,6 +83,8 @@ def fit_frame_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
     inlier count only orders them); the winner's inliers are found on all.
     Returns ``(H, inlier_mask)``.
     """
+    if model not in ("full", "diagonal"):
+        raise InputError(f"model must be 'full' or 'diagonal', got {model!r}")
     src = np.asarray(src_codes, dtype=np.float64).reshape(-1, 3)
     dst = np.asarray(dst_codes, dtype=np.float64).reshape(-1, 3)
     if src.shape != dst.shape:
@@ -113,7 +141,25 @@ def fit_frame_matrix(src_codes: np.ndarray, dst_codes: np.ndarray, gamma_src: "f
     if inl.sum() >= max(3, best.sum() // 2):
         h, _ = fit_pair(src[inl], dst[inl], gamma_src, gamma_dst, ridge=ridge)
         best = inl
+    if info is not None or model == "diagonal":
+        # one gain per channel on the same inliers, and both maps' robust code residuals
+        hd, _ = fit_pair(src[best], dst[best], gamma_src, gamma_dst, diagonal=True)
+        if info is not None:
+            # both residuals on every correspondence (the median is the robust part), not only on
+            # the full map's inliers, which its own residuals selected
+            info.update(diagonal=hd, rms_full=_code_rms(h, src, dst, gamma_src, gamma_dst),
+                        rms_diagonal=_code_rms(hd, src, dst, gamma_src, gamma_dst),
+                        inliers=int(best.sum()))
+        if model == "diagonal":
+            h = hd
     return h, best
+
+
+def _code_rms(h: np.ndarray, src: np.ndarray, dst: np.ndarray, c_src: "float | Curve", c_dst: "float | Curve") -> float:
+    """Robust code-domain residual of ``dst ~ H src``: 1.4826 x the median absolute residual
+    over blocks and channels (code units in [0, 1])."""
+    pred = predict_codes(h, as_curve(c_src).lin(src), c_dst)
+    return float(1.4826 * np.median(np.abs(pred - dst)))
 
 
 def _neighbour_matrix(blocks: Blocks, j: int, a: int, gammas, *, low: float, high: float, floor: float,
@@ -149,22 +195,103 @@ def _pair_effective(blocks: Blocks, j: int, k: int, gammas: np.ndarray, low: flo
 
 def _pair_graph(blocks: Blocks, gammas: np.ndarray, n: int, *, low: float, high: float, floor: float,
                 min_blocks: int, max_gap: int, seed: int, n_iter: int) -> dict:
-    """RANSAC-fitted maps for pairs (j, k), k - j <= max_gap: {(j, k): (H_k<-j, jj_in, jk_in)}."""
+    """RANSAC-fitted maps for pairs (j, k), k - j <= max_gap:
+    {(j, k): (H_k<-j, jj_in, jk_in, info)}, ``info`` that of :func:`fit_frame_matrix` (the
+    diagonal map on the same inliers and both robust residuals)."""
     out = {}
     for j in range(n):
         for k in range(j + 1, min(n, j + 1 + max_gap)):
             jj, jk = _pair_effective(blocks, j, k, gammas, low, high, floor)
             if jj.shape[0] < min_blocks:
                 continue
-            h, inl = fit_frame_matrix(jj, jk, gammas[j], gammas[k], n_iter=n_iter, seed=seed + 31 * j + k)
-            out[(j, k)] = (h, jj[inl], jk[inl])
+            info: dict = {}
+            h, inl = fit_frame_matrix(jj, jk, gammas[j], gammas[k], n_iter=n_iter, seed=seed + 31 * j + k,
+                                      info=info)
+            out[(j, k)] = (h, jj[inl], jk[inl], info)
     return out
+
+
+def diagonal_bracket(graph: dict, gain: float | None = None) -> tuple[bool, float]:
+    """Whether the frames of a bracket differ by per-channel gains only (one rendering up to
+    exposure, gain and white balance): the median over the pairs of ``graph`` (:func:`_pair_graph`)
+    of the diagonal map's robust code residual over the full 3x3 map's is at most
+    ``1 + gain`` (default :data:`DIAGONAL_GAIN`). Returns (decision, median ratio); an empty
+    graph is not diagonal."""
+    g = DIAGONAL_GAIN if gain is None else float(gain)
+    ratios = [_diagonal_ratio(v[3]) for v in graph.values()]
+    if not ratios:
+        return False, float("nan")
+    med = float(np.median(ratios))
+    return bool(med <= 1.0 + g), med
+
+
+def _diagonal_ratio(info: dict) -> float:
+    """Diagonal over full robust code residual of one pair (:func:`fit_frame_matrix`'s ``info``)."""
+    return float(info["rms_diagonal"] / max(info["rms_full"], 1e-12))
+
+
+def graph_gains(graph: dict, n: int, times: np.ndarray | None) -> np.ndarray:
+    """Per-frame, per-channel gains ``G_j`` (N, 3) that make ``G_j L_j`` agree across the pair
+    graph, from the pairs' diagonal maps ``L_k = diag(h) L_j``: weighted least squares of
+    ``ln G_j - ln G_k = ln h`` per channel (weights ``sqrt`` of each pair's inlier count) over
+    the largest connected component of the graph. Every pair takes part, so the gains do not depend on any
+    reference (the paths of :func:`colour_matrices_to_reference` do: on Memorial the loops
+    ``H(c<-b) H(b<-a) H(c<-a)^-1`` of direct fits are 0.95-1.11 per channel). Frames in no pair,
+    and components other than the largest, are tied to their nearest frame of the largest
+    component by the exposure ratio (``G_j = G_a t_a / t_j``; equal gains without times)."""
+    t = np.ones(n) if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
+    # connected components of the graph
+    comp = list(range(n))
+
+    def root(i: int) -> int:
+        while comp[i] != i:
+            comp[i] = comp[comp[i]]
+            i = comp[i]
+        return i
+
+    for (j, k) in graph:
+        comp[root(j)] = root(k)
+    roots = [root(i) for i in range(n)]
+    paired = {i for key in graph for i in key}
+    sizes = {r: sum(1 for i in range(n) if roots[i] == r and i in paired) for r in set(roots)}
+    main = max(sizes, key=lambda r: (sizes[r], -min(i for i in range(n) if roots[i] == r)))
+    members = [i for i in range(n) if roots[i] == main and i in paired]
+    rows, rhs, wts = [], [], []
+    for (j, k), val in graph.items():
+        if roots[j] != main:
+            continue
+        r = np.zeros(n)
+        r[j], r[k] = 1.0, -1.0
+        rows.append(r)
+        rhs.append(np.log(np.maximum(np.diag(val[3]["diagonal"]), 1e-300)))
+        wts.append(np.sqrt(max(val[3]["inliers"], 1)))
+    r = np.zeros(n)
+    r[members] = 1.0
+    rows.append(r)                       # gauge: sum of the component's log gains = 0
+    rhs.append(np.zeros(3))
+    wts.append(1.0)
+    a = np.asarray(rows) * np.asarray(wts)[:, None]
+    b = np.asarray(rhs) * np.asarray(wts)[:, None]
+    logg = np.zeros((n, 3))
+    if members:
+        sol = np.linalg.lstsq(a[:, members], b, rcond=None)[0]
+        logg[members] = sol
+    done = set(members)
+    rest = [j for j in range(n) if j not in done]
+    while rest:
+        j = min(rest, key=lambda i: (min(abs(i - d) for d in done) if done else 0, i))
+        rest.remove(j)
+        if done:
+            a_ = min(done, key=lambda d: (abs(d - j), d))
+            logg[j] = logg[a_] + np.log(t[a_] / t[j])
+        done.add(j)
+    return np.exp(logg)
 
 
 def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: int, *, low: float = FIT_LOW,
                                 high: float = FIT_HIGH, floor: float = FIT_FLOOR, min_blocks: int = 12,
                                 path: str = "auto", seed: int = 0, n_iter: int = 100,
-                                times: np.ndarray | None = None) -> tuple[np.ndarray, list]:
+                                times: np.ndarray | None = None, info: dict | None = None) -> tuple[np.ndarray, list]:
     """H_j (N, 3, 3) mapping image j's linear values onto the reference's (paper 1, eq. 9-10).
 
     ``path="direct"`` fits every (I_j, I_ref) pair as the paper does; ``"chain"`` fits
@@ -176,9 +303,22 @@ def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: in
     ratio (and any gain change) is absorbed in H_j. An image that shares nothing usable
     with its neighbour gets the neighbour's matrix times ``t_neighbour / t_j``
     ("assumed"). ``gammas``: display gammas or :class:`Curve` objects. Returns (H, how)
-    with ``how[j]`` in {"reference", "direct", "chain", "assumed"}.
+    with ``how[j]`` in {"reference", "direct", "chain", "assumed"}; with ``path="auto"`` a bracket
+    that :func:`diagonal_bracket` finds diagonal takes :func:`graph_gains` instead (``"gains"``:
+    the same map for every reference). ``info`` receives ``diagonal`` and ``diagonal_ratio``.
     """
     n = blocks.codes.shape[0]
+    if path == "auto":
+        graph = _pair_graph(blocks, gammas, n, low=low, high=high, floor=floor, min_blocks=min_blocks, max_gap=2,
+                            seed=seed, n_iter=n_iter)
+        diag, ratio = diagonal_bracket(graph)
+        if info is not None:
+            info.update(diagonal=diag, diagonal_ratio=ratio)
+        if diag:
+            g = graph_gains(graph, n, times)
+            how = ["gains"] * n
+            how[reference] = "reference"
+            return np.stack([np.diag(g[j] / g[reference]) for j in range(n)]), how
     eye = np.eye(3)
     mats = np.repeat(eye[None], n, axis=0)
     how = ["reference"] * n
@@ -217,7 +357,8 @@ def colour_matrices_to_reference(blocks: Blocks, gammas: Sequence, reference: in
 
 def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray, *, low: float = FIT_LOW,
                          high: float = FIT_HIGH, floor: float = FIT_FLOOR, min_blocks: int = 12,
-                         max_gap: int = 2, seed: int = 0, n_iter: int = 100) -> np.ndarray:
+                         max_gap: int = 2, seed: int = 0, n_iter: int = 100,
+                         info: dict | None = None) -> np.ndarray:
     """Reference-free colour matrices: K_j (N, 3, 3) such that ``K_j L_j / t_j`` agree on every
     overlapping pair (beyond paper 1; its Fig. 5 limitation).
 
@@ -230,12 +371,22 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
     equality-constrained least-squares problem (KKT system). The fit covers the longest
     run of neighbouring images that share pixels; images outside it (nearly black or
     white frames) are chained to their neighbour afterwards, or assumed to share its
-    rendering when nothing is usable in common.
+    rendering when nothing is usable in common. A bracket that :func:`diagonal_bracket` finds
+    diagonal takes ``K_j = c t_j diag(G_j)`` from :func:`graph_gains` (``c`` sets the gauge);
+    ``info`` receives ``diagonal`` and ``diagonal_ratio``.
     """
     n = blocks.codes.shape[0]
     t = np.asarray(times, dtype=np.float64).reshape(-1)
     graph = _pair_graph(blocks, gammas, n, low=low, high=high, floor=floor, min_blocks=min_blocks, max_gap=max_gap,
                         seed=seed, n_iter=n_iter)
+    diag, ratio = diagonal_bracket(graph)
+    if info is not None:
+        info.update(diagonal=diag, diagonal_ratio=ratio)
+    if diag:
+        # per-channel gains only: K_j = c t_j G_j with the gauge mean_j K_j = I
+        kt = graph_gains(graph, n, t) * t[:, None]
+        kt = kt / kt.mean(axis=0, keepdims=True)
+        return np.stack([np.diag(v) for v in kt])
     # the joint fit runs over the largest connected run of images; the others are attached
     # afterwards to their nearest fitted neighbour (see the end)
     adj = np.zeros(n - 1, dtype=bool)
@@ -262,7 +413,7 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
     sub = {j: i for i, j in enumerate(members)}
     m = 3 * len(members)
     normal = [np.zeros((m, m)) for _ in range(3)]
-    for (j, k), (_, jj, jk) in graph.items():
+    for (j, k), (_, jj, jk, _) in graph.items():
         cj, ck = as_curve(gammas[j]), as_curve(gammas[k])
         mj = cj.lin(jj) / t[j]
         mk = ck.lin(jk) / t[k]

@@ -412,11 +412,14 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
             info["response"] = "curve"
     t2 = time.perf_counter()
     if mode == "reference":
+        info["colour_model"] = {}
         mats, how = colour_matrices_to_reference(blocks, curves, ref, low=low, high=high, floor=floor,
-                                                path=path, seed=seed, n_iter=ransac_iter, times=times)
+                                                path=path, seed=seed, n_iter=ransac_iter, times=times,
+                                                info=info["colour_model"])
     else:
+        info["colour_model"] = {}
         mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
-                                    n_iter=ransac_iter)
+                                    n_iter=ransac_iter, info=info["colour_model"])
         how = ["joint"] * n
     from derender.hdr.stabilize import grey_balance as gb
 
@@ -509,6 +512,8 @@ def stabilization_info(stab: Stabilization) -> dict:
         info["hidden_saturation"] = stab.info["hidden_saturation"]
     if "grey_balance" in stab.info:
         info["grey_balance"] = stab.info["grey_balance"]
+    if "colour_model" in stab.info:
+        info["colour_model"] = stab.info["colour_model"]
     if al.shifts is not None:
         info["shifts"] = al.shifts.tolist()
     return info
