@@ -33,7 +33,9 @@ import numpy as np
 
 from derender.core.colorimetry import luminance
 
-__all__ = ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps"]
+__all__ = ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps", "STILL_BRACKETS", "FLAG_METHODS",
+           "shared_data_root", "bracket_inputs", "deghost_pair", "flag_invariance", "method_agreement",
+           "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES"]
 
 #: Side of the square tiles (pixels) whose per-channel medians are compared.
 BLOCK = 16
@@ -135,14 +137,15 @@ def shared_data_root() -> Path:
     return Path.cwd().parent / "shared" / "data"
 
 
-def bracket_inputs(name: str, root=None) -> tuple[list, dict]:
+def bracket_inputs(name: str, root=None, spec: dict | None = None) -> tuple[list, dict]:
     """The image paths and the :func:`derender.hdr.files.merge_files` keywords (times, reference
-    from 0, alignment) of the real bracket ``name`` (:data:`STILL_BRACKETS`)."""
+    from 0, alignment) of the real bracket ``name`` (``spec``, default :data:`STILL_BRACKETS`'s:
+    its folder, times file, reference from 1 and alignment)."""
     from derender.core.errors import InputError
     from derender.io.files import expand_image_paths
 
-    spec = STILL_BRACKETS[name]
-    folder = (shared_data_root() if root is None else root) / spec["folder"]
+    spec = STILL_BRACKETS[name] if spec is None else spec
+    folder = (shared_data_root() if root is None else Path(root)) / spec["folder"]
     if not folder.is_dir():
         raise InputError(f"real bracket {name!r} not found: {folder} (see shared/data/README.md)")
     paths = expand_image_paths([folder])
@@ -153,21 +156,29 @@ def bracket_inputs(name: str, root=None) -> tuple[list, dict]:
     return paths, kw
 
 
+def deghost_pair(paths, method: str, kw: dict):
+    """The plain and the ``--deghost`` merge of ``paths`` with ``method`` and the same ``kw``
+    (reference, alignment, times), the :class:`MapChange` between them and the fraction of the
+    other frames' pixels ghost removal left out."""
+    from derender.hdr.files import merge_files
+
+    plain = merge_files(paths, method=method, **kw)
+    clean = merge_files(paths, method=method, deghost=True, **kw)
+    change = compare_maps(plain.radiance, clean.radiance)
+    rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
+    return plain, clean, change, rejected
+
+
 def flag_invariance(name: str, methods=FLAG_METHODS, root=None, progress=None) -> list[dict]:
     """Per method, :class:`MapChange` of the ``--deghost`` merge of the still real bracket
     ``name`` against the plain merge with the same reference and alignment, with the fraction
     of the other frames' pixels ghost removal left out."""
-    from derender.hdr.files import merge_files
-
     paths, kw = bracket_inputs(name, root)
     rows = []
     for m in methods:
         if progress:
             progress(f"{name}: {m}")
-        plain = merge_files(paths, method=m, **kw)
-        clean = merge_files(paths, method=m, deghost=True, **kw)
-        change = compare_maps(plain.radiance, clean.radiance)
-        rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
+        _, _, change, rejected = deghost_pair(paths, m, kw)
         rows.append({"bracket": name, "method": m, "rejected": rejected, **change.row()})
     return rows
 
@@ -208,10 +219,15 @@ def method_agreement(name: str, methods=("debevec", "robertson", "stabilized"), 
     return rows
 
 
-#: Reference blocks scored by :func:`reference_fidelity`: every code of the block's median within
-#: [FIDELITY_LOW, FIDELITY_HIGH] and the block smooth (each channel's codes' interdecile range
-#: at most FIDELITY_FLAT codes).
-FIDELITY_LOW, FIDELITY_HIGH, FIDELITY_FLAT = 20, 235, 12
+#: Reference blocks scored by :func:`reference_fidelity` have every code of their median at
+#: least this ...
+FIDELITY_LOW = 20
+
+#: ... and at most this ...
+FIDELITY_HIGH = 235
+
+#: ... and are smooth: each channel's codes' interdecile range at most this many codes.
+FIDELITY_FLAT = 12
 
 #: A reference block is neutral when its median codes are within this many codes of each other.
 NEUTRAL_CODES = 3

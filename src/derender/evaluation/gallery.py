@@ -26,7 +26,8 @@ import numpy as np
 from derender.evaluation.consistency import (
     FLAG_METHODS,
     STILL_BRACKETS,
-    compare_maps,
+    bracket_inputs,
+    deghost_pair,
     reference_fidelity,
     shared_data_root,
 )
@@ -48,19 +49,6 @@ GALLERY: dict[str, dict] = {
     "sculpture": {"folder": "motion-sculpture-garden", "times_file": "times.txt", "reference": 3, "align": "none",
                   "crop": None, "note": "tripod, pedestrians; the facade"},
 }
-
-
-def _inputs(name: str, root: Path) -> tuple[list, dict]:
-    from derender.io.files import expand_image_paths
-
-    spec = GALLERY[name]
-    folder = root / spec["folder"]
-    paths = expand_image_paths([folder])
-    kw: dict = {"reference": int(spec["reference"]) - 1, "align": spec["align"]}
-    if "times_file" in spec:
-        kw["times_file"] = folder / spec["times_file"]
-        kw["times_file_inverse"] = bool(spec.get("times_file_inverse", False))
-    return paths, kw
 
 
 def _crop(radiance: np.ndarray, crop) -> np.ndarray:
@@ -121,8 +109,6 @@ def build_gallery(out_dir: str | Path, root: str | Path | None = None, methods=F
     Brackets whose folder is absent are listed as missing. A gallery already in ``out_dir``
     with the same source key and data folder is kept as it is (the tests build it, the
     documentation build then reads it)."""
-    from derender.hdr.files import merge_files
-
     out_dir = Path(out_dir)
     img_dir = out_dir / "gallery"
     img_dir.mkdir(parents=True, exist_ok=True)
@@ -143,7 +129,7 @@ def build_gallery(out_dir: str | Path, root: str | Path | None = None, methods=F
         if not (root / spec["folder"]).is_dir():
             lines += [f"## {name}", "", f"*{root / spec['folder']} is absent on the machine that built these pages.*", ""]
             continue
-        paths, kw = _inputs(name, root)
+        paths, kw = bracket_inputs(name, root, spec)
         still = name in STILL_BRACKETS
         last = "luminance p99" if still else "fidelity: neutral p95 / curve p95"
         lines += [f"## {name}: {spec['note']}", "", f"| method | plain | `--deghost` | left out | chroma p95 / p99 | {last} |",
@@ -156,10 +142,7 @@ def build_gallery(out_dir: str | Path, root: str | Path | None = None, methods=F
         for m in methods:
             if progress:
                 progress(f"gallery: {name} {m}")
-            plain = merge_files(paths, method=m, **kw)
-            clean = merge_files(paths, method=m, deghost=True, **kw)
-            change = compare_maps(plain.radiance, clean.radiance)
-            rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
+            plain, clean, change, rejected = deghost_pair(paths, m, kw)
             row = {"bracket": name, "method": m, "still": still, "rejected": rejected, **change.row()}
             if not still:
                 fid = reference_fidelity(clean.radiance, ref_codes)
