@@ -185,7 +185,7 @@ def test_real_dng_single_frame_keeps_its_colorchecker(colorchecker_dng):
     pytest.importorskip("rawpy")
     colour = pytest.importorskip("colour")
     from derender.io.raw import read_raw
-    from tests.raw.test_groundtruth import _chart_delta_e, _patch_means
+    from test_groundtruth import _chart_delta_e, _patch_means
 
     frame = read_raw(colorchecker_dng)
     assert frame.exposure_time is None

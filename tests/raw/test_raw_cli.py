@@ -6,7 +6,7 @@ import pytest
 from derender.camera import simulate_bracket, write_bracket
 from derender.evaluation.raw_merge import raw_scores
 from derender.io.exr import read_exr
-from tests.helpers import run_cli
+from helpers import run_cli
 
 
 @pytest.fixture(scope="module")

@@ -244,6 +244,7 @@ def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block:
       to a factor per channel): 0.05 is a 5 % tint;
     * ``curve_p95``: after one monotone curve per channel (isotonic regression of the reference's
       block codes on the merge's log block values), the p95 of ``|code - curve|`` (codes).
+
     Also the block counts (``blocks``, ``neutral_blocks``)."""
     from sklearn.isotonic import IsotonicRegression
 
