@@ -3,7 +3,7 @@
 Every user mistake raises :class:`~derender.core.errors.DerenderError`; :func:`main` prints
 it as one line ``error: ...`` on stderr and exits with code 2 (click usage errors too).
 The commands live with their stage: :mod:`derender.cli.hdr` (simulate, merge, evaluate,
-ground truth, benchmark, demo), :mod:`derender.cli.derendering` (chart pairs, calibrate,
+ground truth, benchmark, demo), :mod:`derender.cli.evaluation` (evaluate, diagnose), :mod:`derender.cli.derendering` (chart pairs, calibrate,
 derender, stereo), :mod:`derender.cli.photometry` (illuminance) and :mod:`derender.cli.experiments`
 (``derender experiment ...``).
 """
@@ -16,7 +16,7 @@ import sys
 
 import typer
 
-from derender.cli import derendering, experiments, hdr, photometry, profiles  # noqa: F401  (they register their commands)
+from derender.cli import derendering, evaluation, experiments, hdr, photometry, profiles  # noqa: F401  (they register their commands)
 from derender.cli.app import app, click_exception_types, command, fast_exit_gc
 from derender.core.errors import DerenderError, Interrupted, interrupt_handler
 

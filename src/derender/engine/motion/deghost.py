@@ -422,10 +422,9 @@ def flicker_bands(test: "ConsistencyTest", grid_j: np.ndarray, agreement: FrameA
 
     from derender.engine.motion.intensity_mapping import gradient2
 
-    n, lab = cv2.connectedComponents(bad.astype(np.uint8), connectivity=8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(bad.astype(np.uint8), connectivity=8)
     if n <= 1:
         return bad, 0
-    stats = cv2.connectedComponentsWithStats(bad.astype(np.uint8), connectivity=8)[2]
     m_f, s_f = agreement.forward.predict(np.ascontiguousarray(grid_j))
     r = test.codes_r.astype(np.float32) - m_f
     prof = np.zeros_like(r)
