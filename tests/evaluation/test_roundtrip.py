@@ -34,13 +34,16 @@ def test_a_table_plan_renders_its_exact_radiance_back():
     weights = np.ones((256, 3))
     weights[[0, 255]] = 0.0
     plan = TablePlan(values=logv.astype(np.float32), weights=weights, domain="log")
-    rt = round_trip(plan, frames, radiance * 7.0, reference=1)        # any global scale
+    rt = round_trip(plan, frames, radiance * 7.0)        # any global scale
     assert np.all(rt.pixels > 200)
     assert np.all(rt.median <= 0.5) and np.all(rt.p95 <= 0.75)       # 8-bit rounding, no more
+    assert rt.share.sum() == pytest.approx(1.0) and np.all(rt.share > 0.05)
+    assert rt.weighted_median <= 0.5 and rt.weighted_p95 <= 0.75
     wrong = radiance.copy()
     wrong[:6] *= 1.3                                                    # the top rows 30 % too bright
-    bad = round_trip(plan, frames, wrong, reference=1)
+    bad = round_trip(plan, frames, wrong)
     assert bad.fail[:6].mean() > 0.5 and bad.fail[10:].max() == 0
+    assert bad.weighted_p95 > 2.0                                       # 15 % of the pixels, 30 % off
     top = bad.regions[:, 0]                                             # the first row of regions (10 rows)
     assert np.all(top[np.isfinite(top)] > 1.0) and np.nanmax(bad.regions[:, 1:]) <= 0.5
 
@@ -53,7 +56,7 @@ def test_a_matrix_plan_inverts_its_matrices():
     weights[[0, 255]] = 0.0
     plan = MatrixPlan(values=np.repeat(lin[None], len(times), axis=0).astype(np.float32), matrices=mats,
                       weights=weights, shifts=np.zeros((len(times), 2), np.int64))
-    rt = round_trip(plan, frames, radiance, reference=2)
+    rt = round_trip(plan, frames, radiance)
     assert np.all(rt.median <= 0.5) and np.all(rt.p95 <= 0.75)
 
 

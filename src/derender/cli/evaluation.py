@@ -155,7 +155,10 @@ def _round_trip_report(images, method, times, times_file, times_inverse, referen
                                         times_file_inverse=times_inverse, **opts)
     typer.echo(f"round trip through {method}'s forward model (codes; the issue's line: median <= 1.5, p95 <= 4):")
     for row in rt.rows(names):
-        typer.echo(f"  {row['frame']}: median {row['median']:.2f}  p95 {row['p95']:.2f}  ({row['pixels']} px)")
+        typer.echo(f"  {row['frame']}: median {row['median']:.2f}  p95 {row['p95']:.2f}  ({row['pixels']} px, "
+                   f"{100 * row['share']:.0f} % of the weight)")
+    typer.echo(f"  all frames, each residual counted by its merge weight: median {rt.weighted_median:.2f}  "
+               f"p95 {rt.weighted_p95:.2f}")
     import numpy as np
 
     worst = np.nanmax(rt.regions, axis=0)

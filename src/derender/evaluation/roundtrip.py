@@ -14,12 +14,23 @@ Per frame ``j`` and channel ``c`` (:func:`round_trip`):
   ``x = M_j^-1 R e^-k``, and each channel is inverted through its linearisation table,
   ``z_hat_c = L_jc^-1(x_c)``;
 
-``k`` is one log scale per map (the median over the reference frame's usable pixel-channels
-of ``ln R - v_ref(z)``): a map written in other units (a photometric factor) still round-trips.
+``k`` is one log scale per map: the median of ``ln R - v_j(z)`` over every frame's usable
+pixel-channels, each counted by its merge weight (the scale the merge itself implies): a map
+written in other units (a photometric factor) still round-trips. (The reference frame's own
+pixels alone do not fix it: on Memorial its usable codes are mostly the film base, codes
+1-15, where one code spans a factor of 2 in radiance; the scale read there was 0.89 off
+in ``ln``, and every long frame then missed by 27-39 codes.)
 The residual ``|z_hat - z|`` (codes, per pixel and channel) is summarised per frame (median,
 p95, pixels) and per
 region (a grid of :data:`REGIONS` x :data:`REGIONS` cells), and a map of the pixels where
 some frame misses by more than :data:`FAIL_CODES` codes shows where the model fails.
+
+Frames do not count alike in a merge: a frame that is clipped or nearly black almost everywhere
+carries little of its weight, and its residual says little about the map. Each frame's
+``share`` is the fraction of the merge's weight it carries (the plan's weight table at its
+codes, times its image weight, summed over the pixel-channels it takes part in), and the
+residuals of all frames pooled with those weights give one ``weighted_median`` and
+``weighted_p95`` per merge: the round trip where the map's values come from.
 """
 
 from __future__ import annotations
@@ -42,21 +53,49 @@ class RoundTrip:
     """Per frame (in the plan's order, by exposure time): ``median`` and ``p95`` of ``|z_hat - z|``
     (codes) over the channels of its usable pixels and their number ``pixels``; ``regions``
     (N, REGIONS, REGIONS) medians per cell (NaN where a cell has none); ``fail`` (H, W) uint8,
-    how many frames miss the pixel by more than :data:`FAIL_CODES`."""
+    how many frames miss the pixel by more than :data:`FAIL_CODES`; ``share`` (N,) the fraction of
+    the merge's weight each frame carries, ``weighted_median`` and ``weighted_p95`` the residual
+    pooled over all frames with those weights (module docstring)."""
 
     median: np.ndarray
     p95: np.ndarray
     pixels: np.ndarray
     regions: np.ndarray
     fail: np.ndarray
+    share: np.ndarray
+    weighted_median: float
+    weighted_p95: float
 
     def rows(self, names: list[str] | None = None) -> list[dict]:
         """One JSON-friendly row per frame."""
         out = []
         for j in range(self.median.size):
             out.append({"frame": names[j] if names else j, "median": float(self.median[j]),
-                        "p95": float(self.p95[j]), "pixels": int(self.pixels[j])})
+                        "p95": float(self.p95[j]), "pixels": int(self.pixels[j]), "share": float(self.share[j])})
         return out
+
+
+#: Residual histogram bin (codes) of the weighted quantiles.
+_BIN = 0.02
+
+
+def _weighted_quantiles(hist: np.ndarray, qs: tuple[float, ...]) -> list[float]:
+    """Quantiles of the residuals binned in ``hist`` (weights per :data:`_BIN`-wide bin)."""
+    total = float(hist.sum())
+    if total <= 0:
+        return [float("nan")] * len(qs)
+    cum = np.cumsum(hist) / total
+    return [float((np.searchsorted(cum, q) + 0.5) * _BIN) for q in qs]
+
+
+def _weight_table(plan, j: int) -> np.ndarray:
+    """Frame j's (256, 3) merge weight per code and channel: the plan's table times its image weight."""
+    if _plan_kind(plan) == "table":
+        w = np.asarray(plan.weight_of(j), dtype=np.float64)
+        if plan.image_weights is not None:
+            w = w * float(np.asarray(plan.image_weights)[j])
+        return w
+    return np.asarray(plan.weights, dtype=np.float64)
 
 
 def inverse_tables(values: np.ndarray, usable: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -111,11 +150,45 @@ def _frame_view(plan, frames: np.ndarray, j: int) -> np.ndarray:
     return out
 
 
-def round_trip(plan, frames: np.ndarray, radiance: np.ndarray, *, reference: int,
+def _log_prediction(plan, table: np.ndarray, j: int, z: np.ndarray) -> np.ndarray:
+    """``ln`` of what frame j's codes ``z`` say the map is (up to the map's scale): the table
+    (table plans) or ``ln(M_j L_j(z))`` (matrix plans)."""
+    if _plan_kind(plan) == "table":
+        return table[z, np.arange(3)]
+    lin = np.exp(table[z, np.arange(3)])
+    mixed = np.einsum("ck,...k->...c", np.asarray(plan.matrices[j], np.float64), lin)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(mixed > 0, np.log(np.maximum(mixed, 1e-300)), np.nan)
+
+
+def _log_scale(plan, frames: np.ndarray, log_r: np.ndarray, tables: list, usable: list,
+               exclude: np.ndarray | None) -> float:
+    """The map's log scale ``k``: the weighted median of ``ln R - prediction`` over every frame's
+    usable pixel-channels (every ``step``-th row), weights the merge's (module docstring)."""
+    step = max(1, frames.shape[1] // 256)
+    diffs, weights = [], []
+    for j in range(frames.shape[0]):
+        z = _frame_view(plan, frames, j)[::step].astype(np.intp)
+        pred = _log_prediction(plan, tables[j], j, z)
+        wz = _weight_table(plan, j)[z, np.arange(3)]
+        ok = usable[j][z, np.arange(3)] & np.isfinite(pred) & (wz > 0)
+        if exclude is not None:
+            ok &= (np.asarray(exclude[j])[::step] == 0)[..., None]
+        diffs.append((log_r[::step] - pred)[ok])
+        weights.append(wz[ok])
+    d, w = np.concatenate(diffs), np.concatenate(weights)
+    if d.size == 0:
+        return 0.0
+    order = np.argsort(d, kind="stable")
+    cum = np.cumsum(w[order])
+    return float(d[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+def round_trip(plan, frames: np.ndarray, radiance: np.ndarray, *,
                exclude: np.ndarray | None = None) -> RoundTrip:
     """:class:`RoundTrip` of ``radiance`` (H, W, 3) against ``frames`` (N, H, W, 3) uint8, by time, on
     the grid the plan merged them), rendered back through ``plan`` (module docstring).
-    ``reference``: the frame whose usable pixels fix the log scale ``k``; ``exclude`` (N, H, W)
+    The map's log scale ``k`` is the one the merge implies (module docstring); ``exclude`` (N, H, W)
     nonzero where a frame did not take part (ghost removal, not covered after alignment)."""
     kind = _plan_kind(plan)
     n, h, w = frames.shape[:3]
@@ -123,22 +196,12 @@ def round_trip(plan, frames: np.ndarray, radiance: np.ndarray, *, reference: int
     log_r = np.log(rad)
     tables = [_frame_log_values(plan, j) for j in range(n)]
     usable = [_usable(plan, j) for j in range(n)]
-    # one log scale: the reference frame's own usable pixel-channels (a sample of rows)
-    step = max(1, h // 256)
-    zr = _frame_view(plan, frames, reference)[::step].astype(np.intp)
-    lr = log_r[::step]
-    okr = usable[reference][zr, np.arange(3)]
-    if kind == "table":
-        pred_r = tables[reference][zr, np.arange(3)]
-    else:
-        lin = np.exp(tables[reference][zr, np.arange(3)])
-        pred_r = np.log(np.maximum(np.einsum("ck,hwk->hwc", np.asarray(plan.matrices[reference], np.float64), lin),
-                                   1e-300))
-    okr &= np.isfinite(pred_r)
-    k = float(np.median((lr - pred_r)[okr])) if okr.any() else 0.0
+    k = _log_scale(plan, frames, log_r, tables, usable, exclude)
     med, p95, cnt = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, np.int64)
     regions = np.full((n, REGIONS, REGIONS), np.nan)
     fail = np.zeros((h, w), np.uint8)
+    carried = np.zeros(n)
+    hist = np.zeros(int(256 / _BIN) + 1)
     ry = np.minimum(np.arange(h) * REGIONS // h, REGIONS - 1)
     rx = np.minimum(np.arange(w) * REGIONS // w, REGIONS - 1)
     cell = (ry[:, None] * REGIONS + rx[None, :])
@@ -170,7 +233,14 @@ def round_trip(plan, frames: np.ndarray, radiance: np.ndarray, *, reference: int
             for r in np.flatnonzero(sums):
                 regions[j].flat[r] = float(np.median(d[ok & (cell == r)]))
         fail += (ok & (d.max(axis=-1) > FAIL_CODES)).astype(np.uint8)
-    return RoundTrip(median=med, p95=p95, pixels=cnt, regions=regions, fail=fail)
+        wz = _weight_table(plan, j)[z, np.arange(3)][ok]            # the weight each residual carries
+        carried[j] = float(wz.sum())
+        hist += np.bincount(np.minimum(d[ok] / _BIN, hist.size - 1).astype(np.intp).ravel(), weights=wz.ravel(),
+                            minlength=hist.size)
+    share = carried / carried.sum() if carried.sum() > 0 else carried
+    wmed, wp95 = _weighted_quantiles(hist, (0.5, 0.95))
+    return RoundTrip(median=med, p95=p95, pixels=cnt, regions=regions, fail=fail, share=share,
+                     weighted_median=wmed, weighted_p95=wp95)
 
 
 def bracket_round_trip(paths, method: str = "debevec", *, times=None, times_file=None, times_file_inverse: bool = False,
@@ -222,7 +292,5 @@ def bracket_round_trip(paths, method: str = "debevec", *, times=None, times_file
     exclude = None
     if res.ghosts is not None and np.any(res.ghosts):
         exclude = np.broadcast_to(res.ghosts != 0, frames.shape[:3])
-    ref = res.info.get("reference")
-    ref = int(ref) if ref is not None else frames.shape[0] // 2
-    rt = round_trip(res.plan, frames, res.radiance, reference=ref, exclude=exclude)
+    rt = round_trip(res.plan, frames, res.radiance, exclude=exclude)
     return rt, res, [Path(paths[i]).name for i in order]
