@@ -12,6 +12,9 @@ Every such number counts once, in prose and in table cells alike, so one table r
 ratios counts five. Section numbers (``Sec. 2.1``, ``eq. 11``), versions (``HDRutils 1.2``,
 ``OpenCV 4.14``), f-numbers (``f/5.6``) and Rec. 709 style names are not figures. Formulas and
 option values belong in inline code (where they are typed), and are not counted.
+
+The results pages say, for every table, whose data it holds (tuning, held out, real), and every
+``derender`` command in a page's shell blocks names a command and options the CLI has.
 """
 
 from __future__ import annotations
@@ -147,3 +150,56 @@ def test_results_pages_are_in_the_results_toctree():
     index = (DOCS / "index.md").read_text(encoding="utf-8")
     results = index.split(":caption: Results", 1)[1].split("```", 1)[0]
     assert all(p in results.split() for p in RESULTS), RESULTS
+
+
+def _documented_commands(text: str) -> list[list[str]]:
+    """The ``derender ...`` command lines of a page's ``bash`` blocks, split as the shell would
+    (continuation lines joined, comments dropped)."""
+    import shlex
+
+    out = []
+    for block in re.findall(r"```(?:bash|console|sh)\n(.*?)```", text, flags=re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = line.strip()
+            if not line.startswith("derender "):
+                continue
+            line = re.sub(r"\$\([^)]*\)", "X", line)               # $(...) substitutions
+            words = shlex.split(line, comments=True)
+            for sep in ("&&", "|", ";"):
+                if sep in words:
+                    words = words[:words.index(sep)]
+            out.append(words[1:])
+    return out
+
+
+@pytest.mark.parametrize("page", sorted(p.stem for p in DOCS.glob("*.md")))
+def test_documented_commands_and_options_exist(page):
+    """Every ``derender`` command in a page's shell blocks names a command and options the CLI
+    has (a renamed or removed command or option fails here, not in a reader's terminal)."""
+    import typer
+
+    from derender.cli import app
+
+    root = typer.main.get_command(app)
+    bad = []
+    for words in _documented_commands((DOCS / f"{page}.md").read_text(encoding="utf-8")):
+        cmd, rest = root, list(words)
+        while hasattr(cmd, "commands") and rest and rest[0] in cmd.commands:     # typer vendors click
+            cmd = cmd.commands[rest.pop(0)]
+        if hasattr(cmd, "commands"):
+            bad.append(f"derender {' '.join(words)}: no such command")
+            continue
+        options = {o: p for p in cmd.params for o in (*p.opts, *p.secondary_opts) if o.startswith("-")}
+        skip = False
+        for w in rest:
+            if skip:                                                   # an option's value (may start with -)
+                skip = False
+                continue
+            name = w.split("=", 1)[0]
+            if not w.startswith("-") or re.fullmatch(r"-?\d[\d.,]*", w) or name == "--help":
+                continue
+            if name not in options:
+                bad.append(f"derender {' '.join(words)}: {cmd.name} has no option {name}")
+            elif "=" not in w and not getattr(options[name], "is_flag", False):
+                skip = True
+    assert not bad, "\n".join(bad)
