@@ -15,7 +15,7 @@ gamma 2.2, the scene's white balance, saturation 1) and scores every method as
 
 Variants: ``none`` (the family as it is), ``nogain``, ``nogamma``, ``nogain-nogamma``,
 ``fixed`` (no per-frame draw at all: the ``camera`` style's Hable shoulder, toe and gamut
-compression remain). ``camera`` and ``paper`` are tuning renderings. Results: docs/luminance.md.
+compression remain). ``camera`` and ``paper`` are tuning renderings. Results: docs/results-luminance.md.
 """
 
 from __future__ import annotations

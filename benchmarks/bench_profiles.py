@@ -13,7 +13,7 @@ for comparison, and the ratio of the profile's factor to B's own spot factor.
     python benchmarks/bench_profiles.py --families camera,paper,dslr-lut,phone-local,drift
 
 Tuning families: the fixed pipeline (``camera`` style), ``camera``, ``paper``; held out:
-``dslr-lut``, ``phone-local``, ``drift``. Results: docs/luminance.md.
+``dslr-lut``, ``phone-local``, ``drift``. Results: docs/results-luminance.md.
 
 ``--luminance RENDERS`` measures the same line on the luminance-truth family
 (:mod:`derender.camera.luminance`, absolute truth in cd/m2 over 1..1e6): bracket A is a time

@@ -112,7 +112,7 @@ def test_variance_follows_the_factor_and_other_plans_are_left_alone():
 def test_object_pixels_left_to_the_reference_lose_its_bias_on_a_moving_bracket():
     """Tuning family ``paper`` (auto pipeline: gain and gamma change per frame), three objects
     moving: Robertson's object pixels that only the reference shows were 2.5x the still twin's
-    error without the correction (docs/ghosts.md)."""
+    error without the correction (docs/results-ghosts.md)."""
     from derender.camera import simulate_bracket
     from derender.camera.motion import MotionSpec
     from derender.core.types import Stack

@@ -84,7 +84,7 @@ def test_profile_saved_on_one_bracket_makes_another_absolute(brackets, capsys, m
     5.5 % for stabilized and 9 % for debevec: its merge's smoothness lambda 60
     (``MERGE_LAMBDA``, was 30) moved this pair from 4.3 % to 5.2 % (p90 8.4 -> 8.6 %), while over
     ``benchmarks/bench_profiles.py``'s five fixed-pipeline pairs the mean went from 6.9 % to 5.7 %
-    (docs/luminance.md); the bound-aware top of its curve (issues 36/37) moved it to 8.5 % (p90
+    (docs/results-luminance.md); the bound-aware top of its curve (issues 36/37) moved it to 8.5 % (p90
     13.1 %; with the sequential rule alone 5.9 %): on A's filmic shoulder the residual test leaves
     out top codes that the curve then extrapolates, and A's spot patch, seen at codes 76 and 184,
     reads 2 % brighter against the rest of A (after the spot, median ratio 0.921 against 0.939),

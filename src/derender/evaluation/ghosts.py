@@ -14,10 +14,10 @@ its median:
 * ``object_seen``: the object pixels that the reference frame itself renders unclipped (every
   channel's code within [:data:`SEEN_LOW`, :data:`SEEN_HIGH`]). Elsewhere in the object the
   reference only bounds the radiance, and only a frame in which the object sits somewhere else
-  can fill it in (``docs/ghosts.md``, limits).
+  can fill it in (``docs/ghosts.md``, limits; figures in ``docs/results-ghosts.md``).
 
 The ratio ``moving / still`` per zone is what ghost removal must bring towards 1 (the
-targets, ``docs/ghosts.md``: static <= 1.10, swept <= 1.25, object <= 1.5). A handheld bracket's still twin is the
+targets, ``docs/results-ghosts.md``: static <= 1.10, swept <= 1.25, object <= 1.5). A handheld bracket's still twin is the
 tripod one (no shake): its ratio also measures what alignment loses.
 """
 

@@ -259,7 +259,7 @@ def uniform_samples(cluster_codes: np.ndarray, n: int, clip_code: int = 250) -> 
     Why: a pixel beside a much brighter one (the rim of a window or a lamp) receives
     part of its neighbour's signal through demosaicing and chroma noise reduction, and once the
     neighbour clips its codes stop following the exposure. Such samples gave the curve's top
-    codes their data and bent it (docs/luminance.md). Debevec & Malik (1997, Sec. 2.1) take
+    codes their data and bent it (docs/results-luminance.md). Debevec & Malik (1997, Sec. 2.1) take
     samples in regions of low intensity variance; elsewhere the samples are the plain grid's.
     """
     c = np.asarray(cluster_codes)

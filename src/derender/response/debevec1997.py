@@ -9,7 +9,7 @@ monotonic is made so (isotonic regression).
 Grid samples that see a clipped neighbour while unclipped themselves are left out
 (:func:`~derender.response.curves.uniform_samples`): pixels at the rim of a window or a lamp,
 whose codes stop following the exposure once their clipped neighbour leaks into them through
-demosaicing and chroma noise reduction, bent the curve's top end (docs/luminance.md).
+demosaicing and chroma noise reduction, bent the curve's top end (docs/results-luminance.md).
 
 The bound-aware top (``censor=True``, what :func:`derender.hdr.classic.merge_debevec` uses; the
 paper's system is ``censor=False``): an observation ``Z_ij`` whose code has stopped following the
@@ -29,7 +29,7 @@ exposure is a *bound* (``ln E_i + ln t_j >= g(Z_ij)``), not a data row of eq. 3.
 Why: those codes gave the curve's top its data, and the least-squares curve followed them (4x at
 code 250 on the luminance family's gamma camera), and which of them the grid happened to keep
 moved the whole curve: the evalglare illuminance of one bracket read -6.3 .. +12.1 % over sample
-grids (docs/luminance.md, "The top of Debevec's curve").
+grids (docs/results-luminance.md, "The top of Debevec's curve").
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ them too changed the static zone by 0.01-0.02 of the still twin's error; on the 
 
 Only table plans (one curve per channel for the bracket) are corrected: paper 1's stabilised
 merges fit a gamma and a 3x3 matrix per frame, and paper 2's model a distribution per colour,
-and neither gained on the tuning families (``derender experiment ghosts``, docs/ghosts.md).
+and neither gained on the tuning families (``derender experiment ghosts``, docs/results-ghosts.md).
 Shrinkage: the held-out ``dslr-lut`` family's 3D LUT makes the bias hue-dependent, which no
 per-code table can hold; the shrinkage keeps such bins near zero.
 """
