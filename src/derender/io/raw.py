@@ -22,6 +22,7 @@ from derender.io.exif import read_exposure_time
 __all__ = [
     "read_raw",
     "read_raw_stack",
+    "read_raw_exposure",
 ]
 
 
@@ -37,11 +38,11 @@ def _dng_tags(path: Path) -> dict:
                 for tag in page.tags.values():
                     if tag.name in ("ColorMatrix1", "ColorMatrix2", "AsShotNeutral", "CalibrationIlluminant1",
                                     "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel",
-                                    "NoiseProfile", "FNumber", "ISOSpeedRatings"):
+                                    "NoiseProfile", "FNumber", "ISOSpeedRatings", "SensitivityType"):
                         tags.setdefault(tag.name, tag.value)
                 exif = page.tags.get("ExifTag")
                 if exif is not None and isinstance(exif.value, dict):
-                    for name in ("ExposureTime", "FNumber", "ISOSpeedRatings"):
+                    for name in ("ExposureTime", "FNumber", "ISOSpeedRatings", "SensitivityType"):
                         if name in exif.value:
                             tags.setdefault(name, exif.value[name])
                 break
@@ -205,6 +206,52 @@ def _extra(path: Path, tags: dict) -> dict:
             if ex.get(key):
                 extra[name] = float(ex[key])
     return extra
+
+
+def read_raw_exposure(path: str | os.PathLike) -> dict:
+    """A RAW file's exposure settings without decoding its mosaic: ``fnumber`` and ``iso`` (as
+    :func:`read_raw` puts them in ``extra``) and ``sensitivity_type`` (EXIF ``SensitivityType``:
+    what the ISO speed means), each only when the file states it.
+
+    Parameters
+    ----------
+    path : path-like
+        A camera RAW file (DNG: its tags; other formats: their EXIF).
+
+    Returns
+    -------
+    dict
+        Some of ``fnumber`` (float), ``iso`` (float), ``sensitivity_type`` (int).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from derender.camera.dng import write_dng
+    >>> from derender.io.raw import read_raw_exposure
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = write_dng(os.path.join(folder, "f.dng"), np.full((32, 32), 900, np.uint16),
+    ...                      cfa_pattern="RGGB", black_level=64, white_level=4095, xyz_to_camera=np.eye(3),
+    ...                      as_shot_neutral=np.ones(3), exposure_time=0.01, make="Sim", model="Cam",
+    ...                      bits=12, fnumber=8.0, iso=200)
+    ...     read_raw_exposure(path)
+    {'fnumber': 8.0, 'iso': 200.0}
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    if path.suffix.lower() == ".dng":
+        tags = _dng_tags(path)
+        out = {k: v for k, v in _extra(path, tags).items() if k in ("fnumber", "iso")}
+        kind = np.asarray(tags.get("SensitivityType", []), dtype=np.float64).reshape(-1)
+    else:
+        from derender.io.exif import read_exif
+
+        out = {k: v for k, v in _extra(path, {}).items() if k in ("fnumber", "iso")}
+        kind = np.asarray([read_exif(path).get("SensitivityType") or 0], dtype=np.float64)
+    if kind.size and kind[0] > 0:
+        out["sensitivity_type"] = int(kind[0])
+    return out
 
 
 def _check_fixed_aperture_and_iso(frames: Sequence[RawFrame]) -> None:
