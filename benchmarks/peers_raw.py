@@ -18,8 +18,11 @@ times, not dcraw's rounded print-out):
 * ``luminance-hdr`` -- ``luminance-hdr-cli`` (LibRaw inside) with its defaults (Debevec model,
   triangular weight, linear response) and ``-e`` EV values ``log2(t_i / t_0)``;
 * ``raw2hdr`` -- raw2hdr's pipeline (dcraw + hdrgen): ``dcraw -c -w -W -o 1 -4 -T`` per frame
-  (16-bit linear TIFF), then ``hdrgen -r linear.rsp -a -e -x?`` with a linear response file and
-  ``-s 1/t_i`` per frame (hdrgen from github.com/radiance-org/hdrgen, ``--hdrgen PATH``).
+  (16-bit linear TIFF), then ``hdrgen -r linear.rsp -a -e`` with a linear response file and
+  ``-s 1/t_i`` per frame (hdrgen from github.com/radiance-org/hdrgen, ``--hdrgen PATH``). The
+  hdrgen of that repository (74b963d, panlib 173fb3a) refuses 16-bit frames ("HDR image
+  exposures must be 24-bit RGB", phdrimg.cpp), so this row fails with that line; raw2hdr's own
+  script (not in the repository) could not be had to see how it feeds hdrgen.
 
 A missing program is skipped with one line; none is a dependency of derender.
 
