@@ -43,6 +43,13 @@ def test_score_is_merge_groundtruth_evaluate_in_one(scene, tmp_path, capsys):
     three = _json(out)
     for k in ("R", "G", "B", "L", "rel_median", "rel_p90", "log_psnr_L"):
         assert one[k] == pytest.approx(three[k], abs=1e-5), k
+    # paper 1's eq. 11 as the truth: groundtruth --method paper1's map
+    code, out, err = run_cli(["score", scene, "--truth-method", "paper1", "--truth-output", tmp_path / "p1.exr"],
+                             capsys)
+    assert code == 0, err
+    assert "against the RAW merge (paper1)" in out
+    assert run_cli(["groundtruth", *dngs, "--method", "paper1", "-o", tmp_path / "p2.exr"], capsys)[0] == 0
+    np.testing.assert_array_equal(read_exr(tmp_path / "p1.exr"), read_exr(tmp_path / "p2.exr"))
     # the RAW merge stands in for the exact truth: three methods rank alike against it and against
     # truth.exr, on relative error and on luminance PSNR (paper 1's use of the protocol)
     raw_truth, exact = {}, {}
