@@ -1,5 +1,6 @@
-"""``derender evaluate`` and ``derender diagnose``: scoring a map against a truth, and checking a
-bracket without one (is the response constant; does a merge give back its own frames)."""
+"""``derender evaluate``, ``derender score`` and ``derender diagnose``: scoring a map against a truth,
+a JPEG merge against the RAW merge of the same shots, and checking a bracket without a truth (is
+the response constant; does a merge give back its own frames)."""
 
 from __future__ import annotations
 
@@ -90,6 +91,56 @@ def evaluate(
                            + f"   median |z| {d['median_abs_z']:.2f}   |z|>3 edge {d['tail3_edge']:.3f} flat "
                            f"{d['tail3_flat']:.3f}   n {d['n']}"
                            + (f" ({d['n_unscored']} without a usable variance)" if d["n_unscored"] else ""))
+
+
+@app.command()
+def score(
+    images: List[Path] = typer.Argument(..., help="The bracket's RAW files and the camera's JPEGs of the same shots "
+                                        "(files or folders; a folder with raw/ and jpeg/ stands for both)."),
+    method: str = typer.Option("debevec", "--method", help="Merge method for the JPEGs (derender methods)."),
+    truth_method: str = typer.Option("optimal", "--truth-method", help="RAW merge taken as the truth: optimal (the "
+                                     "noise-optimal merge, as derender groundtruth) | paper1 (paper 1's eq. 11)."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Also write the JPEG merge (.exr)."),
+    truth_output: Optional[Path] = typer.Option(None, "--truth-output", help="Also write the RAW merge (.exr)."),
+    remap: str = typer.Option("lstsq", "--remap", help="lstsq (least-squares scale, default) | minmax (paper 1's remap)."),
+    fit: str = typer.Option("matrix", "--fit", help="Relative error after a 3x3 'matrix' (default) or one 'scale', or 'none'."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of methods that sample."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Paper 1's protocol on your own camera: merge the JPEGs, merge the RAWs, score the one against the other.
+
+    A RAW+JPEG bracket: as many RAW files as JPEGs, one camera, one size, the same exposure
+    times. The RAW merge (linear sRGB, as derender groundtruth) is the truth; the JPEG merge is
+    scored as derender evaluate scores (PSNR R/G/B/L, relative error, log-luminance PSNR) on
+    the pixels some RAW frame measured."""
+    from derender.evaluation.raw_jpeg import score_raw_jpeg, split_raw_rendered
+    from derender.io.exr import write_exr
+    from derender.io.files import OutputTransaction
+
+    check_choice("--truth-method", truth_method, ("optimal", "paper1"))
+    check_choice("--remap", remap, ("lstsq", "minmax"))
+    check_choice("--fit", fit, ("matrix", "scale", "none"))
+    raws, jpegs = split_raw_rendered(images)
+    with OutputTransaction(list(raws) + list(jpegs)) as tx:
+        out_tmp = tx.add(output, "--output", (".exr",))
+        truth_tmp = tx.add(truth_output, "--truth-output", (".exr",))
+        res = score_raw_jpeg(raws, jpegs, method, truth_method=truth_method, seed=seed, remap=remap, fit=fit)
+        if out_tmp is not None:
+            write_exr(out_tmp, res.result.radiance, inputs=jpegs)
+        if truth_tmp is not None:
+            write_exr(truth_tmp, res.truth.radiance, inputs=raws)
+    sc = res.scores
+    if as_json:
+        typer.echo(json.dumps({"method": method, "truth_method": truth_method, "pairs": res.pairs,
+                               "n_scored": res.n_scored, "n_unscored": res.n_unscored,
+                               **{k: (round(float(v), 6) if not isinstance(v, str) else v) for k, v in sc.items()}}))
+        return
+    typer.echo(f"{method} on {len(res.pairs)} JPEGs scored against the RAW merge ({truth_method}) of the same shots")
+    typer.echo("  ".join(f"{k} {sc[k]:.2f} dB" for k in "RGBL"))
+    typer.echo(f"relative error ({fit} fit): median {sc['rel_median']:.4f}, p90 {sc['rel_p90']:.4f};  "
+               f"log-luminance PSNR {sc['log_psnr_L']:.2f} dB")
+    if res.n_unscored:
+        typer.echo(f"{res.n_unscored} px over-exposed in every RAW frame not scored ({res.n_scored} scored)")
 
 
 @app.command()

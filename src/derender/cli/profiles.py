@@ -175,13 +175,18 @@ def apply_photometry(ph: Photometry, result, images: list, method: str) -> str |
                    f"{100 * cal.spread:.1f} %)", err=True)
     elif ph.absolute == "exif":
         cal = _exif_factor(result, images)
-        from derender.photometry.calibration import SENSITIVITY_RATINGS
+        from derender.photometry.calibration import RAW_SATURATION_EXPOSURE, SENSITIVITY_RATINGS
 
         k, unc, rating = cal.factor, cal.uncertainty, SENSITIVITY_RATINGS[cal.rating]
-        source = f"exif nominal ({rating.name}: {rating.constant:.1f} N^2/(t S) cd/m2 at code 118)"
-        typer.echo(f"photometric factor {k:.6g} nominal from EXIF ({rating.name}: a surface rendered at code 118 "
-                   f"is {rating.constant:.1f} N^2/(t S) cd/m2; relative standard uncertainty {100 * unc:.0f} %)",
-                   err=True)
+        if result.info.get("engine_path") == "raw":
+            basis = ("ISO 12232 saturation speed" if cal.rating == "saturation" else
+                     "ISO speed not stated as saturation-based (EXIF SensitivityType), taken as one") + \
+                f": a neutral at the RAW white level is {RAW_SATURATION_EXPOSURE:.1f} N^2/(t S) cd/m2"
+        else:
+            basis = f"{rating.name}: a surface rendered at code 118 is {rating.constant:.1f} N^2/(t S) cd/m2"
+        source = f"exif nominal ({basis})"
+        typer.echo(f"photometric factor {k:.6g} nominal from EXIF ({basis}; relative standard uncertainty "
+                   f"{100 * unc:.0f} %)", err=True)
     elif ph.profile is not None and ph.profile.factor is not None:
         n0, s0 = _first_exposure(images[0])
         k = ph.profile.photometric_factor(n0, s0)
@@ -219,6 +224,8 @@ def _exif_factor(result, images: list):
     from derender.io.rgbe import SRGB_PRIMARIES
     from derender.photometry.calibration import exif_factor, sensitivity_rating
 
+    if result.info.get("engine_path") == "raw":
+        return _raw_exif_factor(images)
     exifs = [read_exif(p) for p in images]
     for p, e in zip(images, exifs):
         lacking = [k for k in ("ExposureTime", "FNumber", "ISO") if k not in e]
@@ -239,6 +246,24 @@ def _exif_factor(result, images: list):
             yield codes, e["ExposureTime"], e["FNumber"], speed
 
     return exif_factor(result.radiance, frames(), primaries=SRGB_PRIMARIES, mask=result.mask, rating=ratings[0][0])
+
+
+def _raw_exif_factor(images: list):
+    """``--absolute exif`` on a RAW merge: f-number and ISO from each file (no mosaic decoded)."""
+    from derender.io.raw import read_raw_exposure
+    from derender.photometry.calibration import raw_exif_factor, sensitivity_rating
+
+    settings = [read_raw_exposure(p) for p in images]
+    for p, e in zip(images, settings):
+        lacking = [name for key, name in (("fnumber", "FNumber"), ("iso", "ISO")) if key not in e]
+        if lacking:
+            raise InputError(f"--absolute exif needs FNumber and ISO in every RAW file; {p.name} has no "
+                             f"{', '.join(lacking)}")
+    ratings = {sensitivity_rating({"SensitivityType": e.get("sensitivity_type", 0)})[0] for e in settings}
+    if len(ratings) > 1:
+        raise InputError("--absolute exif: the frames state their ISO speed under different ratings (EXIF "
+                         f"SensitivityType: {', '.join(sorted(ratings))}); use --spot")
+    return raw_exif_factor([(e["fnumber"], e["iso"]) for e in settings], rating=ratings.pop())
 
 
 def save_merge_profile(path: Path, ph: Photometry, result, images: list, method: str, view: str | None,

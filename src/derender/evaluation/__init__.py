@@ -7,7 +7,8 @@ Modules: :mod:`derender.evaluation.derendering_metrics`, :mod:`derender.evaluati
 inverting the simulator's true pipeline), :mod:`derender.evaluation.table1`, :mod:`derender.evaluation.uncertainty`
 (coverage of a variance against the truth), :mod:`derender.evaluation.ghosts` (moving brackets by zone),
 :mod:`derender.evaluation.linearity` (absolute luminance over 5 decades, evalglare's fisheye maps), :mod:`derender.evaluation.raw_merge` (RAW merges
-against the simulator's exact truth), :mod:`derender.evaluation.consistency` (checks without truth on real brackets:
+against the simulator's exact truth), :mod:`derender.evaluation.raw_jpeg` (a RAW+JPEG bracket: the JPEG merge
+scored against the RAW merge, paper 1's protocol for one's own camera), :mod:`derender.evaluation.consistency` (checks without truth on real brackets:
 a still scene with and without ``--deghost``, methods against each other, fidelity to the reference),
 :mod:`derender.evaluation.roundtrip` (a merge rendered back through its method's model),
 :mod:`derender.evaluation.gallery` (the real brackets' gallery of the documentation).
@@ -27,6 +28,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "uncertainty": ["COVERAGE_LEVELS", "coverage_scores", "coverage_table", "uncertainty_experiment"],
     "oracle": ["oracle_merge", "oracle_merge_bracket"],
     "raw_merge": ["bracket_raw_frames", "true_noise", "demosaiced_truth", "raw_scores"],
+    "raw_jpeg": ["TIME_TOLERANCE", "RawJpegScore", "split_raw_rendered", "pair_raw_jpeg", "score_raw_jpeg"],
     "neutral": ["NeutralAxis", "neutral_pixels", "neutral_axis", "neutral_axis_truth", "scale_gap"],
     "linearity": ["DECADES", "LINEARITY_METHODS", "FISHEYE_VIEW", "linearity_scores", "linearity_experiment", "fisheye_maps", "render_chart_model", "format_decades"],
     "consistency": ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps", "STILL_BRACKETS", "FLAG_METHODS", "shared_data_root", "bracket_inputs", "deghost_pair", "flag_invariance", "method_agreement", "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES"],

@@ -22,6 +22,7 @@ from derender.io.exif import read_exposure_time
 __all__ = [
     "read_raw",
     "read_raw_stack",
+    "read_raw_exposure",
 ]
 
 
@@ -37,11 +38,11 @@ def _dng_tags(path: Path) -> dict:
                 for tag in page.tags.values():
                     if tag.name in ("ColorMatrix1", "ColorMatrix2", "AsShotNeutral", "CalibrationIlluminant1",
                                     "CalibrationIlluminant2", "ExposureTime", "Make", "Model", "UniqueCameraModel",
-                                    "NoiseProfile", "FNumber", "ISOSpeedRatings"):
+                                    "NoiseProfile", "FNumber", "ISOSpeedRatings", "SensitivityType"):
                         tags.setdefault(tag.name, tag.value)
                 exif = page.tags.get("ExifTag")
                 if exif is not None and isinstance(exif.value, dict):
-                    for name in ("ExposureTime", "FNumber", "ISOSpeedRatings"):
+                    for name in ("ExposureTime", "FNumber", "ISOSpeedRatings", "SensitivityType"):
                         if name in exif.value:
                             tags.setdefault(name, exif.value[name])
                 break
@@ -98,11 +99,31 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
     >>> frame.as_shot_wb.round(2).tolist(), (frame.make, frame.model)
     ([2.0, 1.0, 1.25], ('Sim', 'Cam'))
     """
-    import rawpy
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"no such file: {path}")
+    lib = _libraw_fields(path)
+    tags = _dng_tags(path) if path.suffix.lower() == ".dng" else {}
+    return RawFrame(
+        mosaic=lib["mosaic"],
+        cfa_pattern=lib["cfa"],
+        black_level=lib["black"],
+        white_level=lib["white"],
+        as_shot_wb=_as_shot_wb(tags, lib["wb4"]),
+        xyz_to_camera=_xyz_to_camera(tags, lib["xyz_cam"], lib["cmat"]),
+        exposure_time=_exposure_time(path, tags, lib["shutter"]),
+        path=str(path),
+        make=str(tags.get("Make", "")).strip("\x00 "),
+        model=str(tags.get("Model", tags.get("UniqueCameraModel", ""))).strip("\x00 "),
+        extra=_extra(path, tags),
+    )
+
+
+def _libraw_fields(path: Path) -> dict:
+    """What LibRaw reads of a 2x2 Bayer file: mosaic, CFA, black per CFA position, white,
+    camera WB, its XYZ->camera and sRGB->camera matrices, shutter (errors: one InputError)."""
+    import rawpy
+
     try:
         with rawpy.imread(str(path)) as raw:
             mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
@@ -110,56 +131,66 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
             pattern = np.asarray(raw.raw_pattern)
             if raw.num_colors != 3 or pattern.shape != (2, 2) or mosaic.ndim != 2:
                 raise InputError(f"{path}: only 2x2 Bayer RAW files are supported")
-            cfa = "".join(desc[int(c)] for c in pattern.reshape(-1))
-            cfa = cfa.replace("g", "G")
-            black_ch = np.asarray(raw.black_level_per_channel, dtype=np.float64)
-            black = black_ch[pattern]
-            white = float(raw.white_level)
-            wb4 = np.asarray(raw.camera_whitebalance, dtype=np.float64)
-            xyz_cam = np.asarray(raw.rgb_xyz_matrix, dtype=np.float64)[:3, :3]
-            cmat = np.asarray(raw.color_matrix, dtype=np.float64)[:3, :3]
-            shutter = float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0
+            cfa = "".join(desc[int(c)] for c in pattern.reshape(-1)).replace("g", "G")
+            out = {"mosaic": mosaic, "cfa": cfa,
+                   "black": np.asarray(raw.black_level_per_channel, dtype=np.float64)[pattern],
+                   "white": float(raw.white_level),
+                   "wb4": np.asarray(raw.camera_whitebalance, dtype=np.float64),
+                   "xyz_cam": np.asarray(raw.rgb_xyz_matrix, dtype=np.float64)[:3, :3],
+                   "cmat": np.asarray(raw.color_matrix, dtype=np.float64)[:3, :3],
+                   "shutter": float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0}
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - LibRaw raises many types
         raise InputError(f"cannot read RAW file {path}: {type(exc).__name__}: {exc}".rstrip(": ")) from None
     if set(cfa) != {"R", "G", "B"}:
         raise InputError(f"{path}: unsupported CFA pattern {cfa}")
-    tags = _dng_tags(path) if path.suffix.lower() == ".dng" else {}
-    # white balance multipliers as R, G, B with G = 1
+    return out
+
+
+def _as_shot_wb(tags: dict, wb4: np.ndarray) -> np.ndarray:
+    """White balance multipliers as R, G, B with G = 1: the DNG's AsShotNeutral, else LibRaw's."""
     if "AsShotNeutral" in tags:
         neutral = _rationals(tags["AsShotNeutral"])[:3]
-        wb = neutral[1] / neutral if np.all(neutral > 0) else np.ones(3)
-    else:
-        g = wb4[1] if wb4[1] > 0 else 1.0
-        wb = np.array([wb4[0], g, wb4[2]]) / g
-        if not np.all(wb > 0):
-            wb = np.ones(3)
-    # XYZ -> camera matrix (DNG ColorMatrix semantics)
+        return neutral[1] / neutral if np.all(neutral > 0) else np.ones(3)
+    g = wb4[1] if wb4[1] > 0 else 1.0
+    wb = np.array([wb4[0], g, wb4[2]]) / g
+    return wb if np.all(wb > 0) else np.ones(3)
+
+
+def _xyz_to_camera(tags: dict, xyz_cam: np.ndarray, cmat: np.ndarray) -> np.ndarray | None:
+    """XYZ -> camera (DNG ColorMatrix semantics): ColorMatrix1, else LibRaw's, else from its
+    sRGB -> camera matrix, else None."""
     if "ColorMatrix1" in tags:
-        xyz_to_camera = _rationals(tags["ColorMatrix1"])[:9].reshape(3, 3)
-    elif np.any(xyz_cam != 0):
-        xyz_to_camera = xyz_cam
-    elif np.any(cmat != 0) and abs(np.linalg.det(cmat)) > 1e-9:
+        return _rationals(tags["ColorMatrix1"])[:9].reshape(3, 3)
+    if np.any(xyz_cam != 0):
+        return xyz_cam
+    if np.any(cmat != 0) and abs(np.linalg.det(cmat)) > 1e-9:
         from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
 
-        xyz_to_camera = np.linalg.inv(LINEAR_SRGB_TO_XYZ @ cmat)
-    else:
-        xyz_to_camera = None
-    exposure = None
+        return np.linalg.inv(LINEAR_SRGB_TO_XYZ @ cmat)
+    return None
+
+
+def _exposure_time(path: Path, tags: dict, shutter: float) -> float | None:
+    """The DNG's ExposureTime, else LibRaw's shutter (1.0 is its 'unknown'), else the EXIF reader's."""
     if "ExposureTime" in tags:
         v = _rationals(tags["ExposureTime"])
         if v.size and v[0] > 0:
-            exposure = float(v[0])
-    if exposure is None and shutter > 0 and shutter != 1.0:
-        exposure = shutter
-    if exposure is None:
-        exposure = read_exposure_time(path)
+            return float(v[0])
+    if shutter > 0 and shutter != 1.0:
+        return shutter
+    return read_exposure_time(path)
+
+
+def _extra(path: Path, tags: dict) -> dict:
+    """``noise_profile`` (the DNG's ``(S, O)`` of ``Var[x] = S x + O``, x in white-level units),
+    ``fnumber`` and ``iso`` when the file states them."""
     extra = {}
     if "NoiseProfile" in tags:
         npf = np.asarray(tags["NoiseProfile"], dtype=np.float64).reshape(-1)
         if npf.size >= 2 and np.all(np.isfinite(npf[:2])) and npf[0] > 0 and npf[1] > 0:
-            extra["noise_profile"] = (float(npf[0]), float(npf[1]))    # Var[x] = S x + O, x in white-level units
+            extra["noise_profile"] = (float(npf[0]), float(npf[1]))
     if path.suffix.lower() == ".dng":
         fn = _rationals(tags["FNumber"]) if "FNumber" in tags else np.zeros(0)
         iso = np.asarray(tags.get("ISOSpeedRatings", []), dtype=np.float64).reshape(-1)
@@ -174,21 +205,53 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
         for key, name in (("FNumber", "fnumber"), ("ISO", "iso")):
             if ex.get(key):
                 extra[name] = float(ex[key])
-    make = str(tags.get("Make", "")).strip("\x00 ")
-    model = str(tags.get("Model", tags.get("UniqueCameraModel", ""))).strip("\x00 ")
-    return RawFrame(
-        mosaic=mosaic,
-        cfa_pattern=cfa,
-        black_level=black,
-        white_level=white,
-        as_shot_wb=wb,
-        xyz_to_camera=xyz_to_camera,
-        exposure_time=exposure,
-        path=str(path),
-        make=make,
-        model=model,
-        extra=extra,
-    )
+    return extra
+
+
+def read_raw_exposure(path: str | os.PathLike) -> dict:
+    """A RAW file's exposure settings without decoding its mosaic: ``fnumber`` and ``iso`` (as
+    :func:`read_raw` puts them in ``extra``) and ``sensitivity_type`` (EXIF ``SensitivityType``:
+    what the ISO speed means), each only when the file states it.
+
+    Parameters
+    ----------
+    path : path-like
+        A camera RAW file (DNG: its tags; other formats: their EXIF).
+
+    Returns
+    -------
+    dict
+        Some of ``fnumber`` (float), ``iso`` (float), ``sensitivity_type`` (int).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from derender.camera.dng import write_dng
+    >>> from derender.io.raw import read_raw_exposure
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = write_dng(os.path.join(folder, "f.dng"), np.full((32, 32), 900, np.uint16),
+    ...                      cfa_pattern="RGGB", black_level=64, white_level=4095, xyz_to_camera=np.eye(3),
+    ...                      as_shot_neutral=np.ones(3), exposure_time=0.01, make="Sim", model="Cam",
+    ...                      bits=12, fnumber=8.0, iso=200)
+    ...     read_raw_exposure(path)
+    {'fnumber': 8.0, 'iso': 200.0}
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no such file: {path}")
+    if path.suffix.lower() == ".dng":
+        tags = _dng_tags(path)
+        out = {k: v for k, v in _extra(path, tags).items() if k in ("fnumber", "iso")}
+        kind = np.asarray(tags.get("SensitivityType", []), dtype=np.float64).reshape(-1)
+    else:
+        from derender.io.exif import read_exif
+
+        out = {k: v for k, v in _extra(path, {}).items() if k in ("fnumber", "iso")}
+        kind = np.asarray([read_exif(path).get("SensitivityType") or 0], dtype=np.float64)
+    if kind.size and kind[0] > 0:
+        out["sensitivity_type"] = int(kind[0])
+    return out
 
 
 def _check_fixed_aperture_and_iso(frames: Sequence[RawFrame]) -> None:

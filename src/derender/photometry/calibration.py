@@ -47,6 +47,20 @@ stabilized): tuning renderings ``gamma`` 0.98 / 1.01, ``paper`` 1.08 / 1.09, ``c
 and the one that sets the +-1 EV); held out ``dslr-lut`` 1.18 / 1.12, ``phone-local`` 0.77 /
 0.73, ``drift`` 2.34 / 2.27.
 
+**RAW frames** (:func:`raw_exif_factor`) need no mid-grey pixel: the RAW merge's map is in units
+of the white level per second (:mod:`derender.raw.optimal`), and ISO 12232's saturation-based
+speed puts the white level at ``H_sat = 78 / S`` lx s, so a neutral surface whose map luminance
+is ``m`` (white levels per second) has
+
+    L = (78 / q) N^2 m / S = 120 N^2 m / S  cd/m2            (:data:`RAW_SATURATION_EXPOSURE`),
+
+the factor ``k = 120 N^2 / (179 S)`` on ``179 w·m``, the same for every frame of a bracket that
+keeps N and S. Its relative standard uncertainty is 15 % when the file states a saturation speed
+(``q`` within +-10 %, the speed within +-1/3 EV) and 44 % otherwise (an SOS or REI rating puts
+mid-grey, not the RAW white level, at a stated exposure: the headroom above it is the maker's
+choice, taken within +-1 EV). Measured on the simulator's luminance family (saturation rated
+sensor; RAW merge, ``--luminance time``, 192x128, 9 exposures): see docs/raw.md.
+
 (The reflected-light meter constant of ISO 2720, ``K = 12.5`` cd s/m2, :data:`ISO2720_K`, is
 what a meter aims at: ``H = q K / S``, 0.81 of an SOS camera's code-118 exposure. An earlier
 version took ``K N^2 / (t S)`` at code 118; that reads an SOS camera 19 % low and a saturation
@@ -65,7 +79,7 @@ from derender.photometry.illuminance import luminance_cd_m2
 
 __all__ = ["Spot", "parse_spot", "SpotCalibration", "spot_factor", "ISO2720_K", "ISO12232_Q", "MID_GREY_CODE",
            "MID_GREY_LINEAR", "SensitivityRating", "SENSITIVITY_RATINGS", "sensitivity_rating", "ExifCalibration",
-           "exif_factor"]
+           "exif_factor", "RAW_SATURATION_EXPOSURE", "raw_exif_factor"]
 
 #: The reflected-light meter calibration constant of ISO 2720 (cd s / m2), as most makers use it.
 ISO2720_K = 12.5
@@ -75,6 +89,8 @@ ISO12232_Q = 0.65
 MID_GREY_CODE = 118
 #: Code :data:`MID_GREY_CODE` in linear light (the sRGB decoding of 118 / 255).
 MID_GREY_LINEAR = float(((MID_GREY_CODE / 255 + 0.055) / 1.055) ** 2.4)
+#: ``L t S / N^2`` (cd s / m2) that brings a neutral to the RAW white level: ISO 12232's ``78 / q``.
+RAW_SATURATION_EXPOSURE = 78.0 / ISO12232_Q
 
 
 def _uniform_sd(ev: float) -> float:
@@ -223,3 +239,25 @@ def exif_factor(radiance: np.ndarray, frames, primaries=None, mask: np.ndarray |
                          f"{tolerance}) for the nominal EXIF factor; use --spot")
     return ExifCalibration(factor=float(np.median(ks)), uncertainty=spec.uncertainty, rating=rating,
                            per_frame=tuple(ks), counts=tuple(counts))
+
+
+def raw_exif_factor(settings, rating: str = "unknown") -> ExifCalibration:
+    """The nominal EXIF factor of a RAW merge (module docstring, "RAW frames"): ``settings`` is an
+    iterable of ``(N, S)`` per frame (f-number, ISO speed), the map in white levels per second;
+    ``rating`` as :func:`sensitivity_rating` names it (``"saturation"``: 15 %, else 44 %).
+    ``per_frame`` holds each frame's factor and ``counts`` is empty (no pixel is selected)."""
+    if rating not in SENSITIVITY_RATINGS:
+        raise InputError(f"unknown ISO rating {rating!r}: use {', '.join(SENSITIVITY_RATINGS)}")
+    ks = []
+    for n, s in settings:
+        if not (n and s and np.isfinite(n) and np.isfinite(s) and n > 0 and s > 0):
+            raise InputError(f"--absolute exif needs a positive f-number and ISO speed, got f/{n} ISO {s}")
+        ks.append(RAW_SATURATION_EXPOSURE * float(n) ** 2 / (179.0 * float(s)))
+    if not ks:
+        raise InputError("--absolute exif: no RAW frame given")
+    if max(ks) > min(ks) * (1.0 + 1e-9):
+        raise InputError("--absolute exif: the RAW frames vary the f-number or ISO; the nominal factor needs "
+                         "them fixed (use --spot)")
+    unc = np.hypot(_Q_SD, _uniform_sd(1 / 3 if rating == "saturation" else 1.0))
+    return ExifCalibration(factor=float(ks[0]), uncertainty=float(unc), rating=rating, per_frame=tuple(ks),
+                           counts=())
