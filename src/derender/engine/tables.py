@@ -366,6 +366,33 @@ class TableMerge:
             v = v @ np.asarray(matrix, dtype=np.float64).T
         return v
 
+    def _saturation_fallback(self, res: list, ok: np.ndarray, mask: np.ndarray, short: tuple, long: tuple,
+                             bright_tab: np.ndarray) -> tuple[int, int]:
+        """Fill a block's channels without weight (``ok`` False) from the shortest exposure where it
+        is bright, else from the longest (``short`` / ``long``: the block's codes, value table and
+        matrix), and mark those pixels in the block's ``mask``; the numbers of bright and dark pixels."""
+        bad = ~ok.reshape(ok.shape[0], -1)
+        pix = np.flatnonzero(bad.any(axis=0))
+        none = np.broadcast_to(bad[:, pix].T, (pix.size, 3))
+        z_s = short[0].reshape(-1, 3)[pix]
+        z_l = long[0].reshape(-1, 3)[pix]
+        if self.mode in ("brightest", "min_else_brightest"):   # the fallback sees the brightest channel
+            bright = none & bright_tab[z_s.max(axis=1)][:, None]
+        else:
+            bright = none & bright_tab[z_s]
+        dark = none & ~bright
+        fs = self._values_at(z_s, short[1], short[2])
+        fl = self._values_at(z_l, long[1], long[2])
+        for c in range(3):
+            flat = res[c].reshape(-1)
+            flat[pix] = np.where(bright[:, c], fs[:, c], np.where(dark[:, c], fl[:, c], flat[pix]))
+        bpix = bright.any(axis=1)
+        dpix = dark.any(axis=1) & ~bpix
+        mflat = mask.reshape(-1)
+        mflat[pix[bpix]] = HDRResult.MASK_BRIGHT
+        mflat[pix[dpix]] = HDRResult.MASK_DARK
+        return int(bpix.sum()), int(dpix.sum())
+
     def finish(self, short: tuple, long: tuple, contiguous: bool = False, info: dict | None = None) -> HDRResult:
         """Normalise, apply the saturation policy and return the result.
 
@@ -401,27 +428,8 @@ class TableMerge:
                     ok = (use0 | (d[1] > 0))[None]
                     res = [np.where(use0, num[c, b0:b1] / d[0], num[3 + c, b0:b1] / d[1]) for c in range(3)]
             if not ok.all():
-                bad = ~ok.reshape(ok.shape[0], -1)
-                pix = np.flatnonzero(bad.any(axis=0))
-                none = np.broadcast_to(bad[:, pix].T, (pix.size, 3))
-                z_s = zs[b0:b1].reshape(-1, 3)[pix]
-                z_l = zl[b0:b1].reshape(-1, 3)[pix]
-                if self.mode in ("brightest", "min_else_brightest"):   # the fallback sees the brightest channel
-                    bright = none & bright_tab[z_s.max(axis=1)][:, None]
-                else:
-                    bright = none & bright_tab[z_s]
-                dark = none & ~bright
-                fs = self._values_at(z_s, vs, ms)
-                fl = self._values_at(z_l, vl, ml)
-                for c in range(3):
-                    flat = res[c].reshape(-1)
-                    flat[pix] = np.where(bright[:, c], fs[:, c], np.where(dark[:, c], fl[:, c], flat[pix]))
-                bpix = bright.any(axis=1)
-                dpix = dark.any(axis=1) & ~bpix
-                mflat = mask[b0:b1].reshape(-1)
-                mflat[pix[bpix]] = HDRResult.MASK_BRIGHT
-                mflat[pix[dpix]] = HDRResult.MASK_DARK
-                nb, nd = int(bpix.sum()), int(dpix.sum())
+                nb, nd = self._saturation_fallback(res, ok, mask[b0:b1], (zs[b0:b1], vs, ms), (zl[b0:b1], vl, ml),
+                                                   bright_tab)
             for c in range(3):
                 r = res[c]
                 if log:
