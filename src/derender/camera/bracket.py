@@ -347,7 +347,7 @@ def simulate_bracket(
 
 
 # --------------------------------------------------------------------------- files
-def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float, make: str, model: str,
+def write_jpeg(path: str | os.PathLike, codes: np.ndarray, exposure_time: float, make: str, model: str, *,
                quality: int = 95, fnumber: float | None = None, iso: int | None = None,
                sensitivity_type: int | None = None) -> Path:
     """Write 8-bit RGB codes as a JPEG (4:2:2, like most cameras) with EXIF Make/Model/ExposureTime

@@ -182,26 +182,8 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", *, n_illuminants: 
         rng_fam = np.random.default_rng(np.random.SeedSequence([int(seed), 13, list(FAMILIES).index(family)]))
         frames = family_settings(family, n_exposures, rng_fam, wb, wb, cam_to_srgb)
     n_patch = refl.shape[0]
-    cols = 14
-    rows = int(np.ceil(n_patch / cols))
-    p = int(patch_px)
-    if p < 4:
-        raise InputError("patch_px must be at least 4")
-    if not 1 <= int(core) < p // 2:
-        raise InputError("core must be in 1 .. patch_px // 2 - 1")
-    h, w = rows * p, cols * p
-    # per-pixel patch index (1 px black margin between patches); only pixels at least ``core`` px
-    # inside a patch are averaged: bilinear demosaicking (1 px) and the 7x7 chroma blur (3 px) mix
-    # the black margin into the pixels next to it (codes up to ~15 % too dark at 8 px / core 1)
-    fill = -np.ones((h, w), dtype=np.int64)
-    for i in range(n_patch):
-        r, c = divmod(i, cols)
-        fill[r * p + 1:(r + 1) * p - 1, c * p + 1:(c + 1) * p - 1] = i
-    inner = np.zeros((h, w), dtype=bool)
-    for i in range(n_patch):
-        r, c = divmod(i, cols)
-        inner[r * p + core:(r + 1) * p - core, c * p + core:(c + 1) * p - core] = True
-    pidx = np.where(inner, fill, -1)
+    fill, pidx = _chart_layout(n_patch, patch_px, core)
+    h, w = fill.shape
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
     exposures = chart_exposures(n_exposures)
     jpeg_rows, raw_rows, il_rows, ex_rows, pa_rows = [], [], [], [], []
@@ -222,9 +204,7 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", *, n_illuminants: 
             else:
                 rgb = camera_rgb_from_mosaic(mosaic, camera)
                 codes = render_frame(rgb, prepare_frame(frames[e], rgb))
-            sums = np.stack([np.bincount(flat_idx, weights=codes[..., c][valid].astype(np.float64), minlength=n_patch)
-                             for c in range(3)], axis=1)
-            jpeg_rows.append(np.clip(np.rint(sums / counts[:, None]), 0, 255).astype(np.uint8))
+            jpeg_rows.append(_patch_codes(codes, valid, flat_idx, counts))
             raw_rows.append(cam * t)
             il_rows.append(np.full(n_patch, k))
             ex_rows.append(np.full(n_patch, e))
@@ -239,6 +219,40 @@ def chart_pairs(camera: CameraSpectral | str = "nikon-d5100", *, n_illuminants: 
         out_of_gamut=np.any(srgb < -1e-6 * np.maximum(srgb.max(axis=1, keepdims=True), 1e-12), axis=1),
         camera=camera.name, make=camera.make, model=camera.model, camera_to_srgb=cam_to_srgb, wb=wb, family=family,
     )
+
+
+def _chart_layout(n_patch: int, patch_px: int, core: int) -> tuple[np.ndarray, np.ndarray]:
+    """The chart image's patch index per pixel, 14 patches a row of ``patch_px`` pixels: ``fill``
+    (-1 in the 1 px black margin between patches) and ``pidx`` (-1 but ``core`` px inside a patch)."""
+    cols = 14
+    rows = int(np.ceil(n_patch / cols))
+    p = int(patch_px)
+    if p < 4:
+        raise InputError("patch_px must be at least 4")
+    if not 1 <= int(core) < p // 2:
+        raise InputError("core must be in 1 .. patch_px // 2 - 1")
+    h, w = rows * p, cols * p
+    # per-pixel patch index (1 px black margin between patches); only pixels at least ``core`` px
+    # inside a patch are averaged: bilinear demosaicking (1 px) and the 7x7 chroma blur (3 px) mix
+    # the black margin into the pixels next to it (codes up to ~15 % too dark at 8 px / core 1)
+    fill = -np.ones((h, w), dtype=np.int64)
+    for i in range(n_patch):
+        r, c = divmod(i, cols)
+        fill[r * p + 1:(r + 1) * p - 1, c * p + 1:(c + 1) * p - 1] = i
+    inner = np.zeros((h, w), dtype=bool)
+    for i in range(n_patch):
+        r, c = divmod(i, cols)
+        inner[r * p + core:(r + 1) * p - core, c * p + core:(c + 1) * p - core] = True
+    return fill, np.where(inner, fill, -1)
+
+
+def _patch_codes(codes: np.ndarray, valid: np.ndarray, flat_idx: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Each patch's mean code (rounded, uint8 (n_patch, 3)) over its ``valid`` core pixels, whose patch
+    indices are ``flat_idx`` and per-patch numbers ``counts``."""
+    n_patch = counts.shape[0]
+    sums = np.stack([np.bincount(flat_idx, weights=codes[..., c][valid].astype(np.float64), minlength=n_patch)
+                     for c in range(3)], axis=1)
+    return np.clip(np.rint(sums / counts[:, None]), 0, 255).astype(np.uint8)
 
 
 def save_pairs(pairs: ChartPairs, path: str | os.PathLike) -> Path:

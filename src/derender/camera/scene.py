@@ -123,6 +123,31 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
     idx = np.empty((h, w, 3), dtype=np.int32)
     idx[:] = np.arange(groups["mallett"].start, groups["mallett"].stop, dtype=np.int32)
     wts = tex.copy()
+    regions = _place_charts(idx, wts, groups, rng)
+
+    # --- illumination field
+    light = _SceneLight.draw((w, h), rng)
+    # the light source itself is a bright white emitter-like reflector
+    lamp_hard = light.lamp > 0.5
+    idx[lamp_hard] = groups["white"].start
+    wts[lamp_hard] = np.array([1.0, 0.0, 0.0], dtype=np.float32)
+    light.lamp = soft_mask(light.lamp, light.sigma * 0.7)
+    fields, illum_names, key = _illumination_fields(kind, light, rng, regions)
+    illumination = np.stack(fields, axis=-1).astype(np.float32)
+    illumination = np.maximum(illumination, 0.0)
+    spds = np.stack([illuminant_spd(n) for n in illum_names])
+    regions["lamp"] = [float(light.lamp_x), float(light.lamp_y), float(light.lamp_r)]
+    return SpectralScene(
+        kind=kind, library=library, material_index=idx, material_weight=wts.astype(np.float32),
+        illuminant_names=illum_names, illuminant_spds=spds, illumination=illumination,
+        key_illuminant=key, regions=regions,
+    )
+
+
+def _place_charts(idx: np.ndarray, wts: np.ndarray, groups: dict, rng: np.random.Generator) -> dict:
+    """Paint a ColorChecker 24 and the rawtoaces 190 grid into the material planes (in place); their
+    regions (``[x, y, w, h]`` per ColorChecker patch, one for the grid)."""
+    h, w = idx.shape[:2]
 
     def put_patch(x0, y0, x1, y1, row):
         idx[y0:y1, x0:x1, :] = row
@@ -153,26 +178,43 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
         x0, y0 = gx0 + c * gw, gy0 + r * gw
         if x0 + gw <= w and y0 + gw <= h:
             put_patch(x0, y0, x0 + gw, y0 + gw, tr.start + i)
+    return regions
 
-    # --- illumination field
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    shading = np.exp(0.25 * _smooth_noise((h, w), rng, scale=max(8.0, w / 6)))
-    sigma = max(1.5, w / 120)
 
-    def disc(cx, cy, r):
-        return ((xx - cx) ** 2 + (yy - cy) ** 2 <= r * r).astype(np.float32)
+@dataclass
+class _SceneLight:
+    """The geometry every scene kind lights with: pixel coordinates, a shading texture, the lamp
+    (a disc, then softened) and its glow."""
 
-    lamp_r = max(3.0, 0.035 * w)
-    lamp_x, lamp_y = w * rng.uniform(0.6, 0.85), h * rng.uniform(0.12, 0.3)
-    lamp = disc(lamp_x, lamp_y, lamp_r)
-    white_row = groups["white"].start
-    # the light source itself is a bright white emitter-like reflector
-    lamp_hard = lamp > 0.5
-    idx[lamp_hard] = white_row
-    wts[lamp_hard] = np.array([1.0, 0.0, 0.0], dtype=np.float32)
-    lamp = soft_mask(lamp, sigma * 0.7)
-    glow = np.exp(-(((xx - lamp_x) ** 2 + (yy - lamp_y) ** 2) / (2 * (4 * lamp_r) ** 2)))
+    xx: np.ndarray
+    yy: np.ndarray
+    shading: np.ndarray
+    sigma: float
+    lamp_x: float
+    lamp_y: float
+    lamp_r: float
+    lamp: np.ndarray
+    glow: np.ndarray
 
+    @classmethod
+    def draw(cls, size: tuple[int, int], rng: np.random.Generator) -> "_SceneLight":
+        """The shading and the lamp's place, drawn from ``rng`` (the lamp a hard disc)."""
+        w, h = size
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        shading = np.exp(0.25 * _smooth_noise((h, w), rng, scale=max(8.0, w / 6)))
+        sigma = max(1.5, w / 120)
+        lamp_r = max(3.0, 0.035 * w)
+        lamp_x, lamp_y = w * rng.uniform(0.6, 0.85), h * rng.uniform(0.12, 0.3)
+        lamp = ((xx - lamp_x) ** 2 + (yy - lamp_y) ** 2 <= lamp_r * lamp_r).astype(np.float32)
+        glow = np.exp(-(((xx - lamp_x) ** 2 + (yy - lamp_y) ** 2) / (2 * (4 * lamp_r) ** 2)))
+        return cls(xx, yy, shading, sigma, lamp_x, lamp_y, lamp_r, lamp, glow)
+
+
+def _illumination_fields(kind: str, light: _SceneLight, rng: np.random.Generator, regions: dict) -> tuple:
+    """``(fields, illuminant names, key illuminant)``: the three irradiance planes of a scene kind
+    (adds its window to ``regions``)."""
+    xx, yy, shading, sigma, lamp, glow = light.xx, light.yy, light.shading, light.sigma, light.lamp, light.glow
+    h, w = xx.shape
     if kind == "outdoor":
         illum_names = ("D75", "D50", "D55")
         shadow = soft_mask((xx < w * rng.uniform(0.3, 0.42)).astype(np.float32), sigma * 3)
@@ -204,15 +246,7 @@ def make_scene(kind: str = "outdoor", size: tuple[int, int] = (384, 256), seed: 
         win = soft_mask(win, sigma)
         fields = [dark * shading + 150.0 * win, glow * 800.0 + 10.0 * glow ** 0.3, lamp * 3.0e4]
         key = "A"
-    illumination = np.stack(fields, axis=-1).astype(np.float32)
-    illumination = np.maximum(illumination, 0.0)
-    spds = np.stack([illuminant_spd(n) for n in illum_names])
-    regions["lamp"] = [float(lamp_x), float(lamp_y), float(lamp_r)]
-    return SpectralScene(
-        kind=kind, library=library, material_index=idx, material_weight=wts.astype(np.float32),
-        illuminant_names=illum_names, illuminant_spds=spds, illumination=illumination,
-        key_illuminant=key, regions=regions,
-    )
+    return fields, illum_names, key
 
 
 def _responses(scene: SpectralScene, observer: np.ndarray) -> np.ndarray:

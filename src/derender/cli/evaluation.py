@@ -187,11 +187,12 @@ def diagnose(
         typer.echo(f"spread (RMS deviation from slope-1 line): {result.rms_stops:.3f} stops overall; "
                    f"median {result.median_stops:.3f}; per exposure [{per}] -> {output}")
         if round_trip is not None:
-            _round_trip_report(images, round_trip, times, times_file, times_inverse, reference, align, deghost,
-                               (map_tmp, fail_map), inputs)
+            _round_trip_report(images, round_trip, times=times, times_file=times_file, times_inverse=times_inverse,
+                               reference=reference, align=align, deghost=deghost, map_path=(map_tmp, fail_map),
+                               inputs=inputs)
 
 
-def _round_trip_report(images, method, times, times_file, times_inverse, reference, align, deghost, map_path,
+def _round_trip_report(images, method, *, times, times_file, times_inverse, reference, align, deghost, map_path,
                        inputs) -> None:
     """`diagnose --round-trip`: the per-frame and per-region table, and the failure map
     (``map_path``: the transaction's temporary and the user's name, or (None, None))."""

@@ -388,66 +388,11 @@ class LocalGPModel(DerenderModel):
 
     # ------------------------------------------------------------------ fitting
     def _fit(self, jf: np.ndarray, rf: np.ndarray) -> None:
-        from sklearn.cluster import KMeans
-        from threadpoolctl import threadpool_limits
-
         rng, jf, rf, Y, T = log_training_targets(self, jf, rf)
         Y = self._inputs(Y)
-        # clip-aware k-means: colours with a clipped (255) channel are one-to-many and get their
-        # own clusters, so their spread neither smooths nor inflates the unclipped GPs
-        clipped = jf.max(axis=1) >= self.clip_code
-        k_total = int(min(self.n_clusters, max(1, jf.shape[0] // 20)))
-        n_clip = int(np.count_nonzero(clipped))
-        leftover = np.zeros(0, dtype=np.intp)
-        if k_total >= 2 and n_clip >= 20 and jf.shape[0] - n_clip >= 20:
-            k_clip = int(np.clip(round(k_total * n_clip / jf.shape[0]), 1, k_total - 1))
-            if self.clip_patterns:
-                # one face of the code cube per clip pattern (which channels are at 255)
-                bits = _clip_bits(jf, self.clip_code)
-                pats, counts = np.unique(bits[clipped], return_counts=True)
-                big = [(int(b), int(n)) for b, n in zip(pats, counts) if n >= 20]
-                if big:
-                    k_clip = int(min(max(k_clip, len(big)), k_total - 1)) if len(big) < k_total else k_clip
-                    nb = sum(n for _, n in big)
-                    groups = [(np.flatnonzero(~clipped), k_total - k_clip, 0)]
-                    for b, n in sorted(big, key=lambda t: -t[1]):
-                        groups.append((np.flatnonzero(clipped & (bits == b)), max(1, round(k_clip * n / nb)), 1 + b))
-                    leftover = np.flatnonzero(clipped & ~np.isin(bits, [b for b, _ in big]))
-                else:
-                    groups = [(np.flatnonzero(~clipped), k_total - k_clip, 0), (np.flatnonzero(clipped), k_clip, 1)]
-            else:
-                groups = [(np.flatnonzero(~clipped), k_total - k_clip, 0), (np.flatnonzero(clipped), k_clip, 1)]
-        else:
-            groups = [(np.arange(jf.shape[0]), k_total, -1)]
-        members, centroids, flags = [], [], []
-        for gidx, kg, flag in groups:
-            kg = min(kg, np.unique(jf[gidx], axis=0).shape[0])   # no more clusters than distinct colours
-            with threadpool_limits(1):   # tiny problem: OpenMP threads only add overhead
-                km = KMeans(n_clusters=kg, n_init=4, random_state=self.seed).fit(Y[gidx])
-            for c in range(kg):
-                sel = gidx[km.labels_ == c]
-                if sel.size:
-                    members.append(sel)
-                    centroids.append(km.cluster_centers_[c])
-                    flags.append(flag)
-        if leftover.size:   # rare clip patterns: train with the nearest clipped cluster
-            cand = np.flatnonzero(np.asarray(flags) >= 1)
-            d2 = ((Y[leftover][:, None, :] - np.asarray(centroids)[cand][None]) ** 2).sum(-1)
-            near = cand[np.argmin(d2, axis=1)]
-            for c in np.unique(near):
-                members[c] = np.sort(np.concatenate([members[c], leftover[near == c]]))
-        tasks = []
-        for idx in members:
-            if idx.shape[0] > self.max_cluster_points:
-                idx = np.sort(rng.choice(idx, self.max_cluster_points, replace=False))
-            Tc = T[idx]
-            m = Tc.mean(axis=0)
-            s = np.maximum(Tc.std(axis=0), 1e-3)
-            if idx.shape[0] > self.opt_points:
-                osel = np.sort(rng.choice(idx.shape[0], self.opt_points, replace=False))
-            else:
-                osel = np.arange(idx.shape[0])
-            tasks.append((Y[idx], Tc, m, s, osel))
+        groups, leftover = self._cluster_groups(jf)
+        members, centroids, flags = self._clusters(Y, jf, groups, leftover)
+        tasks = self._cluster_tasks(members, Y, T, rng)
         n_jobs = self.n_jobs or min(2, os.cpu_count() or 1)
         # one task per (cluster, channel), largest clusters first: the two threads stay balanced
         jobs = sorted(((c, ch) for c in range(len(tasks)) for ch in range(3)), key=lambda j: -tasks[j[0]][0].shape[0])
@@ -473,6 +418,77 @@ class LocalGPModel(DerenderModel):
             {"n_train": int(jf.shape[0]), "n_clusters": len(tasks), "cluster_sizes": np.diff(self.offsets).tolist(),
              "kernel": "squared-exponential ARD + white noise", "heteroscedastic": self.heteroscedastic,
              "target": "log(max(raw,0)+eps)", "eps": self.eps, "raw_white": self.raw_white})
+
+    def _cluster_groups(self, jf: np.ndarray) -> tuple[list, np.ndarray]:
+        """Clip-aware k-means groups ``(indices, k, flag)`` (flag as ``cluster_group``), and the
+        clipped colours of rare clip patterns left to the nearest clipped cluster.
+
+        Colours with a clipped (255) channel are one-to-many and get their own clusters, so their
+        spread neither smooths nor inflates the unclipped GPs."""
+        clipped = jf.max(axis=1) >= self.clip_code
+        k_total = int(min(self.n_clusters, max(1, jf.shape[0] // 20)))
+        n_clip = int(np.count_nonzero(clipped))
+        leftover = np.zeros(0, dtype=np.intp)
+        if not (k_total >= 2 and n_clip >= 20 and jf.shape[0] - n_clip >= 20):
+            return [(np.arange(jf.shape[0]), k_total, -1)], leftover
+        k_clip = int(np.clip(round(k_total * n_clip / jf.shape[0]), 1, k_total - 1))
+        groups = [(np.flatnonzero(~clipped), k_total - k_clip, 0), (np.flatnonzero(clipped), k_clip, 1)]
+        if not self.clip_patterns:
+            return groups, leftover
+        # one face of the code cube per clip pattern (which channels are at 255)
+        bits = _clip_bits(jf, self.clip_code)
+        pats, counts = np.unique(bits[clipped], return_counts=True)
+        big = [(int(b), int(n)) for b, n in zip(pats, counts) if n >= 20]
+        if not big:
+            return groups, leftover
+        k_clip = int(min(max(k_clip, len(big)), k_total - 1)) if len(big) < k_total else k_clip
+        nb = sum(n for _, n in big)
+        groups = [(np.flatnonzero(~clipped), k_total - k_clip, 0)]
+        for b, n in sorted(big, key=lambda t: -t[1]):
+            groups.append((np.flatnonzero(clipped & (bits == b)), max(1, round(k_clip * n / nb)), 1 + b))
+        return groups, np.flatnonzero(clipped & ~np.isin(bits, [b for b, _ in big]))
+
+    def _clusters(self, Y: np.ndarray, jf: np.ndarray, groups: list, leftover: np.ndarray) -> tuple[list, list, list]:
+        """k-means within each group: the clusters' member indices, centres and group flags (the
+        ``leftover`` colours joined to their nearest clipped cluster)."""
+        from sklearn.cluster import KMeans
+        from threadpoolctl import threadpool_limits
+
+        members, centroids, flags = [], [], []
+        for gidx, kg, flag in groups:
+            kg = min(kg, np.unique(jf[gidx], axis=0).shape[0])   # no more clusters than distinct colours
+            with threadpool_limits(1):   # tiny problem: OpenMP threads only add overhead
+                km = KMeans(n_clusters=kg, n_init=4, random_state=self.seed).fit(Y[gidx])
+            for c in range(kg):
+                sel = gidx[km.labels_ == c]
+                if sel.size:
+                    members.append(sel)
+                    centroids.append(km.cluster_centers_[c])
+                    flags.append(flag)
+        if leftover.size:   # rare clip patterns: train with the nearest clipped cluster
+            cand = np.flatnonzero(np.asarray(flags) >= 1)
+            d2 = ((Y[leftover][:, None, :] - np.asarray(centroids)[cand][None]) ** 2).sum(-1)
+            near = cand[np.argmin(d2, axis=1)]
+            for c in np.unique(near):
+                members[c] = np.sort(np.concatenate([members[c], leftover[near == c]]))
+        return members, centroids, flags
+
+    def _cluster_tasks(self, members: list, Y: np.ndarray, T: np.ndarray, rng: np.random.Generator) -> list:
+        """Per cluster ``(inputs, targets, target mean, target std, optimisation subset)``: at most
+        ``max_cluster_points`` members, hyper-parameters fitted on at most ``opt_points`` of them."""
+        tasks = []
+        for idx in members:
+            if idx.shape[0] > self.max_cluster_points:
+                idx = np.sort(rng.choice(idx, self.max_cluster_points, replace=False))
+            Tc = T[idx]
+            m = Tc.mean(axis=0)
+            s = np.maximum(Tc.std(axis=0), 1e-3)
+            if idx.shape[0] > self.opt_points:
+                osel = np.sort(rng.choice(idx.shape[0], self.opt_points, replace=False))
+            else:
+                osel = np.arange(idx.shape[0])
+            tasks.append((Y[idx], Tc, m, s, osel))
+        return tasks
 
     # ------------------------------------------------------------------ exact GP prediction
     def _factor(self, c: int, ch: int) -> tuple[np.ndarray, ...]:

@@ -282,11 +282,46 @@ def select_model(jpeg, raw, *, groups=None, out_of_gamut=None, methods: Sequence
     white (0: every pair); ``options`` extra keywords per method; ``progress(done, total,
     label)`` after each fit. Deterministic for a given ``seed``.
     """
-    from derender.derendering.base import MODEL_TYPES, check_pairs, estimate_raw_white, fit_model
+    from derender.derendering.base import check_pairs, estimate_raw_white
 
     jf, rf = check_pairs(jpeg, raw)
     codes = np.rint(jf).astype(np.uint8)
     methods = list(methods)
+    oog = _check_selection(methods, jf.shape[0], cv_train=cv_train, max_test=max_test,
+                           out_of_gamut=out_of_gamut, truth_floor=truth_floor)
+    scored = np.linalg.norm(rf, axis=1) >= float(truth_floor) * estimate_raw_white(jf, rf)
+    scored &= np.linalg.norm(rf, axis=1) > 0
+    n = jf.shape[0]
+    fold, scheme, n_groups = cv_folds(n, groups=groups, n_folds=n_folds, seed=seed)
+    k = int(fold.max()) + 1
+    splits = _cv_splits(fold, scored, cv_train=cv_train, max_test=max_test, seed=seed)
+    opts = {m: dict((options or {}).get(m, {})) for m in methods}
+    total, done = k * len(methods), 0
+    t_start = time.perf_counter()
+
+    def tick(label: str, steps: int = 1) -> None:
+        nonlocal done
+        done += steps
+        if progress is not None:
+            progress(done, total, label)
+
+    rows = [_cross_validate(m, splits, codes, rf, oog=oog, options=opts[m], seed=seed, tick=tick) for m in methods]
+    ok = [i for i, r in enumerate(rows) if r["error"] is None and np.isfinite(r["rel_rmse_all"])]
+    if not ok:
+        raise InputError("no candidate model could be fitted on the cross-validation folds: "
+                         + "; ".join(f"{r['method']}: {r['error']}" for r in rows))
+    best = min(ok, key=lambda i: (_sig3(rows[i]["rel_rmse_all"]), i))
+    rows[best]["chosen"] = True
+    return ModelSelection(chosen=rows[best]["method"], rows=rows, scheme=scheme, n_folds=k, n_groups=n_groups,
+                          n_pairs=n, cv_train=int(cv_train), seed=int(seed), truth_floor=float(truth_floor),
+                          seconds=time.perf_counter() - t_start)
+
+
+def _check_selection(methods: list, n: int, *, cv_train: int, max_test: int, out_of_gamut, truth_floor: float):
+    """Refuse unknown methods and too small subsamples (:class:`InputError`); the out-of-gamut flags of
+    the ``n`` pairs as a bool array, or None."""
+    from derender.derendering.base import MODEL_TYPES
+
     if not methods:
         raise InputError("no candidate methods to choose from")
     for m in methods:
@@ -299,14 +334,16 @@ def select_model(jpeg, raw, *, groups=None, out_of_gamut=None, methods: Sequence
     oog = None
     if out_of_gamut is not None:
         oog = np.asarray(out_of_gamut, dtype=bool).reshape(-1)
-        if oog.shape[0] != jf.shape[0]:
-            raise InputError(f"{oog.shape[0]} out-of-gamut flags for {jf.shape[0]} pairs")
+        if oog.shape[0] != n:
+            raise InputError(f"{oog.shape[0]} out-of-gamut flags for {n} pairs")
     if not (np.isfinite(truth_floor) and 0 <= truth_floor < 1):
         raise InputError(f"truth_floor must be in [0, 1), got {truth_floor}")
-    scored = np.linalg.norm(rf, axis=1) >= float(truth_floor) * estimate_raw_white(jf, rf)
-    scored &= np.linalg.norm(rf, axis=1) > 0
-    n = jf.shape[0]
-    fold, scheme, n_groups = cv_folds(n, groups=groups, n_folds=n_folds, seed=seed)
+    return oog
+
+
+def _cv_splits(fold: np.ndarray, scored: np.ndarray, *, cv_train: int, max_test: int, seed: int) -> list:
+    """Per fold ``(train, test)`` pair indices: at most ``cv_train`` of the other folds' pairs and
+    ``max_test`` of the fold's scored ones (random subsamples, sorted)."""
     k = int(fold.max()) + 1
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 27, 1]))
     splits = []
@@ -320,62 +357,55 @@ def select_model(jpeg, raw, *, groups=None, out_of_gamut=None, methods: Sequence
             raise InputError(f"fold {f + 1} has {te.size} held-out pairs above the truth floor (needs "
                              f"{MIN_FOLD_TEST}); give more or brighter pairs")
         splits.append((tr, te))
-    opts = {m: dict((options or {}).get(m, {})) for m in methods}
-    total, done = k * len(methods), 0
-    t_start = time.perf_counter()
-    rows = []
-    for m in methods:
-        point_all, mean_all, var_all, truth_all, oog_all, per_fold = [], [], [], [], [], []
-        fit_s, error = 0.0, None
-        for f, (tr, te) in enumerate(splits):
-            kw = dict(opts[m])
-            if m in ("gp", "rbf"):
-                kw.setdefault("n_train", max(int(tr.size), MIN_FOLD_TRAIN))
-            t0 = time.perf_counter()
-            try:
-                model = fit_model(m, codes[tr], rf[tr], seed=seed, **kw)
-            except (InputError, np.linalg.LinAlgError) as exc:
-                error = f"fold {f + 1}: {exc}"
-            fit_s += time.perf_counter() - t0
-            done += 1
-            if progress is not None:
-                progress(done, total, f"{m} fold {f + 1}/{k}")
-            if error is not None:
-                done += k - 1 - f
-                if progress is not None:
-                    progress(done, total, f"{m} failed")
-                break
-            point, _ = model.predict(codes[te], point="map")
-            mean, var = model.predict(codes[te])
-            point_all.append(point)
-            mean_all.append(mean)
-            var_all.append(var)
-            truth_all.append(rf[te])
-            per_fold.append(relative_rmse(point, rf[te]))
-            if oog is not None:
-                oog_all.append(oog[te])
-        row = {"method": m, "rel_rmse_all": None, "rel_rmse_oog": None, "rel_rmse_folds": None,
-               "coverage95": None, "coverage95_mean": None, "fit_seconds": round(fit_s, 3),
-               "n_scored": int(sum(te.size for _, te in splits)), "error": error, "chosen": False}
-        if error is None:
-            p, x = np.concatenate(point_all), np.concatenate(truth_all)
-            cov = interval_coverage(np.concatenate(mean_all), np.concatenate(var_all), x)
-            row.update(rel_rmse_all=relative_rmse(p, x), rel_rmse_folds=[float(v) for v in per_fold],
-                       coverage95=[float(c) for c in cov], coverage95_mean=float(np.mean(cov)))
-            if oog is not None:
-                o = np.concatenate(oog_all)
-                if o.any():
-                    row["rel_rmse_oog"] = relative_rmse(p[o], x[o])
-        rows.append(row)
-    ok = [i for i, r in enumerate(rows) if r["error"] is None and np.isfinite(r["rel_rmse_all"])]
-    if not ok:
-        raise InputError("no candidate model could be fitted on the cross-validation folds: "
-                         + "; ".join(f"{r['method']}: {r['error']}" for r in rows))
-    best = min(ok, key=lambda i: (_sig3(rows[i]["rel_rmse_all"]), i))
-    rows[best]["chosen"] = True
-    return ModelSelection(chosen=rows[best]["method"], rows=rows, scheme=scheme, n_folds=k, n_groups=n_groups,
-                          n_pairs=n, cv_train=int(cv_train), seed=int(seed), truth_floor=float(truth_floor),
-                          seconds=time.perf_counter() - t_start)
+    return splits
+
+
+def _cross_validate(m: str, splits: list, codes: np.ndarray, rf: np.ndarray, *, oog: np.ndarray | None,
+                    options: dict, seed: int, tick: Callable[..., None]) -> dict:
+    """Fit method ``m`` on each fold's training pairs and score it on the held-out ones: the
+    selection table's row (an ``error`` instead of scores when a fold's fit fails);
+    ``tick(label[, steps])`` after each fit."""
+    from derender.derendering.base import fit_model
+
+    k = len(splits)
+    point_all, mean_all, var_all, truth_all, oog_all, per_fold = [], [], [], [], [], []
+    fit_s, error = 0.0, None
+    for f, (tr, te) in enumerate(splits):
+        kw = dict(options)
+        if m in ("gp", "rbf"):
+            kw.setdefault("n_train", max(int(tr.size), MIN_FOLD_TRAIN))
+        t0 = time.perf_counter()
+        try:
+            model = fit_model(m, codes[tr], rf[tr], seed=seed, **kw)
+        except (InputError, np.linalg.LinAlgError) as exc:
+            error = f"fold {f + 1}: {exc}"
+        fit_s += time.perf_counter() - t0
+        tick(f"{m} fold {f + 1}/{k}")
+        if error is not None:
+            tick(f"{m} failed", k - 1 - f)
+            break
+        point, _ = model.predict(codes[te], point="map")
+        mean, var = model.predict(codes[te])
+        point_all.append(point)
+        mean_all.append(mean)
+        var_all.append(var)
+        truth_all.append(rf[te])
+        per_fold.append(relative_rmse(point, rf[te]))
+        if oog is not None:
+            oog_all.append(oog[te])
+    row = {"method": m, "rel_rmse_all": None, "rel_rmse_oog": None, "rel_rmse_folds": None,
+           "coverage95": None, "coverage95_mean": None, "fit_seconds": round(fit_s, 3),
+           "n_scored": int(sum(te.size for _, te in splits)), "error": error, "chosen": False}
+    if error is None:
+        p, x = np.concatenate(point_all), np.concatenate(truth_all)
+        cov = interval_coverage(np.concatenate(mean_all), np.concatenate(var_all), x)
+        row.update(rel_rmse_all=relative_rmse(p, x), rel_rmse_folds=[float(v) for v in per_fold],
+                   coverage95=[float(c) for c in cov], coverage95_mean=float(np.mean(cov)))
+        if oog is not None:
+            o = np.concatenate(oog_all)
+            if o.any():
+                row["rel_rmse_oog"] = relative_rmse(p[o], x[o])
+    return row
 
 
 # ============================================================================ fitting

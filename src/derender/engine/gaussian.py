@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -105,100 +106,153 @@ def merge_gaussian_frames(frames: np.ndarray, plan: GaussianPlan, threads: int |
     the radiance file, 2: and the variance file); the result's ``radiance`` and ``variance``
     are None. ``valid`` (N, H, W) uint8: frame ``j`` takes part only where ``valid[j]`` is
     non-zero (the engine's alignment and ghost removal, :mod:`derender.engine.motion`)."""
-    from derender.core.memory import populated_zeros
-    from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing, run_bands
+    from derender.engine.overlap import OVERLAP_ROWS, merge_writing, run_bands
 
     t0 = time.perf_counter()
-    n, h, w = frames.shape[:3]
-    # outputs mapped with their pages present: first-touch faults inside the merge cost 2-4 ms
-    # per MB here (576 MB at 24 MP), populating ~0.5 ms per MB (core.memory.populated_zeros)
-    log_scales = [float(s) for s in plan.log_scales]
-    lut = getattr(plan.index, "lut", None)
-    table = plan.table
-    fused = plan.lognormal if (lut is not None and table is not None and table.dtype == np.float64
-                               and table.ndim == 2 and table.shape[1] == 8 and table.flags.c_contiguous
-                               and frames.flags.c_contiguous) else None
+    h = frames.shape[1]
+    fused = _fused_moments(frames, plan)
     nthreads = max(1, int(threads)) if threads else max(1, len(os.sched_getaffinity(0)))
     group = plan.band_rows * nthreads        # a chunk: whole rounds of bands over the threads
     step = group * max(1, OVERLAP_ROWS // group)
-    out_ring = None
+    bands = _GaussianBands.start(frames, plan, fused, valid, _gaussian_outputs(frames, fused, step, write,
+                                                                               outputs, ring))
+    res = HDRResult(radiance=bands.radiance, mask=bands.mask, variance=bands.variance, info={"engine": "gaussian"})
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-gauss") as ex:
+        def chunk(c0: int, c1: int) -> None:
+            run_bands(ex, nthreads, bands.run,
+                      [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)])
+
+        merge_writing(h, step, chunk, res, write, ring=bands.out_ring)
+    if bands.hist is not None:
+        res.info["variance_sources"] = variance_sources(bands.hist)
+    res.info["merge_seconds"] = time.perf_counter() - t0
+    return res
+
+
+def _fused_moments(frames: np.ndarray, plan: GaussianPlan):
+    """The plan's log-normal moments when sums and moments can run in one compiled pass per band
+    (a colour-major float64 ``table`` of 8 columns, a colour look-up table, C-contiguous frames), else None."""
+    lut = getattr(plan.index, "lut", None)
+    table = plan.table
+    return plan.lognormal if (lut is not None and table is not None and table.dtype == np.float64
+                              and table.ndim == 2 and table.shape[1] == 8 and table.flags.c_contiguous
+                              and frames.flags.c_contiguous) else None
+
+
+def _gaussian_outputs(frames: np.ndarray, fused, step: int, write, outputs, ring: int) -> tuple:
+    """``(out_ring, radiance, variance)``: an output ring of ``step``-row band buffers (radiance and
+    variance None), the caller's ``outputs`` when they fit, or new (H, W, 3) float32 arrays."""
+    from derender.core.memory import populated_zeros
+    from derender.engine.overlap import OutputRing
+
+    h, w = frames.shape[1:3]
+    # outputs mapped with their pages present: first-touch faults inside the merge cost 2-4 ms
+    # per MB here (576 MB at 24 MP), populating ~0.5 ms per MB (core.memory.populated_zeros)
     if ring and write is not None and fused is not None:
         out_ring = OutputRing(h, w, step, lambda: (populated_zeros((step, w, 3), np.float32),
-                                              populated_zeros((step, w, 3), np.float32)), writers=ring,
-                         planar=False)
-        radiance = variance = None
-    elif outputs is not None and all(o.shape == (h, w, 3) and o.dtype == np.float32 and o.flags.c_contiguous
-                                     and o.flags.writeable for o in outputs):
-        radiance, variance = outputs
-    else:
-        radiance = populated_zeros((h, w, 3), np.float32)
-        variance = populated_zeros((h, w, 3), np.float32)
-    mask = np.empty((h, w), dtype=np.uint8)
-    planes = None if fused is not None else plan.rows_planes()
-    shared = plan.shared
-    compiled = (fused is not None or (shared is None and lut is not None and planes.dtype == np.float64
-                                      and planes.flags.c_contiguous and frames.flags.c_contiguous))
-    hist = None
-    if shared is not None:       # per-row counts of the variance sources' shares
-        from derender.engine.gaussian_kernels import NBINS
+                                                   populated_zeros((step, w, 3), np.float32)), writers=ring,
+                              planar=False)
+        return out_ring, None, None
+    if outputs is not None and all(o.shape == (h, w, 3) and o.dtype == np.float32 and o.flags.c_contiguous
+                                   and o.flags.writeable for o in outputs):
+        return (None, *outputs)
+    return None, populated_zeros((h, w, 3), np.float32), populated_zeros((h, w, 3), np.float32)
 
-        hist = np.zeros((h, 4, NBINS), dtype=np.int64)
-    whole = valid is None
-    valid_k = np.ones((n, 1, 1), dtype=np.uint8) if whole else np.ascontiguousarray(valid, dtype=np.uint8)
-    if compiled:
-        from derender.engine.kernels import gaussian_band
 
-        scales = np.asarray(log_scales, dtype=np.float64)
+@dataclass
+class _GaussianBands:
+    """What every band of one Gaussian merge reads and writes; :meth:`run` merges rows ``y0:y1``."""
 
-    if fused is not None:
+    frames: np.ndarray
+    plan: GaussianPlan
+    fused: object                   # the plan's LogNormalMoments when one compiled pass does it all
+    valid: np.ndarray | None
+    valid_k: np.ndarray             # (N, H, W) or (N, 1, 1) uint8 for the kernels
+    out_ring: object
+    radiance: np.ndarray | None
+    variance: np.ndarray | None
+    mask: np.ndarray
+    planes: np.ndarray | None       # [mu; p; low] rows of the colours (not for the fused pass)
+    compiled: bool
+    log_scales: list
+    scales: np.ndarray
+    hist: np.ndarray | None         # per-row counts of the variance sources' shares
+    a: np.ndarray | None = None     # the fused pass's colour matrix (identity when unused)
+    use_a: bool = False
+
+    @classmethod
+    def start(cls, frames: np.ndarray, plan: GaussianPlan, fused, valid: np.ndarray | None,
+              outputs: tuple) -> "_GaussianBands":
+        """The bands' shared state: the kernels' inputs and the (ring or whole) outputs."""
+        n, h, w = frames.shape[:3]
+        out_ring, radiance, variance = outputs
+        planes = None if fused is not None else plan.rows_planes()
+        lut = getattr(plan.index, "lut", None)
+        compiled = (fused is not None or (plan.shared is None and lut is not None and planes.dtype == np.float64
+                                          and planes.flags.c_contiguous and frames.flags.c_contiguous))
+        hist = None
+        if plan.shared is not None:
+            from derender.engine.gaussian_kernels import NBINS
+
+            hist = np.zeros((h, 4, NBINS), dtype=np.int64)
+        valid_k = np.ones((n, 1, 1), dtype=np.uint8) if valid is None else np.ascontiguousarray(valid, dtype=np.uint8)
+        log_scales = [float(s) for s in plan.log_scales]
+        bands = cls(frames, plan, fused, valid, valid_k, out_ring, radiance, variance,
+                    np.empty((h, w), dtype=np.uint8), planes, compiled, log_scales,
+                    np.asarray(log_scales, dtype=np.float64), hist)
+        if fused is not None:
+            bands.use_a = fused.matrix is not None
+            bands.a = np.ascontiguousarray(fused.matrix if bands.use_a else np.eye(3), dtype=np.float64)
+        return bands
+
+    def run(self, y0: int, y1: int) -> None:
+        """Merge rows ``y0:y1`` into the outputs and the saturation mask."""
+        if self.fused is not None:    # sums and moments in one compiled pass, no float64 band arrays
+            self._fused_band(y0, y1)
+        else:
+            self._summed_band(y0, y1)
+        n = self.frames.shape[0]
+        self.mask[y0:y1] = self.plan.mask(self.frames[0, y0:y1], self.frames[n - 1, y0:y1])
+
+    def _fused_band(self, y0: int, y1: int) -> None:
+        """Sums and log-normal moments of a band in one compiled pass."""
         from derender.engine.kernels import gaussian_moments_band
 
+        fused, shared, lut = self.fused, self.plan.shared, self.plan.index.lut
+        if self.out_ring is not None:
+            (rad, var), row0 = self.out_ring.slot(y0)
+        else:
+            rad, var, row0 = self.radiance, self.variance, 0
         if shared is not None:
             from derender.engine.gaussian_kernels import gaussian_variance_band
 
-        use_a = fused.matrix is not None
-        a = np.ascontiguousarray(fused.matrix if use_a else np.eye(3), dtype=np.float64)
-
-    def run(y0: int, y1: int) -> None:
-        if fused is not None:    # sums and moments in one compiled pass, no float64 band arrays
-            if out_ring is not None:
-                (rad, var), row0 = out_ring.slot(y0)
-            else:
-                rad, var, row0 = radiance, variance, 0
-            if shared is not None:
-                gaussian_variance_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
-                                       float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var,
-                                       float(shared.k_model), float(shared.k_pipe), float(shared.k_spatial),
-                                       float(shared.floor_share), hist)
-            else:
-                gaussian_moments_band(frames, valid_k, lut, table, scales, y0, y1, bool(fused.censor),
-                                      float(fused.max_log), float(fused.max_v), a, use_a, row0, rad, var)
-            mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
-            return
-        prod = LogGaussianProduct((y1 - y0, w), shared=shared is not None)
-        if compiled:
-            gaussian_band(frames, valid_k, lut, planes, scales, y0, y1, prod.prec, prod.acc, prod.bound)
+            gaussian_variance_band(self.frames, self.valid_k, lut, self.plan.table, self.scales, y0, y1,
+                                   bool(fused.censor), float(fused.max_log), float(fused.max_v), self.a,
+                                   self.use_a, row0, rad, var, float(shared.k_model), float(shared.k_pipe),
+                                   float(shared.k_spatial), float(shared.floor_share), self.hist)
         else:
-            for j in range(n):
-                prod.add_rows(planes, plan.index.rows(frames[j, y0:y1]), log_scales[j],
-                              keep=None if whole else valid[j, y0:y1] != 0)
-        if shared is not None:
-            radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound,
-                                                            (*prod.extra, hist[y0:y1]))
+            gaussian_moments_band(self.frames, self.valid_k, lut, self.plan.table, self.scales, y0, y1,
+                                  bool(fused.censor), float(fused.max_log), float(fused.max_v), self.a,
+                                  self.use_a, row0, rad, var)
+
+    def _summed_band(self, y0: int, y1: int) -> None:
+        """The product's sums of a band (compiled, or frame by frame), then the plan's moments."""
+        frames, plan, w = self.frames, self.plan, self.frames.shape[2]
+        prod = LogGaussianProduct((y1 - y0, w), shared=plan.shared is not None)
+        if self.compiled:
+            from derender.engine.kernels import gaussian_band
+
+            gaussian_band(frames, self.valid_k, plan.index.lut, self.planes, self.scales, y0, y1,
+                          prod.prec, prod.acc, prod.bound)
         else:
-            radiance[y0:y1], variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
-        mask[y0:y1] = plan.mask(frames[0, y0:y1], frames[n - 1, y0:y1])
-
-    res = HDRResult(radiance=radiance, mask=mask, variance=variance, info={"engine": "gaussian"})
-    with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-gauss") as ex:
-        def chunk(c0: int, c1: int) -> None:
-            run_bands(ex, nthreads, run, [(y0, min(c1, y0 + plan.band_rows)) for y0 in range(c0, c1, plan.band_rows)])
-
-        merge_writing(h, step, chunk, res, write, ring=out_ring)
-    if hist is not None:
-        res.info["variance_sources"] = variance_sources(hist)
-    res.info["merge_seconds"] = time.perf_counter() - t0
-    return res
+            for j in range(frames.shape[0]):
+                prod.add_rows(self.planes, plan.index.rows(frames[j, y0:y1]), self.log_scales[j],
+                              keep=None if self.valid is None else self.valid[j, y0:y1] != 0)
+        if plan.shared is not None:
+            self.radiance[y0:y1], self.variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound,
+                                                                      (*prod.extra, self.hist[y0:y1]))
+        else:
+            self.radiance[y0:y1], self.variance[y0:y1] = plan.moments(prod.prec, prod.acc, prod.bound)
 
 
 def variance_sources(hist: np.ndarray) -> dict:

@@ -96,46 +96,17 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     ``info["variance_sources"]``.
     """
     from derender.engine.kernels import stabilized_merge_rows
-    from derender.engine.overlap import OVERLAP_ROWS, OutputRing, merge_writing
+    from derender.engine.overlap import OVERLAP_ROWS, merge_writing
 
     times = np.asarray(times, dtype=np.float64)
     n = times.shape[0]
     h, w = int(frames.shape[1]), int(frames.shape[2])
-    wt = np.ascontiguousarray(plan.weights, dtype=np.float32)
-    lin = np.ascontiguousarray(plan.values, dtype=np.float32)
-    mats64 = np.ascontiguousarray(plan.matrices, dtype=np.float64)
-    use_iv = plan.inverse_variance is not None
-    if use_iv:
-        inv_var = np.ascontiguousarray(plan.inverse_variance, dtype=np.float32)
-        inv_k = np.ascontiguousarray(plan.inverse_variance_k, dtype=np.float32)
-    else:
-        inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
-        inv_k = np.ones(n, dtype=np.float32)
-    use_cw = plan.colour_weights is not None
-    colour_w = (np.ascontiguousarray(plan.colour_weights, dtype=np.float32) if use_cw
-                else np.ones(1, dtype=np.float32))
-    if use_cw and colour_w.shape != (1 << 24,):
-        raise ValueError(f"colour_weights must have 2**24 entries, got {colour_w.shape}")
-    bright = code_values() >= np.float32(0.5)
+    tables = _matrix_tables(plan, n)
     if valid is None:
         valid = np.ones((n, 1, 1), dtype=np.uint8)
     vm = plan.variance
-    nout = 1 if vm is None else 2
     var = None
-    out_ring = None
-    if ring and write is not None:
-        out_ring = OutputRing(h, w, OVERLAP_ROWS, lambda: tuple(populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32)
-                                                           for _ in range(nout)), writers=min(int(ring), nout))
-        radiance = None
-        mask = (buffer.reshape(-1)[:h * w].reshape(h, w) if buffer is not None and buffer.nbytes >= h * w
-                else populated_zeros((h, w), dtype=np.uint8))
-    elif buffer is not None and buffer.nbytes >= matrix_output_bytes(h, w):
-        flat = buffer.reshape(-1)
-        radiance = flat[:12 * h * w].view(np.float32).reshape(3, h, w)
-        mask = flat[12 * h * w:13 * h * w].reshape(h, w)
-    else:
-        radiance = populated_zeros((3, h, w), dtype=np.float32)      # planar, like TableMerge's result
-        mask = populated_zeros((h, w), dtype=np.uint8)
+    out_ring, radiance, mask = _matrix_outputs(h, w, 1 if vm is None else 2, buffer, write, ring)
     if vm is not None:
         from derender.engine.variance import SOURCE_STRIDE, VAR_CAP, new_parts
         from derender.engine.variance_kernels import stabilized_merge_var_rows, variance_finish_rows
@@ -152,9 +123,8 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
     res = HDRResult(radiance=None if radiance is None else radiance.transpose(1, 2, 0), mask=mask,
                     variance=None if var is None else var.transpose(1, 2, 0), info=info)
     args = (np.ascontiguousarray(frames), np.ascontiguousarray(plan.shifts, dtype=np.int64),
-            np.ascontiguousarray(valid, dtype=np.uint8), int(ref), lin, mats64.astype(np.float32), mats64, wt, inv_var,
-            inv_k,
-            use_iv, colour_w, use_cw, int(np.argmin(times)), int(np.argmax(times)), bright)
+            np.ascontiguousarray(valid, dtype=np.uint8), int(ref), *tables,
+            int(np.argmin(times)), int(np.argmax(times)), code_values() >= np.float32(0.5))
 
     def band(y0: int, y1: int) -> None:
         if out_ring is not None:
@@ -181,3 +151,43 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
 
         info["variance_sources"] = source_shares(parts)
     return res
+
+
+def _matrix_tables(plan: MatrixPlan, n: int) -> tuple:
+    """The kernel's per-frame tables, in its argument order: ``lin`` (float32), the matrices (float32
+    and float64), ``wt``, the inverse-variance tables and factors and their flag, the colour weights
+    and their flag (zeros, ones and False when the plan has none)."""
+    wt = np.ascontiguousarray(plan.weights, dtype=np.float32)
+    lin = np.ascontiguousarray(plan.values, dtype=np.float32)
+    mats64 = np.ascontiguousarray(plan.matrices, dtype=np.float64)
+    use_iv = plan.inverse_variance is not None
+    if use_iv:
+        inv_var = np.ascontiguousarray(plan.inverse_variance, dtype=np.float32)
+        inv_k = np.ascontiguousarray(plan.inverse_variance_k, dtype=np.float32)
+    else:
+        inv_var = np.zeros((n, N_CODES, 3), dtype=np.float32)
+        inv_k = np.ones(n, dtype=np.float32)
+    use_cw = plan.colour_weights is not None
+    colour_w = (np.ascontiguousarray(plan.colour_weights, dtype=np.float32) if use_cw
+                else np.ones(1, dtype=np.float32))
+    if use_cw and colour_w.shape != (1 << 24,):
+        raise ValueError(f"colour_weights must have 2**24 entries, got {colour_w.shape}")
+    return lin, mats64.astype(np.float32), mats64, wt, inv_var, inv_k, use_iv, colour_w, use_cw
+
+
+def _matrix_outputs(h: int, w: int, nout: int, buffer: np.ndarray | None, write, ring: int) -> tuple:
+    """``(out_ring, radiance, mask)``: a ring of ``nout`` planar band buffers (radiance None) when
+    writing through one, else planar (3, H, W) float32 radiance; in ``buffer`` when it is big enough."""
+    from derender.engine.overlap import OVERLAP_ROWS, OutputRing
+
+    if ring and write is not None:
+        out_ring = OutputRing(h, w, OVERLAP_ROWS, lambda: tuple(populated_zeros((3, OVERLAP_ROWS, w), dtype=np.float32)
+                                                           for _ in range(nout)), writers=min(int(ring), nout))
+        mask = (buffer.reshape(-1)[:h * w].reshape(h, w) if buffer is not None and buffer.nbytes >= h * w
+                else populated_zeros((h, w), dtype=np.uint8))
+        return out_ring, None, mask
+    if buffer is not None and buffer.nbytes >= matrix_output_bytes(h, w):
+        flat = buffer.reshape(-1)
+        return None, flat[:12 * h * w].view(np.float32).reshape(3, h, w), flat[12 * h * w:13 * h * w].reshape(h, w)
+    # planar, like TableMerge's result
+    return None, populated_zeros((3, h, w), dtype=np.float32), populated_zeros((h, w), dtype=np.uint8)

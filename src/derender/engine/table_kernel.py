@@ -75,17 +75,8 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
     # bands of whole engine blocks (the exponential's blocks are the engine's: same bytes)
     step = max(br, (OVERLAP_ROWS // br) * br)
     vm = plan.variance
-    nout = 1 if vm is None else 2
-    out_ring = None
-    var = parts = None
-    if ring and write is not None:
-        out_ring = OutputRing(h, w, step, lambda: tuple(populated_zeros((3, step, w), dtype=np.float32)
-                                                   for _ in range(nout)), writers=min(int(ring), nout))
-        out = None
-    else:
-        out = populated_zeros((3, h, w), dtype=np.float32)
-        if vm is not None:
-            var = populated_zeros((3, h, w), dtype=np.float32)
+    parts = None
+    out_ring, out, var = _table_kernel_outputs(h, w, step, vm is not None, write, ring)
     if vm is not None:
         from derender.engine.variance import SOURCE_STRIDE, VAR_CAP, new_parts
         from derender.engine.variance_kernels import table_merge_var_rows, variance_finish_rows
@@ -112,12 +103,7 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
                 dst, vdst, row0 = out, var, 0
 
             def finish(r0: int, r1: int) -> None:
-                for c in range(3):
-                    r = dst[c, r0 - row0:r1 - row0]
-                    if log:
-                        cv2.exp(r, dst=r)
-                    if not cv2.checkRange(r)[0]:
-                        np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
+                _finish_rows(cv2, dst[:, r0 - row0:r1 - row0], log)
 
             with KERNEL_LOCK:
                 set_numba_threads(threads)
@@ -143,6 +129,31 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
         info["kernel"] = "table_merge_var_rows"
         info["variance_sources"] = source_shares(parts)
     return res
+
+
+def _table_kernel_outputs(h: int, w: int, step: int, with_variance: bool, write, ring: int) -> tuple:
+    """``(out_ring, radiance, variance)``: a ring of ``step``-row planar band buffers (one, or two
+    with the variance; radiance and variance None) when writing through one, else planar (3, H, W)
+    float32 radiance (and variance, or None)."""
+    nout = 2 if with_variance else 1
+    if ring and write is not None:
+        out_ring = OutputRing(h, w, step, lambda: tuple(populated_zeros((3, step, w), dtype=np.float32)
+                                                   for _ in range(nout)), writers=min(int(ring), nout))
+        return out_ring, None, None
+    out = populated_zeros((3, h, w), dtype=np.float32)
+    var = populated_zeros((3, h, w), dtype=np.float32) if with_variance else None
+    return None, out, var
+
+
+def _finish_rows(cv2, rows: np.ndarray, log: bool) -> None:
+    """The kernel's sums of planar rows (3, r, W) made radiance in place: ``exp`` in the log domain
+    (OpenCV's, on the engine's row blocks), non-finite values clipped to float32's range."""
+    for c in range(3):
+        r = rows[c]
+        if log:
+            cv2.exp(r, dst=r)
+        if not cv2.checkRange(r)[0]:
+            np.nan_to_num(r, copy=False, nan=0.0, posinf=F32_MAX, neginf=-F32_MAX)
 
 
 #: Why a background warm-up failed (it never raises: the merge itself then compiles the

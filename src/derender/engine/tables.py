@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -129,6 +130,74 @@ def code_table(t: Any, what: str) -> np.ndarray:
     return t
 
 
+@dataclass(frozen=True)
+class _ExposureTables:
+    """One exposure's look-up tables, laid out for ``cv2.LUT``, and its optional per-pixel factors."""
+
+    values: list          # 3 float32 (256,) columns: v_j(z) per channel (linearisation when a matrix is given)
+    weights: list         # 3 float32 (256,) columns: w(z) * image_weight (/3 for "mean")
+    matrix: np.ndarray | None         # (3, 3) float64 colour matrix, linear domain only
+    pixel_weights: np.ndarray | None  # (H, W) float32
+    inverse_variance: tuple | None    # (3 float32 (256,) columns of table / 3, k)
+
+
+def _accumulate(cv2: Any, dst: np.ndarray, a: np.ndarray, b: np.ndarray | None = None) -> None:
+    """dst += a (* b), float32 sources into a float32 or float64 accumulator."""
+    if b is None:
+        cv2.accumulate(a, dst)
+    else:
+        cv2.accumulateProduct(a, b, dst)
+
+
+def _block_values(cv2: Any, p: Sequence[np.ndarray], tables: _ExposureTables) -> list:
+    """The averaged value planes of a block's code planes ``p``: ``v(z)``, or ``matrix @ lin(z)``."""
+    vcol, m = tables.values, tables.matrix
+    if m is None:
+        return [cv2.LUT(p[c], vcol[c]) for c in range(3)]
+    lin = [cv2.LUT(p[d], vcol[d]) for d in range(3)]
+    vals = []
+    for c in range(3):
+        v = cv2.addWeighted(lin[0], float(m[c, 0]), lin[1], float(m[c, 1]), 0.0)
+        cv2.scaleAdd(lin[2], float(m[c, 2]), v, dst=v)
+        vals.append(v)
+    return vals
+
+
+def _block_inverse_variance(cv2: Any, p: Sequence[np.ndarray], ivt: tuple | None) -> np.ndarray | None:
+    """``k / max(mean_c table[z_c, c], 1e-30)`` per pixel of a block, or None."""
+    if ivt is None:
+        return None
+    d = cv2.add(cv2.LUT(p[0], ivt[0][0]), cv2.LUT(p[1], ivt[0][1]))
+    cv2.add(d, cv2.LUT(p[2], ivt[0][2]), dst=d)
+    np.maximum(d, np.float32(1e-30), out=d)
+    return cv2.divide(ivt[1], d)
+
+
+def _block_weights(cv2: Any, mode: str, p: Sequence[np.ndarray], tables: _ExposureTables,
+                   r0: int, r1: int) -> tuple:
+    """Per-channel weight planes of one weight set for a block (a tuple of 3, possibly the same plane)."""
+    wcol, pw = tables.weights, tables.pixel_weights
+    if mode == "independent":
+        wc = [cv2.LUT(p[c], wcol[c]) for c in range(3)]
+        if pw is not None:
+            for c in range(3):
+                cv2.multiply(wc[c], pw[r0:r1], dst=wc[c])
+        return tuple(wc)
+    if mode == "brightest":
+        wsum = cv2.LUT(cv2.max(cv2.max(p[0], p[1]), p[2]), wcol[0])
+    else:
+        w0, w1, w2 = (cv2.LUT(p[c], wcol[c]) for c in range(3))
+        if mode == "mean":
+            wsum = cv2.add(w0, w1)
+            cv2.add(wsum, w2, dst=wsum)
+        else:
+            wsum = cv2.min(w0, w1)
+            cv2.min(wsum, w2, dst=wsum)
+    if pw is not None:
+        cv2.multiply(wsum, pw[r0:r1], dst=wsum)
+    return (wsum, wsum, wsum)
+
+
 class TableMerge:
     """Weighted merge of 8-bit exposures by table look-up (Debevec & Malik 1997, eq. 6), in row blocks.
 
@@ -231,6 +300,21 @@ class TableMerge:
         """
         cv2 = import_cv2()
         codes = self._check_codes(codes)
+        tables = self._exposure_tables(values, weights, image_weight, matrix, pixel_weights, inverse_variance)
+        br = self.block_rows
+
+        def band(b0: int, b1: int) -> None:
+            for r0 in range(b0, b1, br):
+                r1 = min(b1, r0 + br)
+                self._accumulate_block(cv2, codes, tables, r0, r1)
+
+        self._run(band)
+        self.n_added += 1
+
+    def _exposure_tables(self, values: Any, weights: Any, image_weight: float, matrix: Any,
+                         pixel_weights: np.ndarray | None,
+                         inverse_variance: tuple[Any, float] | None) -> _ExposureTables:
+        """Check one exposure's inputs and lay out its per-channel look-up tables for ``cv2.LUT``."""
         vt = code_table(values, "value")
         wt = code_table(weights, "weight").astype(np.float64) * float(image_weight)
         if self.mode == "mean":
@@ -255,71 +339,24 @@ class TableMerge:
         if inverse_variance is not None:
             itab = code_table(inverse_variance[0], "inverse-variance")
             ivt = ([np.ascontiguousarray(itab[:, c] / np.float32(3.0)) for c in range(3)], float(inverse_variance[1]))
-        num, den, mode, br = self.num, self.den, self.mode, self.block_rows
+        return _ExposureTables(vcol, wcol, m, pw, ivt)
 
-        def acc(dst: np.ndarray, a: np.ndarray, b: np.ndarray | None = None) -> None:
-            """dst += a (* b), float32 sources into a float32 or float64 accumulator."""
-            if b is None:
-                cv2.accumulate(a, dst)
-            else:
-                cv2.accumulateProduct(a, b, dst)
-
-        def weights_of(mode: str, p: list, r0: int, r1: int) -> tuple:
-            """Per-channel weight planes of one set (a tuple of 3, possibly the same plane)."""
-            if mode == "independent":
-                wc = [cv2.LUT(p[c], wcol[c]) for c in range(3)]
-                if pw is not None:
-                    for c in range(3):
-                        cv2.multiply(wc[c], pw[r0:r1], dst=wc[c])
-                return tuple(wc)
-            if mode == "brightest":
-                wsum = cv2.LUT(cv2.max(cv2.max(p[0], p[1]), p[2]), wcol[0])
-            else:
-                w0, w1, w2 = (cv2.LUT(p[c], wcol[c]) for c in range(3))
-                if mode == "mean":
-                    wsum = cv2.add(w0, w1)
-                    cv2.add(wsum, w2, dst=wsum)
-                else:
-                    wsum = cv2.min(w0, w1)
-                    cv2.min(wsum, w2, dst=wsum)
-            if pw is not None:
-                cv2.multiply(wsum, pw[r0:r1], dst=wsum)
-            return (wsum, wsum, wsum)
-
-        sets = self.sets
-        nd = 3 if mode == "independent" else 1
-
-        def band(b0: int, b1: int) -> None:
-            for r0 in range(b0, b1, br):
-                r1 = min(b1, r0 + br)
-                p = cv2.split(codes[r0:r1])
-                if m is None:
-                    vals = [cv2.LUT(p[c], vcol[c]) for c in range(3)]
-                else:
-                    lin = [cv2.LUT(p[d], vcol[d]) for d in range(3)]
-                    vals = []
-                    for c in range(3):
-                        v = cv2.addWeighted(lin[0], float(m[c, 0]), lin[1], float(m[c, 1]), 0.0)
-                        cv2.scaleAdd(lin[2], float(m[c, 2]), v, dst=v)
-                        vals.append(v)
-                inv = None
-                if ivt is not None:
-                    d = cv2.add(cv2.LUT(p[0], ivt[0][0]), cv2.LUT(p[1], ivt[0][1]))
-                    cv2.add(d, cv2.LUT(p[2], ivt[0][2]), dst=d)
-                    np.maximum(d, np.float32(1e-30), out=d)
-                    inv = cv2.divide(ivt[1], d)
-                for k, smode in enumerate(sets):
-                    wc = weights_of(smode, p, r0, r1)
-                    if inv is not None:
-                        wc = tuple(cv2.multiply(x, inv) for x in wc) if wc[0] is not wc[1] else \
-                            (cv2.multiply(wc[0], inv),) * 3
-                    for i in range(nd):
-                        acc(den[k * nd + i, r0:r1], wc[i])
-                    for c in range(3):
-                        acc(num[k * 3 + c, r0:r1], vals[c], wc[c])
-
-        self._run(band)
-        self.n_added += 1
+    def _accumulate_block(self, cv2: Any, codes: np.ndarray, tables: _ExposureTables, r0: int, r1: int) -> None:
+        """Add rows ``r0:r1`` of one exposure into every weight set's accumulators."""
+        p = cv2.split(codes[r0:r1])
+        vals = _block_values(cv2, p, tables)
+        inv = _block_inverse_variance(cv2, p, tables.inverse_variance)
+        nd = 3 if self.mode == "independent" else 1
+        num, den = self.num, self.den
+        for k, smode in enumerate(self.sets):
+            wc = _block_weights(cv2, smode, p, tables, r0, r1)
+            if inv is not None:
+                wc = tuple(cv2.multiply(x, inv) for x in wc) if wc[0] is not wc[1] else \
+                    (cv2.multiply(wc[0], inv),) * 3
+            for i in range(nd):
+                _accumulate(cv2, den[k * nd + i, r0:r1], wc[i])
+            for c in range(3):
+                _accumulate(cv2, num[k * 3 + c, r0:r1], vals[c], wc[c])
 
     # -- finish
     @staticmethod
@@ -328,6 +365,33 @@ class TableMerge:
         if matrix is not None:
             v = v @ np.asarray(matrix, dtype=np.float64).T
         return v
+
+    def _saturation_fallback(self, res: list, ok: np.ndarray, mask: np.ndarray, short: tuple, long: tuple,
+                             bright_tab: np.ndarray) -> tuple[int, int]:
+        """Fill a block's channels without weight (``ok`` False) from the shortest exposure where it
+        is bright, else from the longest (``short`` / ``long``: the block's codes, value table and
+        matrix), and mark those pixels in the block's ``mask``; the numbers of bright and dark pixels."""
+        bad = ~ok.reshape(ok.shape[0], -1)
+        pix = np.flatnonzero(bad.any(axis=0))
+        none = np.broadcast_to(bad[:, pix].T, (pix.size, 3))
+        z_s = short[0].reshape(-1, 3)[pix]
+        z_l = long[0].reshape(-1, 3)[pix]
+        if self.mode in ("brightest", "min_else_brightest"):   # the fallback sees the brightest channel
+            bright = none & bright_tab[z_s.max(axis=1)][:, None]
+        else:
+            bright = none & bright_tab[z_s]
+        dark = none & ~bright
+        fs = self._values_at(z_s, short[1], short[2])
+        fl = self._values_at(z_l, long[1], long[2])
+        for c in range(3):
+            flat = res[c].reshape(-1)
+            flat[pix] = np.where(bright[:, c], fs[:, c], np.where(dark[:, c], fl[:, c], flat[pix]))
+        bpix = bright.any(axis=1)
+        dpix = dark.any(axis=1) & ~bpix
+        mflat = mask.reshape(-1)
+        mflat[pix[bpix]] = HDRResult.MASK_BRIGHT
+        mflat[pix[dpix]] = HDRResult.MASK_DARK
+        return int(bpix.sum()), int(dpix.sum())
 
     def finish(self, short: tuple, long: tuple, contiguous: bool = False, info: dict | None = None) -> HDRResult:
         """Normalise, apply the saturation policy and return the result.
@@ -364,27 +428,8 @@ class TableMerge:
                     ok = (use0 | (d[1] > 0))[None]
                     res = [np.where(use0, num[c, b0:b1] / d[0], num[3 + c, b0:b1] / d[1]) for c in range(3)]
             if not ok.all():
-                bad = ~ok.reshape(ok.shape[0], -1)
-                pix = np.flatnonzero(bad.any(axis=0))
-                none = np.broadcast_to(bad[:, pix].T, (pix.size, 3))
-                z_s = zs[b0:b1].reshape(-1, 3)[pix]
-                z_l = zl[b0:b1].reshape(-1, 3)[pix]
-                if self.mode in ("brightest", "min_else_brightest"):   # the fallback sees the brightest channel
-                    bright = none & bright_tab[z_s.max(axis=1)][:, None]
-                else:
-                    bright = none & bright_tab[z_s]
-                dark = none & ~bright
-                fs = self._values_at(z_s, vs, ms)
-                fl = self._values_at(z_l, vl, ml)
-                for c in range(3):
-                    flat = res[c].reshape(-1)
-                    flat[pix] = np.where(bright[:, c], fs[:, c], np.where(dark[:, c], fl[:, c], flat[pix]))
-                bpix = bright.any(axis=1)
-                dpix = dark.any(axis=1) & ~bpix
-                mflat = mask[b0:b1].reshape(-1)
-                mflat[pix[bpix]] = HDRResult.MASK_BRIGHT
-                mflat[pix[dpix]] = HDRResult.MASK_DARK
-                nb, nd = int(bpix.sum()), int(dpix.sum())
+                nb, nd = self._saturation_fallback(res, ok, mask[b0:b1], (zs[b0:b1], vs, ms), (zl[b0:b1], vl, ml),
+                                                   bright_tab)
             for c in range(3):
                 r = res[c]
                 if log:

@@ -379,8 +379,6 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
     called (in the calling thread, ``y`` rising) once rows ``0:y`` have been read through
     ``lines``: their memory may be reused from then on.
     """
-    import cv2
-
     from derender.io.files import atomic_output
 
     w, h = int(width), int(height)
@@ -389,52 +387,75 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
     if compression not in EXR_COMPRESSION:
         raise InputError(f"compression must be one of {', '.join(EXR_COMPRESSION)}, got {compression!r}")
     comp_id = EXR_COMPRESSION[compression][0]
-    dtype = np.dtype("<f2") if half else np.dtype("<f4")
-    deflate = _deflate(level)
     n_blocks = (h + 15) // 16 if comp_id == 3 else h
     header = _exr_header(w, h, "BGR", 1 if half else 2, comp_id, attributes)
-    probe = max(1, int(probe))
-
-    def raw_lines(y0: int, y1: int) -> np.ndarray:
-        buf = np.empty((y1 - y0, 3, w), dtype=np.float32)
-        lines(y0, y1, buf)
-        if not cv2.checkRange(buf.reshape(-1, w))[0]:
-            raise ValueError("refusing to write NaN/inf to EXR (internal error)")
-        if half:
-            return np.clip(buf, -65504.0, 65504.0).astype(dtype)
-        return buf
-
-    def lines_task(g: int) -> list[tuple[int, np.ndarray]]:
-        """16 uncompressed lines from line ``16 g`` as (y, line) chunks."""
-        y0, y1 = g * 16, min(h, g * 16 + 16)
-        buf = raw_lines(y0, y1)
-        return [(y, buf[y - y0].reshape(-1).view(np.uint8)) for y in range(y0, y1)]
-
-    firsts: dict[int, Future] = {}
-
-    def block_task(b: int) -> tuple[list[tuple[int, object]], bool]:
-        """ZIP block ``b`` (16 lines) as one chunk, and (first block of its group) whether
-        compressing it saved ``min_saving``. The other blocks of the group are compressed
-        only if it did: they wait for the group's first block, always submitted before them
-        (the pool takes tasks in order, so no wait can block the block it waits for)."""
-        y0, y1 = b * 16, min(h, b * 16 + 16)
-        raw = raw_lines(y0, y1).reshape(-1).view(np.uint8)
-        first = (b // probe) * probe
-        if b == first:
-            data = _zip_chunk(raw, deflate)
-            return [(y0, data)], not len(data) > (1.0 - min_saving) * raw.size
-        squeeze = firsts[b // probe].result()[1]
-        return [(y0, _zip_chunk(raw, deflate) if squeeze else raw)], False
-
-    n_tasks = (h + 15) // 16 if comp_id == 0 else n_blocks
+    chunks = _ExrChunks(w, h, lines, half=half, deflate=_deflate(level), probe=max(1, int(probe)),
+                        min_saving=min_saving)
     nthreads = thread_count(threads)
     path = Path(path)
     with atomic_output(path, inputs) as tmp, open(tmp, "wb") as fh:
         fh.write(header)
-        pos = len(header)
-        table_pos = pos
+        table_pos = len(header)
         fh.write(b"\0" * (8 * n_blocks))
-        pos += 8 * n_blocks
+        offsets = chunks.write(fh, len(header) + 8 * n_blocks, n_blocks, zipped=comp_id != 0,
+                               nthreads=nthreads, rows_read=rows_read)
+        fh.seek(table_pos)
+        fh.write(offsets.tobytes())
+    return path
+
+
+class _ExrChunks:
+    """The chunks of a scanline EXR made from ``lines(y0, y1, buf)`` (:func:`write_exr_lines`): uncompressed
+    lines, or ZIP blocks of 16 lines stored raw when a group of ``probe`` blocks' first saves less
+    than ``min_saving``."""
+
+    def __init__(self, w: int, h: int, lines: Callable[[int, int, np.ndarray], None], *, half: bool,
+                 deflate: Any, probe: int, min_saving: float):
+        self.w, self.h, self.lines, self.half = w, h, lines, half
+        self.dtype = np.dtype("<f2") if half else np.dtype("<f4")
+        self.deflate, self.probe, self.min_saving = deflate, probe, min_saving
+        self.firsts: dict[int, Future] = {}
+
+    def raw_lines(self, y0: int, y1: int) -> np.ndarray:
+        """Rows ``y0:y1`` from ``lines``, planar (rows, 3, W), checked finite, in the file's type."""
+        import cv2
+
+        w = self.w
+        buf = np.empty((y1 - y0, 3, w), dtype=np.float32)
+        self.lines(y0, y1, buf)
+        if not cv2.checkRange(buf.reshape(-1, w))[0]:
+            raise ValueError("refusing to write NaN/inf to EXR (internal error)")
+        if self.half:
+            return np.clip(buf, -65504.0, 65504.0).astype(self.dtype)
+        return buf
+
+    def lines_task(self, g: int) -> list[tuple[int, np.ndarray]]:
+        """16 uncompressed lines from line ``16 g`` as (y, line) chunks."""
+        y0, y1 = g * 16, min(self.h, g * 16 + 16)
+        buf = self.raw_lines(y0, y1)
+        return [(y, buf[y - y0].reshape(-1).view(np.uint8)) for y in range(y0, y1)]
+
+    def block_task(self, b: int) -> tuple[list[tuple[int, object]], bool]:
+        """ZIP block ``b`` (16 lines) as one chunk, and (first block of its group) whether
+        compressing it saved ``min_saving``. The other blocks of the group are compressed
+        only if it did: they wait for the group's first block, always submitted before them
+        (the pool takes tasks in order, so no wait can block the block it waits for)."""
+        y0, y1 = b * 16, min(self.h, b * 16 + 16)
+        raw = self.raw_lines(y0, y1).reshape(-1).view(np.uint8)
+        probe = self.probe
+        first = (b // probe) * probe
+        if b == first:
+            data = _zip_chunk(raw, self.deflate)
+            return [(y0, data)], not len(data) > (1.0 - self.min_saving) * raw.size
+        squeeze = self.firsts[b // probe].result()[1]
+        return [(y0, _zip_chunk(raw, self.deflate) if squeeze else raw)], False
+
+    def write(self, fh: Any, pos: int, n_blocks: int, *, zipped: bool, nthreads: int,
+              rows_read: Callable[[int], None] | None) -> np.ndarray:
+        """Make the chunks in ``nthreads`` threads and write them in order to ``fh`` from offset
+        ``pos``; their offsets (the file's offset table)."""
+        h, probe, firsts = self.h, self.probe, self.firsts
+        n_tasks = n_blocks if zipped else (h + 15) // 16
         offsets = np.empty(n_blocks, dtype="<u8")
         i = 0
         with ThreadPoolExecutor(nthreads, thread_name_prefix="derender-exr") as ex:
@@ -443,28 +464,26 @@ def write_exr_lines(path: str | os.PathLike, width: int, height: int,
             window = 2 * nthreads + 2
             for _ in range(n_tasks):
                 while nxt < n_tasks and len(futs) < window:
-                    if comp_id == 0:
-                        futs.append(ex.submit(lines_task, nxt))
+                    if not zipped:
+                        futs.append(ex.submit(self.lines_task, nxt))
                     else:
-                        fut = ex.submit(block_task, nxt)
+                        fut = ex.submit(self.block_task, nxt)
                         if nxt % probe == 0:
                             firsts[nxt // probe] = fut
                         futs.append(fut)
                     nxt += 1
                 res = futs.popleft().result()
                 y_end = 0
-                for y, data in (res if comp_id == 0 else res[0]):
+                for y, data in (res[0] if zipped else res):
                     offsets[i] = pos
                     size = len(data) if isinstance(data, bytes) else data.nbytes
                     fh.write(struct.pack("<ii", y, size))
                     fh.write(data)
                     pos += 8 + size
                     i += 1
-                    y_end = y + (1 if comp_id == 0 else 16)
+                    y_end = y + (16 if zipped else 1)
                 if rows_read is not None:      # this task's rows (and every earlier one's) are read
                     rows_read(min(h, y_end))
-                if comp_id != 0 and i % probe == 0:
+                if zipped and i % probe == 0:
                     firsts.pop(i // probe - 1, None)
-        fh.seek(table_pos)
-        fh.write(offsets.tobytes())
-    return path
+        return offsets

@@ -155,7 +155,45 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
     if not path.is_file():
         raise InputError(f"no such file: {path}")
     data = path.read_bytes()
-    # header: lines up to an empty line
+    header_lines, pos = _rgbe_header(data, path)
+    exposure = 1.0
+    for h in header_lines:
+        if h.startswith(b"EXPOSURE="):
+            with contextlib.suppress(ValueError):
+                exposure *= float(h.split(b"=", 1)[1])
+    nl = data.find(b"\n", pos)
+    res = data[pos:nl].decode("ascii", "replace").split()
+    pos = nl + 1
+    if len(res) != 4:
+        raise InputError(f"{path}: bad resolution line {' '.join(res)!r}")
+    try:
+        dims = {res[0][1]: (res[0][0], int(res[1])), res[2][1]: (res[2][0], int(res[3]))}
+        height, width = dims["Y"][1], dims["X"][1]
+    except (KeyError, ValueError, IndexError):
+        raise InputError(f"{path}: bad resolution line {' '.join(res)!r}") from None
+    if height <= 0 or width <= 0 or height * width > 2**31:
+        raise InputError(f"{path}: bad image size {width}x{height}")
+    rgbe = _rgbe_scanlines(np.frombuffer(data, dtype=np.uint8, offset=pos), height, width, path)
+    e = rgbe[:, :, 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0).astype(np.float32)
+    # Radiance's own decoding (colr_color): the mantissa's centre, (m + 0.5) 2^(e - 136); a
+    # zero exponent is black. OpenCV and imageio drop the 0.5 (0.2-0.4 % low on the largest
+    # channel); pvalue is the format's definition.
+    img = (rgbe[:, :, :3].astype(np.float32) + np.float32(0.5)) * scale[:, :, None]
+    # orientation to -Y +X (top row first, left to right)
+    if dims["Y"][0] == "+":
+        img = img[::-1]
+    if dims["X"][0] == "-":
+        img = img[:, ::-1]
+    if res[0][1] == "X":  # X major: transpose
+        img = np.transpose(img, (1, 0, 2))
+    img /= np.float32(exposure)
+    return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def _rgbe_header(data: bytes, path: Path) -> tuple[list[bytes], int]:
+    """The header lines of a Radiance file (up to the empty line) and the offset after them; an
+    :class:`InputError` unless it is an RGBE Radiance file."""
     pos = 0
     header_lines = []
     while True:
@@ -175,24 +213,11 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"not a Radiance HDR file: {path}")
     if any(h.startswith(b"FORMAT=") and b"32-bit_rle_rgbe" not in h for h in header_lines):
         raise InputError(f"{path}: only RGBE Radiance files are supported (not XYZE)")
-    exposure = 1.0
-    for h in header_lines:
-        if h.startswith(b"EXPOSURE="):
-            with contextlib.suppress(ValueError):
-                exposure *= float(h.split(b"=", 1)[1])
-    nl = data.find(b"\n", pos)
-    res = data[pos:nl].decode("ascii", "replace").split()
-    pos = nl + 1
-    if len(res) != 4:
-        raise InputError(f"{path}: bad resolution line {' '.join(res)!r}")
-    try:
-        dims = {res[0][1]: (res[0][0], int(res[1])), res[2][1]: (res[2][0], int(res[3]))}
-        height, width = dims["Y"][1], dims["X"][1]
-    except (KeyError, ValueError, IndexError):
-        raise InputError(f"{path}: bad resolution line {' '.join(res)!r}") from None
-    if height <= 0 or width <= 0 or height * width > 2**31:
-        raise InputError(f"{path}: bad image size {width}x{height}")
-    buf = np.frombuffer(data, dtype=np.uint8, offset=pos)
+    return header_lines, pos
+
+
+def _rgbe_scanlines(buf: np.ndarray, height: int, width: int, path: Path) -> np.ndarray:
+    """Decode ``height`` scanlines (flat or new-style run-length encoded) into (H, W, 4) uint8 RGBE."""
     rgbe = np.zeros((height, width, 4), dtype=np.uint8)
     i = 0
     try:
@@ -202,23 +227,7 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
                     raise InputError(f"{path}: scanline width mismatch")
                 i += 4
                 for c in range(4):
-                    x = 0
-                    row = rgbe[y, :, c]
-                    while x < width:
-                        count = int(buf[i])
-                        i += 1
-                        if count > 128:
-                            count -= 128
-                            if x + count > width:
-                                raise InputError(f"{path}: corrupt run length data")
-                            row[x:x + count] = buf[i]
-                            i += 1
-                        else:
-                            if count == 0 or x + count > width or i + count > buf.size:
-                                raise InputError(f"{path}: corrupt or truncated run length data")
-                            row[x:x + count] = buf[i:i + count]
-                            i += count
-                        x += count
+                    i = _rle_component(buf, i, rgbe[y, :, c], path)
             else:
                 n = width * 4
                 if i + n > buf.size:
@@ -227,21 +236,30 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
                 i += n
     except IndexError:
         raise InputError(f"{path}: file truncated") from None
-    e = rgbe[:, :, 3].astype(np.int32)
-    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0).astype(np.float32)
-    # Radiance's own decoding (colr_color): the mantissa's centre, (m + 0.5) 2^(e - 136); a
-    # zero exponent is black. OpenCV and imageio drop the 0.5 (0.2-0.4 % low on the largest
-    # channel); pvalue is the format's definition.
-    img = (rgbe[:, :, :3].astype(np.float32) + np.float32(0.5)) * scale[:, :, None]
-    # orientation to -Y +X (top row first, left to right)
-    if dims["Y"][0] == "+":
-        img = img[::-1]
-    if dims["X"][0] == "-":
-        img = img[:, ::-1]
-    if res[0][1] == "X":  # X major: transpose
-        img = np.transpose(img, (1, 0, 2))
-    img /= np.float32(exposure)
-    return np.ascontiguousarray(img, dtype=np.float32)
+    return rgbe
+
+
+def _rle_component(buf: np.ndarray, i: int, row: np.ndarray, path: Path) -> int:
+    """Decode one component of a run-length encoded scanline from ``buf[i:]`` into ``row``; the
+    offset after it."""
+    width = row.shape[0]
+    x = 0
+    while x < width:
+        count = int(buf[i])
+        i += 1
+        if count > 128:
+            count -= 128
+            if x + count > width:
+                raise InputError(f"{path}: corrupt run length data")
+            row[x:x + count] = buf[i]
+            i += 1
+        else:
+            if count == 0 or x + count > width or i + count > buf.size:
+                raise InputError(f"{path}: corrupt or truncated run length data")
+            row[x:x + count] = buf[i:i + count]
+            i += count
+        x += count
+    return i
 
 
 def read_hdr_header(path: str | os.PathLike) -> dict[str, str]:

@@ -63,8 +63,6 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
     False where they pass ``test`` (a :class:`~derender.engine.motion.deghost.ConsistencyTest` of the
     reference). ``offsets[j]``: frame j's :class:`~derender.engine.motion.deghost.FrameAgreement` of the
     detection. Returns the filled fraction per frame."""
-    import cv2
-
     from derender.engine.motion.deghost import frame_estimates, map_frames
 
     n, h, w = frames.shape[:3]
@@ -80,7 +78,6 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
         """Frame j's fill (frames[j] and rejected[j] only: the frames run in threads)."""
         if not rejected[j].any():
             return None
-        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)     # one per thread
         agreement = offsets[j]
         grid_j = test.grid(frames[j])
         mu_j, _, cens_j = frame_estimates(test.plan, grid_j, j)
@@ -93,58 +90,87 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
             return None
         a8 = _grey8(test.mu_r, test.cens_r, lo, hi)
         b8 = _grey8(mu_j, cens_j, lo, hi)
-        fs = max(1, int(np.ceil(np.sqrt(hs * ws / FLOW_PIXELS))))
-        if fs > 1:                 # the flow on a coarser grid, brought back to the detection grid
-            size = (max(8, ws // fs), max(8, hs // fs))
-            a8c, b8c = (cv2.resize(x, size, interpolation=cv2.INTER_AREA) for x in (a8, b8))
-        else:
-            a8c, b8c = a8, b8
-        fwd = dis.calc(a8c, b8c, None)
-        bwd = dis.calc(b8c, a8c, None)
-        hc, wc = a8c.shape
-        cy, cx = np.mgrid[0:hc, 0:wc].astype(np.float32)
-        # forward-backward check: x -> x + f(x) -> back by b at that point
-        bx = cv2.remap(bwd[..., 0], cx + fwd[..., 0], cy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        by = cv2.remap(bwd[..., 1], cx + fwd[..., 0], cy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        reliable = ((fwd[..., 0] + bx) ** 2 + (fwd[..., 1] + by) ** 2 <= FLOW_CHECK ** 2).astype(np.uint8)
-        if (hc, wc) != (hs, ws):
-            fwd = cv2.resize(fwd, (ws, hs), interpolation=cv2.INTER_LINEAR) * np.float32(ws / wc)
-            reliable = cv2.resize(reliable, (ws, hs), interpolation=cv2.INTER_NEAREST)
-        # the test on the detection grid: frame j sampled through the flow at the grid's pixels
-        gy, gx = np.mgrid[0:hs, 0:ws].astype(np.float32)
-        sx = (gx + fwd[..., 0]) * step
-        sy = (gy + fwd[..., 1]) * step
-        inside = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
-        ix = np.clip(np.rint(sx), 0, w - 1).astype(np.intp)
-        iy = np.clip(np.rint(sy), 0, h - 1).astype(np.intp)
-        if valid is not None:
-            inside &= valid[j][iy, ix] != 0
-        ok = (inside & (reliable != 0)).astype(np.uint8)
+        fwd, reliable = _checked_flow(a8, b8, (hs, ws))
+        iy, ix, ok = _flow_samples(fwd, reliable, step, (h, w), None if valid is None else valid[j])
         q, _, _ = test.statistic(frames[j][iy, ix], j, ok, agreement, on_grid=True)
         use_g = test.sub(rejected[j]) & ~test.regions_grid(q) & (ok != 0)
         if not use_g.any():
             return {"frame": j, "filled": 0.0}
-        # full resolution only at the grid cells that passed: each cell's step x step pixels, moved
-        # by the cell's flow (nearest code), where frame j was rejected
-        cy_, cx_ = np.nonzero(use_g)
-        dy, dx = np.mgrid[0:step, 0:step]
-        ys = (cy_[:, None] * step + dy.reshape(1, -1)).reshape(-1)
-        xs = (cx_[:, None] * step + dx.reshape(1, -1)).reshape(-1)
-        keep = (ys < h) & (xs < w)
-        ys, xs = ys[keep], xs[keep]
-        cell = (ys // step, xs // step)
-        keep = rejected[j][ys, xs]
-        ys, xs = ys[keep], xs[keep]
-        cell = (cell[0][keep], cell[1][keep])
-        sx = np.rint(xs + fwd[cell[0], cell[1], 0] * step).astype(np.intp)
-        sy = np.rint(ys + fwd[cell[0], cell[1], 1] * step).astype(np.intp)
-        keep = (sx >= 0) & (sx < w) & (sy >= 0) & (sy < h)
-        ys, xs, sy, sx = ys[keep], xs[keep], sy[keep], sx[keep]
-        frames[j][ys, xs] = frames[j][sy, sx]      # gathered first, then written
-        rejected[j][ys, xs] = False
-        return {"frame": j, "filled": float(ys.size) / (h * w)}
+        filled = _fill_from_flow(frames[j], rejected[j], use_g, fwd, step)
+        return {"frame": j, "filled": float(filled) / (h * w)}
 
     others = [j for j in range(n) if j != ref]
     out["frames"] = [r for r in map_frames(one, others, threads) if r is not None]
     return out
 
+
+def _checked_flow(a8: np.ndarray, b8: np.ndarray, grid_shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """DIS optical flow from grey image ``a8`` to ``b8`` (both on the detection grid), on a coarser
+    grid when the grid has more than :data:`FLOW_PIXELS` pixels, and where it passes the
+    forward-backward check (:data:`FLOW_CHECK`): ``(flow (hs, ws, 2) in grid pixels, reliable uint8)``."""
+    import cv2
+
+    hs, ws = grid_shape
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)     # one per thread
+    fs = max(1, int(np.ceil(np.sqrt(hs * ws / FLOW_PIXELS))))
+    if fs > 1:                 # the flow on a coarser grid, brought back to the detection grid
+        size = (max(8, ws // fs), max(8, hs // fs))
+        a8c, b8c = (cv2.resize(x, size, interpolation=cv2.INTER_AREA) for x in (a8, b8))
+    else:
+        a8c, b8c = a8, b8
+    fwd = dis.calc(a8c, b8c, None)
+    bwd = dis.calc(b8c, a8c, None)
+    hc, wc = a8c.shape
+    cy, cx = np.mgrid[0:hc, 0:wc].astype(np.float32)
+    # forward-backward check: x -> x + f(x) -> back by b at that point
+    bx = cv2.remap(bwd[..., 0], cx + fwd[..., 0], cy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    by = cv2.remap(bwd[..., 1], cx + fwd[..., 0], cy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    reliable = ((fwd[..., 0] + bx) ** 2 + (fwd[..., 1] + by) ** 2 <= FLOW_CHECK ** 2).astype(np.uint8)
+    if (hc, wc) != (hs, ws):
+        fwd = cv2.resize(fwd, (ws, hs), interpolation=cv2.INTER_LINEAR) * np.float32(ws / wc)
+        reliable = cv2.resize(reliable, (ws, hs), interpolation=cv2.INTER_NEAREST)
+    return fwd, reliable
+
+
+def _flow_samples(fwd: np.ndarray, reliable: np.ndarray, step: int, shape: tuple[int, int],
+                  valid_j: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the detection grid's pixels land in the frame through the flow: ``(iy, ix)`` (nearest
+    full-resolution pixel) and ``ok`` (uint8: inside the frame, in ``valid_j`` and a reliable flow)."""
+    h, w = shape
+    hs, ws = fwd.shape[:2]
+    gy, gx = np.mgrid[0:hs, 0:ws].astype(np.float32)
+    sx = (gx + fwd[..., 0]) * step
+    sy = (gy + fwd[..., 1]) * step
+    inside = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
+    ix = np.clip(np.rint(sx), 0, w - 1).astype(np.intp)
+    iy = np.clip(np.rint(sy), 0, h - 1).astype(np.intp)
+    if valid_j is not None:
+        inside &= valid_j[iy, ix] != 0
+    ok = (inside & (reliable != 0)).astype(np.uint8)
+    return iy, ix, ok
+
+
+def _fill_from_flow(frame: np.ndarray, rejected: np.ndarray, use_g: np.ndarray, fwd: np.ndarray,
+                    step: int) -> int:
+    """Fill, in place, the ``rejected`` pixels of ``frame`` in the grid cells ``use_g`` with the codes
+    the cell's flow points at (nearest code), and clear them in ``rejected``; the number filled."""
+    h, w = rejected.shape
+    # full resolution only at the grid cells that passed: each cell's step x step pixels, moved
+    # by the cell's flow (nearest code), where frame j was rejected
+    cy_, cx_ = np.nonzero(use_g)
+    dy, dx = np.mgrid[0:step, 0:step]
+    ys = (cy_[:, None] * step + dy.reshape(1, -1)).reshape(-1)
+    xs = (cx_[:, None] * step + dx.reshape(1, -1)).reshape(-1)
+    keep = (ys < h) & (xs < w)
+    ys, xs = ys[keep], xs[keep]
+    cell = (ys // step, xs // step)
+    keep = rejected[ys, xs]
+    ys, xs = ys[keep], xs[keep]
+    cell = (cell[0][keep], cell[1][keep])
+    sx = np.rint(xs + fwd[cell[0], cell[1], 0] * step).astype(np.intp)
+    sy = np.rint(ys + fwd[cell[0], cell[1], 1] * step).astype(np.intp)
+    keep = (sx >= 0) & (sx < w) & (sy >= 0) & (sy < h)
+    ys, xs, sy, sx = ys[keep], xs[keep], sy[keep], sx[keep]
+    frame[ys, xs] = frame[sy, sx]      # gathered first, then written
+    rejected[ys, xs] = False
+    return int(ys.size)

@@ -389,16 +389,7 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
         return np.stack([np.diag(v) for v in kt])
     # the joint fit runs over the largest connected run of images; the others are attached
     # afterwards to their nearest fitted neighbour (see the end)
-    adj = np.zeros(n - 1, dtype=bool)
-    for (j, k) in graph:
-        adj[j:k] = True
-    runs, start = [], 0
-    for i in range(n - 1):
-        if not adj[i]:
-            runs.append((start, i))
-            start = i + 1
-    runs.append((start, n - 1))
-    lo_i, hi_i = max(runs, key=lambda r: (r[1] - r[0], -abs((r[0] + r[1]) / 2 - (n - 1) / 2)))
+    lo_i, hi_i = _longest_run(graph, n)
     mats = np.empty((n, 3, 3))
     # only images that share pixels with another take part: a frame skipped by a pair
     # across it (e.g. an all-white middle frame) has no data, and the constraint
@@ -410,6 +401,40 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
         return mats
     lo_i, hi_i = members[0], members[-1]
     graph = {key: val for key, val in graph.items() if lo_i <= key[0] and key[1] <= hi_i}
+    normal = _joint_normal_equations(graph, gammas, t, members)
+    mats[members] = _gauged_solution(normal, len(members))
+    # images outside the fit (outside the run, or without pixels in common): chained to the
+    # nearest fitted image, nearest first (or assumed alike)
+    done = set(members)
+    rest = [j for j in range(n) if j not in done]
+    while rest:
+        j = min(rest, key=lambda i: (min(abs(i - d) for d in done), i))
+        a = min(done, key=lambda d: (abs(d - j), d))
+        rest.remove(j)
+        done.add(j)
+        h = _neighbour_matrix(blocks, j, a, gammas, low=low, high=high, floor=floor, n_iter=n_iter, seed=seed)
+        mats[j] = mats[a] @ (h * (t[j] / t[a]) if h is not None else np.eye(3))
+    return mats
+
+
+def _longest_run(graph: dict, n: int) -> tuple[int, int]:
+    """The first and last image of the longest run of neighbours linked by the pair ``graph``
+    (ties: the run nearest the bracket's middle)."""
+    adj = np.zeros(n - 1, dtype=bool)
+    for (j, k) in graph:
+        adj[j:k] = True
+    runs, start = [], 0
+    for i in range(n - 1):
+        if not adj[i]:
+            runs.append((start, i))
+            start = i + 1
+    runs.append((start, n - 1))
+    return max(runs, key=lambda r: (r[1] - r[0], -abs((r[0] + r[1]) / 2 - (n - 1) / 2)))
+
+
+def _joint_normal_equations(graph: dict, gammas: np.ndarray, t: np.ndarray, members: list) -> list:
+    """Per output channel, the normal matrix (3M, 3M) of ``sum w ||K_j l_j / t_j - K_k l_k / t_k||^2``
+    over the pairs of ``graph`` (M = ``len(members)``, the unknowns of member ``i`` at ``3 i:3 i + 3``)."""
     sub = {j: i for i, j in enumerate(members)}
     m = 3 * len(members)
     normal = [np.zeros((m, m)) for _ in range(3)]
@@ -430,7 +455,14 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
         for c in range(3):
             w = 1.0 / (scale2[:, c] * rel[:, c])
             normal[c][np.ix_(idx, idx)] += (u * w[:, None]).T @ u
-    nm = len(members)
+    return normal
+
+
+def _gauged_solution(normal: list, nm: int) -> np.ndarray:
+    """The ``nm`` matrices (nm, 3, 3) minimising the normal equations row by row subject to
+    ``mean_j K_j = I`` (a KKT system per output channel, :data:`RIDGE` on off-diagonal entries)."""
+    m = 3 * nm
+    mats = np.empty((nm, 3, 3))
     cons = np.zeros((3, m))
     for i in range(nm):
         cons[:, 3 * i:3 * i + 3] = np.eye(3) / nm
@@ -446,16 +478,5 @@ def joint_colour_matrices(blocks: Blocks, gammas: np.ndarray, times: np.ndarray,
         rhs = np.zeros(m + 3)
         rhs[m + c] = 1.0
         sol = np.linalg.lstsq(kkt, rhs, rcond=None)[0]
-        mats[members, c, :] = sol[:m].reshape(nm, 3)
-    # images outside the fit (outside the run, or without pixels in common): chained to the
-    # nearest fitted image, nearest first (or assumed alike)
-    done = set(members)
-    rest = [j for j in range(n) if j not in done]
-    while rest:
-        j = min(rest, key=lambda i: (min(abs(i - d) for d in done), i))
-        a = min(done, key=lambda d: (abs(d - j), d))
-        rest.remove(j)
-        done.add(j)
-        h = _neighbour_matrix(blocks, j, a, gammas, low=low, high=high, floor=floor, n_iter=n_iter, seed=seed)
-        mats[j] = mats[a] @ (h * (t[j] / t[a]) if h is not None else np.eye(3))
+        mats[:, c, :] = sol[:m].reshape(nm, 3)
     return mats

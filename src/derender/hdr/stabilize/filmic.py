@@ -379,7 +379,57 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     Returns :class:`derender.response.ResponseCurves`, or None when some channel keeps no
     usable sample (then use :func:`derender.response.calibrate_debevec`).
     """
-    from derender.response.curves import DEFAULT_LAMBDA, ResponseCurves, grid_positions, make_monotonic
+    from derender.response.curves import DEFAULT_LAMBDA, ResponseCurves, make_monotonic
+
+    codes, clipped = _unclipped_samples(codes_at, n, shape, seed=seed, high=high, radius=radius, valid_at=valid_at)
+    if not np.all(((codes > 0) & (codes < 255)).any(axis=(0, 1))):
+        return None
+    log_t = np.log(np.asarray(times, dtype=np.float64))
+    # Debevec's lambda is set for 256 samples: scale it so that smoothness keeps its weight
+    # against a data term that grows with the number of samples
+    lam = DEFAULT_LAMBDA * float(np.sqrt(codes.shape[1] / 256.0))
+    rounds = CURVE_EXPOSURE_ROUNDS if exposure_rounds is None else int(exposure_rounds)
+    e_rounds = CURVE_EXPONENT_ROUNDS if exponent_rounds is None else int(exponent_rounds)
+    tie = CURVE_TIE if tie is None else float(tie)
+    curve = _CurveFit(codes, log_t, lam, tie)
+    rho = np.ones(n)
+    curve.fit(rounds, rho)
+    misfit_plain = curve.misfit().tolist()
+    exp_rejected = False
+    history: list = []
+    if exponents is not None:
+        rho = np.asarray(exponents, dtype=np.float64).reshape(n)
+        curve.fit(rounds, rho)
+    else:
+        rho, exp_rejected = _fit_exponents(curve, rounds, e_rounds, history)
+        misfit_fit = float(np.mean(curve.misfit()))
+        if e_rounds > 0 and not exp_rejected and misfit_fit >= fe.EXPONENT_MISFIT_RATIO * float(np.mean(misfit_plain)):
+            # the exponents do not lower Debevec's misfit: the alternation wandered off (the
+            # frames change what neither the offsets nor the exponents model); keep rho = 1
+            exp_rejected, rho = True, np.ones(n)
+            curve.fit(rounds, rho)
+    offsets = curve.offsets
+    rejected = bool(rounds > 0 and np.max(np.abs(offsets)) >= CURVE_MAX_OFFSET * (1 - 1e-9))
+    if rejected:
+        # an offset at the bound is no gain or white-balance step of a camera: the data do not
+        # determine it (Memorial's film frames), so the times are taken as given
+        rho = np.ones(n)
+        curve.fit(0, rho)
+    params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
+              "weights": "hat", "clip": float(high), "clip_radius": int(radius),
+              "dropped": float(clipped.mean()), "exposure_rounds": rounds,
+              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie,
+              "exponent_rounds": e_rounds, "rho": rho.tolist(), "rho_rejected": exp_rejected,
+              "toe": fe.EXPONENT_TOE,
+              "rho_history": history, "misfit_plain": misfit_plain, "misfit": curve.misfit().tolist()}
+    return ResponseCurves(log_inverse=make_monotonic(curve.g), method="debevec-unclipped", params=params)
+
+
+def _unclipped_samples(codes_at: Any, n: int, shape: tuple[int, int], *, seed: int, high: float, radius: int,
+                       valid_at: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The :data:`CURVE_SAMPLES` grid samples' codes (N, P, 3) int32, 0 (hat weight 0) where the sample
+    has a clipped neighbour or its image does not take part, and that mask ``clipped`` (N, P)."""
+    from derender.response.curves import grid_positions
 
     h, w = int(shape[0]), int(shape[1])
     ys, xs = grid_positions(h, w, CURVE_SAMPLES, seed)
@@ -396,90 +446,77 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
         for j in range(n):
             clipped[j] |= ~np.asarray(valid_at(j, ys, xs), dtype=bool)
     codes[clipped] = 0                       # hat weight 0: the sample drops out of every channel
-    if not np.all(((codes > 0) & (codes < 255)).any(axis=(0, 1))):
-        return None
-    log_t = np.log(np.asarray(times, dtype=np.float64))
-    # Debevec's lambda is set for 256 samples: scale it so that smoothness keeps its weight
-    # against a data term that grows with the number of samples
-    lam = DEFAULT_LAMBDA * float(np.sqrt(codes.shape[1] / 256.0))
-    g = np.empty((256, 3))
-    rounds = CURVE_EXPOSURE_ROUNDS if exposure_rounds is None else int(exposure_rounds)
-    e_rounds = CURVE_EXPONENT_ROUNDS if exponent_rounds is None else int(exponent_rounds)
-    tie = CURVE_TIE if tie is None else float(tie)
-    offsets = np.zeros((n, 3))
-    rho = np.ones(n)
-    fitted = {"codes": codes}
+    return codes, clipped
 
-    def fit(r: int, rh: np.ndarray) -> None:
-        zc = codes if np.all(rh == 1.0) else np.where(
-            codes > 0, np.clip(np.rint(fe.warp_codes(codes, rh)), 0, 255), 0).astype(np.int32)
-        fitted["codes"] = zc
-        if tie > 0:
-            g[:], offsets[:] = _debevec_tied_with_exposures(zc, log_t, lam, r, tie)
+
+class _CurveFit:
+    """Debevec's curves ``g`` (256, 3) and per-frame exposure offsets (N, 3) of fixed samples, refitted
+    in place for given exponents ``rho`` (the codes warped to ``255 (Z / 255) ** rho_j``)."""
+
+    def __init__(self, codes: np.ndarray, log_t: np.ndarray, lam: float, tie: float):
+        self.codes, self.log_t, self.lam, self.tie = codes, log_t, lam, tie
+        self.g = np.empty((256, 3))
+        self.offsets = np.zeros((codes.shape[0], 3))
+        self.fitted = codes          # the (warped) codes of the last fit
+
+    def fit(self, rounds: int, rho: np.ndarray) -> None:
+        """Refit with ``rounds`` rounds of offsets on the codes warped by ``rho``."""
+        codes = self.codes
+        zc = codes if np.all(rho == 1.0) else np.where(
+            codes > 0, np.clip(np.rint(fe.warp_codes(codes, rho)), 0, 255), 0).astype(np.int32)
+        self.fitted = zc
+        if self.tie > 0:
+            self.g[:], self.offsets[:] = _debevec_tied_with_exposures(zc, self.log_t, self.lam, rounds, self.tie)
             return
         for c in range(3):
-            g[:, c], offsets[:, c] = _debevec_with_exposures(zc[:, :, c], log_t, lam, r)
+            self.g[:, c], self.offsets[:, c] = _debevec_with_exposures(zc[:, :, c], self.log_t, self.lam, rounds)
 
-    fit(rounds, rho)
-    misfit_plain = _misfit(fitted["codes"], log_t, g, offsets).tolist()
+    def misfit(self) -> np.ndarray:
+        """The last fit's misfit (:func:`_misfit`)."""
+        return _misfit(self.fitted, self.log_t, self.g, self.offsets)
+
+
+def _fit_exponents(curve: _CurveFit, rounds: int, e_rounds: int, history: list) -> tuple[np.ndarray, bool]:
+    """Search the per-frame exponents with the curve (:mod:`.frame_exponents`: ``e_rounds`` alternations,
+    then the profile refinement), the curve left fitted for them; ``(rho, rejected)`` (rho = 1 when
+    an exponent reaches the bound). Each round's exponents are appended to ``history``."""
+    codes, log_t, g, offsets = curve.codes, curve.log_t, curve.g, curve.offsets
+    n = codes.shape[0]
+    rho = np.ones(n)
     exp_rejected = False
-    history = []
-    if exponents is not None:
-        rho = np.asarray(exponents, dtype=np.float64).reshape(n)
-        fit(rounds, rho)
-    else:
-        # EXPONENT_TIMES_GIVEN: the search alternates with the fit of the times as given
-        # (no offsets to take up part of each exponent); the offsets come with the last fit
-        search_rounds = 0 if (fe.EXPONENT_TIMES_GIVEN and e_rounds > 0) else rounds
-        if search_rounds != rounds:
-            fit(search_rounds, rho)
-        for _ in range(max(e_rounds, 0)):
-            new, _gain = fe.search_exponents(codes, log_t, g, offsets, rho, free_offsets=search_rounds > 0)
-            new = fe.gauge_exponents(new, log_t)
-            history.append(new.tolist())
-            if np.max(np.abs(np.log(new))) >= fe.EXPONENT_MAX:
-                # an exponent at the bound: the data do not determine it; keep rho = 1
-                exp_rejected, rho = True, np.ones(n)
-                break
-            rho = new
-            fit(search_rounds, rho)
-        if search_rounds != rounds or exp_rejected:
-            fit(rounds, rho)
-        if fe.EXPONENT_REFINE > 0 and e_rounds > 0:
-            def cost_of(rh: np.ndarray) -> float:
-                fit(rounds, rh)
-                return fe.profile_cost(codes, log_t, g, offsets, rh)
-            start = rho if not exp_rejected else np.ones(n)
-            c1 = cost_of(np.ones(n))
-            cs = cost_of(start)
-            if c1 < cs:
-                start = np.ones(n)
-            rho, _c0, c_end = fe.refine_exponents(cost_of, start, log_t, sweeps=fe.EXPONENT_REFINE)
-            exp_rejected = bool(np.max(np.abs(np.log(rho))) >= fe.EXPONENT_MAX)
-            if exp_rejected:
-                rho = np.ones(n)
-            history.append(rho.tolist())
-            fit(rounds, rho)
-        misfit_fit = float(np.mean(_misfit(fitted["codes"], log_t, g, offsets)))
-        if e_rounds > 0 and not exp_rejected and misfit_fit >= fe.EXPONENT_MISFIT_RATIO * float(np.mean(misfit_plain)):
-            # the exponents do not lower Debevec's misfit: the alternation wandered off (the
-            # frames change what neither the offsets nor the exponents model); keep rho = 1
+    # EXPONENT_TIMES_GIVEN: the search alternates with the fit of the times as given
+    # (no offsets to take up part of each exponent); the offsets come with the last fit
+    search_rounds = 0 if (fe.EXPONENT_TIMES_GIVEN and e_rounds > 0) else rounds
+    if search_rounds != rounds:
+        curve.fit(search_rounds, rho)
+    for _ in range(max(e_rounds, 0)):
+        new, _gain = fe.search_exponents(codes, log_t, g, offsets, rho, free_offsets=search_rounds > 0)
+        new = fe.gauge_exponents(new, log_t)
+        history.append(new.tolist())
+        if np.max(np.abs(np.log(new))) >= fe.EXPONENT_MAX:
+            # an exponent at the bound: the data do not determine it; keep rho = 1
             exp_rejected, rho = True, np.ones(n)
-            fit(rounds, rho)
-    rejected = bool(rounds > 0 and np.max(np.abs(offsets)) >= CURVE_MAX_OFFSET * (1 - 1e-9))
-    if rejected:
-        # an offset at the bound is no gain or white-balance step of a camera: the data do not
-        # determine it (Memorial's film frames), so the times are taken as given
-        rho = np.ones(n)
-        fit(0, rho)
-    params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
-              "weights": "hat", "clip": float(high), "clip_radius": r,
-              "dropped": float(clipped.mean()), "exposure_rounds": rounds,
-              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie,
-              "exponent_rounds": e_rounds, "rho": rho.tolist(), "rho_rejected": exp_rejected,
-              "toe": fe.EXPONENT_TOE,
-              "rho_history": history, "misfit_plain": misfit_plain, "misfit": _misfit(fitted["codes"], log_t, g, offsets).tolist()}
-    return ResponseCurves(log_inverse=make_monotonic(g), method="debevec-unclipped", params=params)
+            break
+        rho = new
+        curve.fit(search_rounds, rho)
+    if search_rounds != rounds or exp_rejected:
+        curve.fit(rounds, rho)
+    if fe.EXPONENT_REFINE > 0 and e_rounds > 0:
+        def cost_of(rh: np.ndarray) -> float:
+            curve.fit(rounds, rh)
+            return fe.profile_cost(codes, log_t, g, offsets, rh)
+        start = rho if not exp_rejected else np.ones(n)
+        c1 = cost_of(np.ones(n))
+        cs = cost_of(start)
+        if c1 < cs:
+            start = np.ones(n)
+        rho, _c0, c_end = fe.refine_exponents(cost_of, start, log_t, sweeps=fe.EXPONENT_REFINE)
+        exp_rejected = bool(np.max(np.abs(np.log(rho))) >= fe.EXPONENT_MAX)
+        if exp_rejected:
+            rho = np.ones(n)
+        history.append(rho.tolist())
+        curve.fit(rounds, rho)
+    return rho, exp_rejected
 
 
 def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
