@@ -85,7 +85,10 @@ def test_mosaic_coverage_and_output_spaces():
     srgb = raw_merge(frames, gain=g, read_noise=rn)
     cam = raw_merge(frames, gain=g, read_noise=rn, output_space="camera_rgb", clip_negative=False)
     xyz = raw_merge(frames, gain=g, read_noise=rn, output_space="xyz", clip_negative=False)
-    np.testing.assert_allclose(cam.radiance, demosaic_bayer(x / span, "RGGB"), rtol=1e-5, atol=1e-9)
+    # the compiled merge keeps X in float32 (the float64 reference: 5e-8 relative per photosite,
+    # ~1e-7 of the map's top after the demosaic's cancellations; the noise is ~1e-2)
+    ref = demosaic_bayer(x / span, "RGGB")
+    np.testing.assert_allclose(cam.radiance, ref, rtol=1e-5, atol=1e-6 * np.abs(ref).max())
     from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
 
     inner = (slice(3, -3), slice(3, -3))

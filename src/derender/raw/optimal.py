@@ -47,14 +47,13 @@ from derender.core.colorimetry import XYZ_TO_LINEAR_SRGB, camera_to_xyz_matrix
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
 from derender.raw.mosaic import (
-    cfa_channel_index,
+    DEMOSAIC_METHODS,
     demosaic_bayer,
-    finite_float32,
     sorted_raw_frames,
     spread_mask,
     wb_from_patch,
 )
-from derender.raw.noise import NoiseModel, estimate_noise
+from derender.raw.noise import NoiseModel, estimate_noise, estimate_noise_frames
 
 __all__ = [
     "OUTPUT_SPACES",
@@ -62,6 +61,9 @@ __all__ = [
     "merge_mosaic_optimal",
     "demosaic_variance",
     "output_matrix",
+    "compiled_frames",
+    "merge_compiled",
+    "demosaic_compiled",
     "raw_merge",
 ]
 
@@ -240,6 +242,87 @@ def _multipliers(frame: RawFrame, output_space: str, wb, wb_patch, x: np.ndarray
     return mult
 
 
+def compiled_frames(frames: Sequence[RawFrame]):
+    """The compiled kernels' view of frames: a numba typed list of the (H, W) mosaics (uint16 as
+    LibRaw gives them, else float64), ``black`` (N, 2, 2) per CFA phase and ``white`` (N,)."""
+    from numba.typed import List
+
+    dtype = np.uint16 if all(np.asarray(f.mosaic).dtype == np.uint16 for f in frames) else np.float64
+    mosaics = List([np.ascontiguousarray(f.mosaic, dtype=dtype) for f in frames])
+    black = np.empty((len(frames), 2, 2))
+    for j, f in enumerate(frames):
+        bl = np.asarray(f.black_level, dtype=np.float64)
+        black[j] = np.broadcast_to(bl.reshape(-1)[0], (2, 2)) if bl.size == 1 else bl.reshape(2, 2)
+    return mosaics, black, np.array([float(f.white_level) for f in frames])
+
+
+def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.ndarray, noise: NoiseModel,
+                   censored: bool = True, iterations: int = _ITERATIONS,
+                   scale: np.ndarray | float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`merge_mosaic_optimal` on :func:`compiled_frames` in one compiled pass
+    (:func:`derender.raw.kernels.merge_rows`), with the noise model per frame
+    (:meth:`~derender.raw.noise.NoiseModel.per_frame`). Returns ``(x, var, mask)``: ``X``
+    and its variance times ``scale`` (per CFA phase, (2, 2), or a number) and its square,
+    float32, and the uint8 mask."""
+    from derender.raw.kernels import KERNEL_LOCK, merge_rows
+
+    h, w = mosaics[0].shape
+    g, s2 = noise.per_frame(len(mosaics))
+    scale = np.broadcast_to(np.asarray(scale, np.float64), (2, 2)).copy()
+    x = np.empty((h, w), np.float32)
+    var = np.empty((h, w), np.float32)
+    mask = np.empty((h, w), np.uint8)
+    with KERNEL_LOCK:
+        merge_rows(mosaics, black, np.asarray(white, np.float64), np.asarray(exposures, np.float64), g, s2,
+                   bool(censored), int(iterations), _NEAR, scale, x, var, mask, HDRResult.MASK_BRIGHT)
+    return x, var, mask
+
+
+@lru_cache(maxsize=8)
+def _tap_table(pattern: str, method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The demosaic's non-zero taps per CFA phase: counts (2, 2), offsets dy, dx (2, 2, 25), kernels (2, 2, 25, 3)."""
+    ker = _malvar_kernels(pattern, method)
+    ntaps = np.zeros((2, 2), np.int64)
+    dy = np.zeros((2, 2, 25), np.int64)
+    dx = np.zeros((2, 2, 25), np.int64)
+    k = np.zeros((2, 2, 25, 3))
+    for py in range(2):
+        for px in range(2):
+            t = 0
+            for i in range(5):
+                for j in range(5):
+                    if np.any(ker[py, px, :, i, j] != 0):
+                        dy[py, px, t], dx[py, px, t] = i - 2, j - 2
+                        k[py, px, t] = ker[py, px, :, i, j]
+                        t += 1
+            ntaps[py, px] = t
+    return ntaps, dy, dx, k
+
+
+def demosaic_compiled(x: np.ndarray, var: np.ndarray | None, pattern: str, multipliers: np.ndarray,
+                      matrix: np.ndarray, method: str = "malvar2004",
+                      clip_negative: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """White balance (``multipliers`` R, G, B per CFA colour), demosaic, ``matrix`` and the
+    variance of :func:`demosaic_variance` in one compiled pass
+    (:func:`derender.raw.kernels.demosaic_rows`): ``(radiance, variance)``, (H, W, 3) float32,
+    finite (negatives 0 with ``clip_negative``); the variance None when ``var`` is."""
+    from derender.raw.kernels import KERNEL_LOCK, demosaic_rows
+
+    p = pattern.upper()
+    ntaps, dy, dx, k = _tap_table(p, method)
+    taps = np.ascontiguousarray(np.einsum("oc,yxtc->yxto", np.asarray(matrix, np.float64), k))
+    lut = {"R": 0, "G": 1, "B": 2}
+    mult = np.asarray(multipliers, np.float64)[[[lut[p[0]], lut[p[1]]], [lut[p[2]], lut[p[3]]]]]
+    h, w = x.shape
+    out = np.empty((h, w, 3), np.float32)
+    var_out = np.empty((h, w, 3), np.float32) if var is not None else np.empty((1, 1, 3), np.float32)
+    with KERNEL_LOCK:
+        demosaic_rows(np.ascontiguousarray(x, np.float32),
+                      np.ascontiguousarray(var if var is not None else x, np.float32), mult, ntaps, dy, dx,
+                      taps, taps * taps, bool(clip_negative), var is not None, out, var_out)
+    return out, (var_out if var is not None else None)
+
+
 def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "linear_srgb",
               gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
               wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
@@ -318,37 +401,34 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     """
     frames, times = sorted_raw_frames(frames)
     pattern = frames[0].cfa_pattern.upper()
-    d, sat, ceil = mosaic_observations(frames)
     if (gain is None) != (read_noise is None):
         raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
+    if demosaic not in DEMOSAIC_METHODS:
+        raise InputError(f"unknown demosaicing method {demosaic!r}; choose one of {', '.join(DEMOSAIC_METHODS)}")
+    mosaics, black, white = compiled_frames(frames)
     profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
     if gain is None and len(frames) == 1 and profile is not None:
-        span0 = float(np.median(ceil[0]))
+        span0 = float(np.median(white[0] - black[0]))
         noise = NoiseModel(profile[0] * span0, profile[1] * span0 ** 2, "NoiseProfile")
-    elif gain is None:
+    elif gain is None and len(frames) == 1:
+        d, sat, ceil = mosaic_observations(frames)
         noise = estimate_noise(d, sat, ceil, times, pattern)
+        del d, sat, ceil
+    elif gain is None:
+        isos = [(f.extra or {}).get("iso") for f in frames]
+        noise = estimate_noise_frames(mosaics, black, white, times, isos)
     else:
         noise = NoiseModel(float(gain), float(read_noise) ** 2, "given")
-    x, var, mmask = merge_mosaic_optimal(d, sat, ceil, times, noise, censored=censored)
-    del d, sat
-    span = ceil[int(np.argmax([f.white_level for f in frames]))]      # white - black per photosite
-    x /= span
-    var /= span * span
+    top = int(np.argmax(white))
+    span = white[top] - black[top]                       # (2, 2): white - black per CFA phase
+    x, var, mmask = merge_compiled(mosaics, black, white, times, noise, censored=censored, scale=1.0 / span)
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space, xyz_to_camera)
     mult = _multipliers(ref, output_space, wb, wb_patch, x, pattern, mmask)
-    gains = mult[cfa_channel_index(x.shape, pattern)]
-    cam = demosaic_bayer(x * gains, pattern, demosaic)
-    h, w, _ = cam.shape
-    out = (cam.reshape(-1, 3).astype(np.float64) @ mat.T).reshape(h, w, 3)
-    var_out = None
-    if variance:
-        var_out = np.nan_to_num(demosaic_variance(var * gains * gains, pattern, mat, demosaic),
-                                nan=0.0, posinf=0.0, neginf=0.0)
+    out, var_out = demosaic_compiled(x, var if variance else None, pattern, mult, mat, demosaic, clip_negative)
     info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": demosaic,
             "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
             "units": "white level per second", "white_minus_black_dn": float(np.median(span)),
             "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
             "output_matrix": mat.tolist()}
-    return HDRResult(radiance=finite_float32(out, clip_negative), mask=spread_mask(mmask),
-                     variance=None if var_out is None else np.ascontiguousarray(var_out, np.float32), info=info)
+    return HDRResult(radiance=out, mask=spread_mask(mmask), variance=var_out, info=info)
