@@ -127,10 +127,15 @@ def merge_raw_files(paths: Sequence[str | os.PathLike], times: Sequence[float] |
     (the error names the files without one); a single frame without one is merged per unit
     exposure (relative units)."""
     from derender.engine.run import write_outputs
-    from derender.io.raw import read_raw_stack
+    from derender.io.raw import read_raw_bracket
+    from derender.raw.mosaic import setting_factors
 
     t0 = time.perf_counter()
-    frames = read_raw_stack(paths, times=times)
+    frames = read_raw_bracket(paths, times=times, threads=threads)
+    if len(frames) > 1:            # t S / N^2 relative to the first frame given, then sorted by it
+        for f, k in zip(frames, setting_factors(frames)):
+            f.extra = {**(f.extra or {}), "exposure_factor": float(k)}
+        frames.sort(key=lambda f: f.exposure_time * f.extra["exposure_factor"])
     if len(frames) == 1 and frames[0].exposure_time is None:
         frames[0].exposure_time = 1.0
         single_note = "no exposure time in the file: radiance per unit exposure (relative units)"

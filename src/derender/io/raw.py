@@ -281,12 +281,14 @@ def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | 
     return frames
 
 
-def read_raw_bracket(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None) -> list[RawFrame]:
+def read_raw_bracket(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None,
+                     threads: int | None = None) -> list[RawFrame]:
     """Read RAW frames in the order given, for :func:`derender.raw.optimal.raw_merge`: as
     :func:`read_raw_stack` (the same file twice, different cameras or sizes and several frames
     without exposure times are refused), but frames may vary the f-number and ISO -- the merge
     normalises each by ``t S / N^2`` relative to the first frame given
-    (:func:`derender.raw.mosaic.setting_factors`) -- and they are not sorted. ``times`` replace
+    (:func:`derender.raw.mosaic.setting_factors`) -- they are not sorted, and they are decoded in
+    threads. ``times`` replace
     the files' exposures whole (``extra["exposure_factor"] = 1``: they are ``t S / N^2``).
 
     Parameters
@@ -295,6 +297,8 @@ def read_raw_bracket(paths: Sequence[str | os.PathLike], times: Sequence[float] 
         The bracket's RAW files.
     times : sequence of float, optional
         Exposures, one per path in the order given.
+    threads : int, optional
+        Files decoded at once (default: the CPU count).
 
     Returns
     -------
@@ -308,6 +312,7 @@ def read_raw_bracket(paths: Sequence[str | os.PathLike], times: Sequence[float] 
     """
     from derender.io.files import check_input_file, resolve_path
 
+    paths = list(paths)
     seen: set = set()
     for p in paths:
         check_input_file(p)
@@ -315,9 +320,12 @@ def read_raw_bracket(paths: Sequence[str | os.PathLike], times: Sequence[float] 
         if r in seen:
             raise InputError(f"the same file is given twice: {p}")
         seen.add(r)
-    frames = [read_raw(p) for p in paths]
-    if not frames:
+    if not paths:
         raise InputError("no RAW files given")
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max(1, min(len(paths), threads or os.cpu_count() or 1))) as pool:
+        frames = list(pool.map(read_raw, paths))          # LibRaw decodes without the GIL
     if times is not None:
         t = validate_times(times, len(frames))
         for f, v in zip(frames, t):

@@ -6,10 +6,10 @@ steps, and the demosaic with its twelve variance filters. Each is one compiled p
 rows in parallel (``prange``), every photosite independently (so results do not depend on
 the thread count):
 
-* :func:`pair_row_counts` / :func:`pair_samples` -- the samples of the noise fit of
-  :mod:`derender.raw.noise` (eq. 2): the same regular subsample ``idx[::stride]`` of the
-  photosites usable in both frames of a pair as :func:`derender.raw.noise.estimate_noise_pairs`
-  takes, read straight from the uint16 mosaics;
+* :func:`grid_samples` -- the samples of the noise fit of :mod:`derender.raw.noise` (eq. 2)
+  on a regular grid of photosites (every ``stride``-th in row-major order, ``stride`` odd so
+  that every CFA phase is met), read straight from the uint16 mosaics: its cost goes with
+  the samples, not with the frame;
 * :func:`merge_rows` -- the censored maximum-likelihood merge of
   :func:`derender.raw.optimal.merge_mosaic_optimal` (pooled start, two reweighted rounds,
   Newton steps where a saturated sample is within ``near`` sigma of its level), with a
@@ -34,8 +34,7 @@ import threading
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["KERNEL_LOCK", "inverse_mills", "pair_row_counts", "pair_samples", "merge_rows", "demosaic_rows",
-           "wls_normal"]
+__all__ = ["KERNEL_LOCK", "inverse_mills", "grid_samples", "merge_rows", "demosaic_rows", "wls_normal"]
 
 #: Serialises launches of this module's parallel kernels.
 KERNEL_LOCK = threading.Lock()
@@ -76,81 +75,46 @@ def _finite(a, clip_negative):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def pair_row_counts(mosaics, pairs, black, white, ceiling_fraction):  # pragma: no cover - compiled
-    """(P, H) int64: per pair ``(j, k)`` and row, the photosites unsaturated in both frames and
-    below ``ceiling_fraction`` of the level ``white - black`` (the noise fit's samples)."""
-    h, w = mosaics[0].shape
-    npairs = pairs.shape[0]
-    counts = np.zeros((npairs, h), np.int64)
-    for y in prange(h):
-        py = y & 1
-        for p in range(npairs):
-            j = pairs[p, 0]
-            k = pairs[p, 1]
-            mj = mosaics[j][y]
-            mk = mosaics[k][y]
-            c = 0
-            for x in range(w):
-                px = x & 1
-                yj = mj[x]
-                yk = mk[x]
-                if yj >= white[j] or yk >= white[k]:
-                    continue
-                bj = black[j, py, px]
-                bk = black[k, py, px]
-                if yj - bj < ceiling_fraction * (white[j] - bj) and yk - bk < ceiling_fraction * (white[k] - bk):
-                    c += 1
-            counts[p, y] = c
-    return counts
-
-
-@njit(parallel=True, nogil=True, cache=True)
-def pair_samples(mosaics, pairs, black, white, expo, ceiling_fraction, row_start, strides, offsets,
-                 r2_out, x_out):  # pragma: no cover - compiled
-    """The noise fit's samples: for pair ``p`` every ``strides[p]``-th usable photosite in row-major
-    order (the usable index of row ``y`` starts at ``row_start[p, y]``) goes to position
-    ``offsets[p] + index // stride`` of ``r2_out`` (``(d_k / e_k - d_j / e_j)^2``) and ``x_out``
-    (the pooled estimate ``sum d / sum e`` over the frames unsaturated there)."""
+def grid_samples(mosaics, pairs, black, white, expo, ceiling_fraction, stride, r2_out, x_out,
+                 ok_out):  # pragma: no cover - compiled
+    """The noise fit's candidate samples: the photosites ``i = m * stride`` (row-major), for
+    every pair ``p = (j, k)`` of ``pairs``: ``ok_out[p, m]`` where both frames are unsaturated
+    and below ``ceiling_fraction`` of their level ``white - black``, ``r2_out[p, m] =
+    (d_k / e_k - d_j / e_j)^2``; ``x_out[m]`` the pooled estimate ``sum d / sum e`` over the
+    frames unsaturated there (0 where none is)."""
     n = len(mosaics)
     h, w = mosaics[0].shape
     npairs = pairs.shape[0]
-    for y in prange(h):
+    for m in prange(x_out.shape[0]):
+        i = m * stride
+        y = i // w
+        xx = i - y * w
         py = y & 1
-        rows = np.empty((n, w), mosaics[0].dtype)
-        for i in range(n):
-            rows[i, :] = mosaics[i][y, :]
+        px = xx & 1
+        d = np.empty(n)
+        usable = np.empty(n, np.bool_)
+        num = 0.0
+        den = 0.0
+        for j in range(n):
+            code = mosaics[j][y, xx]
+            bj = black[j, py, px]
+            d[j] = code - bj
+            un = code < white[j]
+            usable[j] = un and d[j] < ceiling_fraction * (white[j] - bj)
+            if un:
+                num += code - bj
+                den += expo[j]
+        x_out[m] = num / den if den > 0.0 else 0.0
         for p in range(npairs):
             j = pairs[p, 0]
             k = pairs[p, 1]
-            mj = rows[j]
-            mk = rows[k]
-            idx = row_start[p, y]
-            s = strides[p]
-            for x in range(w):
-                px = x & 1
-                yj = mj[x]
-                yk = mk[x]
-                if yj >= white[j] or yk >= white[k]:
-                    continue
-                bj = black[j, py, px]
-                bk = black[k, py, px]
-                dj = yj - bj
-                dk = yk - bk
-                if not (dj < ceiling_fraction * (white[j] - bj) and dk < ceiling_fraction * (white[k] - bk)):
-                    continue
-                if idx % s == 0:
-                    num = 0.0
-                    den = 0.0
-                    for i in range(n):
-                        code = rows[i, x]
-                        if code < white[i]:
-                            num += code - black[i, py, px]
-                            den += expo[i]
-                    pos = offsets[p] + idx // s
-                    r = dk / expo[k] - dj / expo[j]
-                    r2_out[pos] = r * r
-                    x_out[pos] = num / den
-                idx += 1
+            if usable[j] and usable[k]:
+                r = d[k] / expo[k] - d[j] / expo[j]
+                r2_out[p, m] = r * r
+                ok_out[p, m] = True
+            else:
+                r2_out[p, m] = 0.0
+                ok_out[p, m] = False
 
 
 @njit(cache=True, nogil=True)
@@ -195,6 +159,34 @@ def wls_normal(r2, xs, pair_of, design_g, design_s, params, first, clip):  # pra
     return mat, vec, used
 
 
+@njit(inline="always")
+def _newton_photosite(rows, y, xx, black, white, expo, gain, s2, iterations, x):  # pragma: no cover - compiled
+    """Newton steps of the censored likelihood at photosite ``xx`` of row ``y`` (``rows``: that
+    row of every frame) from ``x``: ``(x, information)``."""
+    py = y & 1
+    px = xx & 1
+    info = 0.0
+    for _ in range(max(iterations, 1)):
+        score = 0.0
+        info = 0.0
+        for j in range(rows.shape[0]):
+            code = rows[j, xx]
+            e = expo[j]
+            v = gain[j] * max(x * e, 0.0) + s2[j]
+            if code < white[j]:
+                score += e * (code - black[j, py, px] - x * e) / v
+                info += e * e / v
+            else:
+                sd = math.sqrt(v)
+                z = (white[j] - black[j, py, px] - x * e) / sd
+                lam = inverse_mills(z)
+                score += e * lam / sd
+                info += e * e * lam * max(lam - z, 0.0) / v
+        if info > 0.0:
+            x += score / info
+    return x, info
+
+
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near, inv_span,
                x_out, var_out, mask_out, bright):  # pragma: no cover - compiled
@@ -203,149 +195,213 @@ def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near
     ``mosaics``: a typed list of (H, W) uint16; ``black`` (N, 2, 2), ``white`` (N,), ``expo``
     (N,), ``gain`` (N,), ``s2`` (N,) per frame: ``d_j = y_j - black_j ~ N(X e_j, gain_j
     max(X e_j, 0) + s2_j)``, censored at ``white_j - black_j`` where ``y_j >= white_j``.
-    Writes ``X`` and ``1 / I`` times ``inv_span[py, px]`` (and its square) as float32, and
+    Writes ``X`` and ``1 / I`` times ``inv_span[py, px]`` (and its square) as float32 split
+    by CFA phase (``x_out[py, px, y // 2, x // 2]``, (2, 2, ceil(H/2), ceil(W/2)): the layout
+    :func:`demosaic_rows` reads), and
     ``bright`` in ``mask_out`` where every frame is saturated (``X`` the bound ``max_j c_j / e_j``,
-    variance ``X^2``)."""
+    variance ``X^2``). Each row is done frame by frame over the whole row (the pooled start,
+    two reweighted rounds: loops without branches that the compiler vectorises), then the
+    Newton steps at the photosites that need them."""
     n = len(mosaics)
-    h, w = x_out.shape
+    h, w = mask_out.shape
     for y in prange(h):
         py = y & 1
-        d = np.empty(n)
-        c = np.empty(n)
-        sat = np.empty(n, np.bool_)
+        i = y >> 1
+        num = np.zeros(w)
+        den = np.zeros(w)
+        bound = np.zeros(w)
+        nsat = np.zeros(w, np.int64)
         rows = np.empty((n, w), mosaics[0].dtype)     # the row of every frame (one list access per frame)
         for j in range(n):
             rows[j, :] = mosaics[j][y, :]
+        for j in range(n):
+            r = rows[j]
+            e = expo[j]
+            wl = white[j]
+            b0 = black[j, py, 0]
+            b1 = black[j, py, 1]
+            q0 = (wl - b0) / e
+            q1 = (wl - b1) / e
+            for xx in range(w):
+                code = np.float64(r[xx])
+                odd = (xx & 1) == 1
+                bb = b1 if odd else b0
+                un = code < wl
+                num[xx] += (code - bb) if un else 0.0
+                den[xx] += e if un else 0.0
+                nsat[xx] += 0 if un else 1
+                q = q1 if odd else q0
+                bound[xx] = max(bound[xx], q)
+        # the reweighted rounds in float32 (twice the vector lanes; the float64 reference
+        # merge_mosaic_optimal agrees to 5e-8 relative per photosite)
+        zero = np.float32(0.0)
+        x = np.empty(w, np.float32)
+        score = np.empty(w, np.float32)
+        info = np.empty(w, np.float32)
+        for xx in range(w):
+            x[xx] = num[xx] / den[xx] if den[xx] > 0.0 else bound[xx]
+        for _ in range(2):
+            score[:] = zero
+            info[:] = zero
+            for j in range(n):
+                r = rows[j]
+                e = np.float32(expo[j])
+                wl = np.float32(white[j])
+                g = np.float32(gain[j])
+                sv = np.float32(s2[j])
+                b0 = np.float32(black[j, py, 0])
+                b1 = np.float32(black[j, py, 1])
+                for xx in range(w):
+                    code = np.float32(r[xx])
+                    bb = b1 if (xx & 1) == 1 else b0
+                    xe = x[xx] * e
+                    wj = e / (g * max(xe, zero) + sv) if code < wl else zero
+                    score[xx] += wj * (code - bb - xe)
+                    info[xx] += wj * e
+            for xx in range(w):
+                if info[xx] > zero and den[xx] > 0.0:
+                    x[xx] += score[xx] / info[xx]
         for xx in range(w):
             px = xx & 1
-            num = 0.0
-            den = 0.0
-            bound = 0.0
-            for j in range(n):
-                code = rows[j, xx]
-                bj = black[j, py, px]
-                cj = white[j] - bj
-                d[j] = code - bj
-                c[j] = cj
-                sj = code >= white[j]
-                sat[j] = sj
-                if not sj:
-                    num += code - bj
-                    den += expo[j]
-                b = cj / expo[j]
-                if b > bound:
-                    bound = b
+            jx = xx >> 1
             sp = inv_span[py, px]
-            if den == 0.0:
-                x_out[y, xx] = bound * sp
-                var_out[y, xx] = (bound * sp) ** 2
+            if den[xx] == 0.0:
+                x_out[py, px, i, jx] = bound[xx] * sp
+                var_out[py, px, i, jx] = (bound[xx] * sp) ** 2
                 mask_out[y, xx] = bright
                 continue
-            x = num / den
-            info = 0.0
-            for _ in range(2):
-                score = 0.0
-                info = 0.0
+            xv = np.float64(x[xx])
+            iv = np.float64(info[xx])
+            if censored and nsat[xx] > 0:
+                close = False
                 for j in range(n):
-                    if not sat[j]:
+                    code = rows[j, xx]
+                    if code >= white[j]:
                         e = expo[j]
-                        wj = e / (gain[j] * max(x * e, 0.0) + s2[j])
-                        score += wj * (d[j] - x * e)
-                        info += wj * e
-                if info > 0.0:
-                    x += score / info
-            close = False
-            if censored:
-                for j in range(n):
-                    if sat[j]:
-                        e = expo[j]
-                        if c[j] - x * e > -near * math.sqrt(gain[j] * max(x * e, 0.0) + s2[j]):
+                        if white[j] - black[j, py, xx & 1] - xv * e > -near * math.sqrt(gain[j] * max(xv * e, 0.0) + s2[j]):
                             close = True
-            if close:
-                for _ in range(max(iterations, 1)):
-                    score = 0.0
-                    info = 0.0
-                    for j in range(n):
-                        e = expo[j]
-                        v = gain[j] * max(x * e, 0.0) + s2[j]
-                        if not sat[j]:
-                            score += e * (d[j] - x * e) / v
-                            info += e * e / v
-                        else:
-                            sd = math.sqrt(v)
-                            z = (c[j] - x * e) / sd
-                            lam = inverse_mills(z)
-                            score += e * lam / sd
-                            info += e * e * lam * max(lam - z, 0.0) / v
-                    if info > 0.0:
-                        x += score / info
-            x_out[y, xx] = x * sp
-            var_out[y, xx] = (1.0 / info) * sp * sp if info > 0.0 else 0.0
+                if close:
+                    xv, iv = _newton_photosite(rows, y, xx, black, white, expo, gain, s2, iterations, xv)
+            x_out[py, px, i, jx] = xv * sp
+            var_out[py, px, i, jx] = (1.0 / iv) * sp * sp if iv > 0.0 else 0.0
             mask_out[y, xx] = 0
 
 
+@njit(inline="always")
+def _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, xx, clip_negative, out,
+                  var_out):  # pragma: no cover - compiled
+    """One output pixel with reflected taps (the multiplier of the photosite actually read;
+    ``x``, ``var`` split by phase)."""
+    h = out.shape[0]
+    w = out.shape[1]
+    py = y & 1
+    px = xx & 1
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for t in range(ntaps[py, px]):
+        yy = _reflect(y + tap_dy[py, px, t], h)
+        xq = _reflect(xx + tap_dx[py, px, t], w)
+        m = mult[yy & 1, xq & 1]
+        val = x[yy & 1, xq & 1, yy >> 1, xq >> 1] * m
+        a0 += taps[py, px, t, 0] * val
+        a1 += taps[py, px, t, 1] * val
+        a2 += taps[py, px, t, 2] * val
+        if do_var:
+            vv = var[yy & 1, xq & 1, yy >> 1, xq >> 1] * (m * m)
+            v0 += taps2[py, px, t, 0] * vv
+            v1 += taps2[py, px, t, 1] * vv
+            v2 += taps2[py, px, t, 2] * vv
+    out[y, xx, 0] = _finite(a0, clip_negative)
+    out[y, xx, 1] = _finite(a1, clip_negative)
+    out[y, xx, 2] = _finite(a2, clip_negative)
+    if do_var:
+        var_out[y, xx, 0] = _finite(v0, False)
+        var_out[y, xx, 1] = _finite(v1, False)
+        var_out[y, xx, 2] = _finite(v2, False)
+
+
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def demosaic_rows(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, clip_negative, do_var,
-                  out, var_out):  # pragma: no cover - compiled
+def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, folded, folded2, clip_negative,
+                  do_var, out, var_out):  # pragma: no cover - compiled
     """White balance, demosaic, colour matrix (and variance) in one pass.
 
-    ``x``, ``var`` (H, W) float32 mosaics; ``mult`` (2, 2) the multiplier of the photosite's
-    CFA phase; per output phase ``(py, px)`` the ``ntaps[py, px]`` taps at ``(tap_dy, tap_dx)``
-    with weights ``taps[py, px, t, o]`` (the matrix times the demosaic's kernels) and their
-    squares ``taps2``. ``out`` (H, W, 3) float32 finite (negatives set to 0 if ``clip_negative``),
-    ``var_out`` (H, W, 3) float32 if ``do_var``. Inside the 2-photosite border each tap's
-    multiplier is folded into its weights once per row and phase; on the border the taps
-    read reflected photosites (whose phase, so multiplier, may differ)."""
-    h, w = x.shape
+    ``planes`` (2, 2, ceil(H/2), ceil(W/2)) float32: the mosaic split by CFA phase
+    (``planes[a, b] = x[a::2, b::2]``, as :func:`merge_rows` writes it; ``var_planes`` its
+    variance); ``mult`` (2, 2) the white-balance multiplier of each CFA phase; per output
+    phase ``(py, px)`` the ``ntaps[py, px]`` taps at ``(tap_dy, tap_dx)`` with weights
+    ``taps[py, px, t, o]`` (the matrix times the demosaic's kernels), their squares ``taps2``,
+    and both with the multiplier of the tap's photosite folded in (``folded``, ``folded2``:
+    inside the border a tap's phase is fixed). ``out`` (H, W, 3) float32 finite (negatives set to
+    0 if ``clip_negative``), ``var_out`` (H, W, 3) float32 if ``do_var``. Inside the
+    2-photosite border a tap reads one phase plane contiguously along the row (loops the
+    compiler vectorises); on the border the taps read reflected photosites
+    (:func:`_border_pixel`)."""
+    h = out.shape[0]
+    w = out.shape[1]
+    x = planes
+    var = var_planes
     for y in prange(h):
         py = y & 1
-        inner_row = y >= 2 and y < h - 2
+        i = y >> 1
         for px in range(2):
-            nt = ntaps[py, px]
-            wr = np.empty((nt, 3))
-            wv = np.empty((nt, 3))
-            for t in range(nt):
-                m = mult[(py + tap_dy[py, px, t]) & 1, (px + tap_dx[py, px, t]) & 1]
-                for o in range(3):
-                    wr[t, o] = taps[py, px, t, o] * m
-                    wv[t, o] = taps2[py, px, t, o] * (m * m)
-            for xx in range(px, w, 2):
-                a0 = 0.0
-                a1 = 0.0
-                a2 = 0.0
-                v0 = 0.0
-                v1 = 0.0
-                v2 = 0.0
-                if inner_row and xx >= 2 and xx < w - 2:
-                    for t in range(nt):
-                        val = x[y + tap_dy[py, px, t], xx + tap_dx[py, px, t]]
-                        a0 += wr[t, 0] * val
-                        a1 += wr[t, 1] * val
-                        a2 += wr[t, 2] * val
-                    if do_var:
-                        for t in range(nt):
-                            vv = var[y + tap_dy[py, px, t], xx + tap_dx[py, px, t]]
-                            v0 += wv[t, 0] * vv
-                            v1 += wv[t, 1] * vv
-                            v2 += wv[t, 2] * vv
-                else:
-                    for t in range(nt):
-                        yy = _reflect(y + tap_dy[py, px, t], h)
-                        xq = _reflect(xx + tap_dx[py, px, t], w)
-                        m = mult[yy & 1, xq & 1]
-                        val = x[yy, xq] * m
-                        a0 += taps[py, px, t, 0] * val
-                        a1 += taps[py, px, t, 1] * val
-                        a2 += taps[py, px, t, 2] * val
-                        if do_var:
-                            vv = var[yy, xq] * (m * m)
-                            v0 += taps2[py, px, t, 0] * vv
-                            v1 += taps2[py, px, t, 1] * vv
-                            v2 += taps2[py, px, t, 2] * vv
-                out[y, xx, 0] = _finite(a0, clip_negative)
-                out[y, xx, 1] = _finite(a1, clip_negative)
-                out[y, xx, 2] = _finite(a2, clip_negative)
-                if do_var:
-                    var_out[y, xx, 0] = _finite(v0, False)
-                    var_out[y, xx, 1] = _finite(v1, False)
-                    var_out[y, xx, 2] = _finite(v2, False)
+            nj = (w - px + 1) // 2
+            if y < 2 or y >= h - 2:
+                for jj in range(nj):
+                    _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
+                                  clip_negative, out, var_out)
+                continue
+            j0 = (3 - px) // 2
+            j1 = max(j0, (w - 1 - px) // 2)
+            a0 = np.zeros(nj)
+            a1 = np.zeros(nj)
+            a2 = np.zeros(nj)
+            for t in range(ntaps[py, px]):
+                sy = py + tap_dy[py, px, t]
+                sx = px + tap_dx[py, px, t]
+                src = planes[sy & 1, sx & 1, i + (sy >> 1)]
+                off = sx >> 1
+                w0 = folded[py, px, t, 0]
+                w1 = folded[py, px, t, 1]
+                w2 = folded[py, px, t, 2]
+                for jj in range(j0, j1):
+                    val = np.float64(src[jj + off])
+                    a0[jj] += w0 * val
+                    a1[jj] += w1 * val
+                    a2[jj] += w2 * val
+            for jj in range(j0, j1):
+                xx = 2 * jj + px
+                out[y, xx, 0] = _finite(a0[jj], clip_negative)
+                out[y, xx, 1] = _finite(a1[jj], clip_negative)
+                out[y, xx, 2] = _finite(a2[jj], clip_negative)
+            if do_var:
+                a0[:] = 0.0
+                a1[:] = 0.0
+                a2[:] = 0.0
+                for t in range(ntaps[py, px]):
+                    sy = py + tap_dy[py, px, t]
+                    sx = px + tap_dx[py, px, t]
+                    src = var_planes[sy & 1, sx & 1, i + (sy >> 1)]
+                    off = sx >> 1
+                    w0 = folded2[py, px, t, 0]
+                    w1 = folded2[py, px, t, 1]
+                    w2 = folded2[py, px, t, 2]
+                    for jj in range(j0, j1):
+                        val = np.float64(src[jj + off])
+                        a0[jj] += w0 * val
+                        a1[jj] += w1 * val
+                        a2[jj] += w2 * val
+                for jj in range(j0, j1):
+                    xx = 2 * jj + px
+                    var_out[y, xx, 0] = _finite(a0[jj], False)
+                    var_out[y, xx, 1] = _finite(a1[jj], False)
+                    var_out[y, xx, 2] = _finite(a2[jj], False)
+            for jj in range(0, j0):
+                _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
+                              clip_negative, out, var_out)
+            for jj in range(j1, nj):
+                _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
+                              clip_negative, out, var_out)

@@ -227,7 +227,7 @@ def estimate_noise_frames(mosaics, black: np.ndarray, white: np.ndarray, exposur
     (``g_S`` grows with the analogue gain of ISO ``S``, ``s2_S`` is that ISO's read noise); if
     the bracket does not constrain every ISO's pair of values (condition number above
     :data:`_MAX_CONDITION`), one model serves every frame."""
-    from derender.raw.kernels import KERNEL_LOCK, pair_row_counts, pair_samples, wls_normal
+    from derender.raw.kernels import KERNEL_LOCK, grid_samples, wls_normal
 
     e = np.asarray(exposures, np.float64)
     n = len(e)
@@ -238,22 +238,27 @@ def estimate_noise_frames(mosaics, black: np.ndarray, white: np.ndarray, exposur
     else:
         pairs = np.array([(j, j + 1) for j in range(n - 1)], np.int64)
     cap = _MAX_SAMPLES if not grouped else max(1 << 14, (4 * _MAX_SAMPLES) // len(pairs))
+    h, w = mosaics[0].shape
+    stride = max(1, (h * w) // (2 * cap))
+    stride += 1 - stride % 2 if stride > 1 else 0          # odd: the grid meets every CFA phase
+    m = (h * w + stride - 1) // stride
+    r2g = np.empty((len(pairs), m))
+    okg = np.empty((len(pairs), m), bool)
+    xg = np.empty(m)
     with KERNEL_LOCK:
-        counts = pair_row_counts(mosaics, pairs, black, white, _FIT_CEILING)
-    totals = counts.sum(axis=1)
-    strides = np.maximum(1, totals // cap).astype(np.int64)
-    sizes = (totals + strides - 1) // strides
-    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    row_start = np.concatenate([np.zeros((len(pairs), 1), np.int64), np.cumsum(counts, axis=1)[:, :-1]], axis=1)
-    total = int(sizes.sum())
+        grid_samples(mosaics, pairs, black, white, e, _FIT_CEILING, stride, r2g, xg, okg)
+    r2s, xss, sizes = [], [], []
+    for p in range(len(pairs)):
+        idx = np.flatnonzero(okg[p])
+        idx = idx[::max(1, idx.size // cap)]                 # a regular subsample: deterministic, ample
+        r2s.append(r2g[p, idx])
+        xss.append(xg[idx])
+        sizes.append(idx.size)
+    total = int(sum(sizes))
     if total < 64:
         raise InputError(f"too few unsaturated photosites shared by adjacent frames ({total}) to estimate the "
                          "noise; give gain and read noise")
-    r2 = np.empty(total)
-    xs = np.empty(total)
-    with KERNEL_LOCK:
-        pair_samples(mosaics, pairs, black, white, e, _FIT_CEILING, np.ascontiguousarray(row_start), strides,
-                     offsets, r2, xs)
+    r2, xs = np.concatenate(r2s), np.concatenate(xss)
     pair_of = np.repeat(np.arange(len(pairs)), sizes)
 
     def fit(groups: np.ndarray, k: int):
