@@ -106,28 +106,83 @@ def accuracy(size, exposures, seed=3):
     return rows
 
 
-def speed(size, exposures):
+def _tiled_dngs(size, exposures, tile, folder):
+    """A simulated bracket of ``size`` (nikon-d5100, outdoor, seed 1) written as DNG files, each
+    mosaic tiled to ``tile`` photosites (``WxH``; the CFA phase kept): the simulator's noise,
+    levels and metadata at a size it would take minutes to simulate."""
+    from derender.camera import simulate_bracket
+    from derender.camera.dng import write_dng
+
+    b = simulate_bracket("nikon-d5100", kind="outdoor", size=size, exposures=exposures, seed=1, style="simple",
+                         pipeline="fixed")
+    cam = b.camera
+    tw, th = tile
+    span = float(cam.white_level - cam.black_level)
+    files = []
+    for j, t in enumerate(b.times):
+        m = np.asarray(b.mosaics[j])
+        m = np.tile(m, (-(-th // m.shape[0]), -(-tw // m.shape[1])))[:th, :tw]
+        files.append(write_dng(Path(folder) / f"{j:02d}.dng", np.ascontiguousarray(m), cfa_pattern="RGGB",
+                               black_level=cam.black_level, white_level=cam.white_level,
+                               xyz_to_camera=b.xyz_to_camera, as_shot_neutral=1.0 / np.asarray(b.wb_true),
+                               exposure_time=float(t), make=cam.make, model=cam.model, bits=cam.bits,
+                               noise_profile=(1.0 / cam.full_well, (cam.read_noise ** 2 + 1.0 / 12.0) / span ** 2)))
+    return files, b.times
+
+
+def speed(size, exposures, tile=None, repeats=3, hdrutils=True):
+    """Best of ``repeats`` (wall and CPU seconds, interleaved so that load on the machine hits
+    every row alike): LibRaw decoding the frames one after the other (``rawpy.imread`` + the
+    mosaic copy: the floor), derender's read (LibRaw in threads, the DNG tags), the merge in
+    memory (read + noise fit + merge + variance + demosaic), the same writing both EXR files
+    (zip), and HDRutils' merge of the same files."""
     import rawpy
 
-    from derender.camera import simulate_bracket, write_bracket
     from derender.hdr.files import merge_files
 
+    rows = {}
+
+    def timed(name, fn):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        w, c = time.perf_counter() - w0, time.process_time() - c0
+        bw, bc = rows.get(name, (np.inf, np.inf))
+        rows[name] = (min(bw, w), min(bc, c))
+
     with tempfile.TemporaryDirectory() as tmp:
-        b = simulate_bracket("nikon-d5100", kind="outdoor", size=size, exposures=exposures, seed=1, style="simple",
-                             pipeline="fixed")
-        write_bracket(b, tmp)
-        files = sorted((Path(tmp) / "raw").glob("*.dng"))
-        best_decode = best_merge = np.inf
-        for _ in range(2):
-            t0 = time.perf_counter()
+        if tile is None:
+            from derender.camera import simulate_bracket, write_bracket
+
+            b = simulate_bracket("nikon-d5100", kind="outdoor", size=size, exposures=exposures, seed=1,
+                                 style="simple", pipeline="fixed")
+            write_bracket(b, tmp)
+            files, times = sorted((Path(tmp) / "raw").glob("*.dng")), b.times
+        else:
+            files, times = _tiled_dngs(size, exposures, tile, tmp)
+
+        def decode():
             for f in files:
                 with rawpy.imread(str(f)) as r:
                     np.array(r.raw_image_visible, copy=True)
-            best_decode = min(best_decode, time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            merge_files(files, method="raw", variance_output=Path(tmp) / "v.exr", output=Path(tmp) / "m.exr")
-            best_merge = min(best_merge, time.perf_counter() - t0)
-    return best_decode, best_merge
+
+        def read():
+            from derender.io.raw import read_raw_bracket
+
+            read_raw_bracket(files)
+
+        merge_files(files[:2], method="raw")                  # numba's cache loaded once
+        for _ in range(repeats):
+            timed("LibRaw decode (floor)", decode)
+            timed("derender read (threads)", read)
+            timed("merge in memory (read, noise, merge, variance, demosaic)",
+                  lambda: merge_files(files, method="raw", variance=True))
+            timed("merge + radiance and variance EXR (zip)",
+                  lambda: merge_files(files, method="raw", variance_output=Path(tmp) / "v.exr",
+                                      output=Path(tmp) / "m.exr"))
+        if hdrutils and _hdrutils(files[:2], times[:2]) is not None:
+            for _ in range(max(1, repeats - 1)):
+                timed("HDRutils 1.2 merge (no variance)", lambda: _hdrutils(files, times))
+    return rows
 
 
 def main() -> None:
@@ -136,9 +191,16 @@ def main() -> None:
     ap.add_argument("--exposures", type=int, default=5)
     ap.add_argument("--speed-size", default="1536x1024")
     ap.add_argument("--speed-exposures", type=int, default=5)
+    ap.add_argument("--speed-tile", default=None, help="WxH: tile the speed bracket's mosaics to this size "
+                    "(e.g. 6016x4000, 24 MP)")
     ap.add_argument("--no-speed", action="store_true")
+    ap.add_argument("--speed-only", action="store_true")
+    ap.add_argument("--no-hdrutils-speed", action="store_true")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
+    if args.speed_only:
+        _print_speed(args)
+        return
     rows = accuracy((w, h), args.exposures)
     print(f"## Accuracy: {args.exposures} exposures, {w}x{h}, camera RGB, one fitted scale per result\n")
     print("| camera | scene | method | median | p90 | darkest decade | brightest decade | cov 95 | cov 50 "
@@ -162,11 +224,23 @@ def main() -> None:
             print(f"  {r['camera']} {r['scene']}: gain {n['gain_dn_per_electron'] / g:.3f}, "
                   f"read noise {n['read_noise_dn'] / rn:.3f}")
     if not args.no_speed:
-        sw, sh = (int(v) for v in args.speed_size.split("x"))
-        dec, mer = speed((sw, sh), args.speed_exposures)
-        print(f"\n## Speed: {args.speed_exposures} frames of {sw}x{sh}\n")
-        print(f"LibRaw decode {dec:.3f} s; derender merge --method raw (read, merge, variance, write) {mer:.3f} s "
-              f"= {mer / dec:.1f}x the decode")
+        _print_speed(args)
+
+
+def _print_speed(args) -> None:
+    import os
+
+    sw, sh = (int(v) for v in args.speed_size.split("x"))
+    tile = None if args.speed_tile is None else tuple(int(v) for v in args.speed_tile.split("x"))
+    rows = speed((sw, sh), args.speed_exposures, tile, hdrutils=not args.no_hdrutils_speed)
+    fw, fh = tile or (sw, sh)
+    print(f"\n## Speed: {args.speed_exposures} frames of {fw}x{fh} ({fw * fh / 1e6:.1f} MP"
+          + (f", tiled from {sw}x{sh}" if tile else "") + f"), {os.cpu_count()} CPUs, best of 3\n")
+    dec_w, dec_c = rows["LibRaw decode (floor)"]
+    print("| step | wall s | x floor | CPU s |")
+    print("|---|---|---|---|")
+    for name, (wall, cpu) in rows.items():
+        print(f"| {name} | {wall:.3f} | {wall / dec_w:.2f}x | {cpu:.3f} |")
 
 
 if __name__ == "__main__":

@@ -271,7 +271,8 @@ def estimate_noise_frames(mosaics, black: np.ndarray, white: np.ndarray, exposur
         params = np.zeros(2 * k)
         used = 0
         for rnd in range(3):
-            m, v, used = wls_normal(r2, xs, pair_of, dg, ds, params, rnd == 0, 36.0)
+            with KERNEL_LOCK:
+                m, v, used = wls_normal(r2, xs, pair_of, dg, ds, params, rnd == 0, 36.0)
             dia = np.sqrt(np.abs(np.diag(m)))
             if not np.all(np.isfinite(m)) or np.any(dia == 0) \
                     or np.linalg.cond(m / np.outer(dia, dia)) > _MAX_CONDITION:   # scale-free condition
