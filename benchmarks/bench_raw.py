@@ -27,6 +27,8 @@ Speed: LibRaw decoding the frames (``rawpy.imread`` + the mosaic copy) against `
 merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
 
     PYTHONPATH=src python benchmarks/bench_raw.py [--size 384x256] [--speed-size 3000x2000]
+    PYTHONPATH=src python benchmarks/bench_raw.py --speed-only --speed-exposures 9 --speed-tile 6016x4000
+    PYTHONPATH=src python benchmarks/bench_raw.py --coverage-only
 """
 
 from __future__ import annotations
@@ -104,6 +106,39 @@ def accuracy(size, exposures, seed=3):
                              "scene_truth": s,
                              "noise": None if res is None else res.info.get("noise")})
     return rows
+
+
+def coverage(size, exposures, seed=3):
+    """Coverage of derender's sigma (estimated noise, camera RGB) on the mosaic (merged photosite
+    against the true one, before the demosaic), against the demosaiced truth and against the
+    scene (demosaicing error included), for every case of :data:`CASES`."""
+    from derender.camera import simulate_bracket
+    from derender.camera.sensor import mosaic_signal
+    from derender.camera.spectral import load_camera
+    from derender.evaluation.raw_merge import bracket_raw_frames, demosaiced_truth, raw_scores
+    from derender.raw.mosaic import sorted_raw_frames
+    from derender.raw.noise import estimate_noise_frames
+    from derender.raw.optimal import compiled_frames, interleave, merge_compiled, raw_merge
+
+    print(f"## Coverage of sigma: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}\n")
+    print("| camera | scene | mosaic 95 % | mosaic 50 % | demosaiced truth 95 % | 50 % | scene 95 % | 50 % |")
+    print("|---|---|---|---|---|---|---|---|")
+    for cam_name, bits, kind in CASES:
+        b = simulate_bracket(load_camera(cam_name).with_bits(bits), kind=kind, size=size, exposures=exposures,
+                             seed=seed, style="simple", pipeline="fixed")
+        frames = bracket_raw_frames(b)
+        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False)
+        ordered, times = sorted_raw_frames(frames)
+        mosaics, black, white = compiled_frames(ordered)
+        noise = estimate_noise_frames(mosaics, black, white, times)
+        x, v, m = merge_compiled(mosaics, black, white, times, noise, scale=1.0 / (white[0] - black[0]))
+        x, v = interleave(x, m.shape), interleave(v, m.shape)
+        sl = (slice(3, -3), slice(3, -3))
+        z = (np.abs(x - mosaic_signal(b.camera_rgb_per_s)) / np.sqrt(v))[sl][(m == 0)[sl]]
+        a = raw_scores(res.radiance, demosaiced_truth(b, res.info), res.mask, res.variance)
+        sc = raw_scores(res.radiance, b.camera_rgb_per_s, res.mask, res.variance)
+        print(f"| {cam_name} {bits}-bit | {kind} | {np.mean(z <= 1.959964):.3f} | {np.mean(z <= 0.674490):.3f} "
+              f"| {a['coverage95']:.3f} | {a['coverage50']:.3f} | {sc['coverage95']:.3f} | {sc['coverage50']:.3f} |")
 
 
 def _tiled_dngs(size, exposures, tile, folder):
@@ -196,8 +231,12 @@ def main() -> None:
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--speed-only", action="store_true")
     ap.add_argument("--no-hdrutils-speed", action="store_true")
+    ap.add_argument("--coverage-only", action="store_true")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
+    if args.coverage_only:
+        coverage((w, h), args.exposures)
+        return
     if args.speed_only:
         _print_speed(args)
         return
