@@ -169,9 +169,10 @@ def wls_normal(r2, xs, pair_of, design_g, design_s, params, first, clip):  # pra
 
 
 @njit(inline="always")
-def _newton_photosite(rows, y, xx, black, white, expo, gain, s2, iterations, x):  # pragma: no cover - compiled
+def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, x):  # pragma: no cover - compiled
     """Newton steps of the censored likelihood at photosite ``xx`` of row ``y`` (``rows``: that
-    row of every frame) from ``x``: ``(x, information)``."""
+    row of every frame; ``vrows``: whether each frame takes part there) from ``x``:
+    ``(x, information)``."""
     py = y & 1
     px = xx & 1
     info = 0.0
@@ -179,6 +180,8 @@ def _newton_photosite(rows, y, xx, black, white, expo, gain, s2, iterations, x):
         score = 0.0
         info = 0.0
         for j in range(rows.shape[0]):
+            if vrows[j, xx] == 0:
+                continue
             code = rows[j, xx]
             e = expo[j]
             v = gain[j] * max(x * e, 0.0) + s2[j]
@@ -197,13 +200,16 @@ def _newton_photosite(rows, y, xx, black, white, expo, gain, s2, iterations, x):
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near, inv_span,
+def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iterations, near, inv_span,
                x_out, var_out, mask_out, bright):  # pragma: no cover - compiled
     """The censored ML merge of :func:`derender.raw.optimal.merge_mosaic_optimal`, per photosite.
 
     ``mosaics``: a typed list of (H, W) uint16; ``black`` (N, 2, 2), ``white`` (N,), ``expo``
     (N,), ``gain`` (N,), ``s2`` (N,) per frame: ``d_j = y_j - black_j ~ N(X e_j, gain_j
-    max(X e_j, 0) + s2_j)``, censored at ``white_j - black_j`` where ``y_j >= white_j``.
+    max(X e_j, 0) + s2_j)``, censored at ``white_j - black_j`` where ``y_j >= white_j``;
+    ``valid`` (N, H, W) uint8 says where each frame takes part (alignment's border, ghost
+    removal), or (N, 1, 1) for everywhere. Where no frame takes part unsaturated the photosite
+    is the bound of the frames that take part (of every frame, if none does).
     Writes ``X`` and ``1 / I`` times ``inv_span[py, px]`` (and its square) as float32 split
     by CFA phase (``x_out[py, px, y // 2, x // 2]``, (2, 2, ceil(H/2), ceil(W/2)): the layout
     :func:`demosaic_rows` reads), and
@@ -219,12 +225,17 @@ def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near
         num = np.zeros(w)
         den = np.zeros(w)
         bound = np.zeros(w)
+        bound_all = np.zeros(w)
         nsat = np.zeros(w, np.int64)
         rows = np.empty((n, w), mosaics[0].dtype)     # the row of every frame (one list access per frame)
+        vrows = np.ones((n, w), np.uint8)
         for j in range(n):
             rows[j, :] = mosaics[j][y, :]
+            if valid.shape[1] > 1:
+                vrows[j, :] = valid[j, y, :]
         for j in range(n):
             r = rows[j]
+            vr = vrows[j]
             e = expo[j]
             wl = white[j]
             b0 = black[j, py, 0]
@@ -235,12 +246,14 @@ def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near
                 code = np.float64(r[xx])
                 odd = (xx & 1) == 1
                 bb = b1 if odd else b0
-                un = code < wl
+                ok = vr[xx] != 0
+                un = code < wl and ok
                 num[xx] += (code - bb) if un else 0.0
                 den[xx] += e if un else 0.0
-                nsat[xx] += 0 if un else 1
+                nsat[xx] += 1 if (ok and not un) else 0
                 q = q1 if odd else q0
-                bound[xx] = max(bound[xx], q)
+                bound[xx] = max(bound[xx], q if ok else 0.0)
+                bound_all[xx] = max(bound_all[xx], q)
         # the reweighted rounds in float32 (twice the vector lanes; the float64 reference
         # merge_mosaic_optimal agrees to 5e-8 relative per photosite)
         zero = np.float32(0.0)
@@ -248,6 +261,8 @@ def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near
         score = np.empty(w, np.float32)
         info = np.empty(w, np.float32)
         for xx in range(w):
+            if bound[xx] == 0.0:
+                bound[xx] = bound_all[xx]                     # no frame takes part: every frame's bound
             x[xx] = num[xx] / den[xx] if den[xx] > 0.0 else bound[xx]
         for _ in range(2):
             score[:] = zero
@@ -264,7 +279,7 @@ def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near
                     code = np.float32(r[xx])
                     bb = b1 if (xx & 1) == 1 else b0
                     xe = x[xx] * e
-                    wj = e / (g * max(xe, zero) + sv) if code < wl else zero
+                    wj = e / (g * max(xe, zero) + sv) if (code < wl and vrows[j, xx] != 0) else zero
                     score[xx] += wj * (code - bb - xe)
                     info[xx] += wj * e
             for xx in range(w):
@@ -285,12 +300,12 @@ def merge_rows(mosaics, black, white, expo, gain, s2, censored, iterations, near
                 close = False
                 for j in range(n):
                     code = rows[j, xx]
-                    if code >= white[j]:
+                    if code >= white[j] and vrows[j, xx] != 0:
                         e = expo[j]
                         if white[j] - black[j, py, xx & 1] - xv * e > -near * math.sqrt(gain[j] * max(xv * e, 0.0) + s2[j]):
                             close = True
                 if close:
-                    xv, iv = _newton_photosite(rows, y, xx, black, white, expo, gain, s2, iterations, xv)
+                    xv, iv = _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, xv)
             x_out[py, px, i, jx] = xv * sp
             var_out[py, px, i, jx] = (1.0 / iv) * sp * sp if iv > 0.0 else 0.0
             mask_out[y, xx] = 0

@@ -281,13 +281,15 @@ def compiled_frames(frames: Sequence[RawFrame]):
 
 def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.ndarray, noise: NoiseModel,
                    censored: bool = True, iterations: int = _ITERATIONS,
-                   scale: np.ndarray | float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   scale: np.ndarray | float = 1.0,
+                   valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`merge_mosaic_optimal` on :func:`compiled_frames` in one compiled pass
     (:func:`derender.raw.kernels.merge_rows`), with the noise model per frame
     (:meth:`~derender.raw.noise.NoiseModel.per_frame`). Returns ``(x, var, mask)``: ``X``
     and its variance times ``scale`` (per CFA phase, (2, 2), or a number) and its square,
     float32 split by CFA phase ((2, 2, ceil(H/2), ceil(W/2)); :func:`interleave` makes the
-    mosaic), and the (H, W) uint8 mask."""
+    mosaic), and the (H, W) uint8 mask. ``valid`` (N, H, W) bool: where each frame takes part
+    (None: everywhere)."""
     from derender.raw.kernels import KERNEL_LOCK, merge_rows
 
     h, w = mosaics[0].shape
@@ -299,8 +301,9 @@ def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.
         x[...] = 0.0
         var[...] = 0.0
     mask = np.empty((h, w), np.uint8)
+    valid = np.ones((len(mosaics), 1, 1), np.uint8) if valid is None else np.ascontiguousarray(valid, np.uint8)
     with KERNEL_LOCK:
-        merge_rows(mosaics, black, np.asarray(white, np.float64), np.asarray(exposures, np.float64), g, s2,
+        merge_rows(mosaics, valid, black, np.asarray(white, np.float64), np.asarray(exposures, np.float64), g, s2,
                    bool(censored), int(iterations), _NEAR, scale, x, var, mask, HDRResult.MASK_BRIGHT)
     return x, var, mask
 
@@ -372,7 +375,7 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
               gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
               wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
               variance: bool = True, clip_negative: bool = True, censored: bool = True,
-              xyz_to_camera: np.ndarray | None = None) -> HDRResult:
+              xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None) -> HDRResult:
     """Noise-optimal merge of RAW frames: censored Poisson-Gaussian ML on the mosaic, demosaiced once.
 
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
@@ -407,6 +410,9 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         Saturated samples count as censored observations (else they are dropped).
     xyz_to_camera : (3, 3) array, optional
         The camera's ColorMatrix, replacing the frames'.
+    valid : sequence of (H, W) bool arrays, optional
+        Per frame (in the order given), where it takes part: an aligned frame's border, the
+        photosites ghost removal rejects (:func:`derender.hdr.raw.merge_raw` with ``motion``).
 
     Returns
     -------
@@ -444,7 +450,16 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     >>> bool(np.all(result.variance > 0))
     True
     """
-    frames, times = sorted_raw_frames(frames)
+    given = [frames] if isinstance(frames, RawFrame) else list(frames)
+    frames, times = sorted_raw_frames(given)
+    valid_stack = None
+    if valid is not None:
+        if len(valid) != len(given):
+            raise InputError(f"valid has {len(valid)} masks for {len(given)} frames")
+        by_id = {id(f): np.asarray(v, bool) for f, v in zip(given, valid)}
+        valid_stack = np.stack([by_id[id(f)] for f in frames])
+        if valid_stack.shape[1:] != np.asarray(frames[0].mosaic).shape:
+            raise InputError(f"valid masks must be {np.asarray(frames[0].mosaic).shape}, got {valid_stack.shape[1:]}")
     pattern = frames[0].cfa_pattern.upper()
     if (gain is None) != (read_noise is None):
         raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
@@ -466,7 +481,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         noise = NoiseModel(float(gain), float(read_noise) ** 2, "given")
     top = int(np.argmax(white))
     span = white[top] - black[top]                       # (2, 2): white - black per CFA phase
-    x, var, mmask = merge_compiled(mosaics, black, white, times, noise, censored=censored, scale=1.0 / span)
+    x, var, mmask = merge_compiled(mosaics, black, white, times, noise, censored=censored, scale=1.0 / span,
+                                   valid=valid_stack)
     del mosaics
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space, xyz_to_camera)
