@@ -27,6 +27,8 @@ Speed: LibRaw decoding the frames (``rawpy.imread`` + the mosaic copy) against `
 merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
 
     PYTHONPATH=src python benchmarks/bench_raw.py [--size 384x256] [--speed-size 3000x2000]
+    PYTHONPATH=src python benchmarks/bench_raw.py --speed-only --speed-exposures 9 --speed-tile 6016x4000
+    PYTHONPATH=src python benchmarks/bench_raw.py --coverage-only
 """
 
 from __future__ import annotations
@@ -106,28 +108,116 @@ def accuracy(size, exposures, seed=3):
     return rows
 
 
-def speed(size, exposures):
+def coverage(size, exposures, seed=3):
+    """Coverage of derender's sigma (estimated noise, camera RGB) on the mosaic (merged photosite
+    against the true one, before the demosaic), against the demosaiced truth and against the
+    scene (demosaicing error included), for every case of :data:`CASES`."""
+    from derender.camera import simulate_bracket
+    from derender.camera.sensor import mosaic_signal
+    from derender.camera.spectral import load_camera
+    from derender.evaluation.raw_merge import bracket_raw_frames, demosaiced_truth, raw_scores
+    from derender.raw.mosaic import sorted_raw_frames
+    from derender.raw.noise import estimate_noise_frames
+    from derender.raw.optimal import compiled_frames, interleave, merge_compiled, raw_merge
+
+    print(f"## Coverage of sigma: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}\n")
+    print("| camera | scene | mosaic 95 % | mosaic 50 % | demosaiced truth 95 % | 50 % | scene 95 % | 50 % |")
+    print("|---|---|---|---|---|---|---|---|")
+    for cam_name, bits, kind in CASES:
+        b = simulate_bracket(load_camera(cam_name).with_bits(bits), kind=kind, size=size, exposures=exposures,
+                             seed=seed, style="simple", pipeline="fixed")
+        frames = bracket_raw_frames(b)
+        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False)
+        ordered, times = sorted_raw_frames(frames)
+        mosaics, black, white = compiled_frames(ordered)
+        noise = estimate_noise_frames(mosaics, black, white, times)
+        x, v, m = merge_compiled(mosaics, black, white, times, noise, scale=1.0 / (white[0] - black[0]))
+        x, v = interleave(x, m.shape), interleave(v, m.shape)
+        sl = (slice(3, -3), slice(3, -3))
+        z = (np.abs(x - mosaic_signal(b.camera_rgb_per_s)) / np.sqrt(v))[sl][(m == 0)[sl]]
+        a = raw_scores(res.radiance, demosaiced_truth(b, res.info), res.mask, res.variance)
+        sc = raw_scores(res.radiance, b.camera_rgb_per_s, res.mask, res.variance)
+        print(f"| {cam_name} {bits}-bit | {kind} | {np.mean(z <= 1.959964):.3f} | {np.mean(z <= 0.674490):.3f} "
+              f"| {a['coverage95']:.3f} | {a['coverage50']:.3f} | {sc['coverage95']:.3f} | {sc['coverage50']:.3f} |")
+
+
+def _tiled_dngs(size, exposures, tile, folder):
+    """A simulated bracket of ``size`` (nikon-d5100, outdoor, seed 1) written as DNG files, each
+    mosaic tiled to ``tile`` photosites (``WxH``; the CFA phase kept): the simulator's noise,
+    levels and metadata at a size it would take minutes to simulate."""
+    from derender.camera import simulate_bracket
+    from derender.camera.dng import write_dng
+
+    b = simulate_bracket("nikon-d5100", kind="outdoor", size=size, exposures=exposures, seed=1, style="simple",
+                         pipeline="fixed")
+    cam = b.camera
+    tw, th = tile
+    span = float(cam.white_level - cam.black_level)
+    files = []
+    for j, t in enumerate(b.times):
+        m = np.asarray(b.mosaics[j])
+        m = np.tile(m, (-(-th // m.shape[0]), -(-tw // m.shape[1])))[:th, :tw]
+        files.append(write_dng(Path(folder) / f"{j:02d}.dng", np.ascontiguousarray(m), cfa_pattern="RGGB",
+                               black_level=cam.black_level, white_level=cam.white_level,
+                               xyz_to_camera=b.xyz_to_camera, as_shot_neutral=1.0 / np.asarray(b.wb_true),
+                               exposure_time=float(t), make=cam.make, model=cam.model, bits=cam.bits,
+                               noise_profile=(1.0 / cam.full_well, (cam.read_noise ** 2 + 1.0 / 12.0) / span ** 2)))
+    return files, b.times
+
+
+def speed(size, exposures, tile=None, repeats=3, hdrutils=True):
+    """Best of ``repeats`` (wall and CPU seconds, interleaved so that load on the machine hits
+    every row alike): LibRaw decoding the frames one after the other (``rawpy.imread`` + the
+    mosaic copy: the floor), derender's read (LibRaw in threads, the DNG tags), the merge in
+    memory (read + noise fit + merge + variance + demosaic), the same writing both EXR files
+    (zip), and HDRutils' merge of the same files."""
     import rawpy
 
-    from derender.camera import simulate_bracket, write_bracket
     from derender.hdr.files import merge_files
 
+    rows = {}
+
+    def timed(name, fn):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        w, c = time.perf_counter() - w0, time.process_time() - c0
+        bw, bc = rows.get(name, (np.inf, np.inf))
+        rows[name] = (min(bw, w), min(bc, c))
+
     with tempfile.TemporaryDirectory() as tmp:
-        b = simulate_bracket("nikon-d5100", kind="outdoor", size=size, exposures=exposures, seed=1, style="simple",
-                             pipeline="fixed")
-        write_bracket(b, tmp)
-        files = sorted((Path(tmp) / "raw").glob("*.dng"))
-        best_decode = best_merge = np.inf
-        for _ in range(2):
-            t0 = time.perf_counter()
+        if tile is None:
+            from derender.camera import simulate_bracket, write_bracket
+
+            b = simulate_bracket("nikon-d5100", kind="outdoor", size=size, exposures=exposures, seed=1,
+                                 style="simple", pipeline="fixed")
+            write_bracket(b, tmp)
+            files, times = sorted((Path(tmp) / "raw").glob("*.dng")), b.times
+        else:
+            files, times = _tiled_dngs(size, exposures, tile, tmp)
+
+        def decode():
             for f in files:
                 with rawpy.imread(str(f)) as r:
                     np.array(r.raw_image_visible, copy=True)
-            best_decode = min(best_decode, time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            merge_files(files, method="raw", variance_output=Path(tmp) / "v.exr", output=Path(tmp) / "m.exr")
-            best_merge = min(best_merge, time.perf_counter() - t0)
-    return best_decode, best_merge
+
+        def read():
+            from derender.io.raw import read_raw_bracket
+
+            read_raw_bracket(files)
+
+        merge_files(files[:2], method="raw")                  # numba's cache loaded once
+        for _ in range(repeats):
+            timed("LibRaw decode (floor)", decode)
+            timed("derender read (threads)", read)
+            timed("merge in memory (read, noise, merge, variance, demosaic)",
+                  lambda: merge_files(files, method="raw", variance=True))
+            timed("merge + radiance and variance EXR (zip)",
+                  lambda: merge_files(files, method="raw", variance_output=Path(tmp) / "v.exr",
+                                      output=Path(tmp) / "m.exr"))
+        if hdrutils and _hdrutils(files[:2], times[:2]) is not None:
+            for _ in range(max(1, repeats - 1)):
+                timed("HDRutils 1.2 merge (no variance)", lambda: _hdrutils(files, times))
+    return rows
 
 
 def main() -> None:
@@ -136,9 +226,20 @@ def main() -> None:
     ap.add_argument("--exposures", type=int, default=5)
     ap.add_argument("--speed-size", default="1536x1024")
     ap.add_argument("--speed-exposures", type=int, default=5)
+    ap.add_argument("--speed-tile", default=None, help="WxH: tile the speed bracket's mosaics to this size "
+                    "(e.g. 6016x4000, 24 MP)")
     ap.add_argument("--no-speed", action="store_true")
+    ap.add_argument("--speed-only", action="store_true")
+    ap.add_argument("--no-hdrutils-speed", action="store_true")
+    ap.add_argument("--coverage-only", action="store_true")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
+    if args.coverage_only:
+        coverage((w, h), args.exposures)
+        return
+    if args.speed_only:
+        _print_speed(args)
+        return
     rows = accuracy((w, h), args.exposures)
     print(f"## Accuracy: {args.exposures} exposures, {w}x{h}, camera RGB, one fitted scale per result\n")
     print("| camera | scene | method | median | p90 | darkest decade | brightest decade | cov 95 | cov 50 "
@@ -162,11 +263,23 @@ def main() -> None:
             print(f"  {r['camera']} {r['scene']}: gain {n['gain_dn_per_electron'] / g:.3f}, "
                   f"read noise {n['read_noise_dn'] / rn:.3f}")
     if not args.no_speed:
-        sw, sh = (int(v) for v in args.speed_size.split("x"))
-        dec, mer = speed((sw, sh), args.speed_exposures)
-        print(f"\n## Speed: {args.speed_exposures} frames of {sw}x{sh}\n")
-        print(f"LibRaw decode {dec:.3f} s; derender merge --method raw (read, merge, variance, write) {mer:.3f} s "
-              f"= {mer / dec:.1f}x the decode")
+        _print_speed(args)
+
+
+def _print_speed(args) -> None:
+    import os
+
+    sw, sh = (int(v) for v in args.speed_size.split("x"))
+    tile = None if args.speed_tile is None else tuple(int(v) for v in args.speed_tile.split("x"))
+    rows = speed((sw, sh), args.speed_exposures, tile, hdrutils=not args.no_hdrutils_speed)
+    fw, fh = tile or (sw, sh)
+    print(f"\n## Speed: {args.speed_exposures} frames of {fw}x{fh} ({fw * fh / 1e6:.1f} MP"
+          + (f", tiled from {sw}x{sh}" if tile else "") + f"), {os.cpu_count()} CPUs, best of 3\n")
+    dec_w, dec_c = rows["LibRaw decode (floor)"]
+    print("| step | wall s | x floor | CPU s |")
+    print("|---|---|---|---|")
+    for name, (wall, cpu) in rows.items():
+        print(f"| {name} | {wall:.3f} | {wall / dec_w:.2f}x | {cpu:.3f} |")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,15 @@ method's merge function (frames in memory), :func:`merge_raw_files` the path ``d
 takes for RAW files (:func:`derender.hdr.files.merge_files` hands them over).
 
 The RAW method runs outside the engine for now: the engine's plans look up 8-bit codes.
-``--reference``, ``--align`` and ``--deghost`` are refused with one error line; ``--spot``,
+Motion (:func:`raw_motion`, a :class:`~derender.engine.motion.run.MotionOptions` given as
+``motion=``) is done on the mosaic: alignment by even-photosite shifts (the CFA phase kept)
+found by Ward's MTB (:func:`derender.engine.motion.ward2003.mtb_shift`) on a grey rendering
+of each frame (2x2 blocks, gamma 1/2.2), and ghost removal by the Poisson-Gaussian noise model
+between each frame and the reference: per photosite ``z = (d_j / e_j - d_r / e_r) /
+sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at the reference's
+value), its mean over a 5x5 window against the engine's threshold
+(:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`); a censored sample is inconsistent
+when the other frame puts the value more than 3 sigma below its saturation level. ``--spot``,
 ``--vignetting``, ``--profile`` (its photometric factor and vignetting), ``--view``/``.hdr``
 output, ``--preview``, ``--mask`` and ``--report`` act on the merged map as for any method.
 """
@@ -30,6 +38,7 @@ __all__ = [
     "ESTIMATORS",
     "RawOptions",
     "merge_raw",
+    "raw_motion",
     "check_one_camera",
     "merge_raw_files",
 ]
@@ -52,13 +61,15 @@ class RawOptions:
 
 def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optimal", output_space: str = "linear_srgb",
               gain: float | None = None, read_noise: float | None = None, demosaic: str = "malvar2004",
-              variance: bool = False) -> HDRResult:
+              variance: bool = False, motion: Any = None) -> HDRResult:
     """Noise-optimal merge of RAW frames on the mosaic (censored Poisson-Gaussian ML), demosaiced once, with its variance.
 
     ``estimator``: ``"optimal"`` (:func:`derender.raw.optimal.raw_merge`; ``gain`` in DN per
     electron and ``read_noise`` in DN override the estimates from the frames) or ``"paper1"``
     (paper 1's eq. 11, binary weights, no variance). ``output_space``: ``linear_srgb``,
     ``camera_rgb`` or ``xyz``, through the files' own colour matrix and as-shot white balance.
+    ``motion``: a :class:`~derender.engine.motion.run.MotionOptions` (reference, alignment,
+    ghost removal; :func:`raw_motion`), estimator ``optimal`` only.
     """
     from derender.raw.optimal import OUTPUT_SPACES, raw_merge
 
@@ -71,9 +82,17 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optima
     if not isinstance(frames, (list, tuple)) or not all(isinstance(f, RawFrame) for f in frames):
         raise InputError("the raw method merges RAW frames (derender.read_raw), not rendered images")
     check_one_camera(frames)
+    motion_info = None
+    valid = None
+    if motion is not None and getattr(motion, "active", False):
+        if estimator != "optimal":
+            raise InputError("motion (--reference, --align, --deghost) works with estimator optimal on RAW frames")
+        frames, valid, motion_info = raw_motion(frames, motion, gain=gain, read_noise=read_noise)
     if estimator == "optimal":
         res = raw_merge(frames, output_space=output_space, gain=gain, read_noise=read_noise, demosaic=demosaic,
-                        variance=variance)
+                        variance=variance, valid=valid)
+        if motion_info is not None:
+            res.info["raw_motion"] = motion_info
     else:
         if variance:
             raise InputError("estimator paper1 (eq. 11) gives no variance; drop --variance or use estimator optimal")
@@ -82,6 +101,178 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optima
         res = _paper1(frames, output_space, demosaic)
     res.info.update({"method": "raw", "estimator": estimator})
     return res
+
+
+#: A censored sample is inconsistent with the other frame when that frame's value lies more
+#: than this many sigma below the saturation level (ghost removal on RAW frames).
+_CENSOR_SIGMA = 3.0
+
+
+def _grey8(frame: RawFrame, gain: float = 1.0) -> np.ndarray:
+    """A grey rendering of a mosaic for MTB: 2x2 block sums above black times ``gain`` (the
+    exposure ratio to the frame it is compared with), to 8 bit by gamma 1/2.2."""
+    m = np.asarray(frame.mosaic, dtype=np.float32)
+    h, w = (m.shape[0] // 2) * 2, (m.shape[1] // 2) * 2
+    bl = np.asarray(frame.black_level, dtype=np.float32)
+    bl = float(bl.mean())
+    s = (m[0:h:2, 0:w:2] + m[1:h:2, 0:w:2] + m[0:h:2, 1:w:2] + m[1:h:2, 1:w:2]) - 4 * bl
+    s = np.clip(float(gain) * s / (4 * (float(frame.white_level) - bl)), 0.0, 1.0)
+    return np.round(255.0 * s ** (1 / 2.2)).astype(np.uint8)
+
+
+def _shifted(mosaic: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.ndarray]:
+    """``out[y, x] = mosaic[y + dy, x + dx]`` (even shifts keep the CFA phase) and where it is inside."""
+    h, w = mosaic.shape
+    out = np.empty_like(mosaic)
+    inside = np.zeros((h, w), bool)
+    ys, xs = slice(max(0, -dy), min(h, h - dy)), slice(max(0, -dx), min(w, w - dx))
+    src_y, src_x = slice(ys.start + dy, ys.stop + dy), slice(xs.start + dx, xs.stop + dx)
+    out[...] = mosaic
+    out[ys, xs] = mosaic[src_y, src_x]
+    inside[ys, xs] = True
+    return out, inside
+
+
+def raw_motion(frames: Sequence[RawFrame], motion: Any, gain: float | None = None,
+               read_noise: float | None = None) -> tuple[list[RawFrame], list[np.ndarray], dict]:
+    """Reference, alignment and ghost removal on RAW frames (module docstring) for
+    :func:`merge_raw`: ``(frames, valid, info)``, the frames in the order given (aligned
+    copies), per frame where it takes part, and what was done (``reference``, ``shifts``,
+    ``rejected`` fraction per frame)."""
+    from derender.raw.mosaic import setting_factors
+
+    frames = list(frames)
+    n = len(frames)
+    if motion.align not in ("none", "translation"):
+        raise InputError(f"--align {motion.align} is not available on RAW frames; use --align translation (MTB)")
+    times = np.array([(f.exposure_time or 1.0) for f in frames]) * setting_factors(frames)
+    ref = _raw_reference(frames, motion.reference)
+    valid = [np.ones(np.asarray(f.mosaic).shape, bool) for f in frames]
+    shifts = [(0, 0)] * n
+    if motion.align == "translation" and n > 1:
+        frames, shifts = _align_mosaics(frames, times, ref, valid)
+    rejected = [0.0] * n
+    if motion.deghost and n > 1:
+        rejected = _reject_ghosts(frames, times, ref, valid, motion.ghost_threshold, (gain, read_noise))
+    info = {"reference": ref, "align": motion.align, "shifts": shifts, "deghost": bool(motion.deghost),
+            "rejected": rejected}
+    return frames, valid, info
+
+
+def _raw_reference(frames: list[RawFrame], reference: int | None) -> int:
+    """The reference frame: ``reference`` (0-based, as given), else the frame with most photosites
+    well inside its range (2-90 % of white minus black)."""
+    n = len(frames)
+    if reference is not None:
+        if reference >= n:
+            raise InputError(f"reference frame {reference + 1} of {n}: there is no such frame")
+        return int(reference)
+
+    def well(f: RawFrame) -> int:
+        d = np.asarray(f.mosaic, np.float32) - float(np.mean(f.black_level))
+        c = float(f.white_level) - float(np.mean(f.black_level))
+        return int(np.count_nonzero((d > 0.02 * c) & (d < 0.9 * c)))
+
+    return int(np.argmax([well(f) for f in frames]))
+
+
+def _align_mosaics(frames: list[RawFrame], times: np.ndarray, ref: int,
+                   valid: list[np.ndarray]) -> tuple[list[RawFrame], list[tuple[int, int]]]:
+    """Even-photosite shifts by Ward's MTB, each frame against its neighbour in exposure towards
+    the reference (both at the darker one's brightness), the shifts chained: a dark frame is
+    never compared with a far brighter one (Ward 2003 aligns adjacent exposures too). Returns the
+    shifted copies and the shifts; ``valid`` loses the photosites shifted in from outside."""
+    from dataclasses import replace
+
+    from derender.engine.motion.ward2003 import mtb_shift
+
+    n = len(frames)
+    order = list(np.argsort(times, kind="stable"))
+    pos = order.index(ref)
+    half: dict[int, tuple[int, int]] = {}
+    for step in (-1, 1):
+        k = pos
+        while 0 <= k + step < n:
+            j, nb = order[k + step], order[k]
+            dark = min(times[j], times[nb])
+            dy, dx = mtb_shift(_grey8(frames[nb], dark / times[nb]), _grey8(frames[j], dark / times[j]))
+            py, px = half.get(nb, (0, 0))
+            half[j] = (py + int(dy), px + int(dx))
+            k += step
+    out, shifts = [], [(0, 0)] * n
+    for j, f in enumerate(frames):
+        dy, dx = half.get(j, (0, 0))
+        if (dy, dx) == (0, 0):
+            out.append(f)
+            continue
+        shifts[j] = (2 * dy, 2 * dx)
+        mos, inside = _shifted(np.asarray(f.mosaic), 2 * dy, 2 * dx)
+        valid[j] &= inside
+        out.append(replace(f, mosaic=mos))
+    return out, shifts
+
+
+def _frame_noise(frames: list[RawFrame], times: np.ndarray, given: tuple) -> tuple:
+    """Per frame (in the order given): gain, read variance, black-level plane and white level,
+    the noise ``given`` as (gain, read noise) or estimated from the frames."""
+    from derender.raw.noise import NoiseModel, estimate_noise_frames
+    from derender.raw.optimal import compiled_frames
+
+    n = len(frames)
+    order = np.argsort(times, kind="stable")
+    sorted_frames = [frames[i] for i in order]
+    mosaics, black, white = compiled_frames(sorted_frames)
+    if given[0] is not None and given[1] is not None:
+        noise = NoiseModel(float(given[0]), float(given[1]) ** 2, "given")
+    else:
+        noise = estimate_noise_frames(mosaics, black, white, times[order],
+                                      [(f.extra or {}).get("iso") for f in sorted_frames])
+    g_s, s2_s = noise.per_frame(n)
+    g, s2 = np.empty(n), np.empty(n)
+    g[order], s2[order] = g_s, s2_s
+    h, w = np.asarray(frames[0].mosaic).shape
+    planes, whites = [None] * n, [0.0] * n
+    for k, i in enumerate(order):
+        planes[i] = np.tile(black[k], ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+        whites[i] = white[k]
+    return g, s2, planes, whites
+
+
+def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: list[np.ndarray],
+                   threshold: float | None, given: tuple) -> list[float]:
+    """Ghost removal by the Poisson-Gaussian model (module docstring): ``valid[j]`` loses where the
+    5x5 window mean of ``z^2`` against the reference exceeds the threshold. Returns the fraction
+    rejected per frame."""
+    from scipy.ndimage import uniform_filter
+
+    from derender.engine.motion.deghost import GHOST_THRESHOLD
+
+    g, s2, planes, whites = _frame_noise(frames, times, given)
+    d_r = np.asarray(frames[ref].mosaic, np.float64) - planes[ref]
+    sat_r = np.asarray(frames[ref].mosaic) >= whites[ref]
+    x_r = np.maximum(d_r / times[ref], 0.0)
+    v_r = g[ref] * x_r * times[ref] + s2[ref]
+    c_r = whites[ref] - planes[ref]
+    thr = float(threshold or GHOST_THRESHOLD)
+    rejected = [0.0] * len(frames)
+    for j in range(len(frames)):
+        if j == ref:
+            continue
+        d_j = np.asarray(frames[j].mosaic, np.float64) - planes[j]
+        sat_j = np.asarray(frames[j].mosaic) >= whites[j]
+        v_j = g[j] * x_r * times[j] + s2[j]
+        z2 = (d_j / times[j] - d_r / times[ref]) ** 2 / (v_j / times[j] ** 2 + v_r / times[ref] ** 2)
+        # a censored sample: inconsistent only where the other frame is clearly below its level
+        below_j = x_r * times[j] < whites[j] - planes[j] - _CENSOR_SIGMA * np.sqrt(v_j)
+        x_j = np.maximum(d_j / times[j], 0.0)
+        below_r = x_j * times[ref] < c_r - _CENSOR_SIGMA * np.sqrt(g[ref] * x_j * times[ref] + s2[ref])
+        z2 = np.where(sat_j & sat_r, 0.0, z2)
+        z2 = np.where(sat_j & ~sat_r, np.where(below_j, 4.0 * thr, 0.0), z2)
+        z2 = np.where(~sat_j & sat_r, np.where(below_r, 4.0 * thr, 0.0), z2)
+        bad = uniform_filter(z2, size=5, mode="nearest") > thr
+        valid[j] &= ~bad
+        rejected[j] = float(np.mean(bad))
+    return rejected
 
 
 def _paper1(frames: Sequence[RawFrame], output_space: str, demosaic: str) -> HDRResult:
@@ -120,24 +311,29 @@ def check_one_camera(frames: Sequence[RawFrame]) -> None:
 def merge_raw_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None, *,
                     output: str | os.PathLike | None = None, variance_output: str | os.PathLike | None = None,
                     half: bool = False, compression: str = "zip", inputs: Sequence[str | os.PathLike] = (),
-                    threads: int | None = None, **options: Any) -> HDRResult:
+                    threads: int | None = None, motion: Any = None, **options: Any) -> HDRResult:
     """Read RAW files (LibRaw; black and white level per frame, exposure times from the files
     unless ``times`` are given) and merge them with :func:`merge_raw`; optionally write the
     radiance and its variance (OpenEXR). A bracket of several frames needs every exposure time
     (the error names the files without one); a single frame without one is merged per unit
     exposure (relative units)."""
     from derender.engine.run import write_outputs
-    from derender.io.raw import read_raw_stack
+    from derender.io.raw import read_raw_bracket
+    from derender.raw.mosaic import setting_factors
 
     t0 = time.perf_counter()
-    frames = read_raw_stack(paths, times=times)
+    frames = read_raw_bracket(paths, times=times, threads=threads)
+    if len(frames) > 1:            # t S / N^2 relative to the first frame given (motion's reference: as given)
+        for f, k in zip(frames, setting_factors(frames)):
+            f.extra = {**(f.extra or {}), "exposure_factor": float(k)}
     if len(frames) == 1 and frames[0].exposure_time is None:
         frames[0].exposure_time = 1.0
         single_note = "no exposure time in the file: radiance per unit exposure (relative units)"
     else:
         single_note = None
     t_read = time.perf_counter() - t0
-    res = merge_raw(frames, **options)
+    res = merge_raw(frames, motion=motion, **options)
+    frames = sorted(frames, key=lambda f: (f.exposure_time or 1.0) * (f.extra or {}).get("exposure_factor", 1.0))
     res.info["n_clipped"] = int(np.count_nonzero(res.mask == HDRResult.MASK_BRIGHT))
     res.info.update({"engine": "raw", "engine_path": "raw", "read_seconds": t_read,
                      "frames": [Path(f.path).name for f in frames]})

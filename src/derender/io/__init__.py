@@ -16,7 +16,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "headers": ["DEFAULT_MAX_MEGAPIXELS", "ImageInfo", "probe_image", "probe_images", "orient", "jpeg_header"],
     "images": ["read_image", "read_stack", "read_codes"],
     "preview": ["IMAGE8_SUFFIXES", "write_png", "write_preview", "reinhard_photographic", "encode_srgb"],
-    "raw": ["read_raw", "read_raw_stack", "read_raw_exposure"],
+    "raw": ["read_raw", "read_raw_stack", "read_raw_exposure", "read_raw_bracket"],
     "rsp": ["RSP_MAX_ORDER", "RSP_LINEAR_TOE", "read_rsp", "write_rsp", "rsp_tables", "fit_rsp", "rsp_code_values"],
     "rgbe": ["read_hdr", "read_radiance", "write_hdr", "read_hdr_header", "check_view", "SRGB_PRIMARIES"],
 })

@@ -64,7 +64,9 @@ def read_exif(path: str | os.PathLike) -> dict:
             "EXIF ExposureTime": "ExposureTime",
             "Image ExposureTime": "ExposureTime",
             "EXIF FNumber": "FNumber",
+            "Image FNumber": "FNumber",             # TIFF/EP and DNG files may keep them in IFD0
             "EXIF ISOSpeedRatings": "ISO",
+            "Image ISOSpeedRatings": "ISO",
             "Image Make": "Make",
             "Image Model": "Model",
             "EXIF LensModel": "Lens",

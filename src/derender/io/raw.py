@@ -23,6 +23,7 @@ __all__ = [
     "read_raw",
     "read_raw_stack",
     "read_raw_exposure",
+    "read_raw_bracket",
 ]
 
 
@@ -340,4 +341,70 @@ def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | 
             raise InputError(f"no exposure time in {', '.join(missing)}; give --times")
         validate_times([f.exposure_time for f in frames], len(frames))
         frames.sort(key=lambda f: f.exposure_time)
+    return frames
+
+
+def read_raw_bracket(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None,
+                     threads: int | None = None) -> list[RawFrame]:
+    """Read RAW frames in the order given, for :func:`derender.raw.optimal.raw_merge`: as
+    :func:`read_raw_stack` (the same file twice, different cameras or sizes and several frames
+    without exposure times are refused), but frames may vary the f-number and ISO -- the merge
+    normalises each by ``t S / N^2`` relative to the first frame given
+    (:func:`derender.raw.mosaic.setting_factors`) -- they are not sorted, and they are decoded in
+    threads. ``times`` replace
+    the files' exposures whole (``extra["exposure_factor"] = 1``: they are ``t S / N^2``).
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The bracket's RAW files.
+    times : sequence of float, optional
+        Exposures, one per path in the order given.
+    threads : int, optional
+        Files decoded at once (default: the CPU count).
+
+    Returns
+    -------
+    list of RawFrame
+        The frames (:func:`read_raw`), in the order of ``paths``.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_raw_stack`, except for frames varying the f-number or ISO.
+    """
+    from derender.io.files import check_input_file, resolve_path
+
+    paths = list(paths)
+    seen: set = set()
+    for p in paths:
+        check_input_file(p)
+        r = resolve_path(p)
+        if r in seen:
+            raise InputError(f"the same file is given twice: {p}")
+        seen.add(r)
+    if not paths:
+        raise InputError("no RAW files given")
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max(1, min(len(paths), threads or os.cpu_count() or 1))) as pool:
+        frames = list(pool.map(read_raw, paths))          # LibRaw decodes without the GIL
+    if times is not None:
+        t = validate_times(times, len(frames))
+        for f, v in zip(frames, t):
+            f.exposure_time = float(v)
+            f.extra = {**(f.extra or {}), "exposure_factor": 1.0}
+    named = [f for f in frames if f.make or f.model]
+    other = next((f for f in named if (f.make, f.model) != (named[0].make, named[0].model)), None)
+    if other is not None:
+        first = named[0]
+        raise InputError(f"the bracket mixes cameras: {Path(first.path).name} is {first.make} {first.model}, "
+                         f"{Path(other.path).name} is {other.make} {other.model}")
+    shapes = {f.mosaic.shape for f in frames}
+    if len(shapes) > 1:
+        raise InputError(f"RAW frames differ in size: {sorted(shapes)}")
+    if len(frames) > 1:
+        missing = [Path(f.path).name for f in frames if f.exposure_time is None]
+        if missing:
+            raise InputError(f"no exposure time in {', '.join(missing)}; give --times")
     return frames

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -21,6 +22,7 @@ __all__ = [
     "LOW",
     "HIGH",
     "DEMOSAIC_METHODS",
+    "setting_factors",
     "sorted_raw_frames",
     "cfa_channel_index",
     "merge_raw_mosaics",
@@ -50,8 +52,40 @@ _MASK_RADIUS = 2
 
 
 # --------------------------------------------------------------------------- helpers
+def setting_factors(frames: Sequence[RawFrame]) -> np.ndarray:
+    """Per frame ``(S_j / S_0) (N_0 / N_j)^2``: the ISO ``S`` and f-number ``N`` of each frame
+    (``extra["iso"]``, ``extra["fnumber"]``, read from the file) relative to the first frame
+    given, as :func:`derender.io.exif.exposure_factors` does for rendered frames; 1 for a
+    setting that does not vary, and ``extra["exposure_factor"]`` where it is set (exposures
+    given whole). A setting that varies must be known for every frame (else one error that
+    names the frames without it)."""
+    n = len(frames)
+    factors = np.ones(n)
+    fixed = [bool(f.extra) and f.extra.get("exposure_factor") is not None for f in frames]
+    for key, power, what in (("iso", 1.0, "ISO speed"), ("fnumber", -2.0, "f-number")):
+        values = [(f.extra or {}).get(key) for f in frames]
+        present = {v for v, fx in zip(values, fixed) if v is not None and not fx}
+        if len(present) <= 1:
+            continue
+        lacking = [Path(f.path).name if f.path else f"frame {j}" for j, (f, v) in enumerate(zip(frames, values))
+                   if v is None and not fixed[j]]
+        if lacking:
+            raise InputError(f"the RAW frames' {what} varies but {', '.join(lacking)} does not state it; "
+                             "give the exposures with --times (t S / N^2, relative)")
+        ref = next(v for v, fx in zip(values, fixed) if not fx)
+        for j, v in enumerate(values):
+            if not fixed[j]:
+                factors[j] *= (float(v) / float(ref)) ** power
+    for j, f in enumerate(frames):
+        if fixed[j]:
+            factors[j] = float(f.extra["exposure_factor"])
+    return factors
+
+
 def sorted_raw_frames(frames: RawFrame | Sequence[RawFrame]) -> tuple[list[RawFrame], np.ndarray]:
-    """Validate frames; return them sorted by exposure time, with the times (s)."""
+    """Validate frames; return them sorted by exposure ``t S / N^2`` (:func:`setting_factors`:
+    relative to the first frame given), with the exposures (seconds at the first frame's ISO and
+    f-number)."""
     if isinstance(frames, RawFrame):
         frames = [frames]
     frames = list(frames)
@@ -87,7 +121,7 @@ def sorted_raw_frames(frames: RawFrame | Sequence[RawFrame]) -> tuple[list[RawFr
     if missing:
         raise InputError(f"{len(missing)} of {len(frames)} RAW frames have no exposure time; "
                          "merging several frames needs every time")
-    times = validate_times([f.exposure_time for f in frames], len(frames))
+    times = validate_times([f.exposure_time * k for f, k in zip(frames, setting_factors(frames))], len(frames))
     order = np.argsort(times, kind="stable")
     return [frames[i] for i in order], times[order]
 
@@ -226,6 +260,8 @@ def spread_mask(mosaic_mask: np.ndarray) -> np.ndarray:
     """Spread the per-photosite mask over the demosaicing support; bright (1) wins over dark (2)."""
     from scipy.ndimage import maximum_filter
 
+    if not np.any(mosaic_mask):
+        return np.zeros(mosaic_mask.shape, dtype=np.uint8)
     size = 2 * _MASK_RADIUS + 1
     bright = maximum_filter((mosaic_mask == HDRResult.MASK_BRIGHT).view(np.uint8), size=size, mode="nearest")
     dark = maximum_filter((mosaic_mask == HDRResult.MASK_DARK).view(np.uint8), size=size, mode="nearest")

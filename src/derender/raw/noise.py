@@ -41,6 +41,7 @@ __all__ = [
     "estimate_noise",
     "estimate_noise_pairs",
     "estimate_noise_single",
+    "estimate_noise_frames",
 ]
 
 
@@ -49,12 +50,23 @@ class NoiseModel:
     """Poisson-Gaussian sensor noise, eq. (1): ``Var[d] = gain * E[d] + read_variance`` (DN, DN^2).
 
     ``source``: ``"pairs"`` (estimated from frame pairs), ``"green-pairs"`` (one frame),
-    ``"given"``."""
+    ``"given"``. A bracket whose ISO varies has a model per ISO (eq. 3):
+    ``frame_gain`` and ``frame_read_variance`` per frame (in the merge's exposure-sorted order),
+    ``gain`` and ``read_variance`` those of the shortest exposure; ``isos`` the ISO per frame."""
 
     gain: float
     read_variance: float
     source: str = "given"
     samples: int = 0
+    frame_gain: tuple | None = None
+    frame_read_variance: tuple | None = None
+    isos: tuple | None = None
+
+    def per_frame(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(gain, read variance)`` per frame, (n,) float64 each."""
+        if self.frame_gain is not None:
+            return np.asarray(self.frame_gain, np.float64), np.asarray(self.frame_read_variance, np.float64)
+        return np.full(n, float(self.gain)), np.full(n, float(self.read_variance))
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.gain) and self.gain > 0 and np.isfinite(self.read_variance)
@@ -72,8 +84,15 @@ class NoiseModel:
         return self.gain * np.maximum(expected_dn, 0.0) + self.read_variance
 
     def as_dict(self) -> dict:
-        return {"gain_dn_per_electron": float(self.gain), "read_noise_dn": self.read_noise,
-                "source": self.source, "samples": int(self.samples)}
+        """The model as JSON-ready numbers (per ISO too when it varies)."""
+        out = {"gain_dn_per_electron": float(self.gain), "read_noise_dn": self.read_noise,
+               "source": self.source, "samples": int(self.samples)}
+        if self.frame_gain is not None and self.isos is not None:
+            per = {}
+            for iso, g, s2 in zip(self.isos, self.frame_gain, self.frame_read_variance):
+                per[f"{iso:g}"] = {"gain_dn_per_electron": float(g), "read_noise_dn": float(np.sqrt(s2))}
+            out["per_iso"] = per
+        return out
 
 
 #: At most about this many photosites per frame pair enter the fit (every k-th of the usable ones).
@@ -187,3 +206,93 @@ def estimate_noise(d: list[np.ndarray], saturated: list[np.ndarray], ceilings: l
     if len(d) >= 2:
         return estimate_noise_pairs(d, saturated, ceilings, times)
     return estimate_noise_single(d[0], saturated[0], ceilings[0], pattern)
+
+
+#: Condition number above which a per-ISO noise fit is taken as unconstrained (one model then).
+_MAX_CONDITION = 1e10
+
+
+def estimate_noise_frames(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
+                          isos: list | None = None) -> NoiseModel:
+    """Eq. (2) fitted from the uint16 mosaics (compiled, :mod:`derender.raw.kernels`): the
+    samples :func:`estimate_noise_pairs` takes, the same weighted least squares.
+
+    ``mosaics``: a numba typed list of (H, W) uint16, exposure-sorted; ``black`` (N, 2, 2) and
+    ``white`` (N,) per frame; ``exposures`` ``t S / N^2`` (relative). When ``isos`` vary, the
+    gain and read variance are fitted per ISO (eq. 3), on every pair of frames (not only
+    adjacent ones, so that each ISO meets the others):
+
+        Var[r] = X (g_{S_j} / e_j + g_{S_k} / e_k) + s2_{S_j} / e_j^2 + s2_{S_k} / e_k^2     (3)
+
+    (``g_S`` grows with the analogue gain of ISO ``S``, ``s2_S`` is that ISO's read noise); if
+    the bracket does not constrain every ISO's pair of values (condition number above
+    :data:`_MAX_CONDITION`), one model serves every frame."""
+    from derender.raw.kernels import KERNEL_LOCK, grid_samples, wls_normal
+
+    e = np.asarray(exposures, np.float64)
+    n = len(e)
+    levels = sorted({float(v) for v in isos}) if isos is not None and None not in isos else []
+    grouped = len(levels) > 1
+    if grouped:
+        pairs = np.array([(j, k) for j in range(n) for k in range(j + 1, n)], np.int64)
+    else:
+        pairs = np.array([(j, j + 1) for j in range(n - 1)], np.int64)
+    cap = _MAX_SAMPLES if not grouped else max(1 << 14, (4 * _MAX_SAMPLES) // len(pairs))
+    h, w = mosaics[0].shape
+    stride = max(1, (h * w) // (2 * cap))
+    stride += 1 - stride % 2 if stride > 1 else 0          # odd: the grid meets every CFA phase
+    m = (h * w + stride - 1) // stride
+    r2g = np.empty((len(pairs), m))
+    okg = np.empty((len(pairs), m), bool)
+    xg = np.empty(m)
+    with KERNEL_LOCK:
+        grid_samples(mosaics, pairs, black, white, e, _FIT_CEILING, stride, r2g, xg, okg)
+    r2s, xss, sizes = [], [], []
+    for p in range(len(pairs)):
+        idx = np.flatnonzero(okg[p])
+        idx = idx[::max(1, idx.size // cap)]                 # a regular subsample: deterministic, ample
+        r2s.append(r2g[p, idx])
+        xss.append(xg[idx])
+        sizes.append(idx.size)
+    total = int(sum(sizes))
+    if total < 64:
+        raise InputError(f"too few unsaturated photosites shared by adjacent frames ({total}) to estimate the "
+                         "noise; give gain and read noise")
+    r2, xs = np.concatenate(r2s), np.concatenate(xss)
+    pair_of = np.repeat(np.arange(len(pairs)), sizes)
+
+    def fit(groups: np.ndarray, k: int):
+        dg = np.zeros((len(pairs), k))
+        ds = np.zeros((len(pairs), k))
+        for p, (j, kk) in enumerate(pairs):
+            for f in (j, kk):
+                dg[p, groups[f]] += 1.0 / e[f]
+                ds[p, groups[f]] += 1.0 / e[f] ** 2
+        params = np.zeros(2 * k)
+        used = 0
+        for rnd in range(3):
+            with KERNEL_LOCK:
+                m, v, used = wls_normal(r2, xs, pair_of, dg, ds, params, rnd == 0, 36.0)
+            dia = np.sqrt(np.abs(np.diag(m)))
+            if not np.all(np.isfinite(m)) or np.any(dia == 0) \
+                    or np.linalg.cond(m / np.outer(dia, dia)) > _MAX_CONDITION:   # scale-free condition
+                return None
+            params = np.linalg.solve(m, v)
+            params[:k] = np.maximum(params[:k], 1e-6)
+            params[k:] = np.maximum(params[k:], 1.0 / 12.0)
+        return params, used
+
+    if grouped:
+        groups = np.array([levels.index(float(v)) for v in isos], np.int64)
+        got = fit(groups, len(levels))
+        if got is not None:
+            params, used = got
+            k = len(levels)
+            fg = tuple(float(params[g]) for g in groups)
+            fs = tuple(float(params[k + g]) for g in groups)
+            return NoiseModel(fg[0], fs[0], "pairs-per-iso", used, fg, fs, tuple(float(v) for v in isos))
+    got = fit(np.zeros(n, np.int64), 1)
+    if got is None:
+        raise InputError("the bracket does not constrain the noise model (give gain and read noise)")
+    (g, s2), used = got
+    return NoiseModel(float(g), float(s2), "pairs", used)

@@ -1,0 +1,431 @@
+"""Compiled per-photosite loops (numba) of the RAW merge: one pass for the merge, one for the demosaic.
+
+:func:`derender.raw.optimal.raw_merge` spends its time in three whole-array chains when
+written in NumPy (float64): the noise fit's samples, the merge's reweighted rounds and Newton
+steps, and the demosaic with its twelve variance filters. Each is one compiled pass here,
+rows in parallel (``prange``), every photosite independently (so results do not depend on
+the thread count):
+
+* :func:`grid_samples` -- the samples of the noise fit of :mod:`derender.raw.noise` (eq. 2)
+  on a regular grid of photosites (every ``stride``-th in row-major order, ``stride`` odd so
+  that every CFA phase is met), read straight from the uint16 mosaics: its cost goes with
+  the samples, not with the frame;
+* :func:`merge_rows` -- the censored maximum-likelihood merge of
+  :func:`derender.raw.optimal.merge_mosaic_optimal` (pooled start, two reweighted rounds,
+  Newton steps where a saturated sample is within ``near`` sigma of its level), with a
+  gain and read variance *per frame* and exposures ``e_j`` (``t_j S_j / N_j^2``, relative),
+  the sums in float64 registers, the outputs stored as float32;
+* :func:`demosaic_rows` -- white balance, the demosaic (a linear filter per CFA phase: the
+  taps of :func:`derender.raw.optimal.demosaic_variance`), the colour matrix and the
+  variance ``sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` in one pass, borders reflected
+  as ``scipy.ndimage`` does (``mode="reflect"``).
+
+The inverse Mills ratio ``lambda(z) = phi(z) / Q(z)`` is ``sqrt(2/pi) exp(-z^2/2) /
+erfc(z / sqrt 2)`` (erfc keeps its relative accuracy in the tail) for ``z < 30`` and Laplace's
+continued fraction ``z + 1/(z + 2/(z + 3/(z + ...)))`` beyond. Launches are serialised by
+:data:`KERNEL_LOCK` (numba's fallback thread pool cannot run two parallel kernels at once).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["KERNEL_LOCK", "inverse_mills", "grid_samples", "merge_rows", "demosaic_rows", "wls_normal"]
+
+#: Serialises launches of this module's parallel kernels.
+KERNEL_LOCK = threading.Lock()
+
+
+@njit(cache=True, nogil=True)
+def inverse_mills(z):  # pragma: no cover - compiled
+    """``phi(z) / (1 - Phi(z))`` for a float ``z`` (module docstring)."""
+    if z < 30.0:
+        q = 0.5 * math.erfc(z * 0.7071067811865476)
+        if q <= 0.0:
+            return z
+        return 0.3989422804014327 * math.exp(-0.5 * z * z) / q
+    f = z
+    for k in range(24, 0, -1):
+        f = z + k / f
+    return f
+
+
+@njit(inline="always")
+def _reflect(i, n):  # pragma: no cover - compiled
+    """scipy.ndimage's ``reflect`` border: ``d c b a | a b c d | d c b a`` (period 2n)."""
+    m = 2 * n
+    i = i % m
+    if i < 0:
+        i += m
+    if i >= n:
+        i = m - 1 - i
+    return i
+
+
+@njit(inline="always")
+def _finite(a, clip_negative):  # pragma: no cover - compiled
+    """``a``, or 0 where it is NaN or infinite (or negative, with ``clip_negative``)."""
+    if not math.isfinite(a) or (clip_negative and a < 0.0):
+        return 0.0
+    return a
+
+
+@njit(parallel=True, nogil=True, cache=True)
+def grid_samples(mosaics, pairs, black, white, expo, ceiling_fraction, stride, r2_out, x_out,
+                 ok_out):  # pragma: no cover - compiled
+    """The noise fit's candidate samples: the photosites ``i = m * stride`` (row-major), for
+    every pair ``p = (j, k)`` of ``pairs``: ``ok_out[p, m]`` where both frames are unsaturated
+    and below ``ceiling_fraction`` of their level ``white - black``, ``r2_out[p, m] =
+    (d_k / e_k - d_j / e_j)^2``; ``x_out[m]`` the pooled estimate ``sum d / sum e`` over the
+    frames unsaturated there (0 where none is)."""
+    n = len(mosaics)
+    h, w = mosaics[0].shape
+    npairs = pairs.shape[0]
+    total = x_out.shape[0]
+    for y in prange(h):
+        m0 = (y * w + stride - 1) // stride                  # the grid's photosites in row y
+        m1 = min(((y + 1) * w + stride - 1) // stride, total)
+        if m1 <= m0:
+            continue
+        py = y & 1
+        codes = np.empty((n, m1 - m0), np.float64)
+        for j in range(n):
+            r = mosaics[j][y]                                 # one list access per frame and row
+            for m in range(m0, m1):
+                codes[j, m - m0] = r[m * stride - y * w]
+        d = np.empty(n)
+        usable = np.empty(n, np.bool_)
+        for m in range(m0, m1):
+            px = (m * stride - y * w) & 1
+            num = 0.0
+            den = 0.0
+            for j in range(n):
+                code = codes[j, m - m0]
+                bj = black[j, py, px]
+                d[j] = code - bj
+                un = code < white[j]
+                usable[j] = un and d[j] < ceiling_fraction * (white[j] - bj)
+                if un:
+                    num += code - bj
+                    den += expo[j]
+            x_out[m] = num / den if den > 0.0 else 0.0
+            for p in range(npairs):
+                j = pairs[p, 0]
+                k = pairs[p, 1]
+                if usable[j] and usable[k]:
+                    r = d[k] / expo[k] - d[j] / expo[j]
+                    r2_out[p, m] = r * r
+                    ok_out[p, m] = True
+                else:
+                    r2_out[p, m] = 0.0
+                    ok_out[p, m] = False
+
+
+@njit(cache=True, nogil=True)
+def wls_normal(r2, xs, pair_of, design_g, design_s, params, first, clip):  # pragma: no cover - compiled
+    """Normal equations of the noise fit ``E[r2] = sum_q params_q row_q`` with the row
+    ``[x * design_g[p], design_s[p]]`` of a sample of pair ``p``: weights ``1 / pred^2`` (the
+    variance of ``r2`` for Gaussian ``r``), or ``1 / (sum design_s[p])^2`` in the ``first``
+    round; samples with ``r2 > clip * pred`` left out. Returns ``(M, v, used)`` (one thread:
+    the samples are capped, ~0.02 s a round)."""
+    kg = design_g.shape[1]
+    ks = design_s.shape[1]
+    m = kg + ks
+    mat = np.zeros((m, m))
+    vec = np.zeros(m)
+    row = np.zeros(m)
+    used = 0
+    for i in range(r2.shape[0]):
+        p = pair_of[i]
+        x = max(xs[i], 0.0)
+        for q in range(kg):
+            row[q] = x * design_g[p, q]
+        for q in range(ks):
+            row[kg + q] = design_s[p, q]
+        if first:
+            b = 0.0
+            for q in range(ks):
+                b += design_s[p, q]
+            wt = 1.0 / max(b, 1e-30) ** 2
+        else:
+            pred = 0.0
+            for q in range(m):
+                pred += params[q] * row[q]
+            pred = max(pred, 1e-12)
+            if r2[i] > clip * pred:
+                continue
+            wt = 1.0 / (pred * pred)
+        used += 1
+        for a in range(m):
+            wa = wt * row[a]
+            vec[a] += wa * r2[i]
+            for b2 in range(m):
+                mat[a, b2] += wa * row[b2]
+    return mat, vec, used
+
+
+@njit(inline="always")
+def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, x):  # pragma: no cover - compiled
+    """Newton steps of the censored likelihood at photosite ``xx`` of row ``y`` (``rows``: that
+    row of every frame; ``vrows``: whether each frame takes part there) from ``x``:
+    ``(x, information)``."""
+    py = y & 1
+    px = xx & 1
+    info = 0.0
+    for _ in range(max(iterations, 1)):
+        score = 0.0
+        info = 0.0
+        for j in range(rows.shape[0]):
+            if vrows[j, xx] == 0:
+                continue
+            code = rows[j, xx]
+            e = expo[j]
+            v = gain[j] * max(x * e, 0.0) + s2[j]
+            if code < white[j]:
+                score += e * (code - black[j, py, px] - x * e) / v
+                info += e * e / v
+            else:
+                sd = math.sqrt(v)
+                z = (white[j] - black[j, py, px] - x * e) / sd
+                lam = inverse_mills(z)
+                score += e * lam / sd
+                info += e * e * lam * max(lam - z, 0.0) / v
+        if info > 0.0:
+            x += score / info
+    return x, info
+
+
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iterations, near, inv_span,
+               x_out, var_out, mask_out, bright):  # pragma: no cover - compiled
+    """The censored ML merge of :func:`derender.raw.optimal.merge_mosaic_optimal`, per photosite.
+
+    ``mosaics``: a typed list of (H, W) uint16; ``black`` (N, 2, 2), ``white`` (N,), ``expo``
+    (N,), ``gain`` (N,), ``s2`` (N,) per frame: ``d_j = y_j - black_j ~ N(X e_j, gain_j
+    max(X e_j, 0) + s2_j)``, censored at ``white_j - black_j`` where ``y_j >= white_j``;
+    ``valid`` (N, H, W) uint8 says where each frame takes part (alignment's border, ghost
+    removal), or (N, 1, 1) for everywhere. Where no frame takes part unsaturated the photosite
+    is the bound of the frames that take part (of every frame, if none does).
+    Writes ``X`` and ``1 / I`` times ``inv_span[py, px]`` (and its square) as float32 split
+    by CFA phase (``x_out[py, px, y // 2, x // 2]``, (2, 2, ceil(H/2), ceil(W/2)): the layout
+    :func:`demosaic_rows` reads), and
+    ``bright`` in ``mask_out`` where every frame is saturated (``X`` the bound ``max_j c_j / e_j``,
+    variance ``X^2``). Each row is done frame by frame over the whole row (the pooled start,
+    two reweighted rounds: loops without branches that the compiler vectorises), then the
+    Newton steps at the photosites that need them."""
+    n = len(mosaics)
+    h, w = mask_out.shape
+    for y in prange(h):
+        py = y & 1
+        i = y >> 1
+        num = np.zeros(w)
+        den = np.zeros(w)
+        bound = np.zeros(w)
+        bound_all = np.zeros(w)
+        nsat = np.zeros(w, np.int64)
+        rows = np.empty((n, w), mosaics[0].dtype)     # the row of every frame (one list access per frame)
+        vrows = np.ones((n, w), np.uint8)
+        for j in range(n):
+            rows[j, :] = mosaics[j][y, :]
+            if valid.shape[1] > 1:
+                vrows[j, :] = valid[j, y, :]
+        for j in range(n):
+            r = rows[j]
+            vr = vrows[j]
+            e = expo[j]
+            wl = white[j]
+            b0 = black[j, py, 0]
+            b1 = black[j, py, 1]
+            q0 = (wl - b0) / e
+            q1 = (wl - b1) / e
+            for xx in range(w):
+                code = np.float64(r[xx])
+                odd = (xx & 1) == 1
+                bb = b1 if odd else b0
+                ok = vr[xx] != 0
+                un = code < wl and ok
+                num[xx] += (code - bb) if un else 0.0
+                den[xx] += e if un else 0.0
+                nsat[xx] += 1 if (ok and not un) else 0
+                q = q1 if odd else q0
+                bound[xx] = max(bound[xx], q if ok else 0.0)
+                bound_all[xx] = max(bound_all[xx], q)
+        # the reweighted rounds in float32 (twice the vector lanes; the float64 reference
+        # merge_mosaic_optimal agrees to 5e-8 relative per photosite)
+        zero = np.float32(0.0)
+        x = np.empty(w, np.float32)
+        score = np.empty(w, np.float32)
+        info = np.empty(w, np.float32)
+        for xx in range(w):
+            if bound[xx] == 0.0:
+                bound[xx] = bound_all[xx]                     # no frame takes part: every frame's bound
+            x[xx] = num[xx] / den[xx] if den[xx] > 0.0 else bound[xx]
+        for _ in range(2):
+            score[:] = zero
+            info[:] = zero
+            for j in range(n):
+                r = rows[j]
+                e = np.float32(expo[j])
+                wl = np.float32(white[j])
+                g = np.float32(gain[j])
+                sv = np.float32(s2[j])
+                b0 = np.float32(black[j, py, 0])
+                b1 = np.float32(black[j, py, 1])
+                for xx in range(w):
+                    code = np.float32(r[xx])
+                    bb = b1 if (xx & 1) == 1 else b0
+                    xe = x[xx] * e
+                    wj = e / (g * max(xe, zero) + sv) if (code < wl and vrows[j, xx] != 0) else zero
+                    score[xx] += wj * (code - bb - xe)
+                    info[xx] += wj * e
+            for xx in range(w):
+                if info[xx] > zero and den[xx] > 0.0:
+                    x[xx] += score[xx] / info[xx]
+        for xx in range(w):
+            px = xx & 1
+            jx = xx >> 1
+            sp = inv_span[py, px]
+            if den[xx] == 0.0:
+                x_out[py, px, i, jx] = bound[xx] * sp
+                var_out[py, px, i, jx] = (bound[xx] * sp) ** 2
+                mask_out[y, xx] = bright
+                continue
+            xv = np.float64(x[xx])
+            iv = np.float64(info[xx])
+            if censored and nsat[xx] > 0:
+                close = False
+                for j in range(n):
+                    code = rows[j, xx]
+                    if code >= white[j] and vrows[j, xx] != 0:
+                        e = expo[j]
+                        if white[j] - black[j, py, xx & 1] - xv * e > -near * math.sqrt(gain[j] * max(xv * e, 0.0) + s2[j]):
+                            close = True
+                if close:
+                    xv, iv = _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, xv)
+            x_out[py, px, i, jx] = xv * sp
+            var_out[py, px, i, jx] = (1.0 / iv) * sp * sp if iv > 0.0 else 0.0
+            mask_out[y, xx] = 0
+
+
+@njit(inline="always")
+def _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, xx, clip_negative, out,
+                  var_out):  # pragma: no cover - compiled
+    """One output pixel with reflected taps (the multiplier of the photosite actually read;
+    ``x``, ``var`` split by phase)."""
+    h = out.shape[0]
+    w = out.shape[1]
+    py = y & 1
+    px = xx & 1
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for t in range(ntaps[py, px]):
+        yy = _reflect(y + tap_dy[py, px, t], h)
+        xq = _reflect(xx + tap_dx[py, px, t], w)
+        m = mult[yy & 1, xq & 1]
+        val = x[yy & 1, xq & 1, yy >> 1, xq >> 1] * m
+        a0 += taps[py, px, t, 0] * val
+        a1 += taps[py, px, t, 1] * val
+        a2 += taps[py, px, t, 2] * val
+        if do_var:
+            vv = var[yy & 1, xq & 1, yy >> 1, xq >> 1] * (m * m)
+            v0 += taps2[py, px, t, 0] * vv
+            v1 += taps2[py, px, t, 1] * vv
+            v2 += taps2[py, px, t, 2] * vv
+    out[y, xx, 0] = _finite(a0, clip_negative)
+    out[y, xx, 1] = _finite(a1, clip_negative)
+    out[y, xx, 2] = _finite(a2, clip_negative)
+    if do_var:
+        var_out[y, xx, 0] = _finite(v0, False)
+        var_out[y, xx, 1] = _finite(v1, False)
+        var_out[y, xx, 2] = _finite(v2, False)
+
+
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, folded, folded2, clip_negative,
+                  do_var, out, var_out):  # pragma: no cover - compiled
+    """White balance, demosaic, colour matrix (and variance) in one pass.
+
+    ``planes`` (2, 2, ceil(H/2), ceil(W/2)) float32: the mosaic split by CFA phase
+    (``planes[a, b] = x[a::2, b::2]``, as :func:`merge_rows` writes it; ``var_planes`` its
+    variance); ``mult`` (2, 2) the white-balance multiplier of each CFA phase; per output
+    phase ``(py, px)`` the ``ntaps[py, px]`` taps at ``(tap_dy, tap_dx)`` with weights
+    ``taps[py, px, t, o]`` (the matrix times the demosaic's kernels), their squares ``taps2``,
+    and both with the multiplier of the tap's photosite folded in (``folded``, ``folded2``:
+    inside the border a tap's phase is fixed). ``out`` (H, W, 3) float32 finite (negatives set to
+    0 if ``clip_negative``), ``var_out`` (H, W, 3) float32 if ``do_var``. Inside the
+    2-photosite border a tap reads one phase plane contiguously along the row (loops the
+    compiler vectorises); on the border the taps read reflected photosites
+    (:func:`_border_pixel`)."""
+    h = out.shape[0]
+    w = out.shape[1]
+    x = planes
+    var = var_planes
+    for y in prange(h):
+        py = y & 1
+        i = y >> 1
+        for px in range(2):
+            nj = (w - px + 1) // 2
+            if y < 2 or y >= h - 2:
+                for jj in range(nj):
+                    _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
+                                  clip_negative, out, var_out)
+                continue
+            j0 = (3 - px) // 2
+            j1 = max(j0, (w - 1 - px) // 2)
+            a0 = np.zeros(nj)
+            a1 = np.zeros(nj)
+            a2 = np.zeros(nj)
+            for t in range(ntaps[py, px]):
+                sy = py + tap_dy[py, px, t]
+                sx = px + tap_dx[py, px, t]
+                src = planes[sy & 1, sx & 1, i + (sy >> 1)]
+                off = sx >> 1
+                w0 = folded[py, px, t, 0]
+                w1 = folded[py, px, t, 1]
+                w2 = folded[py, px, t, 2]
+                for jj in range(j0, j1):
+                    val = np.float64(src[jj + off])
+                    a0[jj] += w0 * val
+                    a1[jj] += w1 * val
+                    a2[jj] += w2 * val
+            for jj in range(j0, j1):
+                xx = 2 * jj + px
+                out[y, xx, 0] = _finite(a0[jj], clip_negative)
+                out[y, xx, 1] = _finite(a1[jj], clip_negative)
+                out[y, xx, 2] = _finite(a2[jj], clip_negative)
+            if do_var:
+                a0[:] = 0.0
+                a1[:] = 0.0
+                a2[:] = 0.0
+                for t in range(ntaps[py, px]):
+                    sy = py + tap_dy[py, px, t]
+                    sx = px + tap_dx[py, px, t]
+                    src = var_planes[sy & 1, sx & 1, i + (sy >> 1)]
+                    off = sx >> 1
+                    w0 = folded2[py, px, t, 0]
+                    w1 = folded2[py, px, t, 1]
+                    w2 = folded2[py, px, t, 2]
+                    for jj in range(j0, j1):
+                        val = np.float64(src[jj + off])
+                        a0[jj] += w0 * val
+                        a1[jj] += w1 * val
+                        a2[jj] += w2 * val
+                for jj in range(j0, j1):
+                    xx = 2 * jj + px
+                    var_out[y, xx, 0] = _finite(a0[jj], False)
+                    var_out[y, xx, 1] = _finite(a1[jj], False)
+                    var_out[y, xx, 2] = _finite(a2[jj], False)
+            for jj in range(0, j0):
+                _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
+                              clip_negative, out, var_out)
+            for jj in range(j1, nj):
+                _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
+                              clip_negative, out, var_out)

@@ -1,0 +1,73 @@
+"""Motion on RAW brackets (derender.hdr.raw.raw_motion): even-photosite alignment by Ward's MTB on a
+grey rendering, ghost removal by the Poisson-Gaussian model against the reference; simulated DNG
+mosaics with camera shake and moving discs (derender.camera.motion), scored per motion zone
+against the scene at the reference instant."""
+
+import numpy as np
+import pytest
+
+from derender.camera import simulate_bracket
+from derender.camera.motion import ZONE_OBJECT, ZONE_STATIC, MotionSpec
+from derender.core.errors import InputError
+from derender.engine.motion.run import MotionOptions
+from derender.evaluation.raw_merge import bracket_raw_frames, raw_scores
+from derender.hdr.raw import merge_raw
+
+
+def _zone_median(res, bracket, zone):
+    mask = res.mask.copy()
+    mask[bracket.motion_zones != zone] = 1
+    return raw_scores(res.radiance, bracket.camera_rgb_per_s, mask)["median"]
+
+
+@pytest.fixture(scope="module")
+def moving():
+    return simulate_bracket("nikon-d5100", kind="outdoor", size=(192, 128), exposures=5, seed=4, style="simple",
+                            pipeline="fixed", motion=MotionSpec(objects=3, shake=3))
+
+
+def test_alignment_finds_the_even_shifts(moving):
+    """The simulator's shifts (dy, dx) per frame are [2, 2], [2, 2], [0, 0], [0, 1], [1, 0]: the even
+    ones are found exactly (the sign is the engine's: content of the reference at (y, x) is at
+    (y + dy, x + dx) in the frame), the odd ones stay (an odd shift would change the CFA phase).
+    Static-zone median error against the scene: measured 7.30 % without, 6.51 % aligned."""
+    frames = bracket_raw_frames(moving)
+    ref = moving.params["motion"]["reference"]
+    plain = merge_raw(frames, output_space="camera_rgb")
+    res = merge_raw(frames, output_space="camera_rgb", motion=MotionOptions(reference=ref, align="translation"))
+    true = moving.params["motion"]["shifts_dy_dx"]
+    found = res.info["raw_motion"]["shifts"]
+    for (ty, tx), (fy, fx) in zip(true, found):
+        assert (fy, fx) == (-(ty // 2) * 2, -(tx // 2) * 2), (true, found)
+    assert _zone_median(res, moving, ZONE_STATIC) < 0.95 * _zone_median(plain, moving, ZONE_STATIC)
+
+
+def test_ghost_removal_keeps_the_reference_where_things_move(moving):
+    """Where a disc is at the reference instant the plain merge is wrong by 59 % (median), aligned and
+    ghost-free by 10.5 % (measured); the variance stays finite and the reference frame is never
+    rejected."""
+    frames = bracket_raw_frames(moving)
+    ref = moving.params["motion"]["reference"]
+    plain = merge_raw(frames, output_space="camera_rgb")
+    res = merge_raw(frames, output_space="camera_rgb", variance=True,
+                    motion=MotionOptions(reference=ref, align="translation", deghost=True))
+    assert _zone_median(plain, moving, ZONE_OBJECT) > 0.4
+    assert _zone_median(res, moving, ZONE_OBJECT) < 0.2
+    assert _zone_median(res, moving, ZONE_STATIC) < 1.05 * _zone_median(plain, moving, ZONE_STATIC)
+    info = res.info["raw_motion"]
+    assert info["reference"] == ref and info["rejected"][ref] == 0.0 and max(info["rejected"]) > 0.01
+    assert np.all(np.isfinite(res.variance)) and res.variance.min() >= 0
+
+
+def test_still_bracket_unchanged_and_homography_refused():
+    b = simulate_bracket("nikon-d5100", kind="indoor", size=(96, 64), exposures=3, seed=2, style="simple",
+                         pipeline="fixed")
+    frames = bracket_raw_frames(b)
+    plain = merge_raw(frames, output_space="camera_rgb")
+    res = merge_raw(frames, output_space="camera_rgb", motion=MotionOptions(align="translation", deghost=True))
+    assert res.info["raw_motion"]["shifts"] == [(0, 0)] * 3
+    assert max(res.info["raw_motion"]["rejected"]) < 0.01            # measured 0
+    assert raw_scores(res.radiance, b.camera_rgb_per_s, plain.mask)["median"] \
+        <= 1.01 * raw_scores(plain.radiance, b.camera_rgb_per_s, plain.mask)["median"]
+    with pytest.raises(InputError, match="homography"):
+        merge_raw(frames, motion=MotionOptions(align="homography"))
