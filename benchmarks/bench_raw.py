@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from derender.engine.options import OutputOptions
+
 CASES = [("nikon-d5100", 14, "outdoor"), ("nikon-d5100", 14, "indoor"), ("nikon-d5100", 14, "night"),
          ("sigma-sd-merrill", 12, "outdoor"), ("sigma-sd-merrill", 12, "indoor"), ("sigma-sd-merrill", 12, "night")]
 
@@ -125,7 +127,7 @@ def speed(size, exposures):
                     np.array(r.raw_image_visible, copy=True)
             best_decode = min(best_decode, time.perf_counter() - t0)
             t0 = time.perf_counter()
-            merge_files(files, method="raw", variance_output=Path(tmp) / "v.exr", output=Path(tmp) / "m.exr")
+            merge_files(files, method="raw", output=OutputOptions(variance_output=Path(tmp) / "v.exr", output=Path(tmp) / "m.exr"))
             best_merge = min(best_merge, time.perf_counter() - t0)
     return best_decode, best_merge
 

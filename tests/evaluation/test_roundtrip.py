@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from conftest import require_shared
 
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import MatrixPlan, TablePlan
 from derender.evaluation.roundtrip import bracket_round_trip, round_trip
 
@@ -61,7 +62,7 @@ def test_a_matrix_plan_inverts_its_matrices():
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])
 def test_frobisher_renders_back_its_frames(method):
     folder = require_shared("colour-hdri-frobisher")
-    rt, res, names = bracket_round_trip([folder], method, reference=1, align="none")
+    rt, res, names = bracket_round_trip([folder], method, motion=MotionOptions(reference=1, align="none"))
     assert len(names) == 3
     for row in rt.rows(names):
         assert row["pixels"] > 10_000, row

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from derender.camera import simulate_bracket, write_bracket
 from derender.evaluation.raw_merge import raw_scores
 from derender.io.exr import read_exr
-from helpers import run_cli
 
 
 @pytest.fixture(scope="module")
