@@ -127,7 +127,8 @@ def speed(size, exposures):
                     np.array(r.raw_image_visible, copy=True)
             best_decode = min(best_decode, time.perf_counter() - t0)
             t0 = time.perf_counter()
-            merge_files(files, method="raw", output=OutputOptions(variance_output=Path(tmp) / "v.exr", output=Path(tmp) / "m.exr"))
+            merge_files(files, method="raw", output=OutputOptions(variance_output=Path(tmp) / "v.exr",
+                                                                  output=Path(tmp) / "m.exr"))
             best_merge = min(best_merge, time.perf_counter() - t0)
     return best_decode, best_merge
 

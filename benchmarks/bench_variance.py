@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     def once(method: str, var: bool):
         timer.wall = timer.cpu = timer.edge_cpu = 0.0
         w0, c0 = time.perf_counter(), time.process_time()
-        res = merge_files(paths, options={"variance": True} if var else {}, method=method, engine=EngineOptions(threads=args.threads))
+        res = merge_files(paths, options={"variance": True} if var else {}, method=method,
+                          engine=EngineOptions(threads=args.threads))
         return (time.perf_counter() - w0, time.process_time() - c0, timer.wall, timer.cpu, timer.edge_cpu), res
 
     print(f"bracket {args.bracket} ({len(paths)} frames), pairs {args.pairs}, alternating order")

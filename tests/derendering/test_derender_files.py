@@ -207,7 +207,8 @@ def test_probabilistic_beats_debevec_on_jpeg_files_and_variance_marks_censored(m
         # the files stream band by band (merge_files_fast, as the CLI does) to the same numbers
         from derender.hdr.files import merge_files as merge_files_fast
 
-        streamed = merge_files_fast(bracket_paths(tmp_path / kind, "jpeg"), options={"model": m, "colour_space": "camera_rgb"}, method="probabilistic")
+        streamed = merge_files_fast(bracket_paths(tmp_path / kind, "jpeg"), options={"model": m,
+                                                                                     "colour_space": "camera_rgb"}, method="probabilistic")
         assert streamed.info["engine_path"] == "streaming"
         np.testing.assert_array_equal(streamed.radiance, r.radiance)
         np.testing.assert_array_equal(streamed.variance, r.variance)
@@ -283,7 +284,8 @@ def test_code_noise_makes_merged_variances_less_over_confident(model_file):
     for cn in (0.0, 2.0):
         # eq. 3's variance: what the code noise alone changes (issue 29's shared-error variance adds
         # terms that dominate it; tests/hdr/test_probabilistic_variance.py checks that one)
-        r = merge_probabilistic(st, options={"model": m, "colour_space": "camera_rgb", "code_noise": cn, "variance_model": "independent"})
+        r = merge_probabilistic(st, options={"model": m, "colour_space": "camera_rgb", "code_noise": cn,
+                                             "variance_model": "independent"})
         lv = np.log1p(r.variance / np.maximum(r.radiance, 1e-12) ** 2)
         z = (np.log(tcam) - np.log(np.maximum(r.radiance, 1e-12)) + 0.5 * lv) / np.sqrt(lv)
         med_z[cn] = float(np.median(np.abs(z[ok])))
@@ -385,7 +387,8 @@ def test_stabilized_probabilistic_files_take_the_engine(model_file, tmp_path, ca
     from derender.hdr.stabilized_probabilistic import stabilized_probabilistic_stack
     from derender.io.images import read_stack
 
-    res = merge_files(jpgs, options={"model": str(model_file)}, method="stabilized-probabilistic", output=OutputOptions(output=tmp_path / "sp.exr"))
+    res = merge_files(jpgs, options={"model": str(model_file)}, method="stabilized-probabilistic",
+                      output=OutputOptions(output=tmp_path / "sp.exr"))
     assert res.info["engine_path"] == "streaming" and "colour_weights_s" in res.info["timings"]
     ref = stabilized_probabilistic_stack(read_stack(jpgs), load_model(model_file))
     back = read_exr(tmp_path / "sp.exr")
@@ -408,7 +411,8 @@ def test_probabilistic_outputs_written_from_band_buffers_are_the_same_files(mode
     for hold in (True, False):
         for var in (True, False):
             out, vout = tmp_path / f"m-{hold}-{var}.exr", (tmp_path / f"v-{hold}-{var}.exr" if var else None)
-            res = merge_files(paths, times, "probabilistic", options={"model": model}, output=OutputOptions(output=out, variance_output=vout, hold_outputs=hold))
+            res = merge_files(paths, times, "probabilistic", options={"model": model},
+                              output=OutputOptions(output=out, variance_output=vout, hold_outputs=hold))
             assert res.info["outputs_held"] == hold and (res.variance is None) == (not hold)
             files[hold, var] = out.read_bytes() + (vout.read_bytes() if var else b"")
     assert files[True, True] == files[False, True] and files[True, False] == files[False, False]

@@ -205,8 +205,10 @@ def test_reference_counts_the_images_as_given(tmp_path):
         write_jpeg(p, codes, float(t), "derender", "simulated")
         paths.append(p)
     order = [3, 0, 4, 2, 1]
-    a = merge_files(paths, method="debevec", motion=MotionOptions(reference=2), output=OutputOptions(output=tmp_path / "a.exr"))
-    c = merge_files([paths[k] for k in order], method="debevec", motion=MotionOptions(reference=order.index(2)), output=OutputOptions(output=tmp_path / "c.exr"))
+    a = merge_files(paths, method="debevec", motion=MotionOptions(reference=2),
+                    output=OutputOptions(output=tmp_path / "a.exr"))
+    c = merge_files([paths[k] for k in order], method="debevec", motion=MotionOptions(reference=order.index(2)),
+                    output=OutputOptions(output=tmp_path / "c.exr"))
     np.testing.assert_array_equal(a.radiance, c.radiance)
     assert a.info["reference"] == 2 and c.info["reference_input"] == order.index(2)
     header = OpenEXR.InputFile(str(tmp_path / "c.exr")).header()

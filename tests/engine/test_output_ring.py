@@ -32,7 +32,8 @@ def test_ring_writes_the_same_file_without_holding_the_radiance(tall_bracket, tm
     monkeypatch.setattr(run_mod, "KERNEL_MIN_PIXEL_FRAMES", 0)     # the compiled kernels at test size
     paths, times = tall_bracket
     held = merge_files(paths, times, method, output=OutputOptions(output=tmp_path / "held.exr", half=half))
-    ring = merge_files(paths, times, method, output=OutputOptions(output=tmp_path / "ring.exr", hold_outputs=False, half=half))
+    ring = merge_files(paths, times, method, output=OutputOptions(output=tmp_path / "ring.exr", hold_outputs=False,
+                                                                  half=half))
     assert held.info["outputs_held"] and held.radiance.shape == (700, 400, 3)
     assert not ring.info["outputs_held"] and ring.radiance is None and ring.variance is None
     assert (tmp_path / "held.exr").read_bytes() == (tmp_path / "ring.exr").read_bytes()

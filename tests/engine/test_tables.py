@@ -170,7 +170,8 @@ def jpeg_bracket(tmp_path_factory):
 def test_streaming_merge_equals_reference(jpeg_bracket, tmp_path, keep_frames, threads):
     ref = merge(read_stack(jpeg_bracket), "debevec", options={"engine": "reference"})
     out = tmp_path / "m.exr"
-    res = merge_files_fast(jpeg_bracket, output=OutputOptions(output=out), engine=EngineOptions(keep_frames=keep_frames, threads=threads))
+    res = merge_files_fast(jpeg_bracket, output=OutputOptions(output=out),
+                           engine=EngineOptions(keep_frames=keep_frames, threads=threads))
     assert res.info["engine_path"] == "streaming"
     assert res.info["streaming"]["decodes"] == 12 - min(keep_frames, 6)
     np.testing.assert_array_equal(res.info["curves"].log_inverse, ref.info["curves"].log_inverse)
@@ -183,15 +184,18 @@ def test_streaming_bytes_do_not_depend_on_threads_or_memory(jpeg_bracket, tmp_pa
     """Same bytes (radiance and EXR file) for any thread count and frame budget (batch runs = serial runs)."""
     outs = []
     for i, (threads, keep) in enumerate([(1, 1), (3, 6)]):
-        res = merge_files_fast(jpeg_bracket, output=OutputOptions(output=tmp_path / f"{i}.exr"), engine=EngineOptions(threads=threads, keep_frames=keep))
+        res = merge_files_fast(jpeg_bracket, output=OutputOptions(output=tmp_path / f"{i}.exr"),
+                               engine=EngineOptions(threads=threads, keep_frames=keep))
         outs.append((np.ascontiguousarray(res.radiance).tobytes(), (tmp_path / f"{i}.exr").read_bytes()))
     assert outs[0] == outs[1]
 
 
 def test_streaming_options_and_fallbacks(jpeg_bracket, tmp_path):
     st = read_stack(jpeg_bracket)
-    res = merge_files_fast(jpeg_bracket, options={"sampling": "histogram", "seed": 3, "weight": "hat", "channel_weights": "independent"})
-    ref = merge(st, "debevec", options={"sampling": "histogram", "seed": 3, "weight": "hat", "channel_weights": "independent", "engine": "reference"})
+    res = merge_files_fast(jpeg_bracket, options={"sampling": "histogram", "seed": 3, "weight": "hat",
+                                                  "channel_weights": "independent"})
+    ref = merge(st, "debevec", options={"sampling": "histogram", "seed": 3, "weight": "hat",
+                                        "channel_weights": "independent", "engine": "reference"})
     assert _rel(res.radiance, ref.radiance) < RTOL
     # Robertson streams on the engine too (issue 14: every method on the one engine), same numbers as in memory
     rob = merge_files_fast(jpeg_bracket, method="robertson")
@@ -373,8 +377,10 @@ def test_held_kernel_equals_two_pass_stream(jpeg_bracket, tmp_path, method, opts
     import derender.engine.run as engine_run
 
     monkeypatch.setattr(engine_run, "KERNEL_MIN_PIXEL_FRAMES", 0)     # the kernel even for this small bracket
-    held = merge_files_fast(jpeg_bracket, options=opts, method=method, output=OutputOptions(output=tmp_path / "a.exr"), engine=EngineOptions(threads=2))
-    two = merge_files_fast(jpeg_bracket, options=opts, method=method, output=OutputOptions(output=tmp_path / "b.exr"), engine=EngineOptions(threads=1, keep_frames=1))
+    held = merge_files_fast(jpeg_bracket, options=opts, method=method,
+                            output=OutputOptions(output=tmp_path / "a.exr"), engine=EngineOptions(threads=2))
+    two = merge_files_fast(jpeg_bracket, options=opts, method=method, output=OutputOptions(output=tmp_path / "b.exr"),
+                           engine=EngineOptions(threads=1, keep_frames=1))
     assert held.info["streaming"]["decodes"] == 6 and two.info["streaming"]["decodes"] == 11
     if opts.get("channel_weights", "mean") in ("mean", "independent"):
         assert held.info["kernel"] == "table_merge_rows"

@@ -112,7 +112,8 @@ def test_files_through_band_buffers_equal_in_memory(tmp_path, paper_bracket, met
     b = paper_bracket
     paths = [write_png_codes(tmp_path / f"f{j}.png", b.jpeg_codes[j]) for j in range(b.jpeg_codes.shape[0])]
     mem = dr.merge(_stack(b), method, options={"variance": True})
-    res = merge_files(paths, list(b.times), method, output=OutputOptions(output=tmp_path / "r.exr", variance_output=tmp_path / "v.exr", hold_outputs=False))
+    res = merge_files(paths, list(b.times), method, output=OutputOptions(output=tmp_path / "r.exr",
+                                                                         variance_output=tmp_path / "v.exr", hold_outputs=False))
     assert res.radiance is None and res.variance is None        # band buffers only
     v = read_exr(tmp_path / "v.exr")
     np.testing.assert_array_equal(v, np.asarray(mem.variance))

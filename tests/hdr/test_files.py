@@ -88,5 +88,6 @@ def test_clipped_count_is_the_same_for_every_method_and_engine_path(tmp_path):
     want = clipped_pixels(read_codes(paths[0]))
     assert want > 0
     counts = {m: merge_files(paths, method=m).info["n_clipped"] for m in ("debevec", "robertson", "stabilized")}
-    counts["debevec two-pass"] = merge_files(paths, method="debevec", engine=EngineOptions(keep_frames=1)).info["n_clipped"]
+    counts["debevec two-pass"] = merge_files(paths, method="debevec",
+                                             engine=EngineOptions(keep_frames=1)).info["n_clipped"]
     assert set(counts.values()) == {want}, counts

@@ -191,7 +191,8 @@ def test_debevec_merge_equals_opencv_given_the_same_curve():
     resp, hdr = _opencv_debevec(codes, times)
     curves = ResponseCurves(np.log(resp[:, 0, ::-1].astype(np.float64)))
     # OpenCV's MergeDebevec = eq. 6 in the log domain, hat weight min(z, 255 - z) averaged over channels
-    ours = merge(_stack(codes, times), options={"curves": curves, "domain": "log", "channel_weights": "mean", "weight": "hat"}, method="debevec")
+    ours = merge(_stack(codes, times), options={"curves": curves, "domain": "log", "channel_weights": "mean",
+                                                "weight": "hat"}, method="debevec")
     ok = np.isfinite(hdr)
     assert ok.mean() > 0.99
     np.testing.assert_allclose(ours.radiance[ok], hdr[ok], rtol=1e-4)

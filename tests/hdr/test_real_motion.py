@@ -83,7 +83,8 @@ def test_deghost_shows_the_reference_instant(name, method):
     files, times, ref = _bracket(name)
     ref_grey = grey8_codes(read_codes(files[ref]))
     plain = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref))
-    clean = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref, deghost=True))
+    clean = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref,
+                                                                          deghost=True))
     a_plain = bitmap_agreement(_grey(plain.radiance), ref_grey)
     a_clean = bitmap_agreement(_grey(clean.radiance), ref_grey)
     assert a_clean >= 0.99 and a_clean > a_plain + MARGIN[name], (a_plain, a_clean)

@@ -241,7 +241,8 @@ def test_merge_of_shifted_stack_close_to_unshifted():
     cut = lambda o: np.stack([imgs[j, y0 + dy:y0 + dy + h, x0 + dx:x0 + dx + w]  # noqa: E731
                               for j, (dy, dx) in enumerate(o)])
     truth = b.truth_linear_srgb[y0:y0 + h, x0:x0 + w]
-    still = merge(Stack(images=cut(np.zeros_like(offsets)), times=b.times), method="stabilized", motion=MotionOptions(reference=4))
+    still = merge(Stack(images=cut(np.zeros_like(offsets)), times=b.times), method="stabilized",
+                  motion=MotionOptions(reference=4))
     moved = merge(Stack(images=cut(offsets), times=b.times), method="stabilized", motion=MotionOptions(reference=4))
     np.testing.assert_array_equal(moved.info["shifts"], -offsets)
     assert np.isfinite(moved.radiance).all()

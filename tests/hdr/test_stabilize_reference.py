@@ -44,7 +44,8 @@ def test_one_rendering_gives_one_map_whatever_the_reference(kind, method):
     from derender.hdr.registry import merge_seeded
 
     stack = _fixed_stack("simple", kind)
-    maps = [np.asarray(merge_seeded(stack, method, 0, motion=MotionOptions(reference=r, align="none")).radiance) for r in (1, 3)]
+    maps = [np.asarray(merge_seeded(stack, method, 0, motion=MotionOptions(reference=r,
+                                                                           align="none")).radiance) for r in (1, 3)]
     c = compare_maps(maps[0], maps[1])
     assert c.chroma_p99 <= 1e-4 and c.luminance_p99 <= 1e-4, c
 

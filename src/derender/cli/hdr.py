@@ -187,7 +187,7 @@ def merge_cmd(
 
     from derender.engine.options import EngineOptions, OutputOptions
     from derender.hdr.files import merge_files
-    from derender.hdr.registry import METHODS, method_spec, parse_options
+    from derender.hdr.registry import method_spec, parse_options
     from derender.io.exif import parse_times
     from derender.io.files import OutputTransaction, expand_image_paths
     from derender.io.preview import IMAGE8_SUFFIXES
@@ -204,14 +204,7 @@ def merge_cmd(
 
     ph = merge_photometry(profile=profile, vignetting=vignetting, spot=spot, absolute=absolute, method=method,
                           image=images[0], strict=strict_camera)
-    if variance is not None and not spec.gives_variance:
-        raise InputError(f"method {method!r} gives no variance (drop --variance)")
-    if model is not None and not spec.needs_model:
-        users = sorted(n for n, s in METHODS.items() if s.needs_model)
-        raise InputError(f"method {method!r} uses no de-rendering model (drop -m; the methods that use one: "
-                         f"{', '.join(users)})")
-    if plot is not None and not spec.gives_curves:
-        raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
+    _check_method_flags(spec, variance=variance is not None, model=model is not None, plot=plot is not None)
     # the method's record, the motion and the engine's settings: each built once, checked before any work
     record = _method_record(spec, {**parse_options(method, option), **profile_options(ph, method)}, seed=seed,
                             with_model=model is not None, with_variance=variance is not None, n_images=len(images))
@@ -236,12 +229,7 @@ def merge_cmd(
         report_tmp = tx.add(report, "--report", (".html", ".htm"))
         ghost_tmp = tx.add(ghost_mask, "--ghost-mask", (".png", ".tif", ".tiff"))
         if model is not None:
-            from derender.derendering.library import resolve_model
-
-            check_model_camera(model, images[0], strict_camera)
-            model_obj, used = resolve_model(model, images[0])
-            typer.echo(f"de-rendering model: {used}", err=True)
-            record = dataclasses.replace(record, model=model_obj)
+            record = _with_model(record, model, images[0], strict_camera)
         # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
         direct = not as_hdr and not ph.active and profile_tmp is None   # the engine writes the EXR (band by band)
         out = OutputOptions(output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
@@ -337,6 +325,31 @@ class _AfterImport:
 
         spec.loader.exec_module = exec_module
         return spec
+
+
+def _check_method_flags(spec, *, variance: bool, model: bool, plot: bool) -> None:
+    """``--variance``, ``-m`` and ``--plot`` only for a method that gives or uses them."""
+    from derender.hdr.registry import METHODS
+
+    if variance and not spec.gives_variance:
+        raise InputError(f"method {spec.name!r} gives no variance (drop --variance)")
+    if model and not spec.needs_model:
+        users = sorted(n for n, s in METHODS.items() if s.needs_model)
+        raise InputError(f"method {spec.name!r} uses no de-rendering model (drop -m; the methods that use one: "
+                         f"{', '.join(users)})")
+    if plot and not spec.gives_curves:
+        raise InputError(f"method {spec.name!r} has no response curves to plot (drop --plot)")
+
+
+def _with_model(record, model: Path, image: Path, strict: bool):
+    """``record`` with the ``-m`` model loaded (a file, or the library folder's model for the
+    image's camera), checked against the image's camera."""
+    from derender.derendering.library import resolve_model
+
+    check_model_camera(model, image, strict)
+    model_obj, used = resolve_model(model, image)
+    typer.echo(f"de-rendering model: {used}", err=True)
+    return dataclasses.replace(record, model=model_obj)
 
 
 def _method_record(spec, options: dict, *, seed: int, with_model: bool, with_variance: bool, n_images: int):
