@@ -483,7 +483,6 @@ def _merge_report(path, result, method: str, absolute: bool, view: str | None, i
 @app.command("methods")
 def methods_cmd() -> None:
     """List the merge methods: what each does, what it needs and gives, and its output colour space."""
-    import inspect
     import textwrap
 
     from derender.hdr.registry import METHODS, settable_options
@@ -491,8 +490,7 @@ def methods_cmd() -> None:
     for name, spec in sorted(METHODS.items()):
         typer.echo(name)
         lines = [spec.summary]
-        params = inspect.signature(spec.load()).parameters
-        if "model" in params and params["model"].default is inspect.Parameter.empty:
+        if spec.needs_model:
             lines.append("Needs a de-rendering model (-m MODEL.npz, from 'derender calibrate').")
         gives = ["a variance (--variance)"] if spec.gives_variance else []
         if spec.gives_curves:

@@ -84,14 +84,11 @@ def _order_hint(times, times_file, times_file_inverse: bool) -> str:
     return "the EXIF exposure times disagree with the images; give the times with --times"
 
 
-def _rendered_files(spec, paths: list, t, record, motion, out: OutputOptions, engine: EngineOptions, *,
-                    inputs: list, hint: str) -> HDRResult:
-    """:func:`merge_files` for rendered images: the engine (:func:`derender.hdr.registry.run_engine`
-    chooses the run), else the stack read into memory and merged on the float reference engine."""
-    res = run_engine(spec, record, motion, FileFrames(paths, t, engine.max_megapixels), out, engine,
-                     inputs=inputs, order_hint=hint)
-    if res is not None:
-        return res
+def _merge_stack_of_files(spec, paths: list, t, record, out: OutputOptions, engine: EngineOptions, *,
+                          inputs: list, hint: str) -> HDRResult:
+    """What :func:`derender.hdr.registry.run_engine` leaves to :func:`merge_files`: the images read
+    into memory (their brightness order checked) and merged on the float reference engine, the
+    outputs written."""
     from derender.io.images import read_stack
 
     stack = read_stack(paths, times=t, max_megapixels=engine.max_megapixels)
@@ -212,9 +209,12 @@ def merge_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | Non
     if raw:
         res, t = _raw_files(spec, paths, times, record, motion, out, engine, inputs=all_inputs, times_file=times_file,
                             times_file_inverse=times_file_inverse)
-    else:
-        res = _rendered_files(spec, paths, t, record, motion, out, engine, inputs=all_inputs,
-                              hint=_order_hint(times, times_file, times_file_inverse))
+    else:                 # the engine (plain or motion run: the registry chooses), else the float reference engine
+        hint = _order_hint(times, times_file, times_file_inverse)
+        res = run_engine(spec, record, motion, FileFrames(paths, t, engine.max_megapixels), out, engine,
+                         inputs=all_inputs, order_hint=hint)
+        if res is None:
+            res = _merge_stack_of_files(spec, paths, t, record, out, engine, inputs=all_inputs, hint=hint)
     res.info.setdefault("outputs_held", True)
     attach_summary(res, paths, t, method, (out.output, out.variance_output))    # one record for the CLI, files, report
     res.info["total_seconds"] = time.perf_counter() - t_start
