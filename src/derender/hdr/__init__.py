@@ -14,6 +14,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "probabilistic_variance": ["K_MODEL", "K_PIPE", "K_SPATIAL", "add_spatial", "model_sd", "fill_model_sd", "shared_log_moments"],
     "stabilized_probabilistic": ["colour_reliability", "colour_weight_table", "StabilizedProbabilisticMethod", "StabilizedProbabilisticOptions", "merge_stabilized_probabilistic", "stabilized_probabilistic_stack"],
     "raw": ["ESTIMATORS", "RawOptions", "merge_raw", "check_one_camera", "merge_raw_files"],
-    "registry": ["MethodSpec", "METHODS", "method_spec", "register_method", "get_method", "method_options", "seeded_options", "merge", "merge_seeded", "merge_stack", "run_engine", "settable_options", "parse_options", "check_method_options"],
+    "registry": ["MethodSpec", "METHODS", "method_spec", "register_method", "get_method", "method_options", "seeded_options", "merge", "merge_seeded", "merge_stack", "run_engine", "settable_options", "parse_options"],
     "summary": ["FrameRecord", "MergeSummary", "merge_summary_record", "attach_summary", "SUMMARY_ATTRIBUTE", "SUMMARY_HEADER"],
 })

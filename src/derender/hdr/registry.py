@@ -45,7 +45,6 @@ __all__ = [
     "run_engine",
     "settable_options",
     "parse_options",
-    "check_method_options",
 ]
 
 #: Keywords of merge functions that are not user options: set by their own CLI flags
@@ -368,16 +367,6 @@ def seeded_options(method: str, seed: int, options: Any = None) -> Any:
     if method_spec(method).has_option("seed"):
         record = dataclasses.replace(record, seed=int(seed))
     return record
-
-
-def check_method_options(method: str, options: dict) -> None:
-    """Check ``options`` (names and values) of ``method`` as its options record does, before any
-    work: the record is made with every required option it lacks (a de-rendering model, given
-    later) as None, and dropped."""
-    cls = method_spec(method).options_class()
-    required = {f.name: None for f in fields(cls)
-                if f.default is MISSING and f.default_factory is MISSING and f.name not in options}
-    method_options(method, {**required, **options})
 
 
 def _missing_message(method: str, missing: list[str]) -> str:
