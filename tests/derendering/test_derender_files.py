@@ -348,6 +348,7 @@ def test_stabilized_probabilistic_engine_equals_the_per_pixel_reference(model_fi
     """Issue 17: ``stabilized-probabilistic`` on the engine (frames held as codes, one per-colour weight
     table) gives the float reference engine's per-pixel-weighted merge, registration shifts included."""
     from derender.hdr.stabilized_probabilistic import (
+        StabilizedProbabilisticOptions,
         colour_reliability,
         colour_weight_table,
         merge_stabilized_probabilistic,
@@ -361,7 +362,7 @@ def test_stabilized_probabilistic_engine_equals_the_per_pixel_reference(model_fi
     codes[3] = np.roll(codes[3], (-1, 1), axis=(0, 1))
     st = Stack(images=codes / 255.0, times=b.times)
     eng = merge_stabilized_probabilistic(st, options={"model": model})
-    ref = stabilized_probabilistic_stack(st, model)
+    ref = stabilized_probabilistic_stack(st, StabilizedProbabilisticOptions(model=model))
     assert eng.info["engine_path"] == "streaming" and ref.info["engine_path"] == "stack"
     assert eng.info["shifts"] == ref.info["shifts"] and any(s != [0, 0] for s in eng.info["shifts"])
     r_eng, r_ref = np.asarray(eng.radiance, np.float64), np.asarray(ref.radiance, np.float64)
@@ -384,13 +385,13 @@ def test_stabilized_probabilistic_files_take_the_engine(model_file, tmp_path, ca
     write_bracket(b, tmp_path / "b")
     jpgs = bracket_paths(tmp_path / "b", "jpeg")
     from derender.hdr.files import merge_files
-    from derender.hdr.stabilized_probabilistic import stabilized_probabilistic_stack
+    from derender.hdr.stabilized_probabilistic import StabilizedProbabilisticOptions, stabilized_probabilistic_stack
     from derender.io.images import read_stack
 
     res = merge_files(jpgs, options={"model": str(model_file)}, method="stabilized-probabilistic",
                       output=OutputOptions(output=tmp_path / "sp.exr"))
     assert res.info["engine_path"] == "streaming" and "colour_weights_s" in res.info["timings"]
-    ref = stabilized_probabilistic_stack(read_stack(jpgs), load_model(model_file))
+    ref = stabilized_probabilistic_stack(read_stack(jpgs), StabilizedProbabilisticOptions(model=load_model(model_file)))
     back = read_exr(tmp_path / "sp.exr")
     assert np.max(np.abs(back - ref.radiance)) <= 1e-5 * np.max(ref.radiance)
 
