@@ -98,14 +98,15 @@ def _merge_info(stab, weight: Any, noise_weighting: bool) -> dict:
 
 
 def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                           threads: int | None = None) -> HDRResult:
+                           threads: int | None = None, codes: np.ndarray | None = None) -> HDRResult:
     """:func:`stabilized_merge` of an in-memory :class:`Stabilization` on the engine's matrix
     kernel (:func:`~derender.engine.matrix.merge_matrix_frames`): one compiled pass per pixel,
     float32 sums (2e-7 to 4e-7 relative to the float64 reference engine), the registration
-    mask applied. :class:`NotStreamable` when the aligned images are not 8-bit codes
-    (sub-pixel warps) or there is no table form, so the caller keeps the reference engine."""
+    mask applied. ``codes``: the aligned images as 8-bit codes, if already made.
+    :class:`NotStreamable` when they are not 8-bit codes (sub-pixel warps) or there is no
+    table form (:func:`stabilized_plan`)."""
     al = stab.alignment
-    codes = stack_codes_exact(al.images)
+    codes = stack_codes_exact(al.images) if codes is None else codes
     if codes is None:
         raise NotStreamable("the aligned images are not 8-bit codes")
     plan = stabilized_plan(stab, weight, noise_weighting)
@@ -447,11 +448,10 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     from derender.engine.float_merge import merge_linear
     from derender.engine.weights import get_weight
 
-    if pixel_weights is None:
-        try:
-            return merge_stabilized_table(stab, weight, noise_weighting)
-        except NotStreamable:
-            pass
+    if pixel_weights is None and (stab.curves or not noise_weighting):     # a table form (stabilized_plan)
+        codes = stack_codes_exact(stab.alignment.images)
+        if codes is not None:
+            return merge_stabilized_table(stab, weight, noise_weighting, codes=codes)
 
     wfun = get_weight(weight)
     al = stab.alignment
