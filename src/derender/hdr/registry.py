@@ -516,6 +516,15 @@ def merge(stack: Stack, method: str = "debevec", options: Any = None, *,
     >>> contrast = result.radiance[15, 15, 1] / result.radiance[0, 0, 1]
     >>> bool(abs(contrast / 100 - 1) < 0.02)
     True
+
+    The method's options as a mapping (or its record), the engine's motion options as a
+    :class:`~derender.engine.motion.run.MotionOptions`: here the middle frame as the reference
+    and ghost removal (nothing moves, so no frame is left out):
+
+    >>> hat = derender.merge(stack, "debevec", {"weight": "hat"})
+    >>> still = derender.merge(stack, "debevec", motion=derender.MotionOptions(reference=1, deghost=True))
+    >>> still.info["reference"], int(still.ghosts.max())
+    (1, 0)
     >>> try:
     ...     derender.merge(stack, "no-such-method")
     ... except derender.InputError as error:
