@@ -71,8 +71,8 @@ def main() -> None:
                 for m in a.methods:
                     row = {"family": fam, "split": "tuning" if fam in TUNING else "held-out", "kind": kind,
                            "seed": seed, "method": m, "rho_true": np.round(rho_t, 3).tolist()}
-                    r0 = merge_seeded(st, m, seed, exponent_rounds=0)
-                    r1 = merge_seeded(st, m, seed, exponent_rounds=a.rounds)
+                    r0 = merge_seeded(st, m, seed, options={"exponent_rounds": 0})
+                    r1 = merge_seeded(st, m, seed, options={"exponent_rounds": a.rounds})
                     row["off"] = score(r0.radiance, b)
                     row["search"] = score(r1.radiance, b)
                     for k, r in (("off", r0), ("search", r1)):      # issue 27: greys per decade

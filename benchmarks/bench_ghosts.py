@@ -89,6 +89,7 @@ def derender_merge(codes: np.ndarray, times: np.ndarray, method: str, ref: int, 
     Returns (radiance, seconds, options used)."""
     from derender.core.errors import InputError
     from derender.core.types import Stack
+    from derender.engine.motion.run import MotionOptions
     from derender.hdr.registry import merge_seeded
 
     stack = Stack(images=codes.astype(np.float32) / 255, times=times)
@@ -97,7 +98,7 @@ def derender_merge(codes: np.ndarray, times: np.ndarray, method: str, ref: int, 
     for opts in attempts:
         t0 = time.perf_counter()
         try:
-            rad = merge_seeded(stack, method, int(seed), **opts).radiance
+            rad = merge_seeded(stack, method, int(seed), motion=MotionOptions(**opts)).radiance
         except InputError:
             continue
         return rad, time.perf_counter() - t0, opts

@@ -91,7 +91,7 @@ def evaluate(render: str, seed: int, args, work: Path, hdrgen: str | None, why: 
     for m in args.methods:
         opts = ({"model": render_chart_model("nikon-d5100", render, args.n_train)}
                 if method_spec(m).needs_model else {})
-        res = merge_seeded(stack, m, seed, **opts)
+        res = merge_seeded(stack, m, seed, options=opts)
         mask = res.mask if mask is None else mask
         rows.append({"render": render, "role": role, "seed": seed, "method": m}
                     | linearity_scores(res.radiance, lt, spot, score_mask=smooth, merge_mask=res.mask))

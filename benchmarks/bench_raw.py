@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from derender.engine.options import OutputOptions
+
 CASES = [("nikon-d5100", 14, "outdoor"), ("nikon-d5100", 14, "indoor"), ("nikon-d5100", 14, "night"),
          ("sigma-sd-merrill", 12, "outdoor"), ("sigma-sd-merrill", 12, "indoor"), ("sigma-sd-merrill", 12, "night")]
 
@@ -210,10 +212,10 @@ def speed(size, exposures, tile=None, repeats=3, hdrutils=True):
             timed("LibRaw decode (floor)", decode)
             timed("derender read (threads)", read)
             timed("merge in memory (read, noise, merge, variance, demosaic)",
-                  lambda: merge_files(files, method="raw", variance=True))
+                  lambda: merge_files(files, method="raw", options={"variance": True}))
             timed("merge + radiance and variance EXR (zip)",
-                  lambda: merge_files(files, method="raw", variance_output=Path(tmp) / "v.exr",
-                                      output=Path(tmp) / "m.exr"))
+                  lambda: merge_files(files, method="raw", output=OutputOptions(variance_output=Path(tmp) / "v.exr",
+                                                                                output=Path(tmp) / "m.exr")))
         if hdrutils and _hdrutils(files[:2], times[:2]) is not None:
             for _ in range(max(1, repeats - 1)):
                 timed("HDRutils 1.2 merge (no variance)", lambda: _hdrutils(files, times))

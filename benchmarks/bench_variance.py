@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from derender.engine.options import EngineOptions
+
 
 class _Timer:
     def __init__(self) -> None:
@@ -107,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     def once(method: str, var: bool):
         timer.wall = timer.cpu = timer.edge_cpu = 0.0
         w0, c0 = time.perf_counter(), time.process_time()
-        res = merge_files(paths, method=method, threads=args.threads, **({"variance": True} if var else {}))
+        res = merge_files(paths, options={"variance": True} if var else {}, method=method,
+                          engine=EngineOptions(threads=args.threads))
         return (time.perf_counter() - w0, time.process_time() - c0, timer.wall, timer.cpu, timer.edge_cpu), res
 
     print(f"bracket {args.bracket} ({len(paths)} frames), pairs {args.pairs}, alternating order")

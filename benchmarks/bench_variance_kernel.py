@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
 
         setattr(vk, name, capture)
         try:
-            merge_files(paths, method=method, variance=True)
+            merge_files(paths, options={"variance": True}, method=method)
         finally:
             setattr(vk, name, orig)
         a = cap["args"]

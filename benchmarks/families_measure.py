@@ -66,7 +66,7 @@ def run(families, kinds, seeds, methods, opts=None):
                     if m == "oracle":
                         rad = oracle_merge_bracket(b).radiance
                     else:
-                        rad = merge_seeded(st, m, seed, **(opts or {}).get(m, {})).radiance
+                        rad = merge_seeded(st, m, seed, options=(opts or {}).get(m, {})).radiance
                     row[m] = score(rad, b)
                     row[m]["s"] = round(time.perf_counter() - t0, 2)
                 rows.append(row)

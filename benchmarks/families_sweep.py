@@ -32,7 +32,7 @@ def main() -> None:
         for m in a.methods:
             per_fam: dict = {}
             for f, k, s, b in brackets:
-                sc = score(merge_seeded(stack_of(b), m, s, **cfg).radiance, b)
+                sc = score(merge_seeded(stack_of(b), m, s, options=cfg).radiance, b)
                 per_fam.setdefault(f, []).append(sc)
             cells = " ".join(f"{f}: {np.mean([x['L'] for x in v]):.2f}/{np.mean([x['rel'] for x in v]):.3f}/"
                              f"{np.mean([x['rel4'] for x in v]):.3f}" for f, v in per_fam.items())

@@ -94,7 +94,7 @@ def run_derender(files, times, work: Path, args):
     from derender.hdr.raw import merge_raw
     from derender.io.raw import read_raw_stack
 
-    res = merge_raw(read_raw_stack(files, times=times), output_space="camera_rgb")
+    res = merge_raw(read_raw_stack(files, times=times), {"output_space": "camera_rgb"})
     return res.radiance.astype(np.float64), res.mask
 
 

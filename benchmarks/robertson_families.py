@@ -33,11 +33,11 @@ def main() -> None:
             for seed in a.seeds:
                 b = bracket(fam, kind, seed)
                 st = stack_of(b)
-                rd, rr = merge_debevec(st, seed=seed), merge_robertson(st, seed=seed)
+                rd, rr = merge_debevec(st, options={"seed": seed}), merge_robertson(st, options={"seed": seed})
                 row = {"family": fam, "scene": f"{kind}-{seed}", "seed": seed,
                        "debevec": score(rd.radiance, b)["L"], "robertson": score(rr.radiance, b)["L"],
-                       "robC_debM": score(merge_debevec(st, curves=rr.info["curves"]).radiance, b)["L"],
-                       "debC_robM": score(merge_robertson(st, curves=rd.info["curves"]).radiance, b)["L"]}
+                       "robC_debM": score(merge_debevec(st, options={"curves": rr.info["curves"]}).radiance, b)["L"],
+                       "debC_robM": score(merge_robertson(st, options={"curves": rd.info["curves"]}).radiance, b)["L"]}
                 rows.append(row)
                 print(json.dumps({k: round(v, 2) if isinstance(v, float) else v for k, v in row.items()}), flush=True)
     print("| family | split | brackets | " + " | ".join(keys) + " | robertson - debevec | (seeds 0-1) |")

@@ -17,6 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.patches import FancyArrowPatch, FancyBboxPatch  # noqa: E402
 
+from derender.engine.motion.run import MotionOptions
+
 __all__ = ["draw_dataflow", "import_layers", "draw_layers", "draw_ghosts", "draw_all"]
 
 #: Fill colour per layer group (light, readable in print and on dark themes' white panels).
@@ -196,8 +198,8 @@ def draw_ghosts(path: Path) -> Path:
                          motion=MotionSpec(objects=3, shake=4))
     ref = b.params["motion"]["reference"]
     stack = Stack(images=b.jpeg_codes.astype(np.float32) / np.float32(255), times=b.times)
-    plain = dr.merge(stack, "stabilized", reference=ref)
-    clean = dr.merge(stack, "stabilized", reference=ref, align="translation", deghost=True)
+    plain = dr.merge(stack, "stabilized", motion=MotionOptions(reference=ref))
+    clean = dr.merge(stack, "stabilized", motion=MotionOptions(reference=ref, align="translation", deghost=True))
     truth = b.truth_linear_srgb
 
     def fitted(r):          # one scale to the truth (median luminance ratio): the maps as the method gives them

@@ -50,7 +50,7 @@ def measure(path: Path = DATA, seeds=(0, 1)) -> Path:
             b = simulate_bracket("nikon-d5100", size=(192, 128), exposures=7, seed=seed, family=family)
             stack = Stack(images=b.jpeg_codes.astype(np.float32) / np.float32(255), times=b.times)
             for name, (method, opts) in VARIANTS.items():
-                res = merge_seeded(stack, method, seed, model=model, **opts)
+                res = merge_seeded(stack, method, seed, options={**opts, "model": model})
                 cov = coverage_scores(res.radiance, res.variance, b.truth_linear_srgb, levels=LEVELS)["coverage"]
                 out["curves"].setdefault(name, {}).setdefault(family, []).append([cov[float(p)] for p in LEVELS])
     path.parent.mkdir(parents=True, exist_ok=True)

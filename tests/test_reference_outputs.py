@@ -100,8 +100,8 @@ def test_merged_radiance_unchanged(case, reference, model, tmp_path):
     checked = 0
     for method in methods:
         opts = {"model": model} if method in MODEL_METHODS else {}
-        results = {"files": merge_files(paths, method=method, **topts, **opts),
-                   "stack": merge_seeded(stack, method, 0, **opts)}
+        results = {"files": merge_files(paths, method=method, options=opts, **topts),
+                   "stack": merge_seeded(stack, method, 0, options=opts)}
         for tag, res in results.items():
             for what in ("radiance", "variance"):
                 arr = getattr(res, what)

@@ -39,15 +39,9 @@ TYPER_DECORATORS = frozenset({"command", "callback"})
 
 #: Too long, in files being rewritten on other branches of issue 37 (path under src/derender,
 #: qualified name) -> who is fixing it. Emptied by the lead after the merge.
-LONG_ALLOWED: dict[tuple[str, str], str] = {
-    ("engine/motion/run.py", "_merge_motion"): "issue 37 item 2 (helper h1: the motion run's options)",
-}
+LONG_ALLOWED: dict[tuple[str, str], str] = {}
 #: Too many positional parameters, same rule as :data:`LONG_ALLOWED`.
-POSITIONAL_ALLOWED: dict[tuple[str, str], str] = {
-    ("hdr/files.py", "_merge_raw_paths"): "issue 37 item 2 (helper h1: one record for output and engine settings)",
-    ("engine/motion/deghost.py", "detect_ghosts"): "issue 37 item 2 (helper h1: MotionOptions to the detector)",
-    ("engine/motion/deghost.py", "_agreement"): "issue 37 item 2 (helper h1: MotionOptions to the detector)",
-}
+POSITIONAL_ALLOWED: dict[tuple[str, str], str] = {}
 
 
 def _decorator_name(node: ast.expr) -> str:

@@ -43,6 +43,8 @@ __getattr__, __dir__, _names = attach(__name__, {
     "response.debevec1997": ["calibrate_debevec"],
     "response.robertson2003": ["calibrate_robertson"],
     "engine.float_merge": ["merge_linear"],
+    "engine.motion.run": ["MotionOptions"],
+    "engine.options": ["OutputOptions", "EngineOptions"],
     "hdr.registry": ["merge", "register_method", "METHODS", "MethodSpec"],
     "hdr.files": ["merge_files"],
     "derendering.base": ["MODEL_TYPES", "DerenderModel", "fit_model", "load_model"],

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
+from derender.engine.motion.run import MotionOptions
+
 
 def test_reduce_map_is_an_area_average():
     from derender.applications.report import reduce_map
@@ -201,7 +203,7 @@ def test_merge_report_shows_the_ghosts(tmp_path, capsys):
     assert data["summary"]["reference frame"] == f"image 3 ({paths[2].name})"
     assert "ghost removal" in data["summary"]
     overlays = np.frombuffer(gzip.decompress(base64.b64decode(data["overlays"])), np.uint8).reshape(64, 96)
-    res = merge_files(paths, reference=2, align="translation", deghost=True)
+    res = merge_files(paths, motion=MotionOptions(reference=2, align="translation", deghost=True))
     np.testing.assert_array_equal((overlays & 2) != 0, res.ghosts > 0)
     assert (res.ghosts > 0).any()
 

@@ -71,11 +71,12 @@ def test_ghost_experiment_sees_the_ghosts_and_deghost_removes_them():
     (a sample whose code a passing object stops from rising is censored, not fitted), and ghost
     removal takes it to 1.22; object 1.92 -> 1.39, static 0.96 -> 0.91. So the swept zone's drop is
     asked to be 0.2, not 0.3."""
+    from derender.engine.motion.run import MotionOptions
     from derender.evaluation.ghosts import ghost_comparison
 
     kw = dict(families=("camera",), settings=("tripod",), size=(96, 64), exposures=5, methods=("debevec",))
     (plain,) = ghost_comparison(**kw)
-    (clean,) = ghost_comparison(**kw, options={"deghost": True})
+    (clean,) = ghost_comparison(**kw, motion=MotionOptions(deghost=True))
     assert plain["object_ratio"] > 1.6 and plain["swept_ratio"] > 1.3
     assert clean["object_ratio"] < plain["object_ratio"] - 0.5
     assert clean["swept_ratio"] < plain["swept_ratio"] - 0.2

@@ -382,7 +382,7 @@ def test_method_options_reach_the_method(tmp_path, capsys):
     code, _, err = run_cli(["merge", *ins, "-o", tmp_path / "o4.exr", "--method", "stabilized",
                             "--option", "block=4", "-O", "use_times=false"], capsys)
     assert code == 0, err
-    lib = merge_files(ins, method="stabilized", block=4, use_times=False)
+    lib = merge_files(ins, options={"block": 4, "use_times": False}, method="stabilized")
     np.testing.assert_array_equal(read_exr(tmp_path / "o4.exr"), lib.radiance)
     default = merge_files(ins, method="stabilized")
     assert not np.array_equal(default.radiance, lib.radiance)

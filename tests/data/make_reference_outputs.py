@@ -156,8 +156,8 @@ def main() -> int:
             stack = read_stack(paths, **topts)
             for method in methods:
                 opts = {"model": model} if method in MODEL_METHODS else {}
-                streamed = merge_files_fast(paths, method=method, **topts, **opts)
-                mem = merge_seeded(stack, method, 0, **opts)
+                streamed = merge_files_fast(paths, method=method, options=opts, **topts)
+                mem = merge_seeded(stack, method, 0, options=opts)
                 for tag, res in (("files", streamed), ("stack", mem)):
                     for what in ("radiance", "variance"):
                         arr = getattr(res, what)
@@ -200,8 +200,8 @@ def update(methods: list[str]) -> int:
             stack = read_stack(paths, **topts)
             for method in (m for m in case_methods if m in methods):
                 opts = {"model": model} if method in MODEL_METHODS else {}
-                res = {"files": merge_files(paths, method=method, **topts, **opts),
-                       "stack": merge_seeded(stack, method, 0, **opts)}
+                res = {"files": merge_files(paths, method=method, options=opts, **topts),
+                       "stack": merge_seeded(stack, method, 0, options=opts)}
                 for tag in ("files", "stack"):
                     for what in ("radiance", "variance"):
                         key = f"{name}/{method}/{tag}/{what}"

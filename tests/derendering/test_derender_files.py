@@ -10,6 +10,7 @@ from derender.camera import bracket_paths, simulate_bracket, write_bracket, writ
 from derender.camera.chart import chart_pairs, save_pairs
 from derender.core.types import Stack
 from derender.derendering.base import load_model
+from derender.engine.options import OutputOptions
 from derender.io.exr import read_exr
 
 
@@ -142,7 +143,7 @@ def test_probabilistic_censoring_beats_plain_product_on_light_source(model_file)
     st = Stack(images=b.jpeg_codes / 255.0, times=b.times)
     scores = {}
     for censor in (False, True):
-        r = merge_probabilistic(st, m, colour_space="camera_rgb", censor=censor)
+        r = merge_probabilistic(st, options={"model": m, "colour_space": "camera_rgb", "censor": censor})
         srgb = (r.radiance * b.wb_true) @ b.camera_to_srgb.T
         scores[censor] = psnr_rgbl(srgb, b.truth_linear_srgb)["L"]
     assert scores[True] > scores[False] + 5.0, scores
@@ -169,7 +170,7 @@ def test_stabilized_probabilistic_runs_and_is_close_to_stabilized(model_file):
 
     b = simulate_bracket(size=(96, 64), exposures=5, pipeline="auto", style="simple", seed=1)
     st = Stack(images=b.jpeg_codes / 255.0, times=b.times)
-    both = merge(st, method="stabilized-probabilistic", model=load_model(model_file))
+    both = merge(st, options={"model": load_model(model_file)}, method="stabilized-probabilistic")
     alone = merge(st, method="stabilized")
     assert np.all(np.isfinite(both.radiance))
     s_both = psnr_rgbl(both.radiance, b.truth_linear_srgb)["L"]
@@ -191,7 +192,7 @@ def test_probabilistic_beats_debevec_on_jpeg_files_and_variance_marks_censored(m
         write_bracket(b, tmp_path / kind)
         st = read_stack(bracket_paths(tmp_path / kind, "jpeg"))
         deb = psnr_rgbl(merge(st, method="debevec").radiance, b.truth_linear_srgb)["L"]
-        r = merge_probabilistic(st, m, colour_space="camera_rgb")
+        r = merge_probabilistic(st, options={"model": m, "colour_space": "camera_rgb"})
         assert np.all(np.isfinite(r.radiance)) and np.all(np.isfinite(r.variance))
         prob = psnr_rgbl((r.radiance * b.wb_true) @ b.camera_to_srgb.T, b.truth_linear_srgb)["L"]
         assert prob >= deb, (kind, prob, deb)
@@ -201,13 +202,13 @@ def test_probabilistic_beats_debevec_on_jpeg_files_and_variance_marks_censored(m
         # issue 29: measured channels' relative variance now includes spatial mixing (max 0.79 measured)
         assert rel[censored].min() > 1.0 and rel[~censored].max() < rel[censored].min(), (
             kind, rel[censored].min(), rel[~censored].max())
-        again = merge_probabilistic(st, m, colour_space="camera_rgb")
+        again = merge_probabilistic(st, options={"model": m, "colour_space": "camera_rgb"})
         np.testing.assert_array_equal(again.radiance, r.radiance)
         # the files stream band by band (merge_files_fast, as the CLI does) to the same numbers
         from derender.hdr.files import merge_files as merge_files_fast
 
-        streamed = merge_files_fast(bracket_paths(tmp_path / kind, "jpeg"), method="probabilistic", model=m,
-                                    colour_space="camera_rgb")
+        streamed = merge_files_fast(bracket_paths(tmp_path / kind, "jpeg"), options={"model": m,
+                                                                                     "colour_space": "camera_rgb"}, method="probabilistic")
         assert streamed.info["engine_path"] == "streaming"
         np.testing.assert_array_equal(streamed.radiance, r.radiance)
         np.testing.assert_array_equal(streamed.variance, r.variance)
@@ -283,7 +284,8 @@ def test_code_noise_makes_merged_variances_less_over_confident(model_file):
     for cn in (0.0, 2.0):
         # eq. 3's variance: what the code noise alone changes (issue 29's shared-error variance adds
         # terms that dominate it; tests/hdr/test_probabilistic_variance.py checks that one)
-        r = merge_probabilistic(st, m, colour_space="camera_rgb", code_noise=cn, variance_model="independent")
+        r = merge_probabilistic(st, options={"model": m, "colour_space": "camera_rgb", "code_noise": cn,
+                                             "variance_model": "independent"})
         lv = np.log1p(r.variance / np.maximum(r.radiance, 1e-12) ** 2)
         z = (np.log(tcam) - np.log(np.maximum(r.radiance, 1e-12)) + 0.5 * lv) / np.sqrt(lv)
         med_z[cn] = float(np.median(np.abs(z[ok])))
@@ -346,6 +348,7 @@ def test_stabilized_probabilistic_engine_equals_the_per_pixel_reference(model_fi
     """Issue 17: ``stabilized-probabilistic`` on the engine (frames held as codes, one per-colour weight
     table) gives the float reference engine's per-pixel-weighted merge, registration shifts included."""
     from derender.hdr.stabilized_probabilistic import (
+        StabilizedProbabilisticOptions,
         colour_reliability,
         colour_weight_table,
         merge_stabilized_probabilistic,
@@ -358,8 +361,8 @@ def test_stabilized_probabilistic_engine_equals_the_per_pixel_reference(model_fi
     codes[1] = np.roll(codes[1], (2, -3), axis=(0, 1))       # a frame that registration must shift back
     codes[3] = np.roll(codes[3], (-1, 1), axis=(0, 1))
     st = Stack(images=codes / 255.0, times=b.times)
-    eng = merge_stabilized_probabilistic(st, model)
-    ref = stabilized_probabilistic_stack(st, model)
+    eng = merge_stabilized_probabilistic(st, options={"model": model})
+    ref = stabilized_probabilistic_stack(st, StabilizedProbabilisticOptions(model=model))
     assert eng.info["engine_path"] == "streaming" and ref.info["engine_path"] == "stack"
     assert eng.info["shifts"] == ref.info["shifts"] and any(s != [0, 0] for s in eng.info["shifts"])
     r_eng, r_ref = np.asarray(eng.radiance, np.float64), np.asarray(ref.radiance, np.float64)
@@ -373,7 +376,7 @@ def test_stabilized_probabilistic_engine_equals_the_per_pixel_reference(model_fi
     np.testing.assert_allclose(table[packed], colour_reliability(model, px), rtol=1e-6)
     from derender.hdr.registry import merge
 
-    unweighted = merge(st, method="stabilized", noise_weighting=False)
+    unweighted = merge(st, options={"noise_weighting": False}, method="stabilized")
     assert np.max(np.abs(np.asarray(unweighted.radiance) - r_eng)) > 1e-3 * np.max(r_ref)
 
 
@@ -382,12 +385,13 @@ def test_stabilized_probabilistic_files_take_the_engine(model_file, tmp_path, ca
     write_bracket(b, tmp_path / "b")
     jpgs = bracket_paths(tmp_path / "b", "jpeg")
     from derender.hdr.files import merge_files
-    from derender.hdr.stabilized_probabilistic import stabilized_probabilistic_stack
+    from derender.hdr.stabilized_probabilistic import StabilizedProbabilisticOptions, stabilized_probabilistic_stack
     from derender.io.images import read_stack
 
-    res = merge_files(jpgs, method="stabilized-probabilistic", model=str(model_file), output=tmp_path / "sp.exr")
+    res = merge_files(jpgs, options={"model": str(model_file)}, method="stabilized-probabilistic",
+                      output=OutputOptions(output=tmp_path / "sp.exr"))
     assert res.info["engine_path"] == "streaming" and "colour_weights_s" in res.info["timings"]
-    ref = stabilized_probabilistic_stack(read_stack(jpgs), load_model(model_file))
+    ref = stabilized_probabilistic_stack(read_stack(jpgs), StabilizedProbabilisticOptions(model=load_model(model_file)))
     back = read_exr(tmp_path / "sp.exr")
     assert np.max(np.abs(back - ref.radiance)) <= 1e-5 * np.max(ref.radiance)
 
@@ -408,8 +412,8 @@ def test_probabilistic_outputs_written_from_band_buffers_are_the_same_files(mode
     for hold in (True, False):
         for var in (True, False):
             out, vout = tmp_path / f"m-{hold}-{var}.exr", (tmp_path / f"v-{hold}-{var}.exr" if var else None)
-            res = merge_files(paths, times, "probabilistic", model=model, output=out, variance_output=vout,
-                              hold_outputs=hold)
+            res = merge_files(paths, times, "probabilistic", options={"model": model},
+                              output=OutputOptions(output=out, variance_output=vout, hold_outputs=hold))
             assert res.info["outputs_held"] == hold and (res.variance is None) == (not hold)
             files[hold, var] = out.read_bytes() + (vout.read_bytes() if var else b"")
     assert files[True, True] == files[False, True] and files[True, False] == files[False, False]

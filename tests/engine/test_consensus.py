@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from derender.engine.motion.consensus import consensus_correct, frame_biases
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import MatrixPlan, TablePlan
 
 GAMMA = 2.2
@@ -127,7 +128,7 @@ def test_object_pixels_left_to_the_reference_lose_its_bias_on_a_moving_bracket()
     seen = seen_in_reference(b.jpeg_codes[ref])
     errs = {}
     for cons in (False, True):
-        r = merge_seeded(stack, "robertson", 1, reference=ref, deghost=True, ghost_consensus=cons)
+        r = merge_seeded(stack, "robertson", 1, motion=MotionOptions(reference=ref, deghost=True, consensus=cons))
         errs[cons] = zone_errors(r.radiance, b.truth_linear_srgb, b.motion_zones, seen)
         assert np.all(np.isfinite(r.radiance)) and r.radiance.min() >= 0
     assert errs[True]["object_seen"] < 0.75 * errs[False]["object_seen"], errs

@@ -5,6 +5,7 @@ import pytest
 from helpers import write_png_codes
 
 from derender.engine.motion.ward2003 import _half, grey8_codes, to_grey8
+from derender.engine.options import EngineOptions
 from derender.hdr.files import merge_files as merge_files_fast
 
 
@@ -46,8 +47,8 @@ def test_stabilized_merge_bytes_do_not_depend_on_threads(tmp_path):
         p = tmp_path / f"{j}.png"
         write_png_codes(p, codes)
         paths.append(p)
-    one = merge_files_fast(paths, b.times, method="stabilized", threads=1)
-    two = merge_files_fast(paths, b.times, method="stabilized", threads=2)
+    one = merge_files_fast(paths, b.times, method="stabilized", engine=EngineOptions(threads=1))
+    two = merge_files_fast(paths, b.times, method="stabilized", engine=EngineOptions(threads=2))
     assert one.info["engine_path"] == two.info["engine_path"] == "streaming"
     np.testing.assert_array_equal(one.radiance, two.radiance)
     np.testing.assert_array_equal(one.mask, two.mask)

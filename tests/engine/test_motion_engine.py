@@ -13,6 +13,8 @@ import pytest
 
 from derender.core.errors import InputError, StackError
 from derender.core.types import Stack
+from derender.engine.motion.run import MotionOptions
+from derender.engine.options import OutputOptions
 
 
 def _bracket(family="camera", setting="tripod", size=(128, 96), exposures=5, seed=0):
@@ -47,7 +49,7 @@ def test_valid_planes_exclude_a_frame_exactly_in_every_kernel():
     valid = np.ones((n, h, w), np.uint8)
     valid[j, :, : w // 2] = 0                          # frame j out of the left half
     keep = [k for k in range(n) if k != j]
-    methods = [DebevecMethod(DebevecOptions()), StabilizedMethod("stabilized", method_options("stabilized", {"align": "none"}))]
+    methods = [DebevecMethod(DebevecOptions()), StabilizedMethod("stabilized", method_options("stabilized"))]
     for method in methods:
         plan = method.plan(_access(method, src, frames, None, n // 2, 1))
         full = merge_held(plan, frames, t, threads=1, valid=valid)
@@ -157,8 +159,8 @@ def test_deghost_leaves_a_still_bracket_alone(method):
 
     b = _bracket(setting="still")
     moving = _bracket(setting="tripod")            # its zones label the still twin's pixels too
-    plain = dr.merge(_stack(b), method, reference=2, align="none")
-    clean = dr.merge(_stack(b), method, reference=2, align="none", deghost=True)
+    plain = dr.merge(_stack(b), method, motion=MotionOptions(reference=2, align="none"))
+    clean = dr.merge(_stack(b), method, motion=MotionOptions(reference=2, align="none", deghost=True))
     e0 = zone_errors(plain.radiance, b.truth_linear_srgb, moving.motion_zones)["static"]
     e1 = zone_errors(clean.radiance, b.truth_linear_srgb, moving.motion_zones)["static"]
     assert abs(e1 - e0) <= 0.05 * e0, (e0, e1)
@@ -175,8 +177,8 @@ def test_handheld_bracket_aligned_to_the_chosen_reference():
 
     hand, tri = _bracket(setting="handheld"), _bracket(setting="tripod")
     ref = hand.params["motion"]["reference"]
-    r_hand = dr.merge(_stack(hand), "debevec", reference=ref, align="translation")
-    r_tri = dr.merge(_stack(tri), "debevec", reference=ref, align="none")
+    r_hand = dr.merge(_stack(hand), "debevec", motion=MotionOptions(reference=ref, align="translation"))
+    r_tri = dr.merge(_stack(tri), "debevec", motion=MotionOptions(reference=ref, align="none"))
     e_hand = zone_errors(r_hand.radiance, hand.truth_linear_srgb, hand.motion_zones)["static"]
     e_tri = zone_errors(r_tri.radiance, tri.truth_linear_srgb, tri.motion_zones)["static"]
     unaligned = dr.merge(_stack(hand), "debevec")
@@ -203,8 +205,10 @@ def test_reference_counts_the_images_as_given(tmp_path):
         write_jpeg(p, codes, float(t), "derender", "simulated")
         paths.append(p)
     order = [3, 0, 4, 2, 1]
-    a = merge_files(paths, method="debevec", reference=2, output=tmp_path / "a.exr")
-    c = merge_files([paths[k] for k in order], method="debevec", reference=order.index(2), output=tmp_path / "c.exr")
+    a = merge_files(paths, method="debevec", motion=MotionOptions(reference=2),
+                    output=OutputOptions(output=tmp_path / "a.exr"))
+    c = merge_files([paths[k] for k in order], method="debevec", motion=MotionOptions(reference=order.index(2)),
+                    output=OutputOptions(output=tmp_path / "c.exr"))
     np.testing.assert_array_equal(a.radiance, c.radiance)
     assert a.info["reference"] == 2 and c.info["reference_input"] == order.index(2)
     header = OpenEXR.InputFile(str(tmp_path / "c.exr")).header()
@@ -218,20 +222,20 @@ def test_motion_errors_are_clear():
     b = _bracket(size=(64, 48))
     st = _stack(b)
     with pytest.raises(InputError, match="out of range"):
-        dr.merge(st, "debevec", reference=7)
-    with pytest.raises(InputError, match="alignment"):
-        dr.merge(st, "debevec", align="rotation")
+        dr.merge(st, "debevec", motion=MotionOptions(reference=7))
+    with pytest.raises(InputError, match="align takes none, translation, homography"):
+        dr.merge(st, "debevec", motion=MotionOptions(align="rotation"))
     flat = Stack(images=np.full((3, 48, 64, 3), 0.5, np.float32) * np.array([0.2, 1.0, 1.9])[:, None, None, None]
                  .astype(np.float32), times=np.array([0.01, 0.05, 0.1]))
     flat.images[:] = np.round(flat.images * 255) / 255
     with pytest.raises(InputError, match="no features"):
-        dr.merge(flat, "debevec", align="homography")
+        dr.merge(flat, "debevec", motion=MotionOptions(align="homography"))
     # two different scenes are not one bracket: nothing agrees with the reference
     # the last three exposures of another picture (this one upside down): not one scene
     mixed = Stack(images=np.concatenate([st.images[:2], np.ascontiguousarray(st.images[2:, ::-1, ::-1])]),
                   times=b.times)
     with pytest.raises(StackError, match="do not show one scene"):
-        dr.merge(mixed, "debevec", reference=2, deghost=True)
+        dr.merge(mixed, "debevec", motion=MotionOptions(reference=2, deghost=True))
 
 
 def test_callers_frames_are_not_modified():

@@ -9,6 +9,7 @@ import pytest
 from helpers import write_png_codes
 
 from derender.camera import simulate_bracket
+from derender.engine.options import OutputOptions
 from derender.engine.overlap import OutputRing
 
 
@@ -30,8 +31,9 @@ def test_ring_writes_the_same_file_without_holding_the_radiance(tall_bracket, tm
 
     monkeypatch.setattr(run_mod, "KERNEL_MIN_PIXEL_FRAMES", 0)     # the compiled kernels at test size
     paths, times = tall_bracket
-    held = merge_files(paths, times, method, output=tmp_path / "held.exr", half=half)
-    ring = merge_files(paths, times, method, output=tmp_path / "ring.exr", hold_outputs=False, half=half)
+    held = merge_files(paths, times, method, output=OutputOptions(output=tmp_path / "held.exr", half=half))
+    ring = merge_files(paths, times, method, output=OutputOptions(output=tmp_path / "ring.exr", hold_outputs=False,
+                                                                  half=half))
     assert held.info["outputs_held"] and held.radiance.shape == (700, 400, 3)
     assert not ring.info["outputs_held"] and ring.radiance is None and ring.variance is None
     assert (tmp_path / "held.exr").read_bytes() == (tmp_path / "ring.exr").read_bytes()
@@ -97,7 +99,7 @@ def test_a_failing_writer_stops_the_ring_merge_with_its_error(tall_bracket, tmp_
 
     def go() -> None:
         try:
-            merge_files(paths, times, "stabilized", output=tmp_path / "x.exr", hold_outputs=False)
+            merge_files(paths, times, "stabilized", output=OutputOptions(output=tmp_path / "x.exr", hold_outputs=False))
         except OSError as exc:
             result.append(exc)
 

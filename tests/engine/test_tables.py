@@ -9,6 +9,7 @@ from helpers import run_cli, write_png_codes
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
 from derender.engine.float_merge import merge_linear
+from derender.engine.options import EngineOptions, OutputOptions
 from derender.engine.tables import (
     TableMerge,
     code_values,
@@ -85,7 +86,7 @@ def test_merge_methods_use_table_engine_and_match_reference():
     st = _stack(codes, times)
     for method in ("debevec", "robertson"):
         fast = merge(st, method)
-        ref = merge(st, method, engine="reference")
+        ref = merge(st, method, options={"engine": "reference"})
         assert fast.info["engine"] == "table" and ref.info["engine"] == "reference"
         assert _rel(fast.radiance, ref.radiance) < RTOL
         np.testing.assert_array_equal(fast.mask, ref.mask)
@@ -93,9 +94,9 @@ def test_merge_methods_use_table_engine_and_match_reference():
     st2 = Stack(images=np.clip(st.images + 0.3 / 255, 0, 1), times=times)
     assert merge(st2, "debevec").info["engine"] == "reference"
     with pytest.raises(InputError):
-        merge(st2, "debevec", engine="table")
+        merge(st2, "debevec", options={"engine": "table"})
     with pytest.raises(InputError):
-        merge(st, "debevec", engine="gpu")
+        merge(st, "debevec", options={"engine": "gpu"})
 
 
 def test_value_and_weight_tables_match_pointwise_functions():
@@ -167,9 +168,10 @@ def jpeg_bracket(tmp_path_factory):
 
 @pytest.mark.parametrize("keep_frames,threads", [(1, 2), (6, 1)])
 def test_streaming_merge_equals_reference(jpeg_bracket, tmp_path, keep_frames, threads):
-    ref = merge(read_stack(jpeg_bracket), "debevec", engine="reference")
+    ref = merge(read_stack(jpeg_bracket), "debevec", options={"engine": "reference"})
     out = tmp_path / "m.exr"
-    res = merge_files_fast(jpeg_bracket, output=out, keep_frames=keep_frames, threads=threads)
+    res = merge_files_fast(jpeg_bracket, output=OutputOptions(output=out),
+                           engine=EngineOptions(keep_frames=keep_frames, threads=threads))
     assert res.info["engine_path"] == "streaming"
     assert res.info["streaming"]["decodes"] == 12 - min(keep_frames, 6)
     np.testing.assert_array_equal(res.info["curves"].log_inverse, ref.info["curves"].log_inverse)
@@ -182,23 +184,25 @@ def test_streaming_bytes_do_not_depend_on_threads_or_memory(jpeg_bracket, tmp_pa
     """Same bytes (radiance and EXR file) for any thread count and frame budget (batch runs = serial runs)."""
     outs = []
     for i, (threads, keep) in enumerate([(1, 1), (3, 6)]):
-        res = merge_files_fast(jpeg_bracket, output=tmp_path / f"{i}.exr", threads=threads, keep_frames=keep)
+        res = merge_files_fast(jpeg_bracket, output=OutputOptions(output=tmp_path / f"{i}.exr"),
+                               engine=EngineOptions(threads=threads, keep_frames=keep))
         outs.append((np.ascontiguousarray(res.radiance).tobytes(), (tmp_path / f"{i}.exr").read_bytes()))
     assert outs[0] == outs[1]
 
 
 def test_streaming_options_and_fallbacks(jpeg_bracket, tmp_path):
     st = read_stack(jpeg_bracket)
-    res = merge_files_fast(jpeg_bracket, sampling="histogram", seed=3, weight="hat", channel_weights="independent")
-    ref = merge(st, "debevec", sampling="histogram", seed=3, weight="hat", channel_weights="independent",
-                engine="reference")
+    res = merge_files_fast(jpeg_bracket, options={"sampling": "histogram", "seed": 3, "weight": "hat",
+                                                  "channel_weights": "independent"})
+    ref = merge(st, "debevec", options={"sampling": "histogram", "seed": 3, "weight": "hat",
+                                        "channel_weights": "independent", "engine": "reference"})
     assert _rel(res.radiance, ref.radiance) < RTOL
     # Robertson streams on the engine too (issue 14: every method on the one engine), same numbers as in memory
     rob = merge_files_fast(jpeg_bracket, method="robertson")
     assert rob.info["engine_path"] == "streaming"
     np.testing.assert_array_equal(rob.radiance, merge(st, "robertson").radiance)
     # the reference engine requested: read_stack + merge
-    ref_path = merge_files_fast(jpeg_bracket, method="debevec", engine="reference")
+    ref_path = merge_files_fast(jpeg_bracket, options={"engine": "reference"}, method="debevec")
     assert ref_path.info["engine_path"] == "stack"
     # 16-bit files fall back to the in-memory path
     rng = np.random.default_rng(0)
@@ -211,7 +215,7 @@ def test_streaming_options_and_fallbacks(jpeg_bracket, tmp_path):
     with pytest.raises(InputError, match="unknown merge method"):
         merge_files_fast(jpeg_bracket, method="nope")
     with pytest.raises(InputError, match="does not accept"):
-        merge_files_fast(jpeg_bracket, lambda_=3)
+        merge_files_fast(jpeg_bracket, options={"lambda_": 3})
     with pytest.raises(InputError, match="differ in size"):
         other = write_png_codes(tmp_path / "small.png", np.zeros((8, 8, 3), np.uint8))
         merge_files_fast([jpeg_bracket[0], other], times=[0.1, 0.2])
@@ -232,7 +236,7 @@ def test_streaming_memory_does_not_grow_with_frames(tmp_path):
     peaks = []
     for n in (4, 8):
         tracemalloc.start()
-        merge_files_fast(paths[:n], keep_frames=1, threads=2)
+        merge_files_fast(paths[:n], engine=EngineOptions(keep_frames=1, threads=2))
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
     frame = 320 * 240 * 3
@@ -283,7 +287,7 @@ def test_cli_merge_streams_and_matches_library(jpeg_bracket, tmp_path, capsys):
     code, stdout, err = run_cli(["merge", *jpeg_bracket, "-o", out, "--preview", tmp_path / "p.png",
                                  "--mask", tmp_path / "m.png", "--plot", tmp_path / "c.png"], capsys)
     assert code == 0, err
-    ref = merge(read_stack(jpeg_bracket), "debevec", engine="reference")
+    ref = merge(read_stack(jpeg_bracket), "debevec", options={"engine": "reference"})
     assert _rel(read_exr(out), ref.radiance) < RTOL
     assert "6 images 128x80" in stdout
     assert (tmp_path / "p.png").is_file() and (tmp_path / "m.png").is_file() and (tmp_path / "c.png").is_file()
@@ -317,7 +321,7 @@ def test_streamed_stabilized_equals_reference_engine(tmp_path, method):
     for j, t in enumerate(b.times):           # a hand-held bracket: frames moved by whole pixels
         codes = np.roll(b.jpeg_codes[j], (j % 3 - 1, 2 - j % 4), axis=(0, 1))
         paths.append(write_jpeg(tmp_path / f"{j:02d}.jpg", codes, float(t), "Sim", "Cam"))
-    res = merge_files_fast(paths, method=method, seed=3)
+    res = merge_files_fast(paths, options={"seed": 3}, method=method)
     assert res.info["engine_path"] == "streaming"
     stack = read_stack(paths)
     stab = stabilize(stack, mode="joint" if method == "stabilized-joint" else "reference", seed=3)
@@ -357,7 +361,7 @@ def test_stabilized_merge_restores_opencv_threads(tmp_path):
     try:
         cv2.setNumThreads(3)
         for _ in range(3):
-            merge_files_fast(paths, method="stabilized", threads=2)
+            merge_files_fast(paths, method="stabilized", engine=EngineOptions(threads=2))
             assert cv2.getNumThreads() == 3
     finally:
         cv2.setNumThreads(before)
@@ -373,8 +377,10 @@ def test_held_kernel_equals_two_pass_stream(jpeg_bracket, tmp_path, method, opts
     import derender.engine.run as engine_run
 
     monkeypatch.setattr(engine_run, "KERNEL_MIN_PIXEL_FRAMES", 0)     # the kernel even for this small bracket
-    held = merge_files_fast(jpeg_bracket, method=method, threads=2, output=tmp_path / "a.exr", **opts)
-    two = merge_files_fast(jpeg_bracket, method=method, threads=1, keep_frames=1, output=tmp_path / "b.exr", **opts)
+    held = merge_files_fast(jpeg_bracket, options=opts, method=method,
+                            output=OutputOptions(output=tmp_path / "a.exr"), engine=EngineOptions(threads=2))
+    two = merge_files_fast(jpeg_bracket, options=opts, method=method, output=OutputOptions(output=tmp_path / "b.exr"),
+                           engine=EngineOptions(threads=1, keep_frames=1))
     assert held.info["streaming"]["decodes"] == 6 and two.info["streaming"]["decodes"] == 11
     if opts.get("channel_weights", "mean") in ("mean", "independent"):
         assert held.info["kernel"] == "table_merge_rows"
@@ -382,7 +388,7 @@ def test_held_kernel_equals_two_pass_stream(jpeg_bracket, tmp_path, method, opts
     np.testing.assert_array_equal(held.mask, two.mask)
     assert (tmp_path / "a.exr").read_bytes() == (tmp_path / "b.exr").read_bytes()
     monkeypatch.setattr(engine_run, "KERNEL_MIN_PIXEL_FRAMES", 10 ** 12)
-    small = merge_files_fast(jpeg_bracket, method=method, threads=2, **opts)
+    small = merge_files_fast(jpeg_bracket, options=opts, method=method, engine=EngineOptions(threads=2))
     assert "kernel" not in small.info and small.info["streaming"]["decodes"] == 6
     np.testing.assert_array_equal(np.ascontiguousarray(small.radiance), np.ascontiguousarray(two.radiance))
     np.testing.assert_array_equal(small.mask, two.mask)

@@ -8,6 +8,8 @@ from helpers import run_cli, write_png_codes
 
 import derender as dr
 from derender.core.types import Stack
+from derender.engine.motion.run import MotionOptions
+from derender.engine.options import OutputOptions
 
 METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
 
@@ -28,7 +30,7 @@ def _stack(b) -> Stack:
 def test_radiance_unchanged_and_variance_finite(paper_bracket, method):
     st = _stack(paper_bracket)
     plain = dr.merge(st, method)
-    res = dr.merge(st, method, variance=True)
+    res = dr.merge(st, method, options={"variance": True})
     assert plain.variance is None
     np.testing.assert_array_equal(np.asarray(res.radiance), np.asarray(plain.radiance))
     np.testing.assert_array_equal(res.mask, plain.mask)
@@ -51,7 +53,7 @@ def test_coverage_on_tuning_bracket(paper_bracket, method, lo95, lo50, hi50):
     the measured pixels after the trimmed 3x3 map); a variance off by a factor 4 leaves the bands."""
     from derender.evaluation.uncertainty import coverage_table
 
-    res = dr.merge(_stack(paper_bracket), method, variance=True)
+    res = dr.merge(_stack(paper_bracket), method, options={"variance": True})
     t = coverage_table(res.radiance, res.variance, paper_bracket.truth_linear_srgb, merge_mask=res.mask)
     d = t.get("measured", t["all"])
     assert lo95 <= d["coverage"][0.95] <= 0.995
@@ -93,7 +95,7 @@ def test_variance_grows_in_dark_pixels_of_a_short_exposure():
     lv = np.linspace(0, 1, 256)
     curves = ResponseCurves(log_inverse=np.repeat(np.log(np.maximum(lv, 1e-4) ** 2.2)[:, None], 3, 1), method="external",
                             params={})
-    res = dr.merge(st, "debevec", curves=curves, variance=True)
+    res = dr.merge(st, "debevec", options={"curves": curves, "variance": True})
     rel = np.asarray(res.variance)[..., 1] / np.maximum(np.asarray(res.radiance)[..., 1], 1e-12) ** 2
     long_ok = (codes[1, 0, :, 1] > 30) & (codes[1, 0, :, 1] < 200)
     short_only = (codes[1, 0, :, 1] == 255) & (codes[0, 0, :, 1] > 0)
@@ -109,9 +111,9 @@ def test_files_through_band_buffers_equal_in_memory(tmp_path, paper_bracket, met
 
     b = paper_bracket
     paths = [write_png_codes(tmp_path / f"f{j}.png", b.jpeg_codes[j]) for j in range(b.jpeg_codes.shape[0])]
-    mem = dr.merge(_stack(b), method, variance=True)
-    res = merge_files(paths, list(b.times), method, output=tmp_path / "r.exr", variance_output=tmp_path / "v.exr",
-                      hold_outputs=False)
+    mem = dr.merge(_stack(b), method, options={"variance": True})
+    res = merge_files(paths, list(b.times), method, output=OutputOptions(output=tmp_path / "r.exr",
+                                                                         variance_output=tmp_path / "v.exr", hold_outputs=False))
     assert res.radiance is None and res.variance is None        # band buffers only
     v = read_exr(tmp_path / "v.exr")
     np.testing.assert_array_equal(v, np.asarray(mem.variance))
@@ -119,7 +121,7 @@ def test_files_through_band_buffers_equal_in_memory(tmp_path, paper_bracket, met
 
 
 def test_motion_path_gives_a_variance(paper_bracket):
-    res = dr.merge(_stack(paper_bracket), "debevec", variance=True, deghost=True)
+    res = dr.merge(_stack(paper_bracket), "debevec", options={"variance": True}, motion=MotionOptions(deghost=True))
     v = np.asarray(res.variance)
     assert np.all(np.isfinite(v)) and v.min() >= 0 and res.info["engine_path"] == "motion"
 
@@ -146,4 +148,4 @@ def test_cli_variance_for_classic_and_stabilised(tmp_path, capsys, paper_bracket
 def test_reference_engine_refuses_variance(paper_bracket):
     st = _stack(paper_bracket)
     with pytest.raises(dr.InputError, match="variance"):
-        dr.merge(st, "debevec", variance=True, engine="reference")
+        dr.merge(st, "debevec", options={"variance": True, "engine": "reference"})

@@ -110,7 +110,7 @@ def test_evalglare_debevec_over_the_sample_grid(tmp_path):
     stack = Stack(images=b.jpeg_codes.astype(np.float32) / np.float32(255), times=b.times)
     errs = []
     for seed in range(8):
-        res = merge(stack, "debevec", seed=seed)
+        res = merge(stack, "debevec", options={"seed": seed})
         k = spot_factor(res.radiance, spot, SRGB_PRIMARIES, mask=res.mask).factor
         write_hdr(tmp_path / "m.hdr", np.asarray(res.radiance, np.float64) * k, view=FISHEYE_VIEW)
         errs.append(_evalglare_ev(tmp_path / "m.hdr") / truth - 1.0)

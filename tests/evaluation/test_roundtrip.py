@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import require_shared
 
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import MatrixPlan, TablePlan
 from derender.evaluation.roundtrip import bracket_round_trip, round_trip
 
@@ -65,7 +66,7 @@ def test_a_matrix_plan_inverts_its_matrices():
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])
 def test_frobisher_renders_back_its_frames(method):
     folder = require_shared("colour-hdri-frobisher")
-    rt, res, names = bracket_round_trip([folder], method, reference=1, align="none")
+    rt, res, names = bracket_round_trip([folder], method, motion=MotionOptions(reference=1, align="none"))
     assert len(names) == 3
     assert rt.share.sum() == pytest.approx(1.0)
     assert rt.weighted_median <= 1.5 and rt.weighted_p95 <= 4.0        # measured 0.17-0.25 / 1.6-2.0

@@ -52,9 +52,10 @@ def sim(request):
     truth = b.truth_linear_srgb
     rad = {"debevec": merge_debevec(st), "robertson": merge_robertson(st)}
     rad = {k: v.radiance for k, v in rad.items()} | {"curves": {k: v.info["curves"] for k, v in rad.items()}}
-    rad["debevec-unbalanced"] = merge_debevec(st, curves=calibrate_debevec(st, balance=False)).radiance
+    rad["debevec-unbalanced"] = merge_debevec(st, options={"curves": calibrate_debevec(st, balance=False)}).radiance
     # the paper's channels: solved independently (tie=0), each anchored at g(128) = 0
-    rad["robertson-unbalanced"] = merge_robertson(st, curves=calibrate_robertson(st, balance=False, tie=0)).radiance
+    rad["robertson-unbalanced"] = merge_robertson(st, options={"curves": calibrate_robertson(st, balance=False,
+                                                                                             tie=0)}).radiance
     rad["opencv-debevec"] = _opencv(b.jpeg_codes, b.times, "debevec")
     rad["opencv-robertson"] = _opencv(b.jpeg_codes, b.times, "robertson")
     psnr = {k: psnr_rgbl(v, truth)["L"] for k, v in rad.items() if k != "curves"}
@@ -121,8 +122,8 @@ def test_robertson_reference_engine_uses_the_same_weights(sim):
     from derender.hdr.classic import merge_robertson
 
     st, curves = sim["stack"], sim["rad"]["curves"]["robertson"]
-    a = np.asarray(merge_robertson(st, curves=curves, engine="table").radiance, dtype=np.float64)
-    b = np.asarray(merge_robertson(st, curves=curves, engine="reference").radiance, dtype=np.float64)
+    a = np.asarray(merge_robertson(st, options={"curves": curves, "engine": "table"}).radiance, dtype=np.float64)
+    b = np.asarray(merge_robertson(st, options={"curves": curves, "engine": "reference"}).radiance, dtype=np.float64)
     assert np.max(np.abs(a - b) / np.maximum(np.abs(b).max(-1, keepdims=True), 1e-30)) < 1e-4
 
 
@@ -183,7 +184,8 @@ def test_robertson_within_1db_of_debevec_on_the_paper_family():
         for seed in range(6):
             b = simulate_bracket("nikon-d5100", kind=kind, size=(192, 128), exposures=7, seed=seed, family="paper")
             st = Stack(images=code_values()[b.jpeg_codes], times=b.times)
-            deb, rob = (psnr_rgbl(m(st, seed=seed).radiance, b.truth_linear_srgb)["L"]
-                        for m in (lambda s, seed: merge_debevec(s, seed=seed, censor=False), merge_robertson))
+            deb, rob = (psnr_rgbl(m(st).radiance, b.truth_linear_srgb)["L"]
+                        for m in (lambda s: merge_debevec(s, {"seed": seed, "censor": False}),
+                                  lambda s: merge_robertson(s, {"seed": seed})))
             diffs.append(rob - deb)
     assert np.mean(diffs) >= -1.0, np.round(diffs, 2)

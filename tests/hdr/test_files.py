@@ -8,6 +8,7 @@ from helpers import run_cli
 
 from derender.core.errors import InputError
 from derender.core.types import check_brightness_order
+from derender.engine.options import EngineOptions
 
 
 def test_brightness_order_accepts_brackets_and_clipped_ends():
@@ -87,5 +88,6 @@ def test_clipped_count_is_the_same_for_every_method_and_engine_path(tmp_path):
     want = clipped_pixels(read_codes(paths[0]))
     assert want > 0
     counts = {m: merge_files(paths, method=m).info["n_clipped"] for m in ("debevec", "robertson", "stabilized")}
-    counts["debevec two-pass"] = merge_files(paths, method="debevec", keep_frames=1).info["n_clipped"]
+    counts["debevec two-pass"] = merge_files(paths, method="debevec",
+                                             engine=EngineOptions(keep_frames=1)).info["n_clipped"]
     assert set(counts.values()) == {want}, counts

@@ -130,7 +130,7 @@ def test_exponent_rounds_option_on_the_camera_family():
     b = simulate_bracket("nikon-d5100", kind="outdoor", size=(192, 128), exposures=7, seed=1, family="camera")
     st = Stack(images=b.jpeg_codes.astype(np.float32) / 255, times=b.times)
     off = merge_seeded(st, "stabilized", 1)
-    on = merge_seeded(st, "stabilized", 1, exponent_rounds=3)
+    on = merge_seeded(st, "stabilized", 1, options={"exponent_rounds": 3})
     assert np.all(np.asarray(off.info["rho"]) == 1.0)
     rho = np.asarray(on.info["rho"])
     assert abs(np.log(rho).sum()) < 1e-9 and np.ptp(np.log(rho)) > 0.1

@@ -159,7 +159,7 @@ def test_registry_unknown_method_and_options():
     with pytest.raises(InputError, match="debevec"):
         merge(st, method="no-such-method")
     with pytest.raises(InputError, match="bogus"):
-        merge(st, method="debevec", bogus=1)
+        merge(st, options={"bogus": 1}, method="debevec")
     with pytest.raises(InputError):
         merge(codes, method="debevec")
     assert {"debevec", "robertson"} <= set(METHODS)
@@ -169,7 +169,7 @@ def test_registry_unknown_method_and_options():
         return merge_linear(stack.images, stack.times, stack.images, "hat", info={"gain": gain})
 
     try:
-        res = merge(st, method="_test_identity", gain=2.0)
+        res = merge(st, options={"gain": 2.0}, method="_test_identity")
         assert res.info["gain"] == 2.0
     finally:
         METHODS.pop("_test_identity", None)
@@ -191,8 +191,8 @@ def test_debevec_merge_equals_opencv_given_the_same_curve():
     resp, hdr = _opencv_debevec(codes, times)
     curves = ResponseCurves(np.log(resp[:, 0, ::-1].astype(np.float64)))
     # OpenCV's MergeDebevec = eq. 6 in the log domain, hat weight min(z, 255 - z) averaged over channels
-    ours = merge(_stack(codes, times), method="debevec", curves=curves, domain="log", channel_weights="mean",
-                 weight="hat")
+    ours = merge(_stack(codes, times), options={"curves": curves, "domain": "log", "channel_weights": "mean",
+                                                "weight": "hat"}, method="debevec")
     ok = np.isfinite(hdr)
     assert ok.mean() > 0.99
     np.testing.assert_allclose(ours.radiance[ok], hdr[ok], rtol=1e-4)

@@ -49,7 +49,7 @@ def test_a_method_defined_outside_the_package_works_everywhere(tmp_path, capsys,
     write_bracket(simulate_bracket(size=(64, 48), exposures=3, pipeline="fixed", style="simple", seed=3),
                   tmp_path / "b")
     paths = bracket_paths(tmp_path / "b", "jpeg")
-    res = dr.merge(dr.read_stack(paths), method="toy-mean", low=0.1)
+    res = dr.merge(dr.read_stack(paths), options={"low": 0.1}, method="toy-mean")
     assert res.info["low"] == 0.1 and np.isfinite(res.radiance).all()
     code, out, err = run_cli(["merge", *paths, "-o", tmp_path / "t.exr", "--method", "toy-mean",
                               "--option", "low=0.1"], capsys)

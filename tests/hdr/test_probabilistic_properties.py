@@ -66,7 +66,7 @@ def test_probabilistic_is_finite_and_non_negative(seed, n, h, w, mix, wb, dark, 
     from derender.hdr.registry import merge
 
     stack = _bracket(seed, n, h, w, mix, wb, dark)
-    res = merge(stack, method="probabilistic", model=_model(model), **path)
+    res = merge(stack, options={**path, "model": _model(model)}, method="probabilistic")
     _check(res, (h, w, 3))
 
 
@@ -132,5 +132,5 @@ def test_real_iphone_bracket_is_finite_and_non_negative(model):
     order = np.argsort(times, kind="stable")
     frames = np.stack([np.ascontiguousarray(read_codes(paths[i])[::8, ::8]) for i in order])
     stack = Stack(images=code_values()[frames], times=times[order])
-    res = merge(stack, method="probabilistic", model=_model(model))
+    res = merge(stack, options={"model": _model(model)}, method="probabilistic")
     _check(res, frames.shape[1:])

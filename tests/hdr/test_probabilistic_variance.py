@@ -37,7 +37,7 @@ def _sim(family: str, seed: int = 0, size=(192, 128), exposures: int = 7):
 def _merge(stack, method="probabilistic", **opts):
     from derender.hdr.registry import merge_seeded
 
-    return merge_seeded(stack, method, 0, model=_gp(), **opts)
+    return merge_seeded(stack, method, 0, options={**opts, "model": _gp()})
 
 
 def _finite_non_negative(res) -> None:

@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 from conftest import require_shared
 
-from derender.engine.motion.run import bitmap_agreement
+from derender.engine.motion.run import MotionOptions, bitmap_agreement
 from derender.engine.motion.ward2003 import common_percentiles, grey8_codes, median_threshold_bitmaps
 from derender.hdr.files import merge_files
 from derender.io.images import read_codes
@@ -82,8 +82,9 @@ def test_deghost_shows_the_reference_instant(name, method):
 
     files, times, ref = _bracket(name)
     ref_grey = grey8_codes(read_codes(files[ref]))
-    plain = merge_files(files, times, method=method, align="translation", reference=ref)
-    clean = merge_files(files, times, method=method, align="translation", reference=ref, deghost=True)
+    plain = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref))
+    clean = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref,
+                                                                          deghost=True))
     a_plain = bitmap_agreement(_grey(plain.radiance), ref_grey)
     a_clean = bitmap_agreement(_grey(clean.radiance), ref_grey)
     assert a_clean >= 0.99 and a_clean > a_plain + MARGIN[name], (a_plain, a_clean)
@@ -100,7 +101,7 @@ def test_handheld_pingpong_is_registered():
     """The handheld frames are 30-55 px apart (the data's README): the alignment finds shifts of
     that size, and the merge without it is the worst of the three."""
     files, times, ref = _bracket("motion-pingpong")
-    res = merge_files(files, times, method="debevec", align="translation", reference=ref)
+    res = merge_files(files, times, method="debevec", motion=MotionOptions(align="translation", reference=ref))
     shifts = np.abs(np.array(res.info["alignment"]["shifts"]))
     assert 25 <= shifts.max() <= 70
     ref_grey = grey8_codes(read_codes(files[ref]))

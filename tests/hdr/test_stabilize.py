@@ -21,6 +21,7 @@ import derender.hdr.stabilize.solvers as SV
 from derender.camera import simulate_bracket
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
+from derender.engine.motion.run import MotionOptions
 from derender.evaluation.metrics import psnr_rgbl
 from derender.evaluation.table1 import reference_spread
 from derender.hdr.registry import merge
@@ -137,7 +138,7 @@ def test_camera_style_switches_to_a_common_curve(auto_camera):
     auto = d["stabilized"]
     assert auto.info["response"] == "curve"
     assert abs(auto.info["gamma_trend"]) > 0.3
-    power = merge(d["stack"], method="stabilized", response="power")
+    power = merge(d["stack"], options={"response": "power"}, method="stabilized")
     s, p = _scores(auto, d["bracket"]), _scores(power, d["bracket"])
     assert s["L"] >= p["L"] + 5.0
 
@@ -240,9 +241,10 @@ def test_merge_of_shifted_stack_close_to_unshifted():
     cut = lambda o: np.stack([imgs[j, y0 + dy:y0 + dy + h, x0 + dx:x0 + dx + w]  # noqa: E731
                               for j, (dy, dx) in enumerate(o)])
     truth = b.truth_linear_srgb[y0:y0 + h, x0:x0 + w]
-    still = merge(Stack(images=cut(np.zeros_like(offsets)), times=b.times), method="stabilized", reference=4)
-    moved = merge(Stack(images=cut(offsets), times=b.times), method="stabilized", reference=4)
-    np.testing.assert_array_equal(moved.info["shifts"], -offsets)
+    still = merge(Stack(images=cut(np.zeros_like(offsets)), times=b.times), method="stabilized",
+                  motion=MotionOptions(reference=4))
+    moved = merge(Stack(images=cut(offsets), times=b.times), method="stabilized", motion=MotionOptions(reference=4))
+    np.testing.assert_array_equal(moved.info["alignment"]["shifts"], -offsets)   # the engine registered them
     assert np.isfinite(moved.radiance).all()
     ps, pm = psnr_rgbl(still.radiance, truth), psnr_rgbl(moved.radiance, truth)
     assert pm["L"] >= ps["L"] - 0.5, (ps, pm)
@@ -323,9 +325,9 @@ def test_registered_methods_and_bad_options(auto_simple):
     assert "stabilized" in METHODS and "stabilized-joint" in METHODS
     st = auto_simple["outdoor"]["stack"]
     with pytest.raises(InputError):
-        merge(st, method="stabilized", response="spline")
+        merge(st, options={"response": "spline"}, method="stabilized")
     with pytest.raises(InputError):
-        merge(st, method="stabilized", align="optical-flow")
+        merge(st, method="stabilized", motion=MotionOptions(align="optical-flow"))
 
 
 def test_blocks_gathered_without_full_copies_match_block_view():

@@ -68,7 +68,7 @@ def phone():
     codes = np.round(b.jpeg_codes.astype(np.float32) * np.float32(200 / 255)).astype(np.uint8)
     b.jpeg_codes = codes
     # the paper's Debevec & Malik system (no censored top): the baseline the mask was built against
-    deb = psnr_rgbl(merge_seeded(_stack(b), "debevec", 0, censor=False).radiance, b.truth_linear_srgb)["L"]
+    deb = psnr_rgbl(merge_seeded(_stack(b), "debevec", 0, options={"censor": False}).radiance, b.truth_linear_srgb)["L"]
     return b, deb
 
 
@@ -132,7 +132,7 @@ def test_exposure_offsets_reach_the_oracle_on_the_camera_family(monkeypatch):
     b = _bracket("camera", kind="outdoor", seed=0)
     st = _stack(b)
     oracle = psnr_rgbl(oracle_merge_bracket(b).radiance, b.truth_linear_srgb)["L"]
-    plain = merge_seeded(st, "stabilized", 0, exposure_rounds=0)
+    plain = merge_seeded(st, "stabilized", 0, options={"exposure_rounds": 0})
     fitted = merge_seeded(st, "stabilized", 0)
     rad = np.asarray(fitted.radiance)
     assert np.all(np.isfinite(rad)) and rad.min() >= 0

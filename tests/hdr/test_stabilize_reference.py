@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from conftest import require_shared
 
+from derender.engine.motion.run import MotionOptions
 from derender.evaluation.consistency import compare_maps
 
 
@@ -43,7 +44,8 @@ def test_one_rendering_gives_one_map_whatever_the_reference(kind, method):
     from derender.hdr.registry import merge_seeded
 
     stack = _fixed_stack("simple", kind)
-    maps = [np.asarray(merge_seeded(stack, method, 0, reference=r, align="none").radiance) for r in (1, 3)]
+    maps = [np.asarray(merge_seeded(stack, method, 0, motion=MotionOptions(reference=r,
+                                                                           align="none")).radiance) for r in (1, 3)]
     c = compare_maps(maps[0], maps[1])
     assert c.chroma_p99 <= 1e-4 and c.luminance_p99 <= 1e-4, c
 
@@ -117,7 +119,7 @@ def test_memorial_references_7_and_9_agree(method):
     import derender as dr
 
     paths, kw = _memorial()
-    maps = [dr.merge_files(paths, method=method, reference=r, **kw).radiance for r in (6, 8)]
+    maps = [dr.merge_files(paths, method=method, motion=MotionOptions(reference=r), **kw).radiance for r in (6, 8)]
     c = compare_maps(maps[0], maps[1])
     assert c.chroma_p95 <= 0.03 and c.luminance_p95 <= 0.03, c
 
@@ -131,7 +133,7 @@ def test_frobisher_references_agree(method):
 
     d = require_shared("colour-hdri-frobisher")
     paths = sorted(d.glob("IMG_*.jpg"))
-    maps = [dr.merge_files(paths, method=method, reference=r).radiance for r in range(3)]
+    maps = [dr.merge_files(paths, method=method, motion=MotionOptions(reference=r)).radiance for r in range(3)]
     for a, b in ((0, 1), (0, 2), (1, 2)):
         c = compare_maps(maps[a], maps[b])
         assert c.chroma_p95 <= 0.03 and c.luminance_p95 <= 0.03, (a, b, c)
@@ -152,6 +154,6 @@ def test_sculpture_facade_at_the_middle_reference_is_not_magenta():
         v = np.median(np.asarray(res.radiance)[256:336, 288:352].reshape(-1, 3), axis=0)
         return np.array([v[0] / v[1], v[2] / v[1]])
 
-    ours = ratios(dr.merge_files(paths, method="stabilized", reference=2, **kw))
+    ours = ratios(dr.merge_files(paths, method="stabilized", motion=MotionOptions(reference=2), **kw))
     deb = ratios(dr.merge_files(paths, method="debevec", **kw))
     np.testing.assert_allclose(ours, deb, rtol=0.10)

@@ -143,7 +143,7 @@ def test_profile_curves_are_used_instead_of_fitting(brackets, capsys):
     p = load_profile(prof)
     assert p.factor is None
     assert run_cli(["merge", *fb, "-o", root / "c1.exr", "--profile", prof], capsys)[0] == 0
-    ref = merge_files(fb, method="debevec", curves=p.curves)
+    ref = merge_files(fb, options={"curves": p.curves}, method="debevec")
     own = merge_files(fb, method="debevec")
     got = read_exr(root / "c1.exr")
     np.testing.assert_allclose(got, ref.radiance, rtol=1e-5, atol=1e-9)

@@ -33,8 +33,8 @@ def test_alignment_finds_the_even_shifts(moving):
     Static-zone median error against the scene: measured 7.30 % without, 6.51 % aligned."""
     frames = bracket_raw_frames(moving)
     ref = moving.params["motion"]["reference"]
-    plain = merge_raw(frames, output_space="camera_rgb")
-    res = merge_raw(frames, output_space="camera_rgb", motion=MotionOptions(reference=ref, align="translation"))
+    plain = merge_raw(frames, {"output_space": "camera_rgb"})
+    res = merge_raw(frames, {"output_space": "camera_rgb"}, motion=MotionOptions(reference=ref, align="translation"))
     true = moving.params["motion"]["shifts_dy_dx"]
     found = res.info["raw_motion"]["shifts"]
     for (ty, tx), (fy, fx) in zip(true, found):
@@ -48,8 +48,8 @@ def test_ghost_removal_keeps_the_reference_where_things_move(moving):
     rejected."""
     frames = bracket_raw_frames(moving)
     ref = moving.params["motion"]["reference"]
-    plain = merge_raw(frames, output_space="camera_rgb")
-    res = merge_raw(frames, output_space="camera_rgb", variance=True,
+    plain = merge_raw(frames, {"output_space": "camera_rgb"})
+    res = merge_raw(frames, {"output_space": "camera_rgb", "variance": True},
                     motion=MotionOptions(reference=ref, align="translation", deghost=True))
     assert _zone_median(plain, moving, ZONE_OBJECT) > 0.4
     assert _zone_median(res, moving, ZONE_OBJECT) < 0.2
@@ -63,8 +63,8 @@ def test_still_bracket_unchanged_and_homography_refused():
     b = simulate_bracket("nikon-d5100", kind="indoor", size=(96, 64), exposures=3, seed=2, style="simple",
                          pipeline="fixed")
     frames = bracket_raw_frames(b)
-    plain = merge_raw(frames, output_space="camera_rgb")
-    res = merge_raw(frames, output_space="camera_rgb", motion=MotionOptions(align="translation", deghost=True))
+    plain = merge_raw(frames, {"output_space": "camera_rgb"})
+    res = merge_raw(frames, {"output_space": "camera_rgb"}, motion=MotionOptions(align="translation", deghost=True))
     assert res.info["raw_motion"]["shifts"] == [(0, 0)] * 3
     assert max(res.info["raw_motion"]["rejected"]) < 0.01            # measured 0
     assert raw_scores(res.radiance, b.camera_rgb_per_s, plain.mask)["median"] \

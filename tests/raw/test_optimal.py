@@ -187,8 +187,9 @@ def test_real_dng_single_frame_keeps_its_colorchecker(colorchecker_dng):
     paper 1's pipeline (so its ColorChecker CIEDE2000 is kept) with a variance from its green pairs."""
     pytest.importorskip("rawpy")
     colour = pytest.importorskip("colour")
-    from derender.io.raw import read_raw
     from test_groundtruth import _chart_delta_e, _patch_means
+
+    from derender.io.raw import read_raw
 
     frame = read_raw(colorchecker_dng)
     assert frame.exposure_time is None

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from derender.camera import simulate_bracket, write_bracket
 from derender.evaluation.raw_merge import raw_scores
 from derender.io.exr import read_exr
-from helpers import run_cli
 
 
 @pytest.fixture(scope="module")
@@ -61,8 +61,8 @@ def test_raw_bad_input_is_one_error_line(bracket_dir, tmp_path, capsys):
         (["merge", dngs[0], other / "raw" / "01.dng", "-o", tmp_path / "a.exr"], "mixes cameras"),
         (["merge", *dngs, "-o", tmp_path / "a.exr", "--method", "debevec"], "--method raw"),
         (["merge", *jpgs, "-o", tmp_path / "a.exr", "--method", "raw"], "merges raw files"),
-        (["merge", *dngs, "-o", tmp_path / "a.exr", "--align", "translation"], "not available on raw"),
-        (["merge", *dngs, "-o", tmp_path / "a.exr", "--deghost"], "not available on raw"),
+        (["merge", *dngs, "-o", tmp_path / "a.exr", "--align", "homography"], "not available on raw"),
+        (["merge", *dngs, "-o", tmp_path / "a.exr", "--deghost", "-O", "estimator=paper1"], "estimator optimal"),
         (["merge", *dngs, "-o", tmp_path / "a.exr", "-O", "estimator=paper1", "--variance", tmp_path / "v.exr"],
          "no variance"),
         (["merge", *dngs, "-o", tmp_path / "a.exr", "-O", "gain=2"], "both gain and read_noise"),
@@ -197,3 +197,26 @@ def test_vignetting_fitted_on_a_raw_flat_field_and_divided_out(tmp_path, capsys)
     assert code == 0, err
     lum = read_exr(tmp_path / "m.exr").mean(-1)
     assert abs(lum[2:8, 2:8].mean() / lum[28:36, 44:52].mean() - 1) < 0.01     # measured 1.0005
+
+
+def test_raw_merge_aligns_and_removes_ghosts_from_the_command_line(bracket_dir, tmp_path, capsys):
+    """`--reference`, `--align translation`, `--deghost` and `--ghost-mask` on a still RAW bracket
+    (issue 38): the reference is the one asked for, nothing is shifted, almost nothing is left out,
+    and the map equals the plain merge away from the photosites left out (the demosaic's reach)."""
+    from derender.io.images import read_codes
+
+    d, _ = bracket_dir
+    dngs = sorted((d / "raw").glob("*.dng"))
+    plain, moved, mask = tmp_path / "plain.exr", tmp_path / "moved.exr", tmp_path / "ghosts.png"
+    assert run_cli(["merge", *dngs, "-o", plain], capsys)[0] == 0
+    code, out, err = run_cli(["merge", *dngs, "-o", moved, "--reference", "2", "--align", "translation",
+                              "--deghost", "--ghost-mask", mask], capsys)
+    assert code == 0, err
+    a, b = read_exr(plain), read_exr(moved)
+    g = read_codes(mask)[..., 0]
+    assert g.shape == a.shape[:2] and (g > 0).mean() < 0.01
+    from scipy.ndimage import binary_dilation
+
+    same = ~binary_dilation(g > 0, iterations=3)             # beyond the demosaic's 5x5 reach
+    assert np.allclose(a[same], b[same], rtol=1e-5, atol=1e-9)
+    assert "reference" in out.lower(), out

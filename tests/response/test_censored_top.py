@@ -8,6 +8,7 @@ import pytest
 
 from derender.camera.luminance import simulate_luminance, truth_luminance_cd_m2
 from derender.core.types import Stack
+from derender.engine.motion.run import MotionOptions
 from derender.evaluation.families import smooth_mask
 from derender.evaluation.linearity import linearity_scores
 from derender.hdr.registry import merge
@@ -35,9 +36,9 @@ def test_curve_top_follows_the_true_gamma():
     b = simulate_luminance(render="gamma", size=(160, 160), exposures=9, seed=0, fisheye=True)
     stack = Stack(images=b.jpeg_codes.astype(np.float32) / 255, times=b.times)
     for seed in range(6):
-        err = _curve_error(merge(stack, "debevec", seed=seed).info["curves"])[32:251]
+        err = _curve_error(merge(stack, "debevec", options={"seed": seed}).info["curves"])[32:251]
         assert np.all(np.abs(err - 1.0) <= 0.06), (seed, err.min(axis=0), err.max(axis=0))
-        old = _curve_error(merge(stack, "debevec", seed=seed, censor=False).info["curves"])[32:251]
+        old = _curve_error(merge(stack, "debevec", options={"seed": seed, "censor": False}).info["curves"])[32:251]
         assert np.abs(old - 1.0).max() > 0.3, seed      # the test can fail: the paper's system misses it
 
 
@@ -68,12 +69,12 @@ def test_lamp_kept_on_a_camera_that_saturates_below_255():
     stack = Stack(images=_saturating(b.jpeg_codes, 0).astype(np.float32) / 255, times=b.times)
     plain = merge(stack, "debevec")
     assert plain.info["curves"].params["white_codes"] == [250, 250, 250]
-    for res in (plain, merge(stack, "debevec", deghost=True)):
+    for res in (plain, merge(stack, "debevec", motion=MotionOptions(deghost=True))):
         top, sc = _top_and_decades(res, b)
         assert top == pytest.approx(1.0, abs=0.03)
         assert np.all(np.abs(np.asarray(sc["decades"]) - 1.0) <= 0.05), sc["decades"]
         assert sc["median_abs"] <= 0.03
-    old_top, _ = _top_and_decades(merge(stack, "debevec", censor=False), b)
+    old_top, _ = _top_and_decades(merge(stack, "debevec", options={"censor": False}), b)
     assert old_top < 0.95                          # the paper's system loses the lamp
 
 

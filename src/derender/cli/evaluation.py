@@ -201,10 +201,10 @@ def _round_trip_report(images, method, *, times, times_file, times_inverse, refe
     from derender.io.preview import write_png
 
     images = expand_image_paths(images)
-    opts = motion_options(reference, align, deghost, None, None, len(images))
+    motion = motion_options(reference, align, deghost, None, None, len(images))
     tlist = [float(x) for x in times.split(",")] if times else None
     rt, res, names = bracket_round_trip(images, method, times=tlist, times_file=times_file,
-                                        times_file_inverse=times_inverse, **opts)
+                                        times_file_inverse=times_inverse, motion=motion)
     typer.echo(f"round trip through {method}'s forward model (codes; the issue's line: median <= 1.5, p95 <= 4):")
     for row in rt.rows(names):
         typer.echo(f"  {row['frame']}: median {row['median']:.2f}  p95 {row['p95']:.2f}  ({row['pixels']} px, "

@@ -208,6 +208,8 @@ def exp_ghosts(
     error per zone (static / swept / object, and the object pixels the reference frame sees
     unclipped) against the still twin's (the same objects, frozen at the reference instant),
     with or without ``--deghost``."""
+    from derender.cli.hdr import flag_record
+    from derender.engine.motion.run import MotionOptions
     from derender.evaluation.experiments import format_table
     from derender.evaluation.ghosts import ghost_comparison, summarise_ghosts
 
@@ -219,7 +221,7 @@ def exp_ghosts(
                             settings=[s.strip() for s in settings.split(",") if s.strip()],
                             seeds=seed_list, size=parse_size(size), exposures=exposures, objects=objects,
                             shake=shake, methods=[m.strip() for m in methods.split(",") if m.strip()],
-                            options={**({"deghost": True} if deghost else {}), **({"align": align} if align else {})},
+                            motion=flag_record(MotionOptions, deghost=deghost, align=align),
                             progress=lambda msg: console().print(msg))
     summary = summarise_ghosts(rows)
     for r in summary:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -184,38 +185,30 @@ def merge_cmd(
     Every output is checked before any work and written as one transaction: on an error or
     an interruption none of them is left behind."""
 
+    from derender.engine.options import EngineOptions, OutputOptions
     from derender.hdr.files import merge_files
-    from derender.hdr.registry import METHODS, method_spec, parse_options
+    from derender.hdr.registry import method_spec, parse_options
     from derender.io.exif import parse_times
     from derender.io.files import OutputTransaction, expand_image_paths
     from derender.io.preview import IMAGE8_SUFFIXES
 
     check_times_options(times, times_file, times_inverse)
-    if not max_megapixels > 0:
-        raise InputError(f"--max-megapixels must be positive, got {max_megapixels:g}")
+    engine = flag_record(EngineOptions, max_megapixels=max_megapixels)
     images = expand_image_paths(images, raw=True)
     if method is None:
         from derender.io.files import RAW_SUFFIXES
 
         method = "raw" if any(p.suffix.lower() in RAW_SUFFIXES for p in images) else "debevec"
     spec = method_spec(method)
-    method_opts = parse_options(method, option)
-    _check_method_options(method, spec, method_opts, len(images), variance is not None)
     from derender.cli.profiles import apply_photometry, hdr_header_lines, merge_photometry, profile_options
 
     ph = merge_photometry(profile=profile, vignetting=vignetting, spot=spot, absolute=absolute, method=method,
                           image=images[0], strict=strict_camera)
-    if variance is not None and not spec.gives_variance:
-        raise InputError(f"method {method!r} gives no variance (drop --variance)")
-    if variance is not None and spec.has_option("variance"):
-        method_opts["variance"] = True      # the classic and stabilised merges compute it only when asked
-    if model is not None and not spec.needs_model:
-        users = sorted(n for n, s in METHODS.items() if s.needs_model)
-        raise InputError(f"method {method!r} uses no de-rendering model (drop -m; the methods that use one: "
-                         f"{', '.join(users)})")
-    if plot is not None and not spec.gives_curves:
-        raise InputError(f"method {method!r} has no response curves to plot (drop --plot)")
-    motion_opts = motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images))
+    _check_method_flags(spec, variance=variance is not None, model=model is not None, plot=plot is not None)
+    # the method's record, the motion and the engine's settings: each built once, checked before any work
+    record = _method_record(spec, {**parse_options(method, option), **profile_options(ph, method)}, seed=seed,
+                            with_model=model is not None, with_variance=variance is not None, n_images=len(images))
+    motion = motion_options(reference, align, deghost, ghost_threshold, ghost_mask, len(images), seed)
     t0 = time.perf_counter()
     inputs = list(images) + [p for p in (times_file, model, vignetting, profile) if p]
     with OutputTransaction(inputs) as tx, compile_notice():
@@ -235,22 +228,15 @@ def merge_cmd(
         plot_tmp = tx.add(plot, "--plot", (".png", ".pdf", ".svg"))
         report_tmp = tx.add(report, "--report", (".html", ".htm"))
         ghost_tmp = tx.add(ghost_mask, "--ghost-mask", (".png", ".tif", ".tiff"))
-        extra = {**method_opts, **motion_opts, **profile_options(ph, method)}
         if model is not None:
-            from derender.derendering.library import resolve_model
-
-            check_model_camera(model, images[0], strict_camera)
-            model_obj, used = resolve_model(model, images[0])
-            typer.echo(f"de-rendering model: {used}", err=True)
-            extra["model"] = model_obj
+            record = _with_model(record, model, images[0], strict_camera)
         # 8-bit files run on the engine (streamed or held frames, parallel EXR write); others: read_stack + merge
         direct = not as_hdr and not ph.active and profile_tmp is None   # the engine writes the EXR (band by band)
-        result = merge_files(images, parse_times(times) if times is not None else None, method,
-                             times_file=times_file, times_file_inverse=times_inverse,
-                             output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
-                             half=half, inputs=inputs, seed=seed, max_megapixels=max_megapixels,
-                             hold_outputs=preview_tmp is not None or report_tmp is not None or not direct,
-                             **extra)
+        out = OutputOptions(output=out_tmp if direct else None, variance_output=var_tmp if direct else None,
+                            half=half, hold_outputs=preview_tmp is not None or report_tmp is not None or not direct)
+        result = merge_files(images, parse_times(times) if times is not None else None, method, record,
+                             motion=motion, output=out, engine=engine, times_file=times_file,
+                             times_file_inverse=times_inverse, inputs=inputs)
         absolute_source = apply_photometry(ph, result, images, method) if ph.active else None
         result.info["summary"] = result.info["summary"].with_photometry(result.info.get("photometric_factor"),
                                                                         absolute_source)
@@ -341,17 +327,60 @@ class _AfterImport:
         return spec
 
 
-def _check_method_options(method: str, spec, method_opts: dict, n_images: int, with_variance: bool) -> None:
-    """Every ``--option`` value checked before any file is decoded (its record's checks), and
-    the per-frame ones against the number of images."""
-    from derender.hdr.registry import check_method_options
+def _check_method_flags(spec, *, variance: bool, model: bool, plot: bool) -> None:
+    """``--variance``, ``-m`` and ``--plot`` only for a method that gives or uses them."""
+    from derender.hdr.registry import METHODS
 
-    check_method_options(method, {**method_opts, **({"variance": True} if with_variance and spec.has_option("variance")
-                                             else {})})
-    gammas = method_opts.get("gammas")
+    if variance and not spec.gives_variance:
+        raise InputError(f"method {spec.name!r} gives no variance (drop --variance)")
+    if model and not spec.needs_model:
+        users = sorted(n for n, s in METHODS.items() if s.needs_model)
+        raise InputError(f"method {spec.name!r} uses no de-rendering model (drop -m; the methods that use one: "
+                         f"{', '.join(users)})")
+    if plot and not spec.gives_curves:
+        raise InputError(f"method {spec.name!r} has no response curves to plot (drop --plot)")
+
+
+def _with_model(record, model: Path, image: Path, strict: bool):
+    """``record`` with the ``-m`` model loaded (a file, or the library folder's model for the
+    image's camera), checked against the image's camera."""
+    from derender.derendering.library import resolve_model
+
+    check_model_camera(model, image, strict)
+    model_obj, used = resolve_model(model, image)
+    typer.echo(f"de-rendering model: {used}", err=True)
+    return dataclasses.replace(record, model=model_obj)
+
+
+def _method_record(spec, options: dict, *, seed: int, with_model: bool, with_variance: bool, n_images: int):
+    """The method's options record of ``derender merge``, made once before any file is decoded
+    (its checks, and the per-frame ones against the number of images): the ``--option``
+    values and the profile's curves, ``--seed`` for a method that takes one, ``variance`` for
+    the methods that compute it only when asked, and the ``-m`` model as None until it is
+    loaded (a method that needs one without ``-m`` is an error here)."""
+    from derender.hdr.registry import method_options
+
+    extra = {"seed": seed} if spec.has_option("seed") else {}
+    if with_variance and spec.has_option("variance"):
+        extra["variance"] = True
+    if with_model:
+        extra["model"] = None
+    record = method_options(spec.name, {**options, **extra})
+    gammas = options.get("gammas")
     if gammas is not None and len(gammas) != n_images:
         raise InputError(f"--option gammas lists {len(gammas)} value(s) for {n_images} images (one per image, "
                          "in exposure order)")
+    return record
+
+
+def flag_record(cls, **values):
+    """``cls(**values)``, a record of command-line values: its error names the field, here the
+    flag (``ghost_threshold`` -> ``--ghost-threshold``)."""
+    try:
+        return cls(**values)
+    except InputError as exc:
+        name, _, rest = str(exc).partition(" ")
+        raise InputError(f"--{name.replace('_', '-')} {rest}") from None
 
 
 def _side_outputs(result: HDRResult, images: list, inputs: list, *, preview, mask, ghost_mask, plot) -> None:
@@ -404,38 +433,29 @@ def _merge_summary(result: HDRResult, images: list, method: str, output: Path, s
 
 
 def motion_options(reference: Optional[str], align: Optional[str], deghost: bool, threshold: Optional[float],
-                    ghost_mask: Optional[Path], n_images: int) -> dict:
-    """The engine's motion options of ``derender merge`` (``--reference`` counts from 1)."""
-    out: dict = {}
+                   ghost_mask: Optional[Path], n_images: int, seed: int = 0):
+    """The :class:`~derender.engine.motion.run.MotionOptions` of ``derender merge``, made once
+    (``--reference`` counts from 1; every value checked by the record, its errors naming the
+    flags)."""
+    from derender.engine.motion.run import MotionOptions
+
+    ref = None
     if reference is not None:
         text = reference.strip().lower()
-        if text == "auto":
-            out["reference"] = "auto"
-        else:
+        if text != "auto":
             try:
                 k = int(text)
             except ValueError:
                 raise InputError(f"--reference takes N (from 1) or 'auto', got {reference!r}") from None
             if not 1 <= k <= n_images:
                 raise InputError(f"--reference {k} is out of range: {n_images} images given (1..{n_images})")
-            out["reference"] = k - 1
-    if align is not None:
-        from derender.engine.motion.run import ALIGNMENTS
-
-        if align not in ALIGNMENTS + ("mtb",):
-            raise InputError(f"--align takes {', '.join(ALIGNMENTS)}, got {align!r}")
-        out["align"] = align
-    if deghost:
-        out["deghost"] = True
-    if threshold is not None:
-        if not deghost:
-            raise InputError("--ghost-threshold sets the test of --deghost; add --deghost")
-        if not threshold > 0:
-            raise InputError(f"--ghost-threshold must be a positive number, got {threshold:g}")
-        out["ghost_threshold"] = threshold
+            ref = k - 1
+    if threshold is not None and not deghost:
+        raise InputError("--ghost-threshold sets the test of --deghost; add --deghost")
     if ghost_mask is not None and not deghost and align in (None, "none"):
         raise InputError("--ghost-mask shows where --deghost or --align left frames out; add one of them")
-    return out
+    return flag_record(MotionOptions, reference=ref, align=align, deghost=deghost, ghost_threshold=threshold,
+                       seed=seed)
 
 
 def _ghost_png(ghosts, n_images: int):
@@ -463,7 +483,6 @@ def _merge_report(path, result, method: str, absolute: bool, view: str | None, i
 @app.command("methods")
 def methods_cmd() -> None:
     """List the merge methods: what each does, what it needs and gives, and its output colour space."""
-    import inspect
     import textwrap
 
     from derender.hdr.registry import METHODS, settable_options
@@ -471,8 +490,7 @@ def methods_cmd() -> None:
     for name, spec in sorted(METHODS.items()):
         typer.echo(name)
         lines = [spec.summary]
-        params = inspect.signature(spec.load()).parameters
-        if "model" in params and params["model"].default is inspect.Parameter.empty:
+        if spec.needs_model:
             lines.append("Needs a de-rendering model (-m MODEL.npz, from 'derender calibrate').")
         gives = ["a variance (--variance)"] if spec.gives_variance else []
         if spec.gives_curves:

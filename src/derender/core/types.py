@@ -243,7 +243,7 @@ class HDRResult:
     ----------
     radiance : numpy.ndarray
         (H, W, 3) float32 linear radiance (relative units), finite everywhere; None when a
-        file merge wrote it without holding it (``merge_files(..., hold_outputs=False)``).
+        file merge wrote it without holding it (``merge_files(..., output=OutputOptions(..., hold_outputs=False))``).
     mask : numpy.ndarray
         (H, W) uint8, 0 = well exposed somewhere, 1 = taken from the shortest exposure
         (over-exposed everywhere), 2 = from the longest (under-exposed); the class

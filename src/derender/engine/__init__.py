@@ -4,13 +4,14 @@ The plain run is :func:`derender.engine.run.run`; the motion run, with its own m
 the subpackage :mod:`derender.engine.motion`. Every public name of the modules below is
 re-exported here (loaded on first use, :mod:`derender.core.lazy`).
 
-Modules: :mod:`derender.engine.run`, :mod:`derender.engine.frames`, :mod:`derender.engine.outputs`, :mod:`derender.engine.plans`, :mod:`derender.engine.tables`, :mod:`derender.engine.table_kernel`, :mod:`derender.engine.matrix`, :mod:`derender.engine.gaussian`, :mod:`derender.engine.kernels`, :mod:`derender.engine.merge_parts`, :mod:`derender.engine.gaussian_kernels`, :mod:`derender.engine.variance`, :mod:`derender.engine.variance_kernels`, :mod:`derender.engine.overlap`, :mod:`derender.engine.weights`, :mod:`derender.engine.float_merge`, :mod:`derender.engine.motion`, :mod:`derender.engine.motion.run`, :mod:`derender.engine.motion.reference_frame`, :mod:`derender.engine.motion.ward2003`, :mod:`derender.engine.motion.align`, :mod:`derender.engine.motion.deghost`, :mod:`derender.engine.motion.intensity_mapping`, :mod:`derender.engine.motion.ghost_kernels`, :mod:`derender.engine.motion.compensation`, :mod:`derender.engine.motion.consensus`.
+Modules: :mod:`derender.engine.run`, :mod:`derender.engine.options`, :mod:`derender.engine.frames`, :mod:`derender.engine.outputs`, :mod:`derender.engine.plans`, :mod:`derender.engine.tables`, :mod:`derender.engine.table_kernel`, :mod:`derender.engine.matrix`, :mod:`derender.engine.gaussian`, :mod:`derender.engine.kernels`, :mod:`derender.engine.merge_parts`, :mod:`derender.engine.gaussian_kernels`, :mod:`derender.engine.variance`, :mod:`derender.engine.variance_kernels`, :mod:`derender.engine.overlap`, :mod:`derender.engine.weights`, :mod:`derender.engine.float_merge`, :mod:`derender.engine.motion`, :mod:`derender.engine.motion.run`, :mod:`derender.engine.motion.reference_frame`, :mod:`derender.engine.motion.ward2003`, :mod:`derender.engine.motion.align`, :mod:`derender.engine.motion.deghost`, :mod:`derender.engine.motion.intensity_mapping`, :mod:`derender.engine.motion.ghost_kernels`, :mod:`derender.engine.motion.compensation`, :mod:`derender.engine.motion.consensus`.
 """
 
 from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "run": ["run", "run_stack", "ENGINES", "HOLD_BYTES", "KERNEL_MIN_PIXEL_FRAMES"],
+    "run": ["run", "ENGINES", "KERNEL_MIN_PIXEL_FRAMES"],
+    "options": ["OutputOptions", "EngineOptions", "HOLD_BYTES", "KEEP_BYTES"],
     "frames": ["NotStreamable", "prefetch", "FramePool", "read_frames", "FileFrames", "ArrayFrames", "clipped_pixels", "frame_brightness", "merge_held", "STREAMED_BYTES_PER_PIXEL"],
     "outputs": ["write_outputs", "write_while_merging", "motion_attributes"],
     "plans": ["FrameAccess", "TablePlan", "MatrixPlan", "GaussianPlan", "SharedVariance", "EngineMethod", "MethodDefaults"],

@@ -215,7 +215,10 @@ class EngineMethod(Protocol):
     come in clusters of this many (kept or left out whole); ``variance``: the method asked for
     the result's variance (the engine then holds the frames and merges with a compiled kernel);
     ``holds_outputs``: :meth:`finish` reads the merged radiance, so the outputs are held whole
-    (never streamed into the files through band buffers). :class:`MethodDefaults` gives the
+    (never streamed into the files through band buffers); ``own_align``: how the method
+    registers the frames itself in the plain run (``"none"``; paper 1's methods
+    ``"translation"``: a :class:`~derender.engine.motion.run.MotionOptions` asking for that
+    alignment and nothing else needs no motion run). :class:`MethodDefaults` gives the
     defaults of all but ``name`` and :meth:`plan`.
 
     A method (or its factory) with no engine form for its options raises
@@ -232,6 +235,7 @@ class EngineMethod(Protocol):
     sample_cluster: int
     variance: bool
     holds_outputs: bool
+    own_align: str
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None: ...
 
@@ -245,7 +249,7 @@ class EngineMethod(Protocol):
 class MethodDefaults:
     """The defaults of :class:`EngineMethod`'s attributes: a streamed method without derived
     planes, sample positions or histograms, no kernel warm-up, outputs not sized in advance,
-    refitted after ghost removal, nothing added to the result's info."""
+    refitted after ghost removal, no registration of its own, nothing added to the result's info."""
 
     holds_frames: bool = False
     wants_histograms: bool = False
@@ -255,6 +259,7 @@ class MethodDefaults:
     sample_cluster: int = 1
     variance: bool = False
     holds_outputs: bool = False
+    own_align: str = "none"
 
     def derive(self) -> Callable[[np.ndarray, np.ndarray], Any] | None:
         return None

@@ -41,31 +41,27 @@ import numpy as np
 
 from derender.core.errors import InputError, StackError
 from derender.core.memory import N_CODES, populated_zeros, thread_count
-from derender.core.types import HDRResult, Stack, check_brightness_order
+from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import (
     ArrayFrames,
     FileFrames,
     FramePool,
-    NotStreamable,
     clipped_pixels,
     frame_brightness,
     merge_held,
     prefetch,
 )
+from derender.engine.options import EngineOptions, OutputOptions
 from derender.engine.outputs import write_outputs, write_while_merging
 from derender.engine.plans import EngineMethod, FrameAccess, TablePlan
 from derender.engine.table_kernel import table_kernel_merge, warm_up_kernel
-from derender.engine.tables import TableMerge, code_histograms, stack_codes_exact
+from derender.engine.tables import TableMerge, code_histograms
 
-__all__ = ["run", "run_stack", "ENGINES", "HOLD_BYTES", "KERNEL_MIN_PIXEL_FRAMES"]
+__all__ = ["run", "ENGINES", "KERNEL_MIN_PIXEL_FRAMES"]
 
-#: ``engine=`` choices of the in-memory merge methods.
+#: ``engine=`` choices of the classic merge methods (the registry reads them: ``"reference"`` asks for
+#: the float reference engine, ``"table"`` insists on the engine).
 ENGINES = ("auto", "table", "reference")
-
-#: Default budget of a streamed method's held frames (8-bit codes of the whole bracket):
-#: within it every frame is decoded once and merged by a compiled kernel (13 frames of
-#: 24 MP); above it the frames stream in two passes (memory independent of their number).
-HOLD_BYTES = 1 << 30
 
 #: Pixels x frames from which a held table merge runs the compiled kernel: below, OpenCV's
 #: table engine on the held frames is faster, as importing numba and loading the kernel
@@ -329,20 +325,17 @@ def _run_held(method: EngineMethod, source, threads: int | None, order_hint: str
     method.finish(res, access)
     return res
 
-def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int | None = None,
-        keep_frames: int | None = None, keep_bytes: int = 256 << 20, hold_bytes: int = HOLD_BYTES,
-        output: str | os.PathLike | None = None,
-        variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
-        inputs: Iterable[str | os.PathLike] = (), order_hint: str | None = None,
-        hold_outputs: bool = True) -> HDRResult:
+def run(method: EngineMethod, source: FileFrames | ArrayFrames, output: OutputOptions | None = None,
+        engine: EngineOptions | None = None, *, inputs: Iterable[str | os.PathLike] = (),
+        order_hint: str | None = None) -> HDRResult:
     """Merge ``source`` with ``method`` (see the module docstring); optionally write the
-    radiance to ``output`` and the variance to ``variance_output`` (OpenEXR).
+    radiance and the variance to the OpenEXR files of ``output``.
 
     Streamed methods hold every frame (decoded once, merged by a compiled kernel:
-    :func:`_run_streamed_held`) when ``keep_frames`` is None and the bracket's codes fit in
-    ``hold_bytes`` (and, with the outputs, in half the available memory); otherwise they
-    stream in two passes. Held methods (:attr:`EngineMethod.holds_frames`) read every frame
-    once (:func:`_run_held`).
+    :func:`_run_streamed_held`) when ``engine.keep_frames`` is None and the bracket's codes fit
+    in ``engine.hold_bytes`` (and, with the outputs, in half the available memory); otherwise
+    they stream in two passes. Held methods (:attr:`EngineMethod.holds_frames`) read every
+    frame once (:func:`_run_held`).
 
     Parameters
     ----------
@@ -350,25 +343,21 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
         What to merge with: its plan (tables, matrices or Gaussians) from the frames.
     source : FileFrames or ArrayFrames
         The bracket's 8-bit frames and exposure times.
-    threads : int, optional
-        Decoding and merging threads (None: every CPU).
-    keep_frames, keep_bytes : int
-        Frames a two-pass stream keeps between its passes (default: as many as fit in
-        ``keep_bytes``, at least 1).
-    hold_bytes : int
-        The largest bracket of codes a streamed method holds whole.
-    output, variance_output : path-like, optional
-        OpenEXR files for the radiance and the variance (``half``, ``compression``), written
-        atomically and never over one of ``inputs``.
+    output : OutputOptions, optional
+        The OpenEXR files (written atomically, never over one of ``inputs``), and whether the
+        maps stay in memory: with ``hold_outputs=False``, where the merge writes while merging
+        (held frames merged by a compiled kernel), the outputs go through a ring of band
+        buffers (:class:`~derender.engine.overlap.OutputRing`) straight into the files and are
+        never held whole (9 x 24 MP: 288 MB less memory per output); the result's
+        ``radiance`` (and ``variance``) are then None. None: nothing written.
+    engine : EngineOptions, optional
+        Threads and the frame budgets (:class:`~derender.engine.options.EngineOptions`).
+    inputs : iterable of path-like
+        Files the outputs must not overwrite.
     order_hint : str, optional
         For user input: check while decoding that the images brighten with their exposure
         times (:func:`derender.core.types.check_brightness_order`); the hint ends the error.
-    hold_outputs : bool
-        False (with ``output``): where the merge writes while merging (held frames merged by a
-        compiled kernel), the outputs go through a ring of band buffers
-        (:class:`~derender.engine.overlap.OutputRing`) straight into the files and are never
-        held whole (9 x 24 MP: 288 MB less memory per output); the result's ``radiance``
-        (and ``variance``) are then None.
+
     Returns
     -------
     HDRResult
@@ -379,51 +368,37 @@ def run(method: EngineMethod, source: FileFrames | ArrayFrames, *, threads: int 
     ------
     NotStreamable
         Inputs without 8-bit codes, or a method with no engine form for them: the caller
-        falls back to the float reference engine.
+        (:mod:`derender.hdr.registry`) falls back to the float reference engine.
     """
     t0 = time.perf_counter()
     if source.n < 2:
         raise StackError("an exposure stack needs at least two images")
+    out = output or OutputOptions()
+    engine = engine or EngineOptions()
+    threads = engine.threads
     inputs = list(inputs)
     write = None
-    if output is not None:
-        write = functools.partial(write_while_merging, output=output, variance_output=variance_output, half=half,
-                                  compression=compression, inputs=inputs, threads=threads)
+    if out.output is not None:
+        write = functools.partial(write_while_merging, output=out.output, variance_output=out.variance_output,
+                                  half=out.half, compression=out.compression, inputs=inputs, threads=threads)
     # outputs streamed through band buffers: how many files read them (the variance's too if asked)
-    ring = 0 if write is None or hold_outputs else 1 + (variance_output is not None)
+    ring = 0 if write is None or out.held else 1 + (out.variance_output is not None)
     if method.holds_outputs:   # the method's finish() reads the merged radiance
         ring = 0
     if method.holds_frames:
         res = _run_held(method, source, threads, order_hint, write=write, ring=ring)
-    elif _hold(source, keep_frames, hold_bytes) or method.variance:   # a variance: held
+    elif _hold(source, engine.keep_frames, engine.hold_bytes) or method.variance:   # a variance: held
         res = _run_streamed_held(method, source, threads, order_hint, write=write, ring=ring)
     else:
-        res = _run_streamed(method, source, threads, keep_frames, keep_bytes, order_hint)
+        res = _run_streamed(method, source, threads, engine.keep_frames, engine.keep_bytes, order_hint)
     res.info["engine_path"] = "streaming"
     res.info["outputs_held"] = res.radiance is not None
+    output_path, variance_path = out.output, out.variance_output
     if res.info.get("overlapped_write"):      # the radiance was written while merging
-        inputs, output = inputs + [output], None
+        inputs, output_path = inputs + [output_path], None
     if res.info.pop("overlapped_variance_write", False):     # ... and the variance
-        variance_output = None
-    write_outputs(res, output, variance_output, half=half, compression=compression, inputs=inputs, threads=threads,
-                  name=method.name)
+        variance_path = None
+    write_outputs(res, output_path, variance_path, half=out.half, compression=out.compression, inputs=inputs,
+                  threads=threads, name=method.name)
     res.info["total_seconds"] = time.perf_counter() - t0
     return res
-
-
-def run_stack(method, stack: Stack, engine: str = "auto") -> HDRResult:
-    """Run an engine ``method`` on an in-memory stack whose values are 8-bit codes.
-
-    The one way to fall back: :class:`~derender.engine.frames.NotStreamable` when the stack is
-    not 8-bit codes (or ``engine="reference"``, or the method finds no engine form), and the
-    caller then uses the float reference engine."""
-    if engine not in ENGINES:
-        raise InputError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
-    if engine == "reference":
-        raise NotStreamable("engine='reference' asked for")
-    codes = None if stack.bit_depth == 16 else stack_codes_exact(stack.images)
-    if codes is None:
-        if engine == "table":
-            raise InputError("engine='table' needs an 8-bit stack (every value a code / 255)")
-        raise NotStreamable("the stack's values are not 8-bit codes")
-    return run(method, ArrayFrames(codes, stack.times))

@@ -138,10 +138,11 @@ def shared_data_root() -> Path:
 
 
 def bracket_inputs(name: str, root=None, spec: dict | None = None) -> tuple[list, dict]:
-    """The image paths and the :func:`derender.hdr.files.merge_files` keywords (times, reference
-    from 0, alignment) of the real bracket ``name`` (``spec``, default :data:`STILL_BRACKETS`'s:
-    its folder, times file, reference from 1 and alignment)."""
+    """The image paths and the :func:`derender.hdr.files.merge_files` keywords (times file,
+    ``motion``: reference from 0, alignment) of the real bracket ``name`` (``spec``, default
+    :data:`STILL_BRACKETS`'s: its folder, times file, reference from 1 and alignment)."""
     from derender.core.errors import InputError
+    from derender.engine.motion.run import MotionOptions
     from derender.io.files import expand_image_paths
 
     spec = STILL_BRACKETS[name] if spec is None else spec
@@ -149,7 +150,7 @@ def bracket_inputs(name: str, root=None, spec: dict | None = None) -> tuple[list
     if not folder.is_dir():
         raise InputError(f"real bracket {name!r} not found: {folder} (see shared/data/README.md)")
     paths = expand_image_paths([folder])
-    kw: dict = {"reference": int(spec["reference"]) - 1, "align": spec["align"]}
+    kw: dict = {"motion": MotionOptions(reference=int(spec["reference"]) - 1, align=spec["align"])}
     if "times_file" in spec:
         kw["times_file"] = folder / spec["times_file"]
         kw["times_file_inverse"] = bool(spec.get("times_file_inverse", False))
@@ -160,10 +161,12 @@ def deghost_pair(paths, method: str, kw: dict):
     """The plain and the ``--deghost`` merge of ``paths`` with ``method`` and the same ``kw``
     (reference, alignment, times), the :class:`MapChange` between them and the fraction of the
     other frames' pixels ghost removal left out."""
+    import dataclasses
+
     from derender.hdr.files import merge_files
 
     plain = merge_files(paths, method=method, **kw)
-    clean = merge_files(paths, method=method, deghost=True, **kw)
+    clean = merge_files(paths, method=method, **{**kw, "motion": dataclasses.replace(kw["motion"], deghost=True)})
     change = compare_maps(plain.radiance, clean.radiance)
     rejected = float((clean.info.get("deghost") or {}).get("rejected", 0.0))
     return plain, clean, change, rejected
@@ -197,7 +200,7 @@ def method_agreement(name: str, methods=("debevec", "robertson", "stabilized"), 
     for m in methods:
         if progress:
             progress(f"{name}: {m} with its variance")
-        res[m] = merge_files(paths, method=m, variance=True, **kw)
+        res[m] = merge_files(paths, method=m, options={"variance": True}, **kw)
     rows = []
     for i, a in enumerate(methods):
         for b in methods[i + 1:]:

@@ -84,7 +84,7 @@ def run_demo(outdir: str | Path, size: tuple[int, int] = (480, 320), seed: int =
                 model_seconds = time.perf_counter() - t0
                 report("calibrating a GP on the simulated chart", 1, 1)
             options["model"] = model
-        result = merge_seeded(raw_frames if name == "raw" else stack, name, seed, **options)
+        result = merge_seeded(raw_frames if name == "raw" else stack, name, seed, options)
         dt = time.perf_counter() - t0 if name != MODEL_METHODS[0] else time.perf_counter() - t0 - model_seconds
         write_exr(outdir / f"merge-{name}.exr", result.radiance)
         write_preview(outdir / f"merge-{name}.png", result.radiance)

@@ -138,7 +138,7 @@ def build_gallery(out_dir: str | Path, root: str | Path | None = None, methods=F
         if not still:
             from derender.io.images import read_codes
 
-            ref_codes = read_codes(paths[kw["reference"]])
+            ref_codes = read_codes(paths[kw["motion"].reference])
         for m in methods:
             if progress:
                 progress(f"gallery: {name} {m}")

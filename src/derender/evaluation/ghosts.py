@@ -23,6 +23,7 @@ tripod one (no shake): its ratio also measures what alignment loses.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -77,13 +78,14 @@ def zone_errors(result: np.ndarray, truth: np.ndarray, zones: np.ndarray,
 def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), *, settings: Sequence[str] = GHOST_SETTINGS,
                      seeds: Sequence[int] = (0,), size: tuple[int, int] = (192, 128), exposures: int = 7,
                      objects: int = 3, shake: int | None = None, methods: Sequence[str] = GHOST_METHODS,
-                     camera: str = "nikon-d5100", kind: str = "outdoor", options: dict | None = None,
+                     camera: str = "nikon-d5100", kind: str = "outdoor", motion: Any = None,
                      progress: Callable[[str], None] | None = None, model: Any = None) -> list[dict[str, Any]]:
     """One row per (family, setting, seed, method): zone medians on the moving bracket and on
     its still twin, and their ratios. ``shake`` defaults to 2 % of the width (a handheld
-    bracket); ``options`` go to every merge (e.g. ``deghost=True, align="translation"``).
-    Every method gets the truth's reference frame (the middle frame, an engine option of every
-    method), so that the table measures ghosts and alignment, not the choice of instant. Paper 2's
+    bracket); ``motion`` (a :class:`~derender.engine.motion.run.MotionOptions`, e.g.
+    ``deghost=True, align="translation"``) goes to every merge, with the truth's reference
+    frame (the middle frame, an engine option of every method), so that the table measures
+    ghosts and alignment, not the choice of instant. Paper 2's
     methods get ``model`` (default: the GP of :func:`derender.evaluation.uncertainty.chart_model`)."""
 
 
@@ -91,6 +93,7 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
     from derender.camera.families import FAMILIES, check_family
     from derender.camera.motion import MotionSpec
     from derender.core.types import Stack
+    from derender.engine.motion.run import MotionOptions
     from derender.evaluation.families import TUNING_FAMILIES
     from derender.hdr.registry import merge_seeded, method_spec
 
@@ -111,11 +114,12 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                                        family=family, motion=base.still())
             ref = still_b.params["motion"]["reference"]
 
-            def opts(m: str) -> dict:
-                extra = {"model": model} if method_spec(m).needs_model else {}
-                return {"reference": ref, **extra, **(options or {})}
+            at_ref = dataclasses.replace(motion or MotionOptions(), reference=ref)
 
-            still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), **opts(m)).radiance
+            def opts(m: str) -> dict:
+                return {"model": model} if method_spec(m).needs_model else {}
+
+            still_results = {m: merge_seeded(_stack(still_b, Stack), m, int(seed), opts(m), motion=at_ref).radiance
                              for m in methods}
             for setting in settings:
                 spec = base if setting == "handheld" else base.tripod()
@@ -125,7 +129,7 @@ def ghost_comparison(families: Sequence[str] = ("paper", "camera", "dslr-lut"), 
                                      family=family, motion=spec)
                 seen = seen_in_reference(b.jpeg_codes[ref])
                 for m in methods:
-                    moving = zone_errors(merge_seeded(_stack(b, Stack), m, int(seed), **opts(m)).radiance,
+                    moving = zone_errors(merge_seeded(_stack(b, Stack), m, int(seed), opts(m), motion=at_ref).radiance,
                                          b.truth_linear_srgb, b.motion_zones, seen)
                     still = zone_errors(still_results[m], still_b.truth_linear_srgb, b.motion_zones, seen)
                     row = {"family": family, "held_out": family not in TUNING_FAMILIES, "setting": setting, "seed": int(seed),

@@ -189,7 +189,7 @@ def linearity_experiment(renders: Sequence[str] = ("gamma", "paper", "camera", "
                         if render not in models:
                             models[render] = render_chart_model(camera, render, n_train)
                         opts["model"] = models[render]
-                    res = merge_seeded(stack, m, int(seed), **opts)
+                    res = merge_seeded(stack, m, int(seed), opts)
                     sc = linearity_scores(res.radiance, lt, card, score_mask=smooth, merge_mask=res.mask,
                                           readback=readback)
                     rows.append({"render": render, "role": "tuning" if render in TUNING_RENDERS else "held-out",
@@ -223,7 +223,7 @@ def fisheye_maps(methods: Sequence[str] = ("debevec", "stabilized"), *, render: 
     for m in methods:
         opts = ({"model": render_chart_model(camera, render, n_train)}
                 if method_spec(m).needs_model else {})
-        res = merge_seeded(stack, m, seed, **opts)
+        res = merge_seeded(stack, m, seed, opts)
         k = spot_factor(res.radiance, spot, SRGB_PRIMARIES, mask=res.mask).factor
         out[m] = np.asarray(res.radiance, dtype=np.float64) * k
     return out

@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -128,9 +128,9 @@ def pair_raw_jpeg(frames: Sequence[RawFrame], jpegs: Sequence[str | os.PathLike]
 
 def score_raw_jpeg(raws: Sequence[str | os.PathLike], jpegs: Sequence[str | os.PathLike], method: str = "debevec", *,
                    truth_method: str = "optimal", seed: int = 0, remap: str = "lstsq", fit: str = "matrix",
-                   **options) -> RawJpegScore:
-    """Merge the RAW files (the truth) and the JPEGs (``method``, ``options``) and score the JPEG
-    merge against the RAW merge (module docstring)."""
+                   options: Any = None) -> RawJpegScore:
+    """Merge the RAW files (the truth) and the JPEGs (``method``, its ``options`` record or a
+    mapping of them) and score the JPEG merge against the RAW merge (module docstring)."""
     from derender.evaluation.metrics import hdr_scores
     from derender.hdr.raw import merge_raw
     from derender.hdr.registry import merge_seeded, method_spec
@@ -149,8 +149,8 @@ def score_raw_jpeg(raws: Sequence[str | os.PathLike], jpegs: Sequence[str | os.P
         h, w = frames[0].mosaic.shape
         raise InputError(f"the RAW frames are {w}x{h}, the JPEGs {stack.images.shape[2]}x{stack.images.shape[1]}: "
                          "the protocol needs the JPEG of the whole sensor (no registration)")
-    truth = merge_raw(frames, estimator=truth_method)
-    result = merge_seeded(stack, method, seed, **options)
+    truth = merge_raw(frames, {"estimator": truth_method})
+    result = merge_seeded(stack, method, seed, options)
     keep = np.asarray(truth.mask) == 0
     if not keep.any():
         raise InputError("every pixel is over-exposed in every RAW frame: nothing to score")

@@ -244,9 +244,10 @@ def round_trip(plan, frames: np.ndarray, radiance: np.ndarray, *,
 
 
 def bracket_round_trip(paths, method: str = "debevec", *, times=None, times_file=None, times_file_inverse: bool = False,
-                       **options) -> tuple[RoundTrip, "object", list[str]]:
+                       motion=None) -> tuple[RoundTrip, "object", list[str]]:
     """Merge the image files ``paths`` with ``method`` (:func:`derender.hdr.files.merge_files`,
-    its ``options``: reference, align, deghost, ...), then render the map back through the
+    its ``motion``: reference, align, deghost, a
+    :class:`~derender.engine.motion.run.MotionOptions`), then render the map back through the
     method's plan against the files' own codes (:func:`round_trip`): the frames in exposure
     order, moved by the engine's integer registration, pixels where ghost removal or alignment
     left any frame out excluded. Returns the :class:`RoundTrip`, the merge result and the frames'
@@ -261,7 +262,7 @@ def bracket_round_trip(paths, method: str = "debevec", *, times=None, times_file
 
     paths = expand_image_paths(paths)
     res = merge_files(paths, times, method=method, times_file=times_file, times_file_inverse=times_file_inverse,
-                      **options)
+                      motion=motion)
     if res.plan is None:
         raise InputError(f"merge method {method!r} has no engine plan to render back")
     try:

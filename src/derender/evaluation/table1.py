@@ -324,11 +324,14 @@ def fusion_gain(styles: Sequence[str] = ("simple", "camera"), *, kinds: Sequence
 
 
 def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = "stabilized",
-                     references: Sequence[int] | None = None, **options: Any) -> dict:
-    """PSNR (R, G, B, L; :func:`derender.evaluation.metrics.psnr_rgbl`) of ``method`` for every
-    reference in ``references`` (default :func:`derender.engine.motion.reference_frame.reasonable_references`) and the spread
-    (max - min) of each plane over them (paper 1, Fig. 5)."""
+                     references: Sequence[int] | None = None, options: Any = None) -> dict:
+    """PSNR (R, G, B, L; :func:`derender.evaluation.metrics.psnr_rgbl`) of ``method`` (its
+    ``options``) for every reference in ``references`` (default
+    :func:`derender.engine.motion.reference_frame.reasonable_references`; the engine's
+    :class:`~derender.engine.motion.run.MotionOptions`) and the spread (max - min) of each
+    plane over them (paper 1, Fig. 5)."""
     from derender.engine.motion.reference_frame import reasonable_references
+    from derender.engine.motion.run import MotionOptions
     from derender.evaluation.metrics import psnr_rgbl
     from derender.hdr.registry import merge
 
@@ -337,7 +340,7 @@ def reference_spread(stack: Stack, truth_linear_srgb: np.ndarray, method: str = 
         raise InputError("no reference images to compare")
     scores = {}
     for r in refs:
-        res = merge(stack, method=method, reference=r, **options)
+        res = merge(stack, method, options, motion=MotionOptions(reference=r))
         scores[r] = psnr_rgbl(res.radiance, truth_linear_srgb)
     spread = {c: float(max(s[c] for s in scores.values()) - min(s[c] for s in scores.values())) for c in "RGBL"}
     return {"method": method, "references": refs, "psnr": scores, "spread": spread}

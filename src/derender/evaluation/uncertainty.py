@@ -182,7 +182,7 @@ def uncertainty_experiment(families=("paper", "camera", "dslr-lut", "phone-local
                     opts = {"model": model} if spec.needs_model else {}
                     if spec.has_option("variance"):
                         opts["variance"] = True     # the classic and stabilised merges give it when asked
-                    res = merge_seeded(stack, m, int(seed), **opts)
+                    res = merge_seeded(stack, m, int(seed), opts)
                     table = coverage_table(res.radiance, res.variance, b.truth_linear_srgb, merge_mask=res.mask)
                     for part, d in table.items():
                         prefix = "" if part == "all" else f"{part}_"

@@ -38,15 +38,18 @@ def stack_files(folder: str | os.PathLike) -> tuple[list[Path], Path | None]:
 
 def merge_one_stack(folder: str, outdir: str, method: str, seed: int = 0, half: bool = False) -> dict:
     """Merge one stack folder into ``outdir/<name>.exr``; a user error is reported, not raised."""
+    from derender.engine.options import EngineOptions, OutputOptions
     from derender.hdr.files import merge_files
+    from derender.hdr.registry import seeded_options
 
     name = Path(folder).name
     out = Path(outdir) / f"{name}.exr"
     t0 = time.perf_counter()
     try:
         files, times_file = stack_files(folder)
-        result = merge_files(files, None, method, times_file=times_file, output=out, half=half, seed=seed,
-                             inputs=files, threads=1, hold_outputs=False)   # written band by band
+        result = merge_files(files, None, method, seeded_options(method, seed), times_file=times_file,
+                             output=OutputOptions(output=out, half=half, hold_outputs=False),   # written band by band
+                             engine=EngineOptions(threads=1), inputs=files)
     except DerenderError as exc:
         return {"stack": name, "ok": False, "error": str(exc)}
     return {"stack": name, "ok": True, "output": str(out), "seconds": time.perf_counter() - t0,

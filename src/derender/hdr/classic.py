@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -30,13 +30,13 @@ from derender.core.errors import InputError
 from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.engine.float_merge import merge_linear
-from derender.engine.frames import NotStreamable
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
-from derender.engine.run import ENGINES, run_stack
+from derender.engine.run import ENGINES
 from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
 from derender.engine.weights import WEIGHTS
-from derender.hdr.registry import record_values
+from derender.hdr.registry import merge
 from derender.response.curves import (
     DEFAULT_SAMPLES,
     DEFAULT_TIE,
@@ -65,8 +65,8 @@ from derender.response.curves import (
 #: gammas and gains dominate: docs/luminance.md).
 MERGE_LAMBDA = 60.0
 
-__all__ = ["MERGE_LAMBDA", "white_weights", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson",
-           "debevec_engine", "robertson_engine"]
+__all__ = ["MERGE_LAMBDA", "white_weights", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod",
+           "merge_debevec", "merge_robertson", "debevec_stack", "robertson_stack"]
 
 
 #: The ways a pixel's channels share their weights (the table engine's modes).
@@ -75,8 +75,37 @@ CHANNEL_WEIGHTS = ("mean", "min", "independent", "brightest", "min_else_brightes
 
 @dataclass(frozen=True, kw_only=True)
 class DebevecOptions:
-    """The options of :func:`merge_debevec` (each described there), as its engine method and
-    ``derender merge --option`` read them. Invalid values are refused when the record is made."""
+    """The options of ``debevec`` (:func:`merge_debevec`), as its engine method, its float-stack
+    merge and ``derender merge --option`` read them. Invalid values are refused when the record
+    is made.
+
+    Attributes
+    ----------
+    curves : ResponseCurves, optional
+        Skip the calibration and merge with these curves (:class:`~derender.response.curves.ResponseCurves`,
+        e.g. a camera profile's).
+    lam, n_samples, sampling, seed, tie
+        The calibration (:func:`~derender.response.debevec1997.calibrate_debevec`, always with the
+        paper's hat weights): smoothness lambda (None: :data:`MERGE_LAMBDA`), number of samples (``"grid"`` samples in
+        uniform regions, or ``"histogram"``), the grid's seed, the channel tie (None: the default).
+    weight, domain, channel_weights
+        The merge's weight (``"gaussian"``, ``"hat"``, ...), averaging domain (``"log"`` or
+        ``"linear"``) and how a pixel's channels share weights (``"mean"``, ``"independent"``,
+        ``"min"``).
+    block_rows : int, optional
+        The engine's row blocks.
+    engine : {"auto", "table", "reference"}
+        ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to the reference
+        to ~1e-6 relative), ``"table"`` insists on it, ``"reference"`` always uses
+        :func:`~derender.engine.float_merge.merge_linear`.
+    censor : bool
+        Codes that stopped following the exposure (a channel saturated below the top code) are
+        bounds, not data, in the calibration
+        (:func:`~derender.response.debevec1997.censored_observations`); False: the paper's system.
+    variance : bool
+        Also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`: noise,
+        quantisation, frame disagreement, shared model error; 8-bit stacks).
+    """
 
     curves: Any = None
     lam: float | None = None
@@ -105,7 +134,19 @@ class DebevecOptions:
 
 @dataclass(frozen=True, kw_only=True)
 class RobertsonOptions:
-    """The options of :func:`merge_robertson` (each described there)."""
+    """The options of ``robertson`` (:func:`merge_robertson`).
+
+    Attributes
+    ----------
+    curves : ResponseCurves, optional
+        Skip the calibration and merge with these curves.
+    n_iter, max_pixels, seed, tie
+        The calibration: iterations, pixels sampled (seeded), the channel tie (None: the default).
+    weight : str
+        The calibration's and the merge's level weight.
+    block_rows, engine, variance
+        As :class:`DebevecOptions`.
+    """
 
     curves: Any = None
     n_iter: int = 30
@@ -294,53 +335,64 @@ def _curve_lineariser(curves) -> Callable[[int, np.ndarray], np.ndarray]:
     return lin
 
 
-def _reference_merge(stack: Stack, name: str, curves, calibrate: Callable[[], Any], weight: Any,
-                     block_rows: int | None, **merge_kw: Any) -> HDRResult:
-    """A classic merge on the float reference engine (stacks without 8-bit codes)."""
-    if merge_kw.pop("variance", False):
+def _reference_merge(stack: Stack, name: str, curves, weight: Any, block_rows: int | None, variance: bool,
+                     merge_options: dict) -> HDRResult:
+    """A classic merge with ``curves`` on the float reference engine (stacks without 8-bit codes);
+    ``merge_options``: :func:`merge_linear`'s ``channel_weights``, ``domain`` and ``weight_fn``."""
+    if variance:
         raise InputError(f"{name}: a variance needs 8-bit images (every value a code / 255) on the engine")
-    check_usable(stack)
-    t0 = time.perf_counter()
-    if curves is None:
-        curves = calibrate()
     t1 = time.perf_counter()
     white = getattr(curves, "params", {}).get("white_codes")
-    if white and merge_kw.get("weight_fn") is None:
-        merge_kw["weight_fn"] = _white_weight_fn(weight, white)
+    if white and merge_options.get("weight_fn") is None:
+        merge_options = dict(merge_options, weight_fn=_white_weight_fn(weight, white))
     res = merge_linear(_curve_lineariser(curves), stack.times, stack.images, weight, log_input=True,
-                       block_rows=block_rows, **merge_kw)
+                       block_rows=block_rows, channel_weights=merge_options["channel_weights"],
+                       domain=merge_options["domain"], weight_fn=merge_options.get("weight_fn"))
     res.info.update({"method": name, "curves": curves, "engine": "reference",
-                     "timings": {"calibrate_s": t1 - t0, "merge_s": time.perf_counter() - t1}})
+                     "timings": {"merge_s": time.perf_counter() - t1}})
     return res
 
 
-def debevec_engine(options: DebevecOptions) -> DebevecMethod:
-    """The engine form of :func:`merge_debevec` (its registry entry's factory)."""
-    return DebevecMethod(options)
+def debevec_stack(stack: Stack, options: DebevecOptions) -> HDRResult:
+    """``debevec`` on the float reference engine (:func:`~derender.engine.float_merge.merge_linear`):
+    stacks without 8-bit codes, or ``engine="reference"`` (the registry chooses)."""
+    from derender.response.debevec1997 import calibrate_debevec
+
+    o, method = options, DebevecMethod(options)
+    check_usable(stack)
+    t0 = time.perf_counter()
+    curves = o.curves
+    if curves is None:
+        curves = calibrate_debevec(stack, lam=method.lam, n_samples=method.n_samples, sampling=o.sampling, seed=o.seed,
+                                   balance=o.sampling == "grid", tie=method.tie, censor=o.censor)
+    t1 = time.perf_counter()
+    res = _reference_merge(stack, "debevec", curves, o.weight, o.block_rows, o.variance,
+                           {"channel_weights": o.channel_weights, "domain": o.domain})
+    res.info["timings"]["calibrate_s"] = t1 - t0
+    return res
 
 
-def robertson_engine(options: RobertsonOptions) -> RobertsonMethod:
-    """The engine form of :func:`merge_robertson` (its registry entry's factory)."""
-    return RobertsonMethod(options)
+def robertson_stack(stack: Stack, options: RobertsonOptions) -> HDRResult:
+    """``robertson`` on the float reference engine (as :func:`debevec_stack`)."""
+    from derender.response.robertson2003 import calibrate_robertson
+
+    o, method = options, RobertsonMethod(options)
+    check_usable(stack)
+    t0 = time.perf_counter()
+    curves = o.curves
+    if curves is None:
+        curves = calibrate_robertson(stack, n_iter=o.n_iter, max_pixels=o.max_pixels, weight=o.weight, seed=o.seed,
+                                     tie=method.tie)
+    t1 = time.perf_counter()
+    res = _reference_merge(stack, "robertson", curves, o.weight, o.block_rows, o.variance,
+                           {"weight_fn": _robertson_weight_fn(curves, o.weight),
+                            "channel_weights": ROBERTSON_CHANNEL_WEIGHTS, "domain": "linear"})
+    res.info["timings"]["calibrate_s"] = t1 - t0
+    return res
 
 
-def merge_debevec(
-    stack: Stack,
-    *,
-    curves=None,
-    lam: float | None = None,
-    n_samples: int | None = None,
-    sampling: str = "grid",
-    seed: int = 0,
-    weight: str = "gaussian",
-    domain: str = "log",
-    channel_weights: str = "mean",
-    block_rows: int | None = None,
-    engine: str = "auto",
-    tie: float | None = None,
-    censor: bool = True,
-    variance: bool = False,
-) -> HDRResult:
+def merge_debevec(stack: Stack, options: DebevecOptions | Mapping[str, Any] | None = None, *,
+                  motion: MotionOptions | None = None) -> HDRResult:
     """Debevec & Malik (1997): recover ``g = ln f^-1`` per channel (Sec. 2.1), merge with eq. 6.
 
     The merge defaults are eq. 6's log-domain average with a Gaussian weight shared by the
@@ -354,30 +406,11 @@ def merge_debevec(
     ----------
     stack : Stack
         The bracket (8- or 16-bit images in [0, 1] and their exposure times).
-    curves : ResponseCurves, optional
-        Skip the calibration and merge with these curves (:class:`~derender.response.curves.ResponseCurves`,
-        e.g. a camera profile's).
-    lam, n_samples, sampling, seed, tie
-        The calibration (:func:`~derender.response.debevec1997.calibrate_debevec`, always with the
-        paper's hat weights): smoothness lambda (None: :data:`MERGE_LAMBDA`), number of samples (``"grid"`` samples in
-        uniform regions, or ``"histogram"``), the grid's seed, the channel tie (None: the default).
-    censor : bool
-        Codes that stopped following the exposure (a channel saturated below the top code) are
-        bounds, not data, in the calibration
-        (:func:`~derender.response.debevec1997.censored_observations`); False: the paper's system.
-    weight, domain, channel_weights
-        The merge's weight (``"gaussian"``, ``"hat"``, ...), averaging domain (``"log"`` or
-        ``"linear"``) and how a pixel's channels share weights (``"mean"``, ``"independent"``,
-        ``"min"``).
-    block_rows : int, optional
-        The engine's row blocks.
-    engine : {"auto", "table", "reference"}
-        ``"auto"`` merges 8-bit stacks on the engine's 256-entry tables (equal to the reference
-        to ~1e-6 relative), ``"table"`` insists on it, ``"reference"`` always uses
-        :func:`~derender.engine.float_merge.merge_linear`.
-    variance : bool
-        Also give the per-pixel variance of the radiance (:mod:`derender.engine.variance`: noise,
-        quantisation, frame disagreement, shared model error; 8-bit stacks).
+    options : DebevecOptions or mapping, optional
+        The method's options (:class:`DebevecOptions`, where each is described), or a mapping
+        of them.
+    motion : MotionOptions, optional
+        Reference frame, alignment, ghost removal (:func:`derender.hdr.registry.merge`).
 
     Returns
     -------
@@ -389,33 +422,11 @@ def merge_debevec(
     P. E. Debevec, J. Malik, "Recovering high dynamic range radiance maps from photographs",
     SIGGRAPH 1997, Sec. 2.1 and eq. 6. doi:10.1145/258734.258884
     """
-    method = DebevecMethod(record_values(DebevecOptions, locals()))
-    try:
-        return run_stack(method, stack, engine)
-    except NotStreamable:
-        pass
-    from derender.response.debevec1997 import calibrate_debevec
-
-    return _reference_merge(stack, "debevec", curves, lambda: calibrate_debevec(
-        stack, lam=method.lam, n_samples=method.n_samples, sampling=sampling, seed=seed, balance=sampling == "grid",
-        tie=method.tie, censor=censor),
-        weight, block_rows,
-        channel_weights=channel_weights, domain=domain, variance=variance)
+    return merge(stack, "debevec", options, motion=motion)
 
 
-def merge_robertson(
-    stack: Stack,
-    *,
-    curves=None,
-    n_iter: int = 30,
-    max_pixels: int = 40_000,
-    weight: str = "gaussian",
-    seed: int = 0,
-    block_rows: int | None = None,
-    engine: str = "auto",
-    tie: float | None = None,
-    variance: bool = False,
-) -> HDRResult:
+def merge_robertson(stack: Stack, options: RobertsonOptions | Mapping[str, Any] | None = None, *,
+                    motion: MotionOptions | None = None) -> HDRResult:
     """Robertson, Borman & Stevenson (2003), made robust: iterative ``f^-1`` and the ML merge.
 
     The curve: :func:`derender.response.robertson2003.calibrate_robertson` (leave-one-out,
@@ -430,13 +441,9 @@ def merge_robertson(
     ----------
     stack : Stack
         The bracket.
-    curves : ResponseCurves, optional
-        Skip the calibration and merge with these curves.
-    n_iter, max_pixels, seed, tie
-        The calibration: iterations, pixels sampled (seeded), the channel tie (None: the default).
-    weight : str
-        The calibration's and the merge's level weight.
-    block_rows, engine, variance
+    options : RobertsonOptions or mapping, optional
+        The method's options (:class:`RobertsonOptions`), or a mapping of them.
+    motion : MotionOptions, optional
         As :func:`merge_debevec`.
 
     Returns
@@ -450,16 +457,4 @@ def merge_robertson(
     enhancement using multiple exposures", J. Electronic Imaging 12(2), 2003.
     doi:10.1117/1.1557695
     """
-    method = RobertsonMethod(record_values(RobertsonOptions, locals()))
-    try:
-        return run_stack(method, stack, engine)
-    except NotStreamable:
-        pass
-    from derender.response.robertson2003 import calibrate_robertson
-
-    if curves is None:
-        curves = calibrate_robertson(stack, n_iter=n_iter, max_pixels=max_pixels, weight=weight, seed=seed,
-                                     tie=method.tie)
-    return _reference_merge(stack, "robertson", curves, lambda: curves, weight, block_rows,
-                            weight_fn=_robertson_weight_fn(curves, weight), channel_weights=ROBERTSON_CHANNEL_WEIGHTS,
-                            domain="linear", variance=variance)
+    return merge(stack, "robertson", options, motion=motion)

@@ -140,7 +140,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -150,11 +150,12 @@ from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
 from derender.derendering.base import model_camera_to_srgb
 from derender.engine.frames import ArrayFrames, NotStreamable
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import FrameAccess, GaussianPlan, LogNormalMoments, MethodDefaults, SharedVariance
 from derender.engine.run import run
 from derender.hdr.lognormal import MAX_LOG, MAX_V, truncate_below, truncate_below_log
 from derender.hdr.probabilistic_variance import K_MODEL, K_PIPE, K_SPATIAL
-from derender.hdr.registry import record_values
+from derender.hdr.registry import merge
 
 __all__ = [
     "CODE_NOISE",
@@ -163,6 +164,7 @@ __all__ = [
     "merge_probabilistic",
     "ProbabilisticOptions",
     "probabilistic_engine",
+    "probabilistic_stack",
     "saturation_mask",
     "finite_outputs",
     "check_options",
@@ -212,8 +214,35 @@ def as_model(model: Any):
 
 @dataclass(frozen=True, kw_only=True)
 class ProbabilisticOptions:
-    """The options of :func:`merge_probabilistic` (each described there), as its engine method and
-    ``derender merge --option`` read them."""
+    """The options of ``probabilistic`` (:func:`merge_probabilistic`), as its engine method, its
+    in-memory merge and ``derender merge --option`` read them.
+
+    Attributes
+    ----------
+    model : DerenderModel or path
+        A de-rendering model (:func:`~derender.derendering.base.fit_model`, ``derender calibrate``).
+    target_time : float
+        alpha_0 in seconds: the result is radiance x t_0.
+    colour_space : {"linear_srgb", "camera_rgb"}
+        The output's space (linear sRGB needs the model's camera metadata).
+    censor : bool
+        Codes at or above ``clip_code`` are censored (a bound, not a value).
+    domain : {"log", "linear"} or None
+        ``"log"``: the log-space product (per-channel censoring, joint weights, model-error
+        ``floor`` in log variance); ``"linear"``: the raw-space product (with ``censor=False``
+        eq. 3 literally); None: ``"log"`` with ``censor=True``, eq. 3 with ``censor=False``
+        (module docstring).
+    floor, clip_code, code_noise
+        Model-error floor (log variance), the censoring code, and the per-pixel code standard
+        deviation propagated through the model's curve (log space only; 0 = off).
+    variance_model : {"shared", "independent"}
+        ``"shared"`` keeps the model's error shared across frames and adds the frames' spread
+        (pipeline changes) and the spatial-mixing term, weighted by ``k_model``, ``k_pipe`` and
+        ``k_spatial`` (:mod:`derender.hdr.probabilistic_variance`); ``"independent"`` is eq. 3's
+        ``1 / sum p``. The radiance is the same for both.
+    k_model, k_pipe, k_spatial : float
+        Those weights.
+    """
 
     model: Any
     target_time: float = 1.0
@@ -250,37 +279,36 @@ def probabilistic_engine(options: ProbabilisticOptions) -> "ProbabilisticMethod"
     return method
 
 
-def merge_probabilistic(stack: Stack, model: Any, *, target_time: float = 1.0, colour_space: str = "linear_srgb",
-                        censor: bool = True, domain: str | None = None, floor: float = 0.0,
-                        clip_code: int = 245, code_noise: float = CODE_NOISE, variance_model: str = "shared",
-                        k_model: float = K_MODEL, k_pipe: float = K_PIPE, k_spatial: float = K_SPATIAL) -> HDRResult:
+def probabilistic_stack(stack: Stack, options: ProbabilisticOptions) -> HDRResult:
+    """``probabilistic`` where the engine has no form for it (the registry's fallback): the
+    raw-space product of deterministic models in memory (:func:`_product_linear`), or a stack
+    whose values are not exactly 8-bit codes rounded to codes and merged on the engine."""
+    if stack.bit_depth == 16:
+        raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
+    method = ProbabilisticMethod(options)
+    codes = stack.codes()
+    if method.domain == "log":
+        return run(method, ArrayFrames(codes, stack.times))
+    t0 = time.perf_counter()
+    mean0, var0 = _product_linear(method.model, codes, stack.times, float(options.target_time), options.censor)
+    radiance, variance = finite_outputs(mean0, var0, method.camera_to_srgb)
+    return HDRResult(radiance=radiance, mask=saturation_mask(codes[0], codes[-1]), variance=variance,
+                     info=_info(method.options, "linear", time.perf_counter() - t0))
+
+
+def merge_probabilistic(stack: Stack, options: ProbabilisticOptions | Mapping[str, Any], *,
+                        motion: MotionOptions | None = None) -> HDRResult:
     """Probabilistic HDR merge (paper 2 eq. 3) with a de-rendering model; returns mean and variance.
 
     Parameters
     ----------
     stack : Stack
         An 8-bit bracket.
-    model : DerenderModel or path
-        A de-rendering model (:func:`~derender.derendering.base.fit_model`, ``derender calibrate``).
-    target_time : float
-        alpha_0 in seconds: the result is radiance x t_0.
-    colour_space : {"linear_srgb", "camera_rgb"}
-        The output's space (linear sRGB needs the model's camera metadata).
-    censor : bool
-        Codes at or above ``clip_code`` are censored (a bound, not a value).
-    domain : {"log", "linear"} or None
-        ``"log"``: the log-space product (per-channel censoring, joint weights, model-error
-        ``floor`` in log variance); ``"linear"``: the raw-space product (with ``censor=False``
-        eq. 3 literally); None: ``"log"`` with ``censor=True``, eq. 3 with ``censor=False``
-        (module docstring).
-    floor, clip_code, code_noise
-        Model-error floor (log variance), the censoring code, and the per-pixel code standard
-        deviation propagated through the model's curve (log space only; 0 = off).
-    variance_model : {"shared", "independent"}
-        ``"shared"`` keeps the model's error shared across frames and adds the frames' spread
-        (pipeline changes) and the spatial-mixing term, weighted by ``k_model``, ``k_pipe`` and
-        ``k_spatial`` (:mod:`derender.hdr.probabilistic_variance`); ``"independent"`` is eq. 3's
-        ``1 / sum p``. The radiance is the same for both.
+    options : ProbabilisticOptions or mapping
+        The method's options (:class:`ProbabilisticOptions`, where each is described), or a
+        mapping of them; ``model`` (a de-rendering model or its path) is required.
+    motion : MotionOptions, optional
+        Reference frame, alignment, ghost removal (:func:`derender.hdr.registry.merge`).
 
     Returns
     -------
@@ -293,18 +321,7 @@ def merge_probabilistic(stack: Stack, model: Any, *, target_time: float = 1.0, c
     Y. Xiong, K. Saenko, T. Darrell, T. Zickler, "From pixels to physics: Probabilistic color
     de-rendering", CVPR 2012, eq. 3 (``docs/paper2.md``).
     """
-    model = as_model(model)
-    if stack.bit_depth == 16:
-        raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
-    method = ProbabilisticMethod(record_values(ProbabilisticOptions, locals()))
-    if method.domain == "log":
-        return run(method, ArrayFrames(stack.codes(), stack.times))
-    t0 = time.perf_counter()
-    codes = stack.codes()
-    mean0, var0 = _product_linear(model, codes, stack.times, float(target_time), censor)
-    radiance, variance = finite_outputs(mean0, var0, method.camera_to_srgb)
-    return HDRResult(radiance=radiance, mask=saturation_mask(codes[0], codes[-1]), variance=variance,
-                     info=_info(method.options, "linear", time.perf_counter() - t0))
+    return merge(stack, "probabilistic", options, motion=motion)
 
 
 def _info(o: ProbabilisticOptions, domain: str, seconds: float) -> dict:

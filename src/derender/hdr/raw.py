@@ -27,12 +27,14 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
+from derender.engine.motion.run import MotionOptions
+from derender.engine.options import EngineOptions, OutputOptions
 
 __all__ = [
     "ESTIMATORS",
@@ -49,7 +51,23 @@ ESTIMATORS = ("optimal", "paper1")
 
 @dataclass(frozen=True, kw_only=True)
 class RawOptions:
-    """Options of the ``raw`` merge method (the keywords of :func:`merge_raw`)."""
+    """Options of the ``raw`` merge method (:func:`merge_raw`).
+
+    Attributes
+    ----------
+    estimator : {"optimal", "paper1"}
+        ``"optimal"`` (:func:`derender.raw.optimal.raw_merge`; ``gain`` in DN per electron and
+        ``read_noise`` in DN override the estimates from the frames) or ``"paper1"`` (paper 1's
+        eq. 11, binary weights, no variance).
+    output_space : {"linear_srgb", "camera_rgb", "xyz"}
+        Through the files' own colour matrix and as-shot white balance.
+    gain, read_noise : float or None
+        The sensor's noise (None: estimated from the frames).
+    demosaic : str
+        The demosaicking algorithm.
+    variance : bool
+        Also give the per-pixel variance (``estimator="optimal"``).
+    """
 
     estimator: str = "optimal"
     output_space: str = "linear_srgb"
@@ -58,25 +76,45 @@ class RawOptions:
     demosaic: str = "malvar2004"
     variance: bool = False
 
+    def __post_init__(self) -> None:
+        """Every value checked when the record is made, before any file is read."""
+        from derender.raw.optimal import OUTPUT_SPACES
 
-def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optimal", output_space: str = "linear_srgb",
-              gain: float | None = None, read_noise: float | None = None, demosaic: str = "malvar2004",
-              variance: bool = False, motion: Any = None) -> HDRResult:
+        if self.estimator not in ESTIMATORS:
+            raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
+        if self.output_space not in OUTPUT_SPACES:
+            raise InputError(f"output_space must be one of {', '.join(OUTPUT_SPACES)}, got {self.output_space!r}")
+        if self.estimator == "paper1" and self.variance:
+            raise InputError("estimator paper1 (eq. 11) gives no variance; drop --variance or use estimator optimal")
+        if self.estimator == "paper1" and (self.gain is not None or self.read_noise is not None):
+            raise InputError("estimator paper1 (eq. 11) has no noise model: drop gain and read_noise")
+        if self.estimator == "optimal" and (self.gain is None) != (self.read_noise is None):
+            raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
+
+
+def merge_raw(frames: RawFrame | Sequence[RawFrame], options: RawOptions | Mapping[str, Any] | None = None, *,
+              motion: MotionOptions | None = None) -> HDRResult:
     """Noise-optimal merge of RAW frames on the mosaic (censored Poisson-Gaussian ML), demosaiced once, with its variance.
 
-    ``estimator``: ``"optimal"`` (:func:`derender.raw.optimal.raw_merge`; ``gain`` in DN per
-    electron and ``read_noise`` in DN override the estimates from the frames) or ``"paper1"``
-    (paper 1's eq. 11, binary weights, no variance). ``output_space``: ``linear_srgb``,
-    ``camera_rgb`` or ``xyz``, through the files' own colour matrix and as-shot white balance.
-    ``motion``: a :class:`~derender.engine.motion.run.MotionOptions` (reference, alignment,
-    ghost removal; :func:`raw_motion`), estimator ``optimal`` only.
-    """
-    from derender.raw.optimal import OUTPUT_SPACES, raw_merge
+    Parameters
+    ----------
+    frames : RawFrame or sequence of RawFrame
+        The bracket (:func:`derender.io.raw.read_raw_stack`).
+    options : RawOptions or mapping, optional
+        The method's options (:class:`RawOptions`), or a mapping of them.
+    motion : MotionOptions, optional
+        Reference frame, alignment and ghost removal on the mosaic (:func:`raw_motion`);
+        estimator ``optimal`` only.
 
-    if estimator not in ESTIMATORS:
-        raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
-    if output_space not in OUTPUT_SPACES:
-        raise InputError(f"output_space must be one of {', '.join(OUTPUT_SPACES)}, got {output_space!r}")
+    Returns
+    -------
+    HDRResult
+        Radiance (and its variance) in ``options.output_space``.
+    """
+    from derender.hdr.registry import method_options
+    from derender.raw.optimal import raw_merge
+
+    o = method_options("raw", options)
     if isinstance(frames, RawFrame):
         frames = [frames]
     if not isinstance(frames, (list, tuple)) or not all(isinstance(f, RawFrame) for f in frames):
@@ -84,22 +122,20 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optima
     check_one_camera(frames)
     motion_info = None
     valid = None
-    if motion is not None and getattr(motion, "active", False):
-        if estimator != "optimal":
+    if motion is not None and motion.needs_motion_run():
+        if o.estimator != "optimal":
             raise InputError("motion (--reference, --align, --deghost) works with estimator optimal on RAW frames")
-        frames, valid, motion_info = raw_motion(frames, motion, gain=gain, read_noise=read_noise)
-    if estimator == "optimal":
-        res = raw_merge(frames, output_space=output_space, gain=gain, read_noise=read_noise, demosaic=demosaic,
-                        variance=variance, valid=valid)
+        frames, valid, motion_info = raw_motion(frames, motion, gain=o.gain, read_noise=o.read_noise)
+    if o.estimator == "optimal":
+        res = raw_merge(frames, output_space=o.output_space, gain=o.gain, read_noise=o.read_noise, demosaic=o.demosaic,
+                        variance=o.variance, valid=valid)
         if motion_info is not None:
             res.info["raw_motion"] = motion_info
+            res.info.update(_summary_fields(motion_info, motion, frames))
+            res.ghosts = np.sum([~v for v in valid], axis=0, dtype=np.uint8)   # frames left out per photosite
     else:
-        if variance:
-            raise InputError("estimator paper1 (eq. 11) gives no variance; drop --variance or use estimator optimal")
-        if gain is not None or read_noise is not None:
-            raise InputError("estimator paper1 (eq. 11) has no noise model: drop gain and read_noise")
-        res = _paper1(frames, output_space, demosaic)
-    res.info.update({"method": "raw", "estimator": estimator})
+        res = _paper1(frames, o.output_space, o.demosaic)
+    res.info.update({"method": "raw", "estimator": o.estimator})
     return res
 
 
@@ -133,7 +169,7 @@ def _shifted(mosaic: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.ndarr
     return out, inside
 
 
-def raw_motion(frames: Sequence[RawFrame], motion: Any, gain: float | None = None,
+def raw_motion(frames: Sequence[RawFrame], motion: MotionOptions, gain: float | None = None,
                read_noise: float | None = None) -> tuple[list[RawFrame], list[np.ndarray], dict]:
     """Reference, alignment and ghost removal on RAW frames (module docstring) for
     :func:`merge_raw`: ``(frames, valid, info)``, the frames in the order given (aligned
@@ -143,20 +179,40 @@ def raw_motion(frames: Sequence[RawFrame], motion: Any, gain: float | None = Non
 
     frames = list(frames)
     n = len(frames)
-    if motion.align not in ("none", "translation"):
-        raise InputError(f"--align {motion.align} is not available on RAW frames; use --align translation (MTB)")
+    align = motion.align_for("none")
+    if align not in ("none", "translation"):
+        raise InputError(f"--align {align} is not available on RAW frames; use --align translation (MTB)")
     times = np.array([(f.exposure_time or 1.0) for f in frames]) * setting_factors(frames)
     ref = _raw_reference(frames, motion.reference)
     valid = [np.ones(np.asarray(f.mosaic).shape, bool) for f in frames]
     shifts = [(0, 0)] * n
-    if motion.align == "translation" and n > 1:
+    if align == "translation" and n > 1:
         frames, shifts = _align_mosaics(frames, times, ref, valid)
     rejected = [0.0] * n
     if motion.deghost and n > 1:
         rejected = _reject_ghosts(frames, times, ref, valid, motion.ghost_threshold, (gain, read_noise))
-    info = {"reference": ref, "align": motion.align, "shifts": shifts, "deghost": bool(motion.deghost),
+    info = {"reference": ref, "align": align, "shifts": shifts, "deghost": bool(motion.deghost),
             "rejected": rejected}
     return frames, valid, info
+
+
+def _summary_fields(motion_info: dict, motion: MotionOptions, frames: Sequence[RawFrame]) -> dict:
+    """What :func:`raw_motion` did, in the keys the merge summary reads
+    (:func:`derender.hdr.summary.merge_summary_record`, as the engine's motion run writes them):
+    the reference as given, the shifts in exposure order, the fraction ghost removal left out."""
+    from derender.engine.motion.deghost import GHOST_THRESHOLD
+    from derender.raw.mosaic import setting_factors
+
+    times = np.array([(f.exposure_time or 1.0) for f in frames]) * setting_factors(frames)
+    order = np.argsort(times, kind="stable")
+    out = {"reference_input": int(motion_info["reference"])}
+    if motion_info["align"] != "none":
+        out["alignment"] = {"align": motion_info["align"], "shifts": [motion_info["shifts"][i] for i in order]}
+    if motion_info["deghost"]:
+        others = [r for j, r in enumerate(motion_info["rejected"]) if j != motion_info["reference"]]
+        out["deghost"] = {"threshold": float(motion.ghost_threshold or GHOST_THRESHOLD),
+                          "rejected": float(np.mean(others)) if others else 0.0}
+    return out
 
 
 def _raw_reference(frames: list[RawFrame], reference: int | None) -> int:
@@ -308,19 +364,21 @@ def check_one_camera(frames: Sequence[RawFrame]) -> None:
                              f"{name(f)} {f.cfa_pattern}")
 
 
-def merge_raw_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None, *,
-                    output: str | os.PathLike | None = None, variance_output: str | os.PathLike | None = None,
-                    half: bool = False, compression: str = "zip", inputs: Sequence[str | os.PathLike] = (),
-                    threads: int | None = None, motion: Any = None, **options: Any) -> HDRResult:
+def merge_raw_files(paths: Sequence[str | os.PathLike], times: Sequence[float] | None, options: RawOptions,
+                    motion: MotionOptions | None = None, output: OutputOptions | None = None,
+                    engine: EngineOptions | None = None, *, inputs: Sequence[str | os.PathLike] = ()) -> HDRResult:
     """Read RAW files (LibRaw; black and white level per frame, exposure times from the files
     unless ``times`` are given) and merge them with :func:`merge_raw`; optionally write the
-    radiance and its variance (OpenEXR). A bracket of several frames needs every exposure time
-    (the error names the files without one); a single frame without one is merged per unit
-    exposure (relative units)."""
-    from derender.engine.run import write_outputs
+    radiance and its variance to the OpenEXR files of ``output``. A bracket of several frames
+    needs every exposure time (the error names the files without one); a single frame without
+    one is merged per unit exposure (relative units). The records are
+    :func:`derender.hdr.files.merge_files`'s; ``engine``: its ``threads`` (EXR writing)."""
+    from derender.engine.outputs import write_outputs
     from derender.io.raw import read_raw_bracket
     from derender.raw.mosaic import setting_factors
 
+    out = output or OutputOptions()
+    threads = (engine or EngineOptions()).threads
     t0 = time.perf_counter()
     frames = read_raw_bracket(paths, times=times, threads=threads)
     if len(frames) > 1:            # t S / N^2 relative to the first frame given (motion's reference: as given)
@@ -332,13 +390,13 @@ def merge_raw_files(paths: Sequence[str | os.PathLike], times: Sequence[float] |
     else:
         single_note = None
     t_read = time.perf_counter() - t0
-    res = merge_raw(frames, motion=motion, **options)
+    res = merge_raw(frames, options, motion=motion)
     frames = sorted(frames, key=lambda f: (f.exposure_time or 1.0) * (f.extra or {}).get("exposure_factor", 1.0))
     res.info["n_clipped"] = int(np.count_nonzero(res.mask == HDRResult.MASK_BRIGHT))
     res.info.update({"engine": "raw", "engine_path": "raw", "read_seconds": t_read,
                      "frames": [Path(f.path).name for f in frames]})
     if single_note:
         res.info["note"] = single_note
-    write_outputs(res, output, variance_output, half=half,
-                  compression=compression, inputs=list(inputs) or list(paths), threads=threads, name="raw")
+    write_outputs(res, out.output, out.variance_output, half=out.half, compression=out.compression,
+                  inputs=list(inputs) or list(paths), threads=threads, name="raw")
     return res

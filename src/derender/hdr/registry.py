@@ -1,10 +1,14 @@
 """The merge methods by name: registration, dispatch, and the seeded call used by experiments.
 
 Every method is one :class:`MethodSpec` record in :data:`METHODS`: its name, where its merge
-function and engine factory live, what it gives (a variance, response curves) and the colour
-space of its radiance. :func:`merge` dispatches an in-memory
-:class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files` image
-files. The built-in methods live in :mod:`derender.hdr.classic` (``debevec``, ``robertson``),
+function, options record, engine factory and float-stack merge live, what it gives (a
+variance, response curves) and the colour space of its radiance. :func:`merge` dispatches an
+in-memory :class:`~derender.core.types.Stack` by name, :func:`derender.hdr.files.merge_files`
+image files; both hand the method's options record and the
+:class:`~derender.engine.motion.run.MotionOptions` to :func:`run_engine`, the one place that
+chooses the engine's plain run, its motion run, or (when the engine has no form for the
+method, its options or the input: :class:`~derender.engine.frames.NotStreamable`) the
+method's merge on the float reference engine. The built-in methods live in :mod:`derender.hdr.classic` (``debevec``, ``robertson``),
 :mod:`derender.hdr.stabilize` (``stabilized``, ``stabilized-joint``, paper 1),
 :mod:`derender.hdr.probabilistic` (``probabilistic``, paper 2),
 :mod:`derender.hdr.stabilized_probabilistic` (``stabilized-probabilistic``, both papers) and
@@ -15,29 +19,32 @@ with the :func:`register_method` decorator.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import inspect
 from dataclasses import MISSING, dataclass, field, fields, make_dataclass
-from typing import Any, Callable
-
-import numpy as np
+from typing import Any, Callable, Mapping
 
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, Stack
+from derender.engine.frames import ArrayFrames, NotStreamable
+from derender.engine.motion.run import MotionOptions
+from derender.engine.options import EngineOptions, OutputOptions
 
 __all__ = [
     "MethodSpec",
     "METHODS",
-    "record_values",
     "method_spec",
     "register_method",
     "get_method",
     "method_options",
+    "seeded_options",
     "merge",
     "merge_seeded",
+    "merge_stack",
+    "run_engine",
     "settable_options",
     "parse_options",
-    "check_method_options",
 ]
 
 #: Keywords of merge functions that are not user options: set by their own CLI flags
@@ -63,19 +70,24 @@ class MethodSpec:
     name : str
         The method's name (``derender merge --method NAME``).
     function : str or callable
-        ``fn(stack, **options) -> HDRResult``, or where it lives as ``"package.module:name"``
-        (imported on first use: a Debevec merge does not pay the ~1 s start-up of the
-        stabiliser and the de-rendering models).
+        The method's merge function, or where it lives as ``"package.module:name"`` (imported
+        on first use: a Debevec merge does not pay the ~1 s start-up of the stabiliser and the
+        de-rendering models): for a built-in method ``fn(stack, options=None, *, motion=None)``
+        (``merge(stack, name, options, motion=motion)``: its docstring is what ``derender
+        methods`` prints); for a method defined outside the package ``fn(stack, *, option=default, ...)``.
     engine : str or callable or None
-        ``factory(options) -> EngineMethod`` (options: every keyword of ``function`` with its
-        default filled in), or its ``"module:name"``; None for a method that runs only in
-        memory. A factory that has no engine form for some options raises
-        :class:`~derender.engine.frames.NotStreamable`.
+        ``factory(options) -> EngineMethod`` (``options``: the method's record), or its
+        ``"module:name"``; None for a method that runs only in memory. A factory that has no
+        engine form for some options raises :class:`~derender.engine.frames.NotStreamable`.
     options : str or type or None
         The method's options record: a frozen, keyword-only dataclass (or its
-        ``"module:name"``) whose fields are the merge function's keywords; the engine factory
-        takes one. None (a method defined outside the package): a record is made from the
-        function's signature.
+        ``"module:name"``), where each option is written once; the engine factory and the
+        float-stack merge take it. None (a method defined outside the package): a record is
+        made from the function's keywords after the stack.
+    stack : str or callable or None
+        ``fn(stack, options) -> HDRResult``: the method on the float reference engine, where
+        the engine has no form for it (:func:`run_engine` chooses); None: ``function`` called
+        with the record's fields as keywords (a method defined outside the package).
     gives_variance, gives_curves : bool
         Its results carry a per-pixel variance (``--variance``) / response curves
         (``result.info["curves"]``, what ``derender merge --plot`` draws).
@@ -86,9 +98,9 @@ class MethodSpec:
         ``"raw"`` (a list of :class:`~derender.core.types.RawFrame`; files through
         ``files``, a ``"module:name"`` like :func:`derender.hdr.raw.merge_raw_files`).
     files : str or callable or None
-        For RAW methods: ``fn(paths, times, *, output, variance_output, half, compression,
-        inputs, threads, **options) -> HDRResult``, what :func:`derender.hdr.files.merge_files`
-        calls.
+        For RAW methods: ``fn(paths, times, options, motion, output, engine, *, inputs) ->
+        HDRResult`` (the records of :func:`derender.hdr.files.merge_files`), what
+        :func:`~derender.hdr.files.merge_files` calls.
 
     Examples
     --------
@@ -106,6 +118,7 @@ class MethodSpec:
     function: Any
     engine: Any = None
     options: Any = None
+    stack: Any = None
     gives_variance: bool = False
     gives_curves: bool = False
     output_space: str = "not stated"
@@ -123,6 +136,14 @@ class MethodSpec:
     def engine_factory(self) -> Callable[[Any], Any] | None:
         """The engine factory (``factory(options_record) -> EngineMethod``), or None."""
         return _resolve(self.engine)
+
+    def stack_function(self) -> Callable[[Stack, Any], HDRResult]:
+        """``fn(stack, options_record) -> HDRResult``: the method on the float reference engine
+        (``stack``), or its merge function called with the record's fields as keywords."""
+        if self.stack is not None:
+            return _resolve(self.stack)
+        fn = self.load()
+        return lambda stack, record: fn(stack, **{f.name: getattr(record, f.name) for f in fields(record)})
 
     def options_class(self) -> type:
         """The options record's class (made from the merge function's signature when the
@@ -144,8 +165,9 @@ class MethodSpec:
 
     @property
     def needs_model(self) -> bool:
-        """Whether the method needs a de-rendering model (``-m MODEL.npz``)."""
-        return "model" in inspect.signature(self.load()).parameters
+        """Whether the method needs a de-rendering model (``-m MODEL.npz``): its record has a
+        ``model`` field."""
+        return self.has_option("model")
 
     @property
     def summary(self) -> str:
@@ -173,22 +195,24 @@ _RAW = "derender.hdr.raw"
 #: >>> derender.METHODS["raw"].inputs
 #: 'raw'
 METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
-    MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:debevec_engine", f"{_CLASSIC}:DebevecOptions",
-               gives_variance=True, gives_curves=True, output_space=_RENDERED),
-    MethodSpec("robertson", f"{_CLASSIC}:merge_robertson", f"{_CLASSIC}:robertson_engine",
-               f"{_CLASSIC}:RobertsonOptions", gives_variance=True, gives_curves=True, output_space=_RENDERED),
+    MethodSpec("debevec", f"{_CLASSIC}:merge_debevec", f"{_CLASSIC}:DebevecMethod", f"{_CLASSIC}:DebevecOptions",
+               f"{_CLASSIC}:debevec_stack", gives_variance=True, gives_curves=True, output_space=_RENDERED),
+    MethodSpec("robertson", f"{_CLASSIC}:merge_robertson", f"{_CLASSIC}:RobertsonMethod",
+               f"{_CLASSIC}:RobertsonOptions", f"{_CLASSIC}:robertson_stack", gives_variance=True, gives_curves=True,
+               output_space=_RENDERED),
     MethodSpec("stabilized", f"{_STABILIZED}:merge_stabilized", f"{_STABILIZED}:stabilized_engine",
-               f"{_STABILIZED}:StabilizedOptions", gives_variance=True,
+               f"{_STABILIZED}:StabilizedOptions", f"{_STABILIZED}:stabilized_stack", gives_variance=True,
                output_space=_RENDERED + ", in the reference frame's white balance"),
     MethodSpec("stabilized-joint", f"{_STABILIZED}:merge_stabilized_joint", f"{_STABILIZED}:stabilized_joint_engine",
-               f"{_STABILIZED}:StabilizedOptions", gives_variance=True,
+               f"{_STABILIZED}:StabilizedOptions", f"{_STABILIZED}:stabilized_joint_stack", gives_variance=True,
                output_space=_RENDERED + ", in the bracket's average rendering"),
     MethodSpec("probabilistic", f"{_PROBABILISTIC}:merge_probabilistic", f"{_PROBABILISTIC}:probabilistic_engine",
-               f"{_PROBABILISTIC}:ProbabilisticOptions", gives_variance=True,
+               f"{_PROBABILISTIC}:ProbabilisticOptions", f"{_PROBABILISTIC}:probabilistic_stack", gives_variance=True,
                output_space=("linear sRGB: the model's camera RGB through its camera-to-sRGB matrix (option "
                              "colour_space='camera_rgb' keeps camera RGB); scaled to exposure time 1 s")),
     MethodSpec("stabilized-probabilistic", f"{_BOTH}:merge_stabilized_probabilistic",
-               f"{_BOTH}:stabilized_probabilistic_engine", f"{_BOTH}:StabilizedProbabilisticOptions", gives_variance=True,
+               f"{_BOTH}:StabilizedProbabilisticMethod", f"{_BOTH}:StabilizedProbabilisticOptions",
+               f"{_BOTH}:stabilized_probabilistic_stack", gives_variance=True,
                output_space=_RENDERED + ", in the reference frame's white balance"),
     MethodSpec("raw", f"{_RAW}:merge_raw", None, f"{_RAW}:RawOptions", gives_variance=True,
                output_space=("linear sRGB through the files' own colour matrix and as-shot white balance (option "
@@ -200,10 +224,12 @@ METHODS: dict[str, MethodSpec] = {spec.name: spec for spec in (
 def register_method(name: str, *, gives_variance: bool = False, engine: Callable[[Any], Any] | None = None,
                     options: type | None = None, gives_curves: bool = False,
                     output_space: str | None = None) -> Callable[[Callable[..., HDRResult]], Callable[..., HDRResult]]:
-    """Decorator adding ``fn(stack, **options) -> HDRResult`` to :data:`METHODS` as ``name``
-    (a method defined outside the package; the fields are those of :class:`MethodSpec`).
+    """Decorator adding ``fn(stack, *, option=default, ...) -> HDRResult`` to :data:`METHODS`
+    as ``name`` (a method defined outside the package; the fields are those of
+    :class:`MethodSpec`).
 
-    The method's options are its keywords after the stack; :func:`merge` refuses others.
+    The method's options are its keywords after the stack (its record is made from them);
+    :func:`merge` refuses others and calls ``fn`` with the record's fields.
 
     Parameters
     ----------
@@ -241,11 +267,11 @@ def register_method(name: str, *, gives_variance: bool = False, engine: Callable
     ...     linear = stack.images ** gamma / stack.times[:, None, None, None]
     ...     return derender.HDRResult(radiance=linear.mean(axis=0).astype(np.float32),
     ...                               mask=np.zeros(stack.shape, np.uint8))
-    >>> result = derender.merge(stack, "mean-linear", gamma=2.2)
+    >>> result = derender.merge(stack, "mean-linear", {"gamma": 2.2})
     >>> result.radiance.shape, derender.METHODS["mean-linear"].gives_variance
     ((16, 16, 3), False)
     >>> try:
-    ...     derender.merge(stack, "mean-linear", gama=2.0)
+    ...     derender.merge(stack, "mean-linear", {"gama": 2.0})
     ... except derender.InputError as error:
     ...     print(error)
     merge method 'mean-linear' does not accept option(s) gama; accepted: gamma
@@ -281,12 +307,6 @@ def _signature_record(name: str, fn: Callable[..., HDRResult]) -> type:
     return cls
 
 
-def record_values(cls: type, values: dict) -> Any:
-    """``cls(**{name: values[name] for every field})``: a merge function's options record from
-    its ``locals()`` (its keywords are the record's fields, :meth:`MethodSpec.options_class`)."""
-    return cls(**{f.name: values[f.name] for f in fields(cls)})
-
-
 def method_summary(fn: Callable[..., HDRResult]) -> str:
     """The first sentence of a merge function's docstring, as plain text (no reST markup)."""
     import re
@@ -315,11 +335,19 @@ def get_method(method: str) -> Callable[..., HDRResult]:
     return method_spec(method).load()
 
 
-def method_options(method: str, options: dict) -> Any:
-    """The options record of merge ``method`` (:meth:`MethodSpec.options_class`) made from
-    ``options``, its defaults filled in. An unknown option is an :class:`InputError` naming the
-    method and listing its options; so is a missing required one."""
+def method_options(method: str, options: Any = None) -> Any:
+    """The options record of merge ``method`` (:meth:`MethodSpec.options_class`): ``options``
+    itself when it is one, else made from a mapping of its fields (None: every default), each
+    value checked by the record. An unknown option is an :class:`InputError` naming the method
+    and listing its options; so is a missing required one."""
     cls = method_spec(method).options_class()
+    if isinstance(options, cls):
+        return options
+    if options is None:
+        options = {}
+    if not isinstance(options, Mapping):
+        raise InputError(f"the options of merge method {method!r} are a {cls.__name__} or a mapping of its fields, "
+                         f"got {type(options).__name__}")
     names = [f.name for f in fields(cls)]
     bad = [k for k in options if k not in names]
     if bad:
@@ -332,14 +360,13 @@ def method_options(method: str, options: dict) -> Any:
     return cls(**options)
 
 
-def check_method_options(method: str, options: dict) -> None:
-    """Check ``options`` (names and values) of ``method`` as its options record does, before any
-    work: the record is made with every required option it lacks (a de-rendering model, given
-    later) as None, and dropped."""
-    cls = method_spec(method).options_class()
-    required = {f.name: None for f in fields(cls)
-                if f.default is MISSING and f.default_factory is MISSING and f.name not in options}
-    method_options(method, {**required, **options})
+def seeded_options(method: str, seed: int, options: Any = None) -> Any:
+    """The options record of ``method`` (:func:`method_options`) with ``seed`` when the method
+    takes one (the others are deterministic, or seeded by nothing the caller gives)."""
+    record = method_options(method, options)
+    if method_spec(method).has_option("seed"):
+        record = dataclasses.replace(record, seed=int(seed))
+    return record
 
 
 def _missing_message(method: str, missing: list[str]) -> str:
@@ -347,71 +374,85 @@ def _missing_message(method: str, missing: list[str]) -> str:
     return f"merge method {method!r} needs option(s) {', '.join(missing)}{hint}"
 
 
-#: Options the engine takes for every method (:class:`derender.engine.motion.run.MotionOptions`).
-MOTION_OPTIONS = ("reference", "align", "deghost", "ghost_threshold", "ghost_fill", "ghost_consensus")
+def _engine_choice(record: Any) -> str:
+    """The record's ``engine`` option (``"auto"``, ``"table"``, ``"reference"``; the classic
+    methods have one), else ``"auto"``."""
+    return getattr(record, "engine", "auto")
 
 
-def split_motion(method: str, options: dict, engine_reference: bool = False) -> tuple[Any, dict]:
-    """The engine's motion options (:data:`MOTION_OPTIONS`) of a merge call and the method's own.
-
-    Returns ``(motion, options)``: ``motion`` a :class:`~derender.engine.motion.run.MotionOptions`
-    when the call asks the engine for a reference frame, alignment or ghost removal, else None.
-    Paper 1's methods choose a reference and register the frames themselves (their own
-    ``reference`` and ``align`` options, ``"mtb"`` by default, ``"translation"`` accepted); the
-    engine takes these over when ghost removal is asked for, and for a ``reference`` when
-    ``engine_reference`` (files, whose order as given the engine knows: the reference then
-    counts the images as given, not by exposure time)."""
-    from derender.engine.motion.run import MotionOptions
-
-    fn = get_method(method)
-    params = inspect.signature(fn).parameters
-    own = "align" in params and "reference" in params
-    opts = dict(options)
-    deghost = opts.pop("deghost", False)
-    if not isinstance(deghost, (bool, np.bool_)):
-        raise InputError(f"deghost must be True or False, got {deghost!r}")
-    threshold = opts.pop("ghost_threshold", None)
-    fill = opts.pop("ghost_fill", True)
-    consensus = opts.pop("ghost_consensus", True)
-    if own:
-        ref, align = opts.get("reference"), opts.get("align", "mtb")
-        if align == "translation":
-            opts["align"] = align = "mtb"
-        if not deghost and not (engine_reference and ref is not None and align != "homography"):
-            if align not in ("mtb", "none", "homography"):
-                MotionOptions(align=align)      # the error names the choices
-            return None, opts
-        opts["reference"], opts["align"] = None, "none"
-        align = "translation" if align == "mtb" else align
-    else:
-        ref, align = opts.pop("reference", None), opts.pop("align", None) or "none"
-    motion = MotionOptions(reference=ref, align=align, deghost=bool(deghost), ghost_threshold=threshold,
-                           compensate=bool(fill), consensus=bool(consensus), seed=int(opts.get("seed", 0) or 0))
-    return (motion if motion.active else None), opts
-
-
-def _merge_motion(stack: Stack, method: str, fn, motion, options: dict) -> HDRResult:
-    """:func:`merge` on the engine's motion run (reference, alignment, ghost removal:
-    :func:`derender.engine.motion.run.run_motion`; the plain run is the method's own ``merge_*``)."""
-    from derender.engine.frames import ArrayFrames, NotStreamable
-    from derender.engine.motion.run import run_motion
-    from derender.engine.tables import stack_codes_exact
-
-    factory = method_spec(method).engine_factory()
+def _engine_method(spec: MethodSpec, record: Any) -> tuple[Any, str | None]:
+    """The method's :class:`~derender.engine.plans.EngineMethod` for ``record``, or None and why
+    (no engine form, ``engine="reference"`` asked for, or its factory's
+    :class:`~derender.engine.frames.NotStreamable`)."""
+    factory = spec.engine_factory()
     if factory is None:
-        raise InputError(f"merge method {method!r} runs outside the engine: reference, align and deghost "
-                         "need a method with an engine form (derender methods lists them)")
-    codes = None if stack.bit_depth == 16 else stack_codes_exact(stack.images)
-    if codes is None:
-        raise InputError("alignment and ghost removal need 8-bit images (every value a code / 255)")
-    opts = method_options(method, options)
+        return None, "it runs outside the engine"
+    if _engine_choice(record) == "reference":
+        return None, "engine='reference' asked for"
     try:
-        return run_motion(factory(opts), ArrayFrames(codes, stack.times), motion)
+        return factory(record), None
     except NotStreamable as exc:
-        raise InputError(f"merge method {method!r} cannot align or remove ghosts with these options ({exc})") from None
+        return None, str(exc)
 
 
-def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
+def run_engine(spec: MethodSpec, record: Any, motion: MotionOptions | None, source: Any,
+               output: OutputOptions | None = None, engine: EngineOptions | None = None, *,
+               inputs: Any = (), order_hint: str | None = None) -> HDRResult | None:
+    """Merge ``source`` (:class:`~derender.engine.frames.FileFrames` or
+    :class:`~derender.engine.frames.ArrayFrames`; None: the input has no 8-bit codes) with
+    method ``spec`` and its options ``record`` on the engine: the motion run
+    (:func:`derender.engine.motion.run.run_motion`) when ``motion`` asks for more than the
+    method's own registration (:meth:`~derender.engine.motion.run.MotionOptions.needs_motion_run`),
+    else the plain run (:func:`derender.engine.run.run`).
+
+    The one place that decides between the engine and the float reference engine: returns
+    None when the engine has no form for the method, its options or the input
+    (:class:`~derender.engine.frames.NotStreamable`), and the caller then merges the stack with
+    :func:`merge_stack`. Reference frame, alignment and ghost removal need the engine: without
+    it they are an :class:`InputError`."""
+    from derender.engine.motion.run import run_motion
+    from derender.engine.run import run
+
+    method, why = _engine_method(spec, record)
+    if motion is not None and motion.needs_motion_run(getattr(method, "own_align", "none")):
+        if method is None:
+            raise InputError(f"merge method {spec.name!r} with these options runs outside the engine ({why}): "
+                             "reference, align and deghost need the engine")
+        if source is None:
+            raise InputError("alignment and ghost removal need 8-bit images (every value a code / 255)")
+        try:
+            return run_motion(method, source, motion, output, engine, inputs=inputs, order_hint=order_hint)
+        except NotStreamable as exc:
+            raise InputError(f"merge method {spec.name!r} cannot align or remove ghosts on these images ({exc})") from None
+    if method is None:
+        return None
+    try:
+        if source is None:
+            raise NotStreamable("the stack's values are not 8-bit codes")
+        return run(method, source, output, engine, inputs=inputs, order_hint=order_hint)
+    except NotStreamable as exc:
+        if _engine_choice(record) == "table":
+            raise InputError(f"engine='table' needs 8-bit images (every value a code / 255): {exc}") from None
+        return None
+
+
+def merge_stack(spec: MethodSpec, stack: Stack, record: Any) -> HDRResult:
+    """Method ``spec`` with its options ``record`` on an in-memory ``stack`` through the float
+    reference engine (:meth:`MethodSpec.stack_function`): what :func:`run_engine` leaves to
+    the caller. ``info["engine_path"]`` is ``"stack"``."""
+    res = spec.stack_function()(stack, record)
+    res.info["engine_path"] = "stack"
+    return res
+
+
+def _motion(motion: Any) -> MotionOptions | None:
+    if motion is not None and not isinstance(motion, MotionOptions):
+        raise InputError(f"motion must be a MotionOptions, got {type(motion).__name__}")
+    return motion
+
+
+def merge(stack: Stack, method: str = "debevec", options: Any = None, *,
+          motion: MotionOptions | None = None) -> HDRResult:
     """Merge a :class:`~derender.core.types.Stack` into an HDR radiance map with a registered method.
 
     Parameters
@@ -423,17 +464,18 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
         (:func:`derender.io.raw.read_raw_stack`).
     method : str
         A name of :data:`METHODS` (``derender methods`` lists them with their options).
-    **options
-        The method's keyword options (for text values, :func:`parse_options`); paper 2's
-        methods need ``model`` (a :class:`~derender.derendering.base.DerenderModel` or a path).
-        Every method also takes the engine's (:mod:`derender.engine.motion`):
-        ``reference`` (index of the reference frame among the images, from 0, or ``"auto"``),
-        ``align`` (``"none"``, ``"translation"``, ``"homography"``), ``deghost`` (bool),
-        ``ghost_threshold``, ``ghost_fill`` (bool, default True: rejected pixels filled from
-        each frame's flow-compensated view) and ``ghost_consensus`` (bool, default True: pixels
-        merged from a subset of the frames lose that subset's rendering bias,
-        :mod:`derender.engine.motion.consensus`); paper 1's methods register to their own reference by
-        default.
+    options : options record or mapping, optional
+        The method's options: its record (:meth:`MethodSpec.options_class`, e.g.
+        :class:`~derender.hdr.classic.DebevecOptions`), or a mapping of the record's fields
+        (for text values, :func:`parse_options`), checked once into the record; None: the
+        defaults. Paper 2's methods need ``model`` (a
+        :class:`~derender.derendering.base.DerenderModel` or a path).
+    motion : MotionOptions, optional
+        The engine's reference frame, alignment and ghost removal, for every method
+        (:class:`~derender.engine.motion.run.MotionOptions`: ``reference`` an index among the
+        images, from 0, or ``"auto"``; ``align`` ``"none"``, ``"translation"`` or
+        ``"homography"``; ``deghost``, ``ghost_threshold``, ``compensate``, ``consensus``);
+        paper 1's methods register to their own reference by translation without it.
 
     Returns
     -------
@@ -474,6 +516,15 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     >>> contrast = result.radiance[15, 15, 1] / result.radiance[0, 0, 1]
     >>> bool(abs(contrast / 100 - 1) < 0.02)
     True
+
+    The method's options as a mapping (or its record), the engine's motion options as a
+    :class:`~derender.engine.motion.run.MotionOptions`: here the middle frame as the reference
+    and ghost removal (nothing moves, so no frame is left out):
+
+    >>> hat = derender.merge(stack, "debevec", {"weight": "hat"})
+    >>> still = derender.merge(stack, "debevec", motion=derender.MotionOptions(reference=1, deghost=True))
+    >>> still.info["reference"], int(still.ghosts.max())
+    (1, 0)
     >>> try:
     ...     derender.merge(stack, "no-such-method")
     ... except derender.InputError as error:
@@ -481,28 +532,26 @@ def merge(stack: Stack, method: str = "debevec", **options: Any) -> HDRResult:
     unknown merge method 'no-such-method'
     """
     spec = method_spec(method)
+    record = method_options(method, options)   # unknown, missing or bad options: one error before any work
+    motion = _motion(motion)
     if spec.inputs == "raw":
-        motion, options = split_motion(method, options)
-        if motion is not None:
-            raise InputError(f"merge method {method!r} runs outside the engine for now: reference, align and "
-                             "deghost are not available on RAW frames")
-        method_options(method, options)
-        return spec.load()(stack, **options)
+        return spec.load()(stack, record, motion=motion)
     if not isinstance(stack, Stack):
         raise InputError(f"merge() needs a Stack, got {type(stack).__name__}")
-    fn = get_method(method)
-    motion, options = split_motion(method, options)
+    from derender.engine.tables import stack_codes_exact
+
+    codes = None if stack.bit_depth == 16 else stack_codes_exact(stack.images)
+    res = run_engine(spec, record, motion, None if codes is None else ArrayFrames(codes, stack.times))
+    return res if res is not None else merge_stack(spec, stack, record)
+
+
+def merge_seeded(stack: Stack, method: str, seed: int = 0, options: Any = None, *,
+                 motion: MotionOptions | None = None) -> HDRResult:
+    """:func:`merge`, with ``seed`` in the options of methods that take one
+    (:func:`seeded_options`) and in ``motion`` (the homography's RANSAC)."""
     if motion is not None:
-        return _merge_motion(stack, method, fn, motion, options)
-    method_options(method, options)          # unknown or missing options: one error listing them
-    return fn(stack, **options)
-
-
-def merge_seeded(stack: Stack, method: str, seed: int = 0, **options: Any) -> HDRResult:
-    """:func:`merge`, passing ``seed`` to methods that take one."""
-    if method_spec(method).has_option("seed"):
-        options["seed"] = seed
-    return merge(stack, method=method, **options)
+        motion = dataclasses.replace(_motion(motion), seed=int(seed))
+    return merge(stack, method, seeded_options(method, seed, options), motion=motion)
 
 
 # --------------------------------------------------------------------------- options from text

@@ -40,17 +40,16 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from derender.core.errors import InputError
-from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
-from derender.engine.frames import NotStreamable
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import FrameAccess
 from derender.hdr.probabilistic import as_model
-from derender.hdr.registry import record_values
+from derender.hdr.registry import merge
 from derender.hdr.stabilize.method import StabilizedMethod, StabilizedOptions
 
 __all__ = [
@@ -60,7 +59,6 @@ __all__ = [
     "colour_weight_table",
     "StabilizedProbabilisticMethod",
     "StabilizedProbabilisticOptions",
-    "stabilized_probabilistic_engine",
     "merge_stabilized_probabilistic",
     "stabilized_probabilistic_stack",
 ]
@@ -149,8 +147,7 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
         self.wants_variance = bool(options.variance)
         self.holds_outputs = self.wants_variance      # finish() then reads the merged radiance
         # the stabilised merge's own defaults, without noise weighting: the model's variances replace it
-        full = StabilizedOptions(reference=options.reference, align=options.align, seed=options.seed,
-                                 noise_weighting=False)
+        full = StabilizedOptions(seed=options.seed, noise_weighting=False)
         super().__init__("stabilized-probabilistic", full)
 
     def plan(self, access: FrameAccess):
@@ -175,27 +172,27 @@ class StabilizedProbabilisticMethod(StabilizedMethod):
 
 @dataclass(frozen=True, kw_only=True)
 class StabilizedProbabilisticOptions:
-    """The options of :func:`merge_stabilized_probabilistic` (each described there)."""
+    """The options of ``stabilized-probabilistic`` (:func:`merge_stabilized_probabilistic`).
+
+    Attributes
+    ----------
+    model : DerenderModel or path
+        A de-rendering model.
+    seed : int
+        As :func:`~derender.hdr.stabilize.method.stabilize`.
+    variance : bool
+        Also give the per-pixel variance (paper 2's posterior relative variance times the
+        radiance squared, :func:`posterior_relative_variance`; it costs a second, probabilistic
+        pass over the frames).
+    """
 
     model: Any
-    reference: int | None = None
-    align: str = "mtb"
     seed: int = 0
     variance: bool = False
 
-    def __post_init__(self) -> None:
-        """Every value checked when the record is made, before any file is read."""
-        check_at_least("reference", self.reference, 0)
-        check_choice("align", self.align, ("mtb", "translation", "none", "homography"))
 
-
-def stabilized_probabilistic_engine(options: StabilizedProbabilisticOptions) -> StabilizedProbabilisticMethod:
-    """The engine form of :func:`merge_stabilized_probabilistic` (its registry entry's factory)."""
-    return StabilizedProbabilisticMethod(options)
-
-
-def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int | None = None, align: str = "mtb",
-                                   seed: int = 0, variance: bool = False) -> HDRResult:
+def merge_stabilized_probabilistic(stack: Stack, options: StabilizedProbabilisticOptions | Mapping[str, Any], *,
+                                   motion: MotionOptions | None = None) -> HDRResult:
     """Both papers together: paper 1's stabilised merge weighted by paper 2's de-rendering variances.
 
     The stabilisation (reference, registration, gamma_j, H_j) is paper 1's; each image's
@@ -205,61 +202,46 @@ def merge_stabilized_probabilistic(stack: Stack, model: Any, *, reference: int |
     for the same pixel inverse-variance weighting reduces to weights ``1 / r_j``; this
     replaces paper 1's plain noise weighting.
 
-    8-bit stacks with translation-only alignment run on the engine
-    (:class:`StabilizedProbabilisticMethod`: the weight is a function of the pixel's colour,
-    so one per-colour table replaces the per-pixel weights); others (``align="homography"``,
-    saturation below white) on the float reference engine (:func:`stabilized_probabilistic_stack`),
-    the same numbers to 1e-5. ``variance``: also give the per-pixel variance (paper 2's
-    posterior relative variance times the radiance squared, :func:`posterior_relative_variance`;
-    it costs a second, probabilistic pass over the frames).
+    8-bit stacks run on the engine (:class:`StabilizedProbabilisticMethod`: the weight is a
+    function of the pixel's colour, so one per-colour table replaces the per-pixel weights);
+    others (saturation below white) on the float reference engine
+    (:func:`stabilized_probabilistic_stack`), the same numbers to 1e-5.
 
     Parameters
     ----------
     stack : Stack
         An 8-bit bracket.
-    model : DerenderModel or path
-        A de-rendering model.
-    reference, align, seed
-        As :func:`~derender.hdr.stabilize.method.stabilize`.
+    options : StabilizedProbabilisticOptions or mapping
+        The method's options (``model`` required), or a mapping of them.
+    motion : MotionOptions, optional
+        Reference frame, alignment, ghost removal (:func:`derender.hdr.registry.merge`).
 
     Returns
     -------
     HDRResult
         Radiance in the reference frame's linear rendering; with ``variance`` its variance.
     """
-    model = as_model(model)
-    if stack.bit_depth == 16:
-        raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
-    from derender.engine.run import run_stack
-
-    t0 = time.perf_counter()
-    try:
-        res = run_stack(StabilizedProbabilisticMethod(record_values(StabilizedProbabilisticOptions, locals())), stack)
-    except NotStreamable:
-        return stabilized_probabilistic_stack(stack, model, reference=reference, align=align, seed=seed,
-                                              variance=variance)
-    res.info["merge_seconds"] = time.perf_counter() - t0
-    return res
+    return merge(stack, "stabilized-probabilistic", options, motion=motion)
 
 
-def stabilized_probabilistic_stack(stack: Stack, model: Any, *, reference: int | None = None, align: str = "mtb",
-                                   seed: int = 0, variance: bool = False) -> HDRResult:
-    """:func:`merge_stabilized_probabilistic` on the float reference engine: :func:`stabilize`
-    and :func:`~derender.hdr.stabilize.method.stabilized_merge` with per-pixel weights (N, H,
-    W) float64 (any alignment; ~50 bytes per pixel and frame)."""
+def stabilized_probabilistic_stack(stack: Stack, options: StabilizedProbabilisticOptions) -> HDRResult:
+    """``stabilized-probabilistic`` on the float reference engine (the registry's fallback):
+    :func:`stabilize` (paper 1's reference, Ward's MTB) and
+    :func:`~derender.hdr.stabilize.method.stabilized_merge` with per-pixel weights (N, H, W)
+    float64 (~50 bytes per pixel and frame)."""
     from derender.hdr.stabilize import stabilize, stabilized_merge
 
-    model = as_model(model)
+    model = as_model(options.model)
     if stack.bit_depth == 16:
         raise InputError("de-rendering models take 8-bit images; this stack is 16-bit")
     t0 = time.perf_counter()
-    stab = stabilize(stack, reference=reference, align=align, mode="reference", seed=seed)
+    stab = stabilize(stack, mode="reference", seed=options.seed)
     aligned = np.rint(np.clip(stab.alignment.images, 0.0, 1.0) * 255.0).astype(np.uint8)
     weights = np.empty(aligned.shape[:3], dtype=np.float64)
     for j in range(aligned.shape[0]):
         weights[j] = colour_reliability(model, aligned[j].reshape(-1, 3)).reshape(aligned.shape[1:3])
     res = stabilized_merge(stab, noise_weighting=False, pixel_weights=weights)
-    if variance:
+    if options.variance:
         rel, sources = posterior_relative_variance(model, stack.codes(), stack.times)
         _with_variance(res, rel, sources)
     res.info.update({"method": "stabilized-probabilistic", "model": getattr(model, "method", "?"),

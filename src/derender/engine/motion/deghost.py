@@ -248,11 +248,13 @@ class FrameAgreement:
                 "spread": np.round(np.sqrt(self.spread2[at].T), 4).tolist()}
 
 
-def _agreement(codes_j, codes_r, mu_j, sd_j, cens_j, mu_r, sd_r, cens_r, ok) -> FrameAgreement:
+def _agreement(codes_j: np.ndarray, codes_r: np.ndarray, est_j: tuple, est_r: tuple, ok: np.ndarray) -> FrameAgreement:
     """:class:`FrameAgreement` from the pixels observed (not clipped) in both frames with
     ``sd < 0.5``: per channel and frame-j code, the pixels of the nearest codes until at least
     :data:`AGREEMENT_MIN_PIXELS` are pooled (codes without data take the nearest code's values;
-    0 without data at all)."""
+    0 without data at all). ``est_j``, ``est_r``: each frame's ``(mu, sd, cens)``
+    (:func:`frame_estimates`)."""
+    (mu_j, sd_j, cens_j), (mu_r, sd_r, cens_r) = est_j, est_r
     both = (cens_j == 0) & (cens_r == 0) & (sd_j < 0.5) & (sd_r < 0.5) & (ok != 0)[..., None]
     off = np.zeros((256, 3))
     s2 = np.zeros((256, 3))
@@ -369,9 +371,9 @@ class ConsistencyTest:
             ok = np.ones((self.hs, self.ws), dtype=np.uint8)
         if agreement is None:
             k = self.stat_step
-            agreement = _agreement(grid[::k, ::k], self.codes_r[::k, ::k], mu_j[::k, ::k], sd_j[::k, ::k],
-                                   cens_j[::k, ::k], self.mu_r[::k, ::k], self.sd_r[::k, ::k], self.cens_r[::k, ::k],
-                                   ok[::k, ::k])
+            agreement = _agreement(grid[::k, ::k], self.codes_r[::k, ::k],
+                                   (mu_j[::k, ::k], sd_j[::k, ::k], cens_j[::k, ::k]),
+                                   (self.mu_r[::k, ::k], self.sd_r[::k, ::k], self.cens_r[::k, ::k]), ok[::k, ::k])
         q = mapping_z2(np.ascontiguousarray(grid), self.codes_r, agreement.forward, agreement.backward,
                        float(EDGE_SHIFT), float(Z2_CAP), ok)
         return q, (mu_j, sd_j, cens_j), agreement
@@ -469,8 +471,8 @@ def upsample_mask(mask: np.ndarray, step: int, h: int, w: int) -> np.ndarray:
     return mask.astype(bool)
 
 
-def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, threshold: float = GHOST_THRESHOLD,
-                  window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE,
+def detect_ghosts(frames: np.ndarray, plan, ref: int, valid: np.ndarray | None, *,
+                  threshold: float = GHOST_THRESHOLD, window: int = GHOST_WINDOW, dilate: int = GHOST_DILATE,
                   threads: int | None = None, out: np.ndarray | None = None) -> tuple[np.ndarray | None, dict[str, Any]]:
     """Per frame and pixel, whether the frame disagrees with frame ``ref`` (module docstring).
 

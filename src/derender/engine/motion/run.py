@@ -43,30 +43,37 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import check_memory
 from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import ArrayFrames, FileFrames, clipped_pixels, frame_brightness, merge_held
+from derender.engine.options import EngineOptions, OutputOptions
 from derender.engine.outputs import write_outputs
 
 __all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
            "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
            "SCENE_CHECK_PIXELS"]
 
-#: ``align=`` choices (``"mtb"`` is accepted as another name for ``"translation"``).
+#: ``align=`` choices.
 ALIGNMENTS = ("none", "translation", "homography")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class MotionOptions:
-    """What the engine does about camera shake and moving things (see the module docstring).
+    """What the engine does about camera shake and moving things (see the module docstring),
+    for every method. Built once where the user's input is parsed and checked when made.
 
+    Attributes
+    ----------
     reference : int, "auto" or None
         The reference frame: an index among the images *as given* (0-based; the CLI counts
         from 1), or ``"auto"`` / None for paper 1's rule.
-    align : str
-        ``"none"``, ``"translation"`` (Ward's MTB) or ``"homography"`` (features).
+    align : str or None
+        ``"none"``, ``"translation"`` (Ward's MTB) or ``"homography"`` (features); None: the
+        method's own default (:attr:`derender.engine.plans.MethodDefaults.own_align`:
+        ``"translation"`` for paper 1's methods, which register their frames themselves,
+        ``"none"`` for the others).
     deghost : bool
         Exclude, per pixel, the frames inconsistent with the reference.
-    ghost_threshold : float
+    ghost_threshold : float or None
         The pooled statistic's threshold: a frame is rejected where the window mean of
-        ``z^2`` per channel exceeds it (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`).
+        ``z^2`` per channel exceeds it (None: :data:`derender.engine.motion.deghost.GHOST_THRESHOLD`).
     compensate : bool
         With ``deghost``: fill the rejected pixels of each frame from its own view of the moved
         thing, found by optical flow and tested again (:mod:`derender.engine.motion.compensation`).
@@ -76,10 +83,19 @@ class MotionOptions:
         the bracket).
     seed : int
         Seeds the homography's RANSAC.
+
+    Examples
+    --------
+    >>> from derender.engine.motion.run import MotionOptions
+    >>> motion = MotionOptions(reference=2, align="translation", deghost=True)
+    >>> motion.needs_motion_run(), MotionOptions().needs_motion_run()
+    (True, False)
+    >>> MotionOptions(align="translation").needs_motion_run(own_align="translation")
+    False
     """
 
     reference: int | str | None = None
-    align: str = "none"
+    align: str | None = None
     deghost: bool = False
     ghost_threshold: float | None = None
     compensate: bool = True
@@ -87,10 +103,9 @@ class MotionOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        align = "translation" if self.align == "mtb" else self.align
-        if align not in ALIGNMENTS:
-            raise InputError(f"unknown alignment {self.align!r}; use one of {', '.join(ALIGNMENTS)}")
-        object.__setattr__(self, "align", align)
+        # every message starts with the field's name (the CLI names its flag)
+        if self.align is not None and self.align not in ALIGNMENTS:
+            raise InputError(f"align takes {', '.join(ALIGNMENTS)}, got {self.align!r}")
         ref = self.reference
         if isinstance(ref, str):
             if ref.strip().lower() != "auto":
@@ -100,13 +115,23 @@ class MotionOptions:
             if isinstance(ref, bool) or not float(ref).is_integer() or int(ref) < 0:
                 raise InputError(f"reference must be a frame index (from 0) or 'auto', got {ref!r}")
             object.__setattr__(self, "reference", int(ref))
+        for name in ("deghost", "compensate", "consensus"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if self.ghost_threshold is not None and not (np.isfinite(self.ghost_threshold) and self.ghost_threshold > 0):
             raise InputError(f"ghost_threshold must be a positive number, got {self.ghost_threshold!r}")
+        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
+            raise InputError(f"seed must be a whole number (0 or more), got {self.seed!r}")
 
-    @property
-    def active(self) -> bool:
-        """True when the engine has anything to do beyond a plain merge."""
-        return self.align != "none" or self.deghost or self.reference is not None
+    def align_for(self, own_align: str = "none") -> str:
+        """The alignment to run for a method that registers its frames by ``own_align`` itself."""
+        return own_align if self.align is None else self.align
+
+    def needs_motion_run(self, own_align: str = "none") -> bool:
+        """Whether a method that registers its frames by ``own_align`` itself (in the plain run)
+        needs the engine's motion run for these options: a reference frame, ghost removal, or
+        another alignment than its own."""
+        return self.deghost or self.reference is not None or self.align_for(own_align) != own_align
 
 
 def resolve_reference(option: int | None, frames: np.ndarray, order: np.ndarray | None = None) -> int:
@@ -331,32 +356,132 @@ def _access(method, source, frames: np.ndarray, valid: np.ndarray | None, ref: i
                        reference=ref, valid=valid, aligned=True)
 
 
-def run_motion(method, source, motion: MotionOptions, *, threads: int | None = None,
-               order_hint: str | None = None, output: str | os.PathLike | None = None,
-               variance_output: str | os.PathLike | None = None, half: bool = False, compression: str = "zip",
-               inputs: Iterable[str | os.PathLike] = ()) -> HDRResult:
+def run_motion(method, source, motion: MotionOptions, output: OutputOptions | None = None,
+               engine: EngineOptions | None = None, *, inputs: Iterable[str | os.PathLike] = (),
+               order_hint: str | None = None) -> HDRResult:
     """Merge ``source`` (:class:`~derender.engine.frames.FileFrames` or
     :class:`~derender.engine.frames.ArrayFrames`) with ``method`` on the motion path, and
-    optionally write the radiance to ``output`` and the variance to ``variance_output``
-    (OpenEXR, :func:`derender.engine.outputs.write_outputs`, with the attributes of
+    optionally write the radiance and the variance to the OpenEXR files of ``output``
+    (:func:`derender.engine.outputs.write_outputs`, with the attributes of
     :func:`~derender.engine.outputs.motion_attributes`).
 
     The motion run of the engine, beside the plain run (:func:`derender.engine.run.run`): the
-    caller chooses between them (:func:`derender.hdr.files.merge_files`,
-    :func:`derender.hdr.registry.merge`), when ``motion`` asks for a reference frame,
-    alignment or ghost removal. ``info["engine_path"]`` is ``"motion"``; the outputs are held
+    registry chooses between them (:func:`derender.hdr.registry.merge`,
+    :func:`derender.hdr.files.merge_files`), when ``motion`` asks for a reference frame,
+    alignment or ghost removal (:meth:`MotionOptions.needs_motion_run`). ``engine``: its
+    ``threads``. ``info["engine_path"]`` is ``"motion"``; the outputs are held
     (``info["outputs_held"]``)."""
     t0 = time.perf_counter()
     if source.n < 2:
         raise StackError("an exposure stack needs at least two images")
+    out = output or OutputOptions()
+    threads = (engine or EngineOptions()).threads
     res = _merge_motion(method, source, motion, threads, order_hint)
     res.info["engine_path"] = "motion"
     res.info["reference_name"] = source.name(res.info["reference"])
     res.info["outputs_held"] = True
-    write_outputs(res, output, variance_output, half=half, compression=compression, inputs=list(inputs),
-                  threads=threads, name=method.name)
+    write_outputs(res, out.output, out.variance_output, half=out.half, compression=out.compression,
+                  inputs=list(inputs), threads=threads, name=method.name)
     res.info["total_seconds"] = time.perf_counter() - t0
     return res
+
+
+def _read_held(source, align: str, threads: int | None, order_hint: str | None):
+    """Every frame of ``source`` held (a copy of an in-memory stack's codes: aligned and filled
+    in place), Ward's grey planes made in the decoding threads when ``align`` asks, the
+    brightness order checked: ``(frames, grey, n_clipped)``."""
+    n = source.n
+    if isinstance(source, FileFrames):
+        h, w = source.infos[0].height, source.infos[0].width
+    elif isinstance(source, ArrayFrames):
+        h, w = source.codes.shape[1:3]
+    else:
+        raise TypeError(f"unknown frame source {type(source).__name__}")
+    check_memory(n * h * w * 5 + h * w * 16, f"aligning and checking {n} frames of {w}x{h} for motion")
+    derive = None
+    if align != "none":
+        from derender.engine.motion.ward2003 import grey8_codes
+
+        derive = lambda frame, out: grey8_codes(frame, out=out)  # noqa: E731 - made in the decoding threads
+    frames, grey = source.read_all(threads, derive=derive)
+    if isinstance(source, ArrayFrames) and np.shares_memory(frames, source.codes):
+        frames = frames.copy()       # aligned and filled in place: the caller's array stays as it was
+    n_clipped = clipped_pixels(frames[0])
+    if order_hint is not None:
+        check_brightness_order(source.times, [frame_brightness(f) for f in frames],
+                               [source.name(j) for j in range(n)], order_hint)
+    return frames, grey, n_clipped
+
+
+class _GhostRemoval:
+    """Step 3 of the module docstring on held, aligned frames: detect, check the registration
+    (translation), fill from the flow-compensated views, refit the method without the rejected
+    pixels and detect again (:mod:`derender.engine.motion.deghost`)."""
+
+    def __init__(self, method, source, frames: np.ndarray, ref: int, motion: MotionOptions, threads: int | None):
+        from derender.engine.motion.deghost import GHOST_THRESHOLD
+
+        self.method, self.source, self.frames, self.ref = method, source, frames, ref
+        self.motion, self.threads = motion, threads
+        self.threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
+        self.spare: list = []          # a round's rejection plane, reused by the next round
+
+    def detect(self, plan, valid):
+        from derender.engine.motion.deghost import detect_ghosts
+
+        return detect_ghosts(self.frames, plan, self.ref, valid, threshold=self.threshold, threads=self.threads,
+                             out=self.spare.pop() if self.spare else None)
+
+    def fill(self, plan, rejected, info, valid) -> None:
+        from derender.engine.motion.compensation import compensate_frames
+        from derender.engine.motion.deghost import ConsistencyTest
+
+        test = ConsistencyTest(plan, self.frames[self.ref], self.ref, self.threshold)
+        info["compensation"] = compensate_frames(self.frames, test, rejected, valid, info["agreements"],
+                                                 threads=self.threads)
+
+    def run(self, plan, access, valid, ainfo: dict):
+        """``(plan, access, valid, ghosts, rejected_anywhere, info)`` after ghost removal: the
+        (refitted) plan and its access, ``valid`` without the rejected pixels, the count of
+        frames rejected per pixel (None: none) and where any was."""
+        from derender.engine.motion.deghost import REFIT_MIN_REJECTED, merge_valid
+
+        frames, ref, compensate = self.frames, self.ref, self.motion.compensate
+        refits = self.method.refits_on_frames
+        rejected, ginfo = self.detect(plan, valid)
+        if self.motion.align_for(self.method.own_align) == "translation":
+            # the registration checked with the method's noise model, the ghosts left out
+            valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"), threads=self.threads)
+            ainfo["refined"] = rinfo["corrections"]
+            if rinfo["corrections"]:
+                if rejected is not None:
+                    self.spare.append(rejected)
+                rejected, ginfo = self.detect(plan, valid)
+        if rejected is not None and compensate and not refits:
+            self.fill(plan, rejected, ginfo, valid)      # else after the refit (filled pixels posterised the fits)
+        rounds = 1
+        if rejected is not None and refits and ginfo["rejected"] >= REFIT_MIN_REJECTED:
+            # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
+            access = _access(self.method, self.source, frames, merge_valid(valid, rejected, in_place=True), ref,
+                             self.threads)
+            plan = self.method.plan(access)         # (access.valid, the first round's plane, stays: finish may read it)
+            rejected, ginfo = self.detect(plan, valid)
+            if rejected is not None and compensate:
+                self.fill(plan, rejected, ginfo, valid)
+            rounds = 2
+        ginfo["rounds"] = rounds
+        ginfo.pop("agreements", None)      # the per-frame summaries stay in ginfo["frames"]
+        ghosts = anywhere = None
+        if rejected is not None:
+            ghosts = rejected.sum(axis=0, dtype=np.uint8)
+            anywhere = ghosts > 0
+        covered = valid is None              # then the merged validity is the rejections' alone: counted
+        valid = merge_valid(valid, rejected, in_place=True)
+        self.spare.clear()
+        if valid is not None and not (covered and ghosts is not None):
+            uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
+            ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
+        return plan, access, valid, ghosts, anywhere, ginfo
 
 
 def _merge_motion(method, source, motion: MotionOptions, threads: int | None, order_hint: str | None) -> HDRResult:
@@ -369,118 +494,42 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     as inconsistent or not covered after warping)."""
     t0 = time.perf_counter()
     n = source.n
-    if isinstance(source, FileFrames):
-        h, w = source.infos[0].height, source.infos[0].width
-    elif isinstance(source, ArrayFrames):
-        h, w = source.codes.shape[1:3]
-    else:
-        raise TypeError(f"unknown frame source {type(source).__name__}")
-    check_memory(n * h * w * 5 + h * w * 16, f"aligning and checking {n} frames of {w}x{h} for motion")
-    derive = None
-    if motion.align != "none":
-        from derender.engine.motion.ward2003 import grey8_codes
-
-        derive = lambda frame, out: grey8_codes(frame, out=out)  # noqa: E731 - made in the decoding threads
-    frames, grey = source.read_all(threads, derive=derive)
-    if isinstance(source, ArrayFrames) and np.shares_memory(frames, source.codes):
-        frames = frames.copy()       # aligned and filled in place: the caller's array stays as it was
-    n_clipped = clipped_pixels(frames[0])
-    if order_hint is not None:
-        check_brightness_order(source.times, [frame_brightness(f) for f in frames],
-                               [source.name(j) for j in range(n)], order_hint)
+    align = motion.align_for(method.own_align)
+    frames, grey, n_clipped = _read_held(source, align, threads, order_hint)
+    h, w = frames.shape[1:3]
     t1 = time.perf_counter()
     order = getattr(source, "order", None)
     ref = resolve_reference(motion.reference, frames, order)
-    valid, ainfo = align_frames(frames, grey, ref, motion.align, seed=motion.seed, threads=threads)
+    valid, ainfo = align_frames(frames, grey, ref, align, seed=motion.seed, threads=threads)
     del grey
     ainfo["agreement"] = check_one_scene(frames, [source.name(j) for j in range(n)])
     t2 = time.perf_counter()
     access = _access(method, source, frames, valid, ref, threads)
     plan = method.plan(access)
     t3 = time.perf_counter()
-    ghosts = None
-    covered = False
-    ghosts_rejected = None
+    ghosts = anywhere = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
-        from derender.engine.motion.deghost import (
-            GHOST_THRESHOLD,
-            REFIT_MIN_REJECTED,
-            ConsistencyTest,
-            detect_ghosts,
-            merge_valid,
-        )
-
-        threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
-
-        spare: list = []          # a round's rejection plane, reused by the next round
-
-        def detect(plan):
-            return detect_ghosts(frames, plan, ref, valid, threshold=threshold, threads=threads,
-                                 out=spare.pop() if spare else None)
-
-        def fill(plan, rejected, info) -> None:
-            from derender.engine.motion.compensation import compensate_frames
-
-            info["compensation"] = compensate_frames(frames, ConsistencyTest(plan, frames[ref], ref, threshold),
-                                                     rejected, valid, info["agreements"], threads=threads)
-
-        def detect_and_fill(plan):
-            rejected, info = detect(plan)
-            if rejected is not None and motion.compensate:
-                fill(plan, rejected, info)
-            return rejected, info
-
-        refits = method.refits_on_frames
-        rejected, ginfo = detect(plan)
-        if motion.align == "translation":
-            # the registration checked with the method's noise model, the ghosts left out
-            valid, rinfo = refine_shifts(frames, valid, plan, ref, rejected, ainfo.get("shifts"), threads=threads)
-            ainfo["refined"] = rinfo["corrections"]
-            if rinfo["corrections"]:
-                if rejected is not None:
-                    spare.append(rejected)
-                rejected, ginfo = detect(plan)
-        if rejected is not None and motion.compensate and not refits:
-            fill(plan, rejected, ginfo)      # else after the refit (filled pixels posterised the stabiliser's fits)
-        rounds = 1
-        if rejected is not None and refits and ginfo["rejected"] >= REFIT_MIN_REJECTED:
-            # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
-            access = _access(method, source, frames, merge_valid(valid, rejected, in_place=True), ref, threads)
-            plan = method.plan(access)         # (access.valid, the first round's plane, stays: finish may read it)
-            rejected, ginfo = detect_and_fill(plan)
-            rounds = 2
-        ginfo["rounds"] = rounds
-        ginfo.pop("agreements", None)      # the per-frame summaries stay in ginfo["frames"]
-        if rejected is not None:
-            ghosts = rejected.sum(axis=0, dtype=np.uint8)
-            ghosts_rejected = ghosts > 0
-        covered = valid is None              # then the merged validity is the rejections' alone: counted
-        valid = merge_valid(valid, rejected, in_place=True)
-        spare.clear()
-    if valid is not None and not (covered and ghosts is not None):
-        uncovered = (valid == 0).sum(axis=0, dtype=np.uint8)
-        ghosts = uncovered if ghosts is None else np.maximum(ghosts, uncovered)
+        removal = _GhostRemoval(method, source, frames, ref, motion, threads)
+        plan, access, valid, ghosts, anywhere, ginfo = removal.run(plan, access, valid, ainfo)
+    elif valid is not None:
+        ghosts = (valid == 0).sum(axis=0, dtype=np.uint8)
     t4 = time.perf_counter()
     res = merge_held(plan, frames, source.times, threads=threads, valid=valid, ref=ref, name=method.name)
     t45 = time.perf_counter()
-    cinfo = None
-    if motion.consensus and ghosts_rejected is not None:
+    if motion.consensus and anywhere is not None:
         from derender.engine.motion.consensus import consensus_correct
 
-        cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=ghosts_rejected,
-                                  threads=threads)
+        cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=anywhere, threads=threads)
+        if cinfo is not None:
+            res.info["consensus"] = cinfo
     t5 = time.perf_counter()
     res.ghosts = ghosts if ghosts is not None else np.zeros((h, w), dtype=np.uint8)
-    res.info["n_clipped"] = n_clipped
-    res.info["reference"] = ref
-    res.info["reference_input"] = int(order[ref]) if order is not None else ref
-    res.info["alignment"] = ainfo
+    res.info.update({"n_clipped": n_clipped, "reference": ref,
+                     "reference_input": int(order[ref]) if order is not None else ref, "alignment": ainfo})
     if motion.deghost:
         res.info["deghost"] = ginfo
-    if cinfo is not None:
-        res.info["consensus"] = cinfo
-    res.info["motion"] = {"reference": motion.reference, "align": motion.align, "deghost": motion.deghost,
+    res.info["motion"] = {"reference": motion.reference, "align": align, "deghost": motion.deghost,
                           "compensate": motion.compensate, "consensus": motion.consensus}
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "align_s": t2 - t1, "plan_s": t3 - t2,
                                                "deghost_s": t4 - t3, "merge_s": t45 - t4,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -20,11 +20,11 @@ from derender.core.types import HDRResult, Stack
 from derender.engine.frames import NotStreamable
 from derender.engine.matrix import matrix_output_bytes, merge_matrix_frames, warm_up_kernels
 from derender.engine.motion.reference_frame import REF_PIXELS, select_reference
+from derender.engine.motion.run import MotionOptions
 from derender.engine.plans import FrameAccess, MatrixPlan, MethodDefaults
-from derender.engine.run import run_stack
 from derender.engine.tables import code_histograms, code_values, stack_codes_exact, weight_table
 from derender.engine.weights import WEIGHTS
-from derender.hdr.registry import record_values
+from derender.hdr.registry import merge
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
 from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference, joint_colour_matrices
 from derender.hdr.stabilize.curves import Curve
@@ -43,7 +43,8 @@ from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fracti
 
 __all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
-           "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine"]
+           "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack",
+           "stabilized_joint_stack"]
 
 
 def stabilized_plan(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
@@ -97,14 +98,15 @@ def _merge_info(stab, weight: Any, noise_weighting: bool) -> dict:
 
 
 def merge_stabilized_table(stab, weight: Any = "trapezoid", noise_weighting: bool = True,
-                           threads: int | None = None) -> HDRResult:
+                           threads: int | None = None, codes: np.ndarray | None = None) -> HDRResult:
     """:func:`stabilized_merge` of an in-memory :class:`Stabilization` on the engine's matrix
     kernel (:func:`~derender.engine.matrix.merge_matrix_frames`): one compiled pass per pixel,
     float32 sums (2e-7 to 4e-7 relative to the float64 reference engine), the registration
-    mask applied. :class:`NotStreamable` when the aligned images are not 8-bit codes
-    (sub-pixel warps) or there is no table form, so the caller keeps the reference engine."""
+    mask applied. ``codes``: the aligned images as 8-bit codes, if already made.
+    :class:`NotStreamable` when they are not 8-bit codes (sub-pixel warps) or there is no
+    table form (:func:`stabilized_plan`)."""
     al = stab.alignment
-    codes = stack_codes_exact(al.images)
+    codes = stack_codes_exact(al.images) if codes is None else codes
     if codes is None:
         raise NotStreamable("the aligned images are not 8-bit codes")
     plan = stabilized_plan(stab, weight, noise_weighting)
@@ -132,19 +134,15 @@ class StabilizedMethod(MethodDefaults):
 
     holds_frames = True
     output_bytes = staticmethod(matrix_output_bytes)
+    own_align = "translation"     # registers the frames itself (Ward's MTB) unless the engine did
 
     def __init__(self, name: str, options: "StabilizedOptions"):
-        align = options.align
-        if align not in ("mtb", "none"):
-            raise NotStreamable(f"align={align!r} warps frames")
-        self.name, self.options, self.align = name, options, align
+        self.name, self.options = name, options
         self.seed = int(options.seed)
         self.variance = bool(options.variance)
         warm_up_kernels()
 
     def derive(self):
-        if self.align != "mtb":
-            return None
         from derender.engine.motion.ward2003 import grey8_codes
 
         return lambda frame, out: grey8_codes(frame, out=out)
@@ -161,26 +159,21 @@ class StabilizedMethod(MethodDefaults):
         ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
         check_usable_samples(np.stack([f[ys, xs] for f in frames]), access.histograms)
         t0 = time.perf_counter()
-        if access.aligned:
-            ref = int(access.reference)            # the engine chose it and registered the frames
-        elif opts.reference is None:
-            ref = select_reference(frames)         # counts 8-bit codes against the code thresholds
-        else:
-            ref = int(opts.reference)
-            if not 0 <= ref < n:
-                raise InputError(f"reference image {opts.reference} is out of range 0..{n - 1}")
-        if self.align == "mtb" and not access.aligned:
+        if access.aligned:                         # the engine chose the reference and registered the frames
+            ref = int(access.reference)
+            transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
+        else:                                      # paper 1's rule on the 8-bit codes, Ward's MTB
+            ref = select_reference(frames)
             transforms, ainfo = chain_transforms(access.planes, "mtb", ref, seed=seed, threads=access.threads)
             access.release_planes()      # Ward's grey images (N bytes per pixel) are done with
-        else:
-            transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         shifts = transforms_to_shifts(transforms)
         view = ShiftedFrames(frames, shifts)
         valid_view = view.valid_view if access.valid is None else HeldValid(access.valid)
         rows = -(-h * w // REF_PIXELS)     # the gate counts ~REF_PIXELS pixels per frame (every k-th row)
         if saturation_fraction(CodeFrameRows(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
             raise NotStreamable("saturation below white (stabilize.saturation)")
-        al = LazyAlignment(images=view, valid=valid_view, transforms=transforms, method=self.align,
+        al = LazyAlignment(images=view, valid=valid_view, transforms=transforms,
+                           method="none" if access.aligned else "mtb",
                            reference=ref, shifts=shifts, info=ainfo)
         t1 = time.perf_counter()
 
@@ -455,11 +448,10 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
     from derender.engine.float_merge import merge_linear
     from derender.engine.weights import get_weight
 
-    if pixel_weights is None:
-        try:
-            return merge_stabilized_table(stab, weight, noise_weighting)
-        except NotStreamable:
-            pass
+    if pixel_weights is None and (stab.curves or not noise_weighting):     # a table form (stabilized_plan)
+        codes = stack_codes_exact(stab.alignment.images)
+        if codes is not None:
+            return merge_stabilized_table(stab, weight, noise_weighting, codes=codes)
 
     wfun = get_weight(weight)
     al = stab.alignment
@@ -521,12 +513,27 @@ def stabilization_info(stab: Stabilization) -> dict:
 
 @dataclass(frozen=True, kw_only=True)
 class StabilizedOptions:
-    """The options of :func:`merge_stabilized` and :func:`merge_stabilized_joint` (each described
-    there and at :func:`stabilize`), as their engine method and ``derender merge --option``
-    read them."""
+    """The options of ``stabilized`` and ``stabilized-joint`` (:func:`merge_stabilized`,
+    :func:`merge_stabilized_joint`), as their engine method, their float-stack merge and
+    ``derender merge --option`` read them. The reference frame and the registration are the
+    engine's (:class:`~derender.engine.motion.run.MotionOptions`; without them the method
+    registers the frames itself to paper 1's reference by Ward's MTB).
 
-    reference: int | None = None
-    align: str = "mtb"
+    Attributes
+    ----------
+    response, gammas, use_times, path, block, max_blocks, ransac_iter, seed, exposure_rounds
+        As :func:`stabilize`.
+    exponent_rounds : int, optional
+        As :func:`stabilize` (per-frame exponents of the curve model; off by default).
+    weight : str
+        The merge's weight (paper 1: ``"trapezoid"``).
+    noise_weighting : bool
+        Also weight each frame's estimate by its inverse variance for equal code noise,
+        ``t_j^2 / (dL_j/dJ)^2`` (:func:`stabilized_merge`).
+    variance : bool
+        Also give the per-pixel variance (:mod:`derender.engine.variance`; engine path only).
+    """
+
     response: str = "auto"
     gammas: Sequence[float] | None = None
     use_times: bool = True
@@ -543,8 +550,6 @@ class StabilizedOptions:
 
     def __post_init__(self) -> None:
         """Every value checked when the record is made, before any file is read."""
-        check_at_least("reference", self.reference, 0)
-        check_choice("align", self.align, ("mtb", "translation", "none", "homography"))
         check_choice("response", self.response, ("auto", "power", "curve"))
         check_choice("path", self.path, ("auto", "direct", "chain"))
         check_choice("weight", self.weight, WEIGHTS, allow_callable=True)
@@ -557,28 +562,23 @@ class StabilizedOptions:
 
 
 def stabilized_engine(options: StabilizedOptions) -> StabilizedMethod:
-    """The engine form of :func:`merge_stabilized` (its registry entry's factory)."""
+    """The engine form of ``stabilized`` (its registry entry's factory)."""
     return StabilizedMethod("stabilized", options)
 
 
 def stabilized_joint_engine(options: StabilizedOptions) -> StabilizedMethod:
-    """The engine form of :func:`merge_stabilized_joint` (its registry entry's factory)."""
+    """The engine form of ``stabilized-joint`` (its registry entry's factory)."""
     return StabilizedMethod("stabilized-joint", options)
 
 
-def _merge_stabilized(name: str, stack: Stack, opts: StabilizedOptions) -> HDRResult:
-    """Both stabilised merges: on the engine for 8-bit stacks with translation-only alignment,
-    else (:class:`NotStreamable`) :func:`stabilize` + :func:`stabilized_merge` on the float
-    reference engine."""
-    try:
-        return run_stack(StabilizedMethod(name, opts), stack)
-    except NotStreamable:
-        if opts.variance:
-            raise InputError(f"{name}: a variance needs 8-bit images, translation-only alignment and no saturation "
-                             "below white (the engine's matrix kernel)") from None
+def _stabilized_stack(name: str, stack: Stack, opts: StabilizedOptions) -> HDRResult:
+    """Both stabilised merges on the float reference engine: :func:`stabilize` (paper 1's
+    reference, Ward's MTB) + :func:`stabilized_merge` (16-bit stacks, saturation below white)."""
+    if opts.variance:
+        raise InputError(f"{name}: a variance needs 8-bit images and no saturation below white (the engine's "
+                         "matrix kernel)")
     t0 = time.perf_counter()
-    stab = stabilize(stack, reference=opts.reference, align=opts.align,
-                     mode="joint" if name == "stabilized-joint" else "reference", response=opts.response,
+    stab = stabilize(stack, mode="joint" if name == "stabilized-joint" else "reference", response=opts.response,
                      gammas=opts.gammas, use_times=opts.use_times, path=opts.path, block=opts.block,
                      max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=opts.seed,
                      exposure_rounds=opts.exposure_rounds, exponent_rounds=opts.exponent_rounds)
@@ -589,35 +589,35 @@ def _merge_stabilized(name: str, stack: Stack, opts: StabilizedOptions) -> HDRRe
     return res
 
 
-def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str = "mtb", response: str = "auto",
-                     gammas: Sequence[float] | None = None, use_times: bool = True, path: str = "auto",
-                     weight: str = "trapezoid", noise_weighting: bool = True, block: int = 2,
-                     max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                     exposure_rounds: int | None = None, exponent_rounds: int | None = None,
-                     variance: bool = False) -> HDRResult:
+def stabilized_stack(stack: Stack, options: StabilizedOptions) -> HDRResult:
+    """``stabilized`` on the float reference engine (the registry's fallback)."""
+    return _stabilized_stack("stabilized", stack, options)
+
+
+def stabilized_joint_stack(stack: Stack, options: StabilizedOptions) -> HDRResult:
+    """``stabilized-joint`` on the float reference engine (the registry's fallback)."""
+    return _stabilized_stack("stabilized-joint", stack, options)
+
+
+def merge_stabilized(stack: Stack, options: StabilizedOptions | Mapping[str, Any] | None = None, *,
+                     motion: MotionOptions | None = None) -> HDRResult:
     """Pipeline-aware exposure fusion (paper 1, Algorithm 1): reference, registration,
     gamma_j, H_j (RANSAC), trapezoid-weighted merge; result in the reference's rendering.
 
-    8-bit stacks with translation-only alignment run on the engine
-    (:class:`StabilizedMethod`); others (``align="homography"``, 16-bit) on the float
-    reference engine (:func:`stabilize` + :func:`stabilized_merge`), the same numbers to 1e-5.
+    8-bit stacks run on the engine (:class:`StabilizedMethod`: the frames registered to paper
+    1's reference by Ward's MTB, or by the engine's motion run when ``motion`` asks for a
+    reference, another alignment or ghost removal); others (16-bit) on the float reference
+    engine (:func:`stabilize` + :func:`stabilized_merge`), the same numbers to 1e-5.
     :func:`merge_stabilized_joint` takes the same options.
 
     Parameters
     ----------
     stack : Stack
         The bracket.
-    reference, align, response, gammas, use_times, path, block, max_blocks, ransac_iter, seed, exposure_rounds
-        As :func:`stabilize`.
-    exponent_rounds : int, optional
-        As :func:`stabilize` (per-frame exponents of the curve model; off by default).
-    weight : str
-        The merge's weight (paper 1: ``"trapezoid"``).
-    noise_weighting : bool
-        Also weight each frame's estimate by its inverse variance for equal code noise,
-        ``t_j^2 / (dL_j/dJ)^2`` (:func:`stabilized_merge`).
-    variance : bool
-        Also give the per-pixel variance (:mod:`derender.engine.variance`; engine path only).
+    options : StabilizedOptions or mapping, optional
+        The method's options (:class:`StabilizedOptions`), or a mapping of them.
+    motion : MotionOptions, optional
+        Reference frame, alignment, ghost removal (:func:`derender.hdr.registry.merge`).
 
     Returns
     -------
@@ -629,16 +629,12 @@ def merge_stabilized(stack: Stack, *, reference: int | None = None, align: str =
     ----------
     Paper 1 (``docs/paper1.md``): Algorithm 1, eqs. 4 and 9-10.
     """
-    return _merge_stabilized("stabilized", stack, record_values(StabilizedOptions, locals()))
+    return merge(stack, "stabilized", options, motion=motion)
 
 
-def merge_stabilized_joint(stack: Stack, *, reference: int | None = None, align: str = "mtb",
-                           response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
-                           path: str = "auto", weight: str = "trapezoid", noise_weighting: bool = True,
-                           block: int = 2, max_blocks: int = 20000, ransac_iter: int = 100, seed: int = 0,
-                           exposure_rounds: int | None = None, exponent_rounds: int | None = None,
-                           variance: bool = False) -> HDRResult:
+def merge_stabilized_joint(stack: Stack, options: StabilizedOptions | Mapping[str, Any] | None = None, *,
+                           motion: MotionOptions | None = None) -> HDRResult:
     """Reference-free variant: all K_j fitted jointly to the bracket's average rendering
-    (:func:`joint_colour_matrices`); ``reference`` only chooses the registration target.
+    (:func:`joint_colour_matrices`); the reference only chooses the registration target.
     Runs on the engine as :func:`merge_stabilized` does."""
-    return _merge_stabilized("stabilized-joint", stack, record_values(StabilizedOptions, locals()))
+    return merge(stack, "stabilized-joint", options, motion=motion)
