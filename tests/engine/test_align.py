@@ -28,7 +28,7 @@ def test_mtb_recovers_known_integer_shifts_exactly(wide_bracket):
     offsets = rng.integers(-6, 7, size=(9, 2))
     offsets[4] = 0
     frames = _cut(wide_bracket, offsets)
-    al = align_images(frames, "mtb", reference=4)
+    al = align_images(frames, "translation", reference=4)
     # reference content at p sits in frame j at p - offset_j
     np.testing.assert_array_equal(al.shifts, -offsets)
     np.testing.assert_allclose(al.transforms[:, 0, 2], -offsets[:, 1])
@@ -42,7 +42,7 @@ def test_mtb_recovers_known_integer_shifts_exactly(wide_bracket):
 
 
 def test_mtb_keeps_a_tripod_bracket_in_place(wide_bracket):
-    al = align_images(wide_bracket, "mtb", reference=4)
+    al = align_images(wide_bracket, "translation", reference=4)
     np.testing.assert_array_equal(al.shifts, 0)
     assert al.valid.all()
 
@@ -89,7 +89,7 @@ def test_align_rejects_bad_arguments(wide_bracket):
     with pytest.raises(InputError):
         align_images(wide_bracket, "optical-flow")
     with pytest.raises(InputError):
-        align_images(wide_bracket, "mtb", reference=12)
+        align_images(wide_bracket, "translation", reference=12)
 
 
 def test_mtb_band_scoring_on_large_frames_recovers_shifts(wide_bracket, monkeypatch):
@@ -101,7 +101,7 @@ def test_mtb_band_scoring_on_large_frames_recovers_shifts(wide_bracket, monkeypa
     rng = np.random.default_rng(2)
     offsets = rng.integers(-6, 7, size=(9, 2))
     offsets[4] = 0
-    al = align_images(_cut(wide_bracket, offsets), "mtb", reference=4)
+    al = align_images(_cut(wide_bracket, offsets), "translation", reference=4)
     np.testing.assert_array_equal(al.shifts, -offsets)
-    tripod = align_images(wide_bracket, "mtb", reference=4)
+    tripod = align_images(wide_bracket, "translation", reference=4)
     np.testing.assert_array_equal(tripod.shifts, 0)

@@ -102,7 +102,7 @@ class MergeSummary:
         parts = []
         if self.reference is not None:
             parts.append(f"reference frame {self.reference} ({self.frame(self.reference).name})")
-        if self.align in ("translation", "mtb") and self.shifts is not None:
+        if self.align == "translation" and self.shifts is not None:
             parts.append(f"aligned by translation (largest shift {self.largest_shift()} px)")
         elif self.align == "homography":
             parts.append("aligned by homography")
@@ -126,7 +126,7 @@ class MergeSummary:
         if self.reference is not None:
             out["reference frame"] = self.reference_label()
         if self.align is not None:
-            out["alignment"] = "translation" if self.align == "mtb" else self.align
+            out["alignment"] = self.align
         if self.shifts is not None:
             out["alignment shifts (dy,dx px)"] = self.shifts_text() + f" (largest {self.largest_shift()} px)"
         if self.ghost_rejected is not None:
@@ -221,7 +221,7 @@ def merge_summary_record(info: dict, mask: np.ndarray | None, shape: tuple[int, 
     align = al.get("align") if al.get("align") not in (None, "none") else None
     shifts_time = al.get("shifts")
     if not al and info.get("align") not in (None, "none"):     # the stabilised merges' own registration
-        align = "translation" if info["align"] in ("mtb", "translation") else str(info["align"])
+        align = str(info["align"])
         shifts_time = info.get("shifts")
     shifts = None
     if shifts_time is not None and len(shifts_time) == len(paths):

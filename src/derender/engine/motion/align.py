@@ -4,7 +4,7 @@ The paper registers the images with Ward's (2003) median threshold bitmaps (its 
 [26]) "to get accurate one-to-one pixel correspondences" for the fits of eq. 9. Methods
 (:func:`align_images`):
 
-* ``"mtb"`` (default): Ward's median threshold bitmap alignment, integer translations
+* ``"translation"`` (default): Ward's median threshold bitmap alignment, integer translations
   (:mod:`derender.engine.motion.ward2003`, :func:`~derender.engine.motion.ward2003.mtb_shift`). In a bracket
   one image of a pair is often more than half clipped (its median is 255 or 0), so the
   bitmaps are thresholded at several common percentiles inside both images' usable range
@@ -39,7 +39,7 @@ from derender.engine.motion import ward2003
 from derender.engine.motion.ward2003 import common_percentiles_hist, mtb_shift, to_grey8
 
 __all__ = [
-    "ALIGN_METHODS",
+    "ALIGNMENTS",
     "Alignment",
     "shift_into",
     "shift_valid",
@@ -53,7 +53,7 @@ __all__ = [
 
 
 #: Registration methods of :func:`align_images`.
-ALIGN_METHODS = ("none", "mtb", "homography")
+ALIGNMENTS = ("none", "translation", "homography")
 
 
 @dataclass
@@ -200,20 +200,20 @@ def warp_image(image: np.ndarray, transform: np.ndarray) -> tuple[np.ndarray, np
 
 
 # --------------------------------------------------------------------------- driver
-def align_images(images: np.ndarray, method: str = "mtb", reference: int | None = None, seed: int = 0,
+def align_images(images: np.ndarray, method: str = "translation", reference: int | None = None, seed: int = 0,
                  max_bits: int = 6, exclusion: int = 4) -> Alignment:
     """Register every image of a bracket to ``reference`` (default: the middle image).
 
     Neighbouring exposures are registered pairwise and the transforms chained towards
     the reference. Returns an :class:`Alignment` (aligned images, validity masks,
-    transforms; integer ``shifts`` for ``"mtb"``/``"none"``).
+    transforms; integer ``shifts`` for ``"translation"``/``"none"``).
     """
     arr = np.asarray(images)
     if arr.ndim != 4 or arr.shape[-1] != 3:
         raise InputError(f"images must have shape (N, H, W, 3), got {arr.shape}")
     n, h, w, _ = arr.shape
-    if method not in ALIGN_METHODS:
-        raise InputError(f"unknown alignment {method!r}; use one of {', '.join(ALIGN_METHODS)}")
+    if method not in ALIGNMENTS:
+        raise InputError(f"unknown alignment {method!r}; use one of {', '.join(ALIGNMENTS)}")
     ref = n // 2 if reference is None else int(reference)
     if not 0 <= ref < n:
         raise InputError(f"reference image {reference} is out of range 0..{n - 1}")
@@ -227,7 +227,7 @@ def align_images(images: np.ndarray, method: str = "mtb", reference: int | None 
     out = np.empty((n, h, w, 3), dtype=np.float32)
     valid = np.empty((n, h, w), dtype=bool)
     shifts = None
-    if method == "mtb":
+    if method == "translation":
         shifts = transforms_to_shifts(transforms)
         for j in range(n):              # written in place: no per-frame temporaries
             src = arr[j] if arr.dtype == np.float32 else arr[j].astype(np.float32)
@@ -252,7 +252,7 @@ def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: in
                      exclusion: int = 4, threads: int | None = None) -> tuple[np.ndarray, dict]:
     """Pairwise registration of neighbouring uint8 grey frames (:func:`to_grey8`), chained
     towards ``ref``: (N, 3, 3) transforms (reference pixel coords -> image j coords) and
-    the per-pair details. ``method`` is ``"mtb"`` or ``"homography"`` (falls back to MTB
+    the per-pair details. ``method`` is ``"translation"`` or ``"homography"`` (falls back to MTB
     for frames too dark or bright for features). Pairs are registered in ``threads``
     threads (default: the usable cores) when the frames are large."""
     n = len(grey)
@@ -275,7 +275,7 @@ def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: in
     def register(j: int) -> tuple[np.ndarray, dict]:
         """Transform T_(a <- j) of frame j against its neighbour a nearer the reference."""
         a = j + 1 if j < ref else j - 1
-        if method == "mtb":
+        if method == "translation":
             t, shift, qs = translation(a, j)
             return t, {"from": a, "to": j, "shift": shift, "percentiles": qs}
         try:
@@ -283,7 +283,7 @@ def chain_transforms(grey: Sequence[np.ndarray], method: str, ref: int, seed: in
             return t, {"from": a, "to": j, "inliers": n_inl}
         except StackError as exc:   # too dark/bright for features: translation instead
             t, shift, _ = translation(a, j)
-            return t, {"from": a, "to": j, "fallback": "mtb", "shift": shift, "reason": str(exc)}
+            return t, {"from": a, "to": j, "fallback": "translation", "shift": shift, "reason": str(exc)}
 
     # the pairs are independent (NumPy releases the GIL on the bitmaps): register them in
     # threads, then chain in order

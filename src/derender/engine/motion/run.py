@@ -43,15 +43,13 @@ from derender.core.errors import InputError, StackError
 from derender.core.memory import check_memory
 from derender.core.types import HDRResult, check_brightness_order
 from derender.engine.frames import ArrayFrames, FileFrames, clipped_pixels, frame_brightness, merge_held
+from derender.engine.motion.align import ALIGNMENTS
 from derender.engine.options import EngineOptions, OutputOptions
 from derender.engine.outputs import write_outputs
 
-__all__ = ["ALIGNMENTS", "MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
+__all__ = ["MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement",
            "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT",
            "SCENE_CHECK_PIXELS"]
-
-#: ``align=`` choices.
-ALIGNMENTS = ("none", "translation", "homography")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -170,7 +168,7 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
         grey = np.empty((n, h, w), dtype=np.uint8)
         for j in range(n):
             grey8_codes(frames[j], out=grey[j])
-    method = "mtb" if align == "translation" else "homography"
+    method = align
     transforms, pinfo = chain_transforms(list(grey), method, ref, seed=seed, threads=threads)
     pairs = pinfo.get("pairs", [])
     if align == "homography" and pairs and all("fallback" in p for p in pairs):

@@ -164,7 +164,7 @@ class StabilizedMethod(MethodDefaults):
             transforms, ainfo = np.repeat(np.eye(3)[None], n, axis=0), {}
         else:                                      # paper 1's rule on the 8-bit codes, Ward's MTB
             ref = select_reference(frames)
-            transforms, ainfo = chain_transforms(access.planes, "mtb", ref, seed=seed, threads=access.threads)
+            transforms, ainfo = chain_transforms(access.planes, "translation", ref, seed=seed, threads=access.threads)
             access.release_planes()      # Ward's grey images (N bytes per pixel) are done with
         shifts = transforms_to_shifts(transforms)
         view = ShiftedFrames(frames, shifts)
@@ -173,7 +173,7 @@ class StabilizedMethod(MethodDefaults):
         if saturation_fraction(CodeFrameRows(view, rows), t) > HIDDEN_FRACTION:   # the in-memory path applies the mask
             raise NotStreamable("saturation below white (stabilize.saturation)")
         al = LazyAlignment(images=view, valid=valid_view, transforms=transforms,
-                           method="none" if access.aligned else "mtb",
+                           method="none" if access.aligned else "translation",
                            reference=ref, shifts=shifts, info=ainfo)
         t1 = time.perf_counter()
 
@@ -267,7 +267,7 @@ class Stabilization:
         return np.ascontiguousarray(np.maximum(lin @ m.T, 0.0), dtype=np.float32)
 
 
-def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb", mode: str = "reference",
+def stabilize(stack: Stack, *, reference: int | None = None, align: str = "translation", mode: str = "reference",
               response: str = "auto", gammas: Sequence[float] | None = None, use_times: bool = True,
               path: str = "auto", block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW,
               high: float = FIT_HIGH, floor: float = FIT_FLOOR, ransac_iter: int = 100,
@@ -282,7 +282,7 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "mtb",
         The bracket.
     reference : int, optional
         The reference frame (index by exposure time); None: the best-exposed (paper 1's rule).
-    align : {"mtb", "homography", "none"}
+    align : {"translation", "homography", "none"}
         Registration: Ward's median-threshold bitmaps (translation) or features (homography).
     mode : {"reference", "joint"}
         H_j to the reference frame, or all K_j fitted jointly to the bracket's average rendering.
