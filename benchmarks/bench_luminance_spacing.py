@@ -8,8 +8,9 @@ covered: 17, 12, 9 frames), for several cameras, two scenes, a white at 255 and 
     python benchmarks/bench_luminance_spacing.py --table /tmp/spacing.jsonl
 
 Rows are appended to ``--jsonl`` as they come (a rerun skips the rows already there). ``--table``
-prints, per method, white and deghost: the largest median abs error, the worst decade ratio (the
-one farthest from 1) and the brightest 1 % range over the grid, and a line per camera. The line is
+prints, per method and white: the largest median abs error, the worst decade ratio (the one
+farthest from 1), the brightest 1 % range over the grid and how many brackets meet the line, plain
+and with ``--deghost``; then one line per bracket (plain merges). The line is
 a median <= 3 % and every decade within +-5 %. Results: docs/results-luminance.md.
 """
 
@@ -56,41 +57,69 @@ def worst_decade(decades) -> float:
     return float(d[np.argmax(np.abs(d - 1.0))])
 
 
-def table(path: str) -> str:
-    rows = [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
-    out = ["| method | white | deghost | brackets | median abs err (max) | worst decade | decades outside ±5 % | "
-           "brightest 1 % | meets the line |", "| --- | --- | --- | ---: | ---: | ---: | ---: | --- | --- |"]
-    groups: dict = {}
-    for r in rows:
-        groups.setdefault((r["method"], r["white"], r["deghost"]), []).append(r)
-    order = ["debevec", "robertson", "stabilized", "stabilized-joint"]
-    for (m, white, dg), rs in sorted(groups.items(), key=lambda kv: (order.index(kv[0][0]) if kv[0][0] in order else 9,
-                                                                      kv[0][1] != "255", kv[0][2])):
-        med = max(r["median_abs"] for r in rs)
-        worst = [worst_decade(r["decades"]) for r in rs]
-        w = worst[int(np.argmax(np.abs(np.asarray(worst) - 1.0)))]
-        outside = sum(int(np.sum(np.abs(np.asarray(r["decades"], float) - 1.0) > 0.05)) for r in rs)
-        tops = [r["top"] for r in rs]
-        ok = sum(1 for r in rs if r["median_abs"] <= 0.03 and np.all(np.abs(np.asarray(r["decades"]) - 1.0) <= 0.05))
-        out.append(f"| {m} | {white} | {'yes' if dg else 'no'} | {len(rs)} | {100 * med:.1f} % | {w:.3f} | "
-                   f"{outside} of {6 * len(rs)} | {min(tops):.3f}-{max(tops):.3f} | {ok} of {len(rs)} |")
+def load_rows(paths: str) -> list[dict]:
+    """Rows of one or more JSONL files (comma separated); a later file's row replaces an earlier
+    one with the same camera, spacing, scene, white, method and deghost flag."""
+    rows: dict = {}
+    for path in paths.split(","):
+        for line in Path(path).read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                rows[_key(r)] = r
+    return list(rows.values())
+
+
+def _meets(r: dict) -> bool:
+    return r["median_abs"] <= 0.03 and bool(np.all(np.abs(np.asarray(r["decades"], float) - 1.0) <= 0.05))
+
+
+def _figures(r: dict) -> np.ndarray:
+    return np.array([r["median_abs"], *r["decades"], r["top"]], float)
+
+
+ORDER = ("debevec", "robertson", "stabilized", "stabilized-joint")
+
+
+def table(paths: str) -> str:
+    rows = load_rows(paths)
+    plain = {_key(r)[:5]: r for r in rows if not r["deghost"]}
+    dgh = {_key(r)[:5]: r for r in rows if r["deghost"]}
+    out = ["| method | white | brackets | median abs err (largest) | worst decade | decades outside ±5 % | "
+           "brightest 1 % | meets the line | `--deghost`: meets / largest change of a figure |",
+           "| --- | --- | ---: | ---: | ---: | ---: | --- | --- | --- |"]
+    for m in ORDER:
+        for white in ("255", "250-254"):
+            rs = [r for k, r in plain.items() if k[4] == m and k[3] == white]
+            if not rs:
+                continue
+            worst = [worst_decade(r["decades"]) for r in rs]
+            w = worst[int(np.argmax(np.abs(np.asarray(worst) - 1.0)))]
+            outside = sum(int(np.sum(np.abs(np.asarray(r["decades"], float) - 1.0) > 0.05)) for r in rs)
+            tops = [r["top"] for r in rs]
+            pairs = [(r, dgh[_key(r)[:5]]) for r in rs if _key(r)[:5] in dgh]
+            if pairs:
+                change = max(float(np.max(np.abs(_figures(a) - _figures(b)))) for a, b in pairs)
+                dg = f"{sum(_meets(b) for _, b in pairs)} of {len(pairs)} / {change:.4f}"
+            else:
+                dg = "not run"
+            out.append(f"| {m} | {white} | {len(rs)} | {100 * max(r['median_abs'] for r in rs):.1f} % | {w:.3f} | "
+                       f"{outside} of {6 * len(rs)} | {min(tops):.3f}-{max(tops):.3f} | "
+                       f"{sum(_meets(r) for r in rs)} of {len(rs)} | {dg} |")
     out.append("")
-    out.append("| camera | EV | scene | white | " + " | ".join(order) + " |")
-    out.append("| --- | ---: | ---: | --- | " + " | ".join("---" for _ in order) + " |")
+    out.append("| camera | EV | scene | white | " + " | ".join(ORDER) + " |")
+    out.append("| --- | ---: | ---: | --- | " + " | ".join("---" for _ in ORDER) + " |")
     cells: dict = {}
-    for r in rows:
-        cells.setdefault((r["camera"], r["stops"], r["seed"], r["white"]), {})[(r["method"], r["deghost"])] = r
-    for (cam, ev, seed, white), c in cells.items():
+    for k, r in plain.items():
+        cells.setdefault(k[:4], {})[k[4]] = r
+    for (cam, ev, seed, white), c in sorted(cells.items(), key=lambda kv: (kv[0][3] != "255",) + kv[0][:3]):
         txt = []
-        for m in order:
-            p, d = c.get((m, False)), c.get((m, True))
-            if p is None:
+        for m in ORDER:
+            r = c.get(m)
+            if r is None:
                 txt.append("-")
                 continue
-            s = f"{100 * p['median_abs']:.1f} % {worst_decade(p['decades']):.3f} {p['top']:.3f}"
-            if d is not None:
-                s += f" / {100 * d['median_abs']:.1f} % {worst_decade(d['decades']):.3f} {d['top']:.3f}"
-            txt.append(s)
+            mark = "" if _meets(r) else " **miss**"
+            txt.append(f"{100 * r['median_abs']:.1f} %; {worst_decade(r['decades']):.3f}; {r['top']:.3f}{mark}")
         out.append(f"| {cam} | {ev:g} | {seed} | {white} | " + " | ".join(txt) + " |")
     return "\n".join(out)
 
@@ -105,7 +134,8 @@ def main() -> None:
     ap.add_argument("--methods", default="debevec,robertson,stabilized,stabilized-joint")
     ap.add_argument("--deghost", choices=("both", "plain", "only"), default="both",
                     help="Merge plain and with --deghost (both), or one of them.")
-    ap.add_argument("--table", metavar="JSONL", help="Print the tables of a finished run and exit.")
+    ap.add_argument("--table", metavar="JSONL[,JSONL...]",
+                    help="Print the tables of finished runs and exit (a later file's rows replace an earlier one's).")
     args = ap.parse_args()
     if args.table:
         print(table(args.table))
