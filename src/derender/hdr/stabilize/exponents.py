@@ -220,9 +220,7 @@ class GammaEstimate:
         return 1.0 / self.gammas
 
 
-def _pair_matrices(blocks: Blocks, pairs: list, gammas: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per pair ``(H_jk, m_j)``: the fitted 3x3 map and the mean linearised colour of image j's
-    inlier blocks, the colour at which the pair measures its gain (:func:`_per_image_log_scales`)."""
+def _pair_matrices(blocks: Blocks, pairs: list, gammas: np.ndarray) -> list[np.ndarray]:
     out = []
     for p in pairs:
         j, k = p["j"], p["k"]
@@ -231,21 +229,15 @@ def _pair_matrices(blocks: Blocks, pairs: list, gammas: np.ndarray) -> list[tupl
         sel = p["sel"]
         jj, jk = effective_codes(pj, gammas[j])[sel], effective_codes(pk, gammas[k])[sel]
         h, _ = fit_pair(jj, jk, gammas[j], gammas[k], ridge=0.0)
-        out.append((h, np.mean(as_curve(gammas[j]).lin(jj), axis=0)))
+        out.append(h)
     return out
 
 
-def _per_image_log_scales(pairs: list, mats: list[tuple[np.ndarray, np.ndarray]], n: int) -> np.ndarray:
-    """Least-squares per-image log exposure scales ``a`` with ``a_k - a_j = log(lum(H_jk m_j) / lum(m_j))``:
-    the pair's luminance gain at the mean colour of its own data ``m_j``. The gain on white,
-    ``lum(H_jk 1)``, extrapolates the 3x3 fit outside the colours the pair shows: on the pairs of
-    the shortest frames, which see only the lamps and the window, it read 3-5 % per 1.5 stops
-    low on the luminance family (Sony ILCE-7M3, 1.5 EV), which raised every gamma of a pure
-    gamma-2.2 bracket to 2.215 and tilted the merge by ``L^0.007`` (issue 36)."""
+def _per_image_log_scales(pairs: list, mats: list[np.ndarray], n: int) -> np.ndarray:
+    """Least-squares per-image log exposure scales ``a`` with ``a_k - a_j = log(lum(H_jk 1))``."""
     rows, rhs, wts = [], [], []
-    for p, (h, m) in zip(pairs, mats):
-        den = float(_W @ m)
-        g = float(_W @ h @ m) / den if den > 0 else float("nan")
+    for p, h in zip(pairs, mats):
+        g = float(_W @ h @ np.ones(3))
         if not np.isfinite(g) or g <= 0:
             continue
         r = np.zeros(n)
@@ -283,8 +275,7 @@ def estimate_gammas(images: Any, *, times: Sequence[float] | None = None, valid:
        combined by weighted least squares over the pair graph.
     3. Absolute level: a common factor on all gammas hardly changes pairwise linearity
        (``J2 = r^(1/gamma) J1`` for any gamma when only the exposure changes). With times
-       (``method="times"``): the factor for which the luminance gain of the fitted maps (each
-       at the mean colour of its own pair's data, not on white, which extrapolates the 3x3 fit)
+       (``method="times"``): the factor for which the luminance gain of the fitted maps
        grows like the exposure time, i.e. the slope of the per-image log scale
        against ``log t_j`` is 1 (per-image gain changes average out across the bracket).
        Without times (``method="blind"``): the factor minimising the total pairwise misfit
