@@ -72,10 +72,7 @@ change per pixel 0.222 sim-camera, 0.343 sim-simple, 0.0114 Memorial, 0.0102 Fro
 differ by per-channel gains only take gains consistent over the whole pair graph; response-table
 weights floored: Memorial 0.765 / 0.455 and Frobisher 0.076 / 0.018 max relative change per pixel
 (stabilized / stabilized-joint); both simulated auto-pipeline brackets unchanged, max relative
-change 0); then issue 36 (luminance that does not depend on the bracket): ``stabilized``,
-``stabilized-joint``, ``stabilized-probabilistic`` (the gammas' absolute level from each pair's gain
-at its own data's mean colour, not on white: sim-simple, a power-law bracket, 0.0192 / 0.0186 /
-0.0192 max relative change per pixel; sim-camera, Memorial and Frobisher, on the curve path, 0).
+change 0).
 """
 
 from __future__ import annotations
