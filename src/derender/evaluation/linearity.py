@@ -31,7 +31,8 @@ import numpy as np
 from derender.core.errors import InputError
 
 __all__ = ["DECADES", "LINEARITY_METHODS", "linearity_scores", "linearity_experiment", "render_chart_model",
-           "format_decades", "fisheye_maps", "FISHEYE_VIEW", "radiance_program", "pvalue_rgb", "smoothest_window"]
+           "format_decades", "fisheye_maps", "FISHEYE_VIEW", "radiance_program", "pvalue_rgb", "smoothest_window",
+           "SPACING_METHODS", "SPACING_CAMERAS", "COVERED_STOPS", "saturate_below", "brightest_ratio", "spacing_rows"]
 
 #: Decade edges of the true luminance (cd/m2).
 DECADES = tuple(10.0 ** k for k in range(7))
@@ -152,6 +153,82 @@ def linearity_scores(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int], 
     return {"median_abs": float(np.median(err)), "p90_abs": float(np.percentile(err, 90)),
             "median_ratio": float(np.median(ratio)), "decades": decades, "counts": counts,
             "factor": factor, "n": int(ratio.size), "readback": readback or "array"}
+
+
+#: Methods of the bracket-independence grid (:func:`spacing_rows`): every method that merges an 8-bit
+#: bracket without a calibration (``probabilistic`` and ``stabilized-probabilistic`` need paper 2's
+#: de-rendering model, ``-m MODEL.npz``, fitted on a chart session of the camera; ``raw`` merges RAW frames).
+SPACING_METHODS = ("debevec", "robertson", "stabilized", "stabilized-joint")
+#: Cameras of the grid: the built-in Nikon D5100 (colour-science) and three ``rawtoaces-spectral`` cameras
+#: (the Fujifilm X-T3 is the one no method was looked at on while choosing).
+SPACING_CAMERAS = ("nikon-d5100", "canon-eos-5d-mark-iii", "sony-ilce-7m3", "fujifilm-x-t3")
+#: Stops covered by every bracket of the grid, whatever its spacing (1, 1.5, 2 EV: 17, 12, 9 frames).
+COVERED_STOPS = 16.0
+
+
+def saturate_below(codes: np.ndarray, seed: int) -> np.ndarray:
+    """A camera whose white is 250..254, drawn per observation with ``seed`` (noise after clipping):
+    ``min(codes, 250 + U{0..4})``, uint8 (many cameras clip their JPEGs below 255)."""
+    white = 250 + np.random.default_rng(seed).integers(0, 5, size=np.shape(codes))
+    return np.minimum(codes, white).astype(np.uint8)
+
+
+def brightest_ratio(radiance_srgb: Any, truth_cd_m2: Any, card: Sequence[int]) -> float:
+    """The brightest 1 % of the truth read by the map, relative to the grey card: the median over
+    those pixels of ``(w . RGB) / L`` divided by the median over the card (``card`` ``[x, y, w, h]``,
+    ``w`` the Rec. 709 row); 1 for a map linear up to the lamps."""
+    from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709
+
+    lum = np.asarray(radiance_srgb, np.float64) @ np.asarray(LUMINANCE_WEIGHTS_REC709, np.float64)
+    lt = np.asarray(truth_cd_m2, np.float64)
+    x, y, w, h = (int(v) for v in card)
+    ref = np.median(lum[y:y + h, x:x + w] / lt[y:y + h, x:x + w])
+    top = lt >= np.percentile(lt, 99)
+    return float(np.median(lum[top] / lt[top]) / ref)
+
+
+def spacing_rows(cameras: Sequence[str] = SPACING_CAMERAS[:3], stops: Sequence[float] = (1.0, 1.5, 2.0),
+                 seeds: Sequence[int] = (0, 1), whites: Sequence[str] = ("255", "250-254"),
+                 methods: Sequence[str] = SPACING_METHODS, deghost: Sequence[bool] = (False, True), *,
+                 size: tuple[int, int] = (192, 128), progress: Callable[[str], None] | None = None):
+    """Issue 36's "luminance that does not depend on the bracket": the luminance family's fixed
+    gamma-2.2 rendering (a tuning rendering) for each camera, stop spacing (``COVERED_STOPS`` covered:
+    17, 12, 9 frames at 1, 1.5, 2 EV), scene seed and white (``"255"``: as simulated;
+    ``"250-254"``: :func:`saturate_below` with the scene's seed), merged by each method plain and with
+    ``deghost`` (the engine's ghost removal), scored by :func:`linearity_scores` (``--spot`` on the
+    grey card) and :func:`brightest_ratio`. Yields one row per merge: camera, stops, frames, seed,
+    white, method, deghost and the scores (``top``: the brightest 1 %)."""
+    import math
+
+    from derender.camera.luminance import simulate_luminance, truth_luminance_cd_m2
+    from derender.core.types import Stack
+    from derender.engine.motion.run import MotionOptions
+    from derender.evaluation.families import smooth_mask
+    from derender.hdr.registry import merge_seeded
+
+    for cam in cameras:
+        for ev in stops:
+            n = int(math.ceil(COVERED_STOPS / float(ev) - 1e-9)) + 1
+            for seed in seeds:
+                b = simulate_luminance(render="gamma", size=size, exposures=n, stops=float(ev), seed=int(seed),
+                                       camera=cam)
+                lt = truth_luminance_cd_m2(b.truth_linear_srgb)
+                smooth = smooth_mask(b.truth_linear_srgb)
+                card = b.params["luminance"]["spot"]
+                for white in whites:
+                    if white not in ("255", "250-254"):
+                        raise InputError(f"white must be '255' or '250-254', got {white!r}")
+                    codes = b.jpeg_codes if white == "255" else saturate_below(b.jpeg_codes, int(seed))
+                    stack = Stack(images=codes.astype(np.float32) * np.float32(1 / 255), times=b.times)
+                    for m in methods:
+                        for dg in deghost:
+                            if progress is not None:
+                                progress(f"{cam} {ev} EV seed {seed} white {white} {m}{' deghost' if dg else ''}")
+                            res = merge_seeded(stack, m, 0, motion=MotionOptions(deghost=True) if dg else None)
+                            sc = linearity_scores(res.radiance, lt, card, score_mask=smooth, merge_mask=res.mask)
+                            yield {"camera": cam, "stops": float(ev), "frames": n, "seed": int(seed), "white": white,
+                                   "method": m, "deghost": bool(dg),
+                                   "top": brightest_ratio(res.radiance, lt, card)} | sc
 
 
 def linearity_experiment(renders: Sequence[str] = ("gamma", "paper", "camera", "dslr-lut", "phone-local", "drift"),
