@@ -54,3 +54,30 @@ def write_exif_jpeg(path: Path, codes: np.ndarray, t: float, n: float, iso: int,
     sub[0x8827] = iso
     Image.fromarray(codes).save(path, format="JPEG", quality=95, exif=ex.tobytes())
     return path
+
+
+def profile_reuse_ratios(inputs_a, inputs_b, bracket_a, bracket_b, outputs, capsys, extra=()) -> np.ndarray:
+    """The luminance family's profile protocol (issues 28 and 38): merge ``inputs_a`` with
+    ``--spot`` on bracket A's grey card and ``--save-profile``, merge ``inputs_b`` with that
+    profile only, and return B's luminance over its exact luminance on the smooth pixels off
+    the card with truth >= 1 cd/m2. ``outputs``: (profile, map A, map B); ``extra``: further
+    options of both merges (e.g. ``--method``)."""
+    from derender.camera.luminance import truth_luminance_cd_m2
+    from derender.evaluation.families import smooth_mask
+    from derender.io.exr import read_exr
+    from derender.io.rgbe import SRGB_PRIMARIES
+    from derender.photometry.illuminance import luminance_cd_m2
+
+    prof, a, b = outputs
+    code, _, err = run_cli(["merge", *inputs_a, "-o", a, *extra, "--spot",
+                            bracket_a.params["luminance"]["spot_option"], "--save-profile", prof], capsys)
+    assert code == 0, err
+    code, _, err = run_cli(["merge", *inputs_b, "-o", b, *extra, "--profile", prof], capsys)
+    assert code == 0, err
+    assert "from the profile" in err
+    lt = truth_luminance_cd_m2(bracket_b.truth_linear_srgb)
+    ok = smooth_mask(bracket_b.truth_linear_srgb) & (lt >= 1.0)
+    x, y, w, h = bracket_b.params["luminance"]["grey_card"]
+    ok[y:y + h, x:x + w] = False
+    assert ok.sum() > 5000
+    return luminance_cd_m2(read_exr(b), SRGB_PRIMARIES)[ok] / lt[ok]

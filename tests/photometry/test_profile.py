@@ -365,25 +365,10 @@ def test_profile_from_the_grey_card_reused_on_an_aperture_iso_bracket(luminance_
     profile only, scored on the smooth pixels off the card with truth >= 1 cd/m2. Measured
     (seeds 0/1): median 1.7 / 2.3 / 3.7 / 2.8 %, p90 4.0 / 5.1 / 5.7 / 5.8 % (debevec, robertson,
     stabilized, stabilized-joint); seeds 2/3 and 4/5 1.2-3.7 % (benchmarks/bench_profiles.py)."""
-    from derender.camera.luminance import truth_luminance_cd_m2
-    from derender.evaluation.families import smooth_mask
-    from derender.io.exr import read_exr
-    from derender.io.rgbe import SRGB_PRIMARIES
-    from derender.photometry.illuminance import luminance_cd_m2
+    from helpers import profile_reuse_ratios
 
     root, ba, bb, fa, fb = luminance_brackets
-    prof, a, b = root / f"{method}.json", root / f"{method}-a.exr", root / f"{method}-b.exr"
-    code, _, err = run_cli(["merge", *fa, "-o", a, "--method", method, "--spot",
-                            ba.params["luminance"]["spot_option"], "--save-profile", prof], capsys)
-    assert code == 0, err
-    code, _, err = run_cli(["merge", *fb, "-o", b, "--method", method, "--profile", prof], capsys)
-    assert code == 0, err
-    assert "from the profile" in err
-    lt = truth_luminance_cd_m2(bb.truth_linear_srgb)
-    ok = smooth_mask(bb.truth_linear_srgb) & (lt >= 1.0)
-    x, y, w, h = bb.params["luminance"]["grey_card"]
-    ok[y:y + h, x:x + w] = False
-    assert ok.sum() > 5000
-    ratio = luminance_cd_m2(read_exr(b), SRGB_PRIMARIES)[ok] / lt[ok]
+    ratio = profile_reuse_ratios(fa, fb, ba, bb, (root / f"{method}.json", root / f"{method}-a.exr",
+                                                  root / f"{method}-b.exr"), capsys, extra=("--method", method))
     assert float(np.median(np.abs(ratio - 1.0))) <= 0.05
     assert 0.95 <= float(np.median(ratio)) <= 1.05

@@ -160,25 +160,11 @@ def test_profile_reused_on_a_raw_bracket_whose_aperture_and_iso_vary(luminance_r
     (tests/photometry/test_profile.py) on the smooth pixels off the card with truth >= 1 cd/m2.
     Measured (seeds 0/1): median |ratio - 1| 0.70 %, median ratio 1.0006, p90 2.1 %; every decade
     1..1e5 cd/m2 within 0.1 % in median."""
-    from derender.camera.luminance import truth_luminance_cd_m2
-    from derender.evaluation.families import smooth_mask
-    from derender.io.rgbe import SRGB_PRIMARIES
-    from derender.photometry.illuminance import luminance_cd_m2
+    from helpers import profile_reuse_ratios
 
     root, ba, bb = luminance_raw
-    prof, a, b = root / "p.json", root / "a.exr", root / "b.exr"
-    code, _, err = run_cli(["merge", root / "a" / "raw", "-o", a, "--spot", ba.params["luminance"]["spot_option"],
-                            "--save-profile", prof], capsys)
-    assert code == 0, err
-    code, _, err = run_cli(["merge", root / "b" / "raw", "-o", b, "--profile", prof], capsys)
-    assert code == 0, err
-    assert "from the profile" in err
-    lt = truth_luminance_cd_m2(bb.truth_linear_srgb)
-    ok = smooth_mask(bb.truth_linear_srgb) & (lt >= 1.0)
-    x, y, w, h = bb.params["luminance"]["grey_card"]
-    ok[y:y + h, x:x + w] = False
-    assert ok.sum() > 5000
-    ratio = luminance_cd_m2(read_exr(b), SRGB_PRIMARIES)[ok] / lt[ok]
+    ratio = profile_reuse_ratios([root / "a" / "raw"], [root / "b" / "raw"], ba, bb,
+                                 (root / "p.json", root / "a.exr", root / "b.exr"), capsys)
     assert float(np.median(np.abs(ratio - 1.0))) <= 0.03
     assert 0.97 <= float(np.median(ratio)) <= 1.03
 

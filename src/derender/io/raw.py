@@ -309,36 +309,9 @@ def read_raw_stack(paths: Sequence[str | os.PathLike], times: Sequence[float] | 
     >>> [frame.exposure_time for frame in frames], frames[0].mosaic.shape
     ([0.01, 0.04], (32, 32))
     """
-    from derender.io.files import check_input_file, resolve_path
-
-    seen: set = set()
-    for p in paths:
-        check_input_file(p)
-        r = resolve_path(p)
-        if r in seen:
-            raise InputError(f"the same file is given twice: {p}")
-        seen.add(r)
-    frames = [read_raw(p) for p in paths]
-    if not frames:
-        raise InputError("no RAW files given")
-    if times is not None:
-        t = validate_times(times, len(frames))
-        for f, v in zip(frames, t):
-            f.exposure_time = float(v)
-    named = [f for f in frames if f.make or f.model]
-    other = next((f for f in named if (f.make, f.model) != (named[0].make, named[0].model)), None)
-    if other is not None:
-        first = named[0]
-        raise InputError(f"the bracket mixes cameras: {Path(first.path).name} is {first.make} {first.model}, "
-                         f"{Path(other.path).name} is {other.make} {other.model}")
-    shapes = {f.mosaic.shape for f in frames}
-    if len(shapes) > 1:
-        raise InputError(f"RAW frames differ in size: {sorted(shapes)}")
+    frames = read_raw_bracket(paths, times=times)
     if len(frames) > 1:
         _check_fixed_aperture_and_iso(frames)
-        missing = [Path(f.path).name for f in frames if f.exposure_time is None]
-        if missing:
-            raise InputError(f"no exposure time in {', '.join(missing)}; give --times")
         validate_times([f.exposure_time for f in frames], len(frames))
         frames.sort(key=lambda f: f.exposure_time)
     return frames
