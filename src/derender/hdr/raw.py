@@ -10,8 +10,8 @@ takes for RAW files (:func:`derender.hdr.files.merge_files` hands them over).
 The RAW method runs outside the engine for now: the engine's plans look up 8-bit codes.
 Motion (:func:`raw_motion`, a :class:`~derender.engine.motion.run.MotionOptions` given as
 ``motion=``) is done on the mosaic: alignment by even-photosite shifts (the CFA phase kept)
-found by Ward's MTB (:func:`derender.engine.motion.ward2003.mtb_shift`) on a grey rendering
-of each frame (2x2 blocks, gamma 1/2.2), and ghost removal by the Poisson-Gaussian noise model
+found by the engine's chained MTB registration (:func:`derender.engine.motion.align.chain_transforms`)
+on a grey rendering of each frame (2x2 blocks, gamma 1/2.2), and ghost removal by the Poisson-Gaussian noise model
 between each frame and the reference: per photosite ``z = (d_j / e_j - d_r / e_r) /
 sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at the reference's
 value), its mean over a 5x5 window against the engine's threshold
@@ -144,15 +144,15 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], options: RawOptions | Mappi
 _CENSOR_SIGMA = 3.0
 
 
-def _grey8(frame: RawFrame, gain: float = 1.0) -> np.ndarray:
-    """A grey rendering of a mosaic for MTB: 2x2 block sums above black times ``gain`` (the
-    exposure ratio to the frame it is compared with), to 8 bit by gamma 1/2.2."""
+def _grey8(frame: RawFrame) -> np.ndarray:
+    """A grey rendering of a mosaic for MTB: 2x2 block sums above black, relative to white, to
+    8 bit by gamma 1/2.2 (MTB's thresholds are percentiles: the rendering only has to be monotone)."""
     m = np.asarray(frame.mosaic, dtype=np.float32)
     h, w = (m.shape[0] // 2) * 2, (m.shape[1] // 2) * 2
     bl = np.asarray(frame.black_level, dtype=np.float32)
     bl = float(bl.mean())
     s = (m[0:h:2, 0:w:2] + m[1:h:2, 0:w:2] + m[0:h:2, 1:w:2] + m[1:h:2, 1:w:2]) - 4 * bl
-    s = np.clip(float(gain) * s / (4 * (float(frame.white_level) - bl)), 0.0, 1.0)
+    s = np.clip(s / (4 * (float(frame.white_level) - bl)), 0.0, 1.0)
     return np.round(255.0 * s ** (1 / 2.2)).astype(np.uint8)
 
 
@@ -234,37 +234,29 @@ def _raw_reference(frames: list[RawFrame], reference: int | None) -> int:
 
 def _align_mosaics(frames: list[RawFrame], times: np.ndarray, ref: int,
                    valid: list[np.ndarray]) -> tuple[list[RawFrame], list[tuple[int, int]]]:
-    """Even-photosite shifts by Ward's MTB, each frame against its neighbour in exposure towards
-    the reference (both at the darker one's brightness), the shifts chained: a dark frame is
-    never compared with a far brighter one (Ward 2003 aligns adjacent exposures too). Returns the
-    shifted copies and the shifts; ``valid`` loses the photosites shifted in from outside."""
+    """Even-photosite shifts: the engine's chained MTB registration
+    (:func:`derender.engine.motion.align.chain_transforms`, the one the JPEG methods use: neighbours
+    in exposure, thresholds at percentiles both frames expose well, chained towards the reference)
+    on grey renderings of the 2x2 blocks, each frame at its own exposure; a shift of one block is
+    two photosites, so the CFA phase is kept. Returns the shifted copies and the shifts; ``valid``
+    loses the photosites shifted in from outside."""
     from dataclasses import replace
 
-    from derender.engine.motion.ward2003 import mtb_shift
+    from derender.engine.motion.align import chain_transforms, transforms_to_shifts
 
-    n = len(frames)
-    order = list(np.argsort(times, kind="stable"))
-    pos = order.index(ref)
-    half: dict[int, tuple[int, int]] = {}
-    for step in (-1, 1):
-        k = pos
-        while 0 <= k + step < n:
-            j, nb = order[k + step], order[k]
-            dark = min(times[j], times[nb])
-            dy, dx = mtb_shift(_grey8(frames[nb], dark / times[nb]), _grey8(frames[j], dark / times[j]))
-            py, px = half.get(nb, (0, 0))
-            half[j] = (py + int(dy), px + int(dx))
-            k += step
-    out, shifts = [], [(0, 0)] * n
-    for j, f in enumerate(frames):
-        dy, dx = half.get(j, (0, 0))
+    order = np.argsort(times, kind="stable")
+    transforms, _ = chain_transforms([_grey8(frames[i]) for i in order], "translation",
+                                     int(np.flatnonzero(order == ref)[0]))
+    blocks = transforms_to_shifts(transforms)              # (dy, dx) in 2x2 blocks, exposure order
+    out, shifts = list(frames), [(0, 0)] * len(frames)
+    for k, j in enumerate(order):
+        dy, dx = 2 * int(blocks[k, 0]), 2 * int(blocks[k, 1])
         if (dy, dx) == (0, 0):
-            out.append(f)
             continue
-        shifts[j] = (2 * dy, 2 * dx)
-        mos, inside = _shifted(np.asarray(f.mosaic), 2 * dy, 2 * dx)
+        shifts[j] = (dy, dx)
+        mos, inside = _shifted(np.asarray(frames[j].mosaic), dy, dx)
         valid[j] &= inside
-        out.append(replace(f, mosaic=mos))
+        out[j] = replace(frames[j], mosaic=mos)
     return out, shifts
 
 
