@@ -55,12 +55,12 @@ class RawOptions:
     output_space: str = "linear_srgb"
     gain: float | None = None
     read_noise: float | None = None
-    demosaic: str = "malvar2004"
+    demosaic: str | None = None
     variance: bool = False
 
 
 def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optimal", output_space: str = "linear_srgb",
-              gain: float | None = None, read_noise: float | None = None, demosaic: str = "malvar2004",
+              gain: float | None = None, read_noise: float | None = None, demosaic: str | None = None,
               variance: bool = False, motion: Any = None) -> HDRResult:
     """Noise-optimal merge of RAW frames on the mosaic (censored Poisson-Gaussian ML), demosaiced once, with its variance.
 
@@ -69,8 +69,12 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optima
     (paper 1's eq. 11, binary weights, no variance). ``output_space``: ``linear_srgb``,
     ``camera_rgb`` or ``xyz``, through the files' own colour matrix and as-shot white balance.
     ``motion``: a :class:`~derender.engine.motion.run.MotionOptions` (reference, alignment,
-    ghost removal; :func:`raw_motion`), estimator ``optimal`` only.
+    ghost removal; :func:`raw_motion`), estimator ``optimal`` only. ``demosaic``:
+    ``menon2007`` (``menon``; the default of ``optimal``, with its variance given the chosen
+    directions), ``malvar2004`` (``malvar``; the default of ``paper1``, the paper's protocol) or
+    ``bilinear`` (:data:`derender.raw.mosaic.DEMOSAIC_METHODS`).
     """
+    from derender.raw.mosaic import demosaic_name
     from derender.raw.optimal import OUTPUT_SPACES, raw_merge
 
     if estimator not in ESTIMATORS:
@@ -82,6 +86,7 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], *, estimator: str = "optima
     if not isinstance(frames, (list, tuple)) or not all(isinstance(f, RawFrame) for f in frames):
         raise InputError("the raw method merges RAW frames (derender.read_raw), not rendered images")
     check_one_camera(frames)
+    demosaic = demosaic_name(demosaic, "menon2007" if estimator == "optimal" else "malvar2004")
     motion_info = None
     valid = None
     if motion is not None and getattr(motion, "active", False):
