@@ -495,7 +495,7 @@ def menon_directions(x, chan, kdy, kdx, kw, direction, margin):  # pragma: no co
             margin[y, xx] = dv - dh
 
 
-@njit(cache=True, nogil=True)
+@njit(inline="always")
 def _tap(g, c, y, x, cy, cx, h, w, wt, touched, tl, nt):  # pragma: no cover - compiled
     """Add ``wt`` to channel ``c``'s weight of photosite (y, x) (mirrored) in the 9x9 window at (cy, cx)."""
     yy = _mirror(y, h)
@@ -649,3 +649,56 @@ def menon_rows(x, var, chan, red_row, direction, margin, margin_sd, matrix, clip
                         acc[3 + o] += p * (alt[o] - acc[o]) ** 2
             for o in range(3):
                 var_out[cy, cx, o] = _finite(acc[3 + o], False)
+
+
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
+def menon_values(x, chan, red_row, direction, matrix, clip_negative, rgb, out):  # pragma: no cover - compiled
+    """Menon 2007's demosaic (no refining step) and the colour matrix by its formulas, plane by
+    plane (the values of :func:`menon_rows` without building weights): green (eq. (3) in the
+    chosen direction), red and blue at green (eq. (7)), red at blue and blue at red (eq. (8)),
+    borders mirrored. ``rgb`` (3, H, W) float32 scratch; ``out`` (H, W, 3) float32."""
+    h, w = x.shape
+    for y in prange(h):
+        for xx in range(w):
+            c = chan[y & 1, xx & 1]
+            rgb[0, y, xx] = 0.0
+            rgb[2, y, xx] = 0.0
+            if c == 1:
+                rgb[1, y, xx] = x[y, xx]
+            else:
+                rgb[1, y, xx] = _directional_green(x, y, xx, h, w, direction[y, xx] == 1)
+                rgb[c, y, xx] = x[y, xx]
+    for y in prange(h):                      # red and blue at green photosites
+        for xx in range(w):
+            if chan[y & 1, xx & 1] != 1:
+                continue
+            for k in (0, 2):
+                if red_row[y & 1] == (k == 0):
+                    a = _mirror(xx - 1, w)
+                    b = _mirror(xx + 1, w)
+                    rgb[k, y, xx] = rgb[1, y, xx] + 0.5 * (x[y, a] + x[y, b]) - 0.5 * (rgb[1, y, a] + rgb[1, y, b])
+                else:
+                    a = _mirror(y - 1, h)
+                    b = _mirror(y + 1, h)
+                    rgb[k, y, xx] = rgb[1, y, xx] + 0.5 * (x[a, xx] + x[b, xx]) - 0.5 * (rgb[1, a, xx] + rgb[1, b, xx])
+    for y in prange(h):                      # red at blue, blue at red
+        for xx in range(w):
+            c = chan[y & 1, xx & 1]
+            if c == 1:
+                continue
+            k = 2 - c
+            if direction[y, xx] == 1:
+                a = _mirror(xx - 1, w)
+                b = _mirror(xx + 1, w)
+                rgb[k, y, xx] = x[y, xx] + 0.5 * (rgb[k, y, a] + rgb[k, y, b]) - 0.5 * (rgb[c, y, a] + rgb[c, y, b])
+            else:
+                a = _mirror(y - 1, h)
+                b = _mirror(y + 1, h)
+                rgb[k, y, xx] = x[y, xx] + 0.5 * (rgb[k, a, xx] + rgb[k, b, xx]) - 0.5 * (rgb[c, a, xx] + rgb[c, b, xx])
+    for y in prange(h):
+        for xx in range(w):
+            r = np.float64(rgb[0, y, xx])
+            g = np.float64(rgb[1, y, xx])
+            b = np.float64(rgb[2, y, xx])
+            for o in range(3):
+                out[y, xx, o] = _finite(matrix[o, 0] * r + matrix[o, 1] * g + matrix[o, 2] * b, clip_negative)

@@ -394,7 +394,7 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
     """:func:`demosaic_compiled` for ``method="menon2007"``: the directions
     (:func:`derender.raw.kernels.menon_directions`), then the demosaic, matrix and variance given
     them (:func:`derender.raw.kernels.menon_rows`)."""
-    from derender.raw.kernels import KERNEL_LOCK, menon_directions, menon_rows
+    from derender.raw.kernels import KERNEL_LOCK, menon_directions, menon_rows, menon_values
 
     lut = {"R": 0, "G": 1, "B": 2}
     chan = np.array([[lut[pattern[0]], lut[pattern[1]]], [lut[pattern[2]], lut[pattern[3]]]], np.int64)
@@ -420,6 +420,10 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
         var_out = _empty((h, w, 3), np.float32)
     with KERNEL_LOCK:
         menon_directions(xm, chan, kdy, kdx, kw, direction, margin)
+        if var is None:
+            menon_values(xm, chan, red_row, direction, np.ascontiguousarray(matrix, np.float64), bool(clip_negative),
+                         np.empty((3, h, w), np.float32), out)
+            return out, None
         menon_rows(xm, vm, chan, red_row, direction, margin, _MENON_MARGIN_SD, np.ascontiguousarray(matrix, np.float64),
                    bool(clip_negative), var is not None, out, var_out)
     return out, (var_out if var is not None else None)
