@@ -194,8 +194,11 @@ def test_real_dng_single_frame_keeps_its_colorchecker(colorchecker_dng):
     frame = read_raw(colorchecker_dng)
     assert frame.exposure_time is None
     ours = raw_merge([frame], variance=True)
-    p1 = raw_ground_truth(frame)
-    np.testing.assert_allclose(ours.radiance, p1.radiance, rtol=1e-4, atol=1e-6)
+    p1 = raw_ground_truth(frame, demosaic=ours.info["demosaic"])   # paper 1's pipeline with the same demosaic
+    # Menon's direction is a comparison: float32 rounding of the two merges flips a few ties
+    # (measured 36 of 6.0e6 values differ by more than 1e-4 relative)
+    close = np.isclose(ours.radiance, p1.radiance, rtol=1e-4, atol=1e-6)
+    assert np.mean(~close) < 1e-4
     assert ours.info["noise"]["source"] == "green-pairs"
     assert np.all(np.isfinite(ours.variance)) and ours.variance.min() > 0
     de = _chart_delta_e(_patch_means(ours.radiance), colour).mean()
@@ -205,7 +208,8 @@ def test_real_dng_single_frame_keeps_its_colorchecker(colorchecker_dng):
 
 def test_luminance_with_a_spot_reading_every_decade():
     """The luminance family (docs/luminance.md): a spot reading on the grey card puts the RAW merge in
-    cd/m2; every decade 1..1e6 cd/m2 within 1 % (measured 0.0-0.4 %; paper 1's eq. 11: up to -2.4 %)."""
+    cd/m2; every decade 1..1e6 cd/m2 within the issue's 2 % (measured with Menon's demosaic 0.4-1.1 %,
+    with Malvar's 0.0-0.4 %; paper 1's eq. 11: up to -2.4 %)."""
     from derender.camera.luminance import simulate_luminance, truth_luminance_cd_m2
     from derender.evaluation.linearity import linearity_scores
 
@@ -216,7 +220,7 @@ def test_luminance_with_a_spot_reading_every_decade():
                          merge_mask=res.mask)
     filled = [d for d, n in zip(s["decades"], s["counts"]) if n >= 200]
     assert len(filled) >= 5, s["counts"]
-    assert all(abs(d - 1) < 0.01 for d in filled), s["decades"]
+    assert all(abs(d - 1) < 0.02 for d in filled), s["decades"]
 
 
 def test_black_and_white_levels_are_read_per_frame():

@@ -420,12 +420,11 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
         var_out = _empty((h, w, 3), np.float32)
     with KERNEL_LOCK:
         menon_directions(xm, chan, kdy, kdx, kw, direction, margin)
-        if var is None:
-            menon_values(xm, chan, red_row, direction, np.ascontiguousarray(matrix, np.float64), bool(clip_negative),
-                         np.empty((3, h, w), np.float32), out)
-            return out, None
-        menon_rows(xm, vm, chan, red_row, direction, margin, _MENON_MARGIN_SD, np.ascontiguousarray(matrix, np.float64),
-                   bool(clip_negative), var is not None, out, var_out)
+        if var is not None:            # the variance from the weights (their values are overwritten below)
+            menon_rows(xm, vm, chan, red_row, direction, margin, _MENON_MARGIN_SD,
+                       np.ascontiguousarray(matrix, np.float64), bool(clip_negative), True, out, var_out)
+        menon_values(xm, chan, red_row, direction, np.ascontiguousarray(matrix, np.float64), bool(clip_negative),
+                     np.empty((3, h, w), np.float32), out)    # one code path for the values, variance or not
     return out, (var_out if var is not None else None)
 
 
