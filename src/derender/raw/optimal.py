@@ -27,12 +27,20 @@ it is a lower bound, not a measurement). ``g`` and ``sigma^2`` come from the bra
 (:func:`derender.raw.noise.estimate_noise`) unless given.
 
 Then the mosaic is white-balanced (one multiplier per CFA colour; none for ``camera_rgb``),
-demosaiced once (Malvar, He & Cutler 2004, a linear filter) and put in the output space by
+demosaiced once (Menon, Andriani & Calvagno 2007 by default, or Malvar, He & Cutler 2004, a
+linear filter) and put in the output space by
 the file's own matrices: ``camera_rgb``, ``linear_srgb`` (``XYZ_TO_LINEAR_SRGB @
 camera_to_xyz``, as :func:`derender.raw.groundtruth.raw_ground_truth`) or ``xyz`` (D65). All
 three steps are linear, so the variance goes through them exactly for independent
 photosites: ``Var[o] = sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` with Malvar's kernels
-``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). The radiance is in units of the white level per second,
+``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). Menon's
+demosaic is linear once its direction per red and blue photosite is chosen: its ``K_c(p)``
+are the weights given the directions (built per pixel), plus ``P(flip) (out' - out)^2`` for
+a direction the noise may have chosen wrongly (:func:`derender.raw.kernels.menon_rows`;
+its values by the formulas, :func:`derender.raw.kernels.menon_values`: 2.2 s at 24 MP
+against 0.8 s for Malvar with its variance, the weights with the variance 86 s --
+benchmarks/bench_raw.py ``--demosaic-speed``; colour_demosaicing's NumPy Menon, no
+variance: 2.4 s at 6 MP). The radiance is in units of the white level per second,
 ``X / (white - black)``, as :func:`derender.raw.mosaic.merge_raw_mosaics` gives it.
 """
 
