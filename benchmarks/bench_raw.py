@@ -29,6 +29,13 @@ merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
     PYTHONPATH=src python benchmarks/bench_raw.py [--size 384x256] [--speed-size 3000x2000]
     PYTHONPATH=src python benchmarks/bench_raw.py --speed-only --speed-exposures 9 --speed-tile 6016x4000
     PYTHONPATH=src python benchmarks/bench_raw.py --coverage-only
+    PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-candidates
+    PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-speed 6016x4000 [--with-colour-demosaicing]
+
+``--demosaic-candidates``: colour_demosaicing's Malvar 2004, bilinear and Menon 2007 (with and
+without its refining step) on the noise-free true mosaic and on derender's merged mosaic of
+every case, against the scene (one scale fitted): median / darkest / brightest decade.
+``--demosaic-speed``: the compiled demosaic passes on a random mosaic of that size.
 """
 
 from __future__ import annotations
@@ -143,6 +150,81 @@ def coverage(size, exposures, seed=3):
               f"| {a['coverage95']:.3f} | {a['coverage50']:.3f} | {sc['coverage95']:.3f} | {sc['coverage50']:.3f} |")
 
 
+def demosaic_candidates(size, exposures, seed=3):
+    """The demosaic candidates' table (module docstring) for every case of :data:`CASES`."""
+    import colour_demosaicing as cd
+
+    from derender.camera import simulate_bracket
+    from derender.camera.sensor import mosaic_signal
+    from derender.camera.spectral import load_camera
+    from derender.evaluation.raw_merge import bracket_raw_frames
+    from derender.raw.mosaic import sorted_raw_frames, spread_mask
+    from derender.raw.noise import estimate_noise_frames
+    from derender.raw.optimal import compiled_frames, interleave, merge_compiled
+
+    cands = {"Malvar 2004": lambda m: cd.demosaicing_CFA_Bayer_Malvar2004(m, "RGGB"),
+             "bilinear": lambda m: cd.demosaicing_CFA_Bayer_bilinear(m, "RGGB"),
+             "Menon 2007": lambda m: cd.demosaicing_CFA_Bayer_Menon2007(m, "RGGB", refining_step=False),
+             "Menon 2007 + refining": lambda m: cd.demosaicing_CFA_Bayer_Menon2007(m, "RGGB", refining_step=True)}
+    print(f"## Demosaic candidates: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}\n")
+    print("| camera | scene | mosaic | " + " | ".join(cands) + " |")
+    print("|---|---|---|" + "---|" * len(cands))
+    for cam_name, bits, kind in CASES:
+        b = simulate_bracket(load_camera(cam_name).with_bits(bits), kind=kind, size=size, exposures=exposures,
+                             seed=seed, style="simple", pipeline="fixed")
+        ordered, times = sorted_raw_frames(bracket_raw_frames(b))
+        mosaics, black, white = compiled_frames(ordered)
+        noise = estimate_noise_frames(mosaics, black, white, times)
+        x, _, m = merge_compiled(mosaics, black, white, times, noise, scale=1.0 / (white[0] - black[0]))
+        truth = np.asarray(b.camera_rgb_per_s, np.float64)
+        for label, mos in (("true", mosaic_signal(b.camera_rgb_per_s).astype(np.float64)),
+                           ("merged", interleave(x, m.shape).astype(np.float64))):
+            cells = []
+            for fn in cands.values():
+                sc = _scaled_scores(np.asarray(fn(mos), np.float64), truth, spread_mask(m))
+                cells.append(f"{100 * sc['median']:.2f} / {100 * sc['dark_decade']:.2f} / "
+                             f"{100 * sc['bright_decade']:.2f}")
+            print(f"| {cam_name} | {kind} | {label} | " + " | ".join(cells) + " |", flush=True)
+
+
+def demosaic_speed(size, with_colour_demosaicing=False):
+    """Wall and CPU seconds (best of 2) of the compiled demosaic passes on a random mosaic of ``size``."""
+    from derender.raw.optimal import demosaic_compiled
+
+    w, h = size
+    rng = np.random.default_rng(0)
+    m = (rng.random((h, w)) ** 2).astype(np.float32)
+    x = np.zeros((2, 2, h // 2, w // 2), np.float32)
+    for a in range(2):
+        for c in range(2):
+            x[a, c] = m[a::2, c::2]
+    v = x * 0.01 + 1e-4
+    mat = np.array([[1.8, -0.6, -0.2], [-0.2, 1.5, -0.3], [0.0, -0.5, 1.5]])
+    mult = np.array([2.0, 1.0, 1.5])
+
+    def timed(name, fn, repeats=2):
+        fn()
+        wall = cpu = float("inf")
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            wall, cpu = min(wall, time.perf_counter() - t0), min(cpu, time.process_time() - c0)
+        print(f"| {name} | {wall:.3f} | {cpu:.3f} |", flush=True)
+
+    print(f"## Demosaic passes on a {w}x{h} mosaic\n\n| pass | wall s | CPU s |\n|---|---|---|")
+    timed("compiled Malvar 2004 + variance", lambda: demosaic_compiled(x, v, (h, w), "RGGB", mult, mat, "malvar2004"))
+    timed("compiled Menon 2007, no variance", lambda: demosaic_compiled(x, None, (h, w), "RGGB", mult, mat,
+                                                                          "menon2007"))
+    timed("compiled Menon 2007 + variance", lambda: demosaic_compiled(x, v, (h, w), "RGGB", mult, mat, "menon2007"))
+    if with_colour_demosaicing:
+        import colour_demosaicing as cd
+
+        m64 = m.astype(np.float64)
+        timed("colour_demosaicing Menon 2007 (no refining, float64)",
+              lambda: cd.demosaicing_CFA_Bayer_Menon2007(m64, "RGGB", refining_step=False), 1)
+        timed("colour_demosaicing Malvar 2004 (float64)", lambda: cd.demosaicing_CFA_Bayer_Malvar2004(m64, "RGGB"), 1)
+
+
 def _tiled_dngs(size, exposures, tile, folder):
     """A simulated bracket of ``size`` (nikon-d5100, outdoor, seed 1) written as DNG files, each
     mosaic tiled to ``tile`` photosites (``WxH``; the CFA phase kept): the simulator's noise,
@@ -234,8 +316,17 @@ def main() -> None:
     ap.add_argument("--speed-only", action="store_true")
     ap.add_argument("--no-hdrutils-speed", action="store_true")
     ap.add_argument("--coverage-only", action="store_true")
+    ap.add_argument("--demosaic-candidates", action="store_true")
+    ap.add_argument("--demosaic-speed", default=None, help="WxH: time the compiled demosaic passes")
+    ap.add_argument("--with-colour-demosaicing", action="store_true")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
+    if args.demosaic_candidates:
+        demosaic_candidates((w, h), args.exposures)
+        return
+    if args.demosaic_speed:
+        demosaic_speed(tuple(int(v) for v in args.demosaic_speed.split("x")), args.with_colour_demosaicing)
+        return
     if args.coverage_only:
         coverage((w, h), args.exposures)
         return

@@ -7,8 +7,9 @@ program merges those very files, with the exposure times given (the simulated DN
 ISO or f-number, so EXIF readers cannot compute exposures; every peer is given the exact
 times, not dcraw's rounded print-out):
 
-* ``derender`` -- ``derender merge --method raw -O output_space=camera_rgb``
-  (:func:`derender.hdr.raw.merge_raw`, noise estimated from the frames);
+* ``derender`` -- ``derender merge --method raw -O output_space=camera_rgb -O demosaic=D``
+  (:func:`derender.hdr.raw.merge_raw`, noise estimated from the frames; ``--demosaic D``,
+  default ``menon2007``, the closer of its two demosaics; ``malvar2004`` is the merge's default);
 * ``hdrutils`` -- HDRutils (PyPI) ``merge(demosaic_first=False, color_space='raw',
   wb=[1, 1, 1], demosaic='malvar', exp=times)``, as docs/raw.md says it runs with today's rawpy;
 * ``pfstools`` -- Debian pfstools: ``pfsinhdrgen`` (what ``pfsinme`` runs after
@@ -94,7 +95,7 @@ def run_derender(files, times, work: Path, args):
     from derender.hdr.raw import merge_raw
     from derender.io.raw import read_raw_stack
 
-    res = merge_raw(read_raw_stack(files, times=times), {"output_space": "camera_rgb"})
+    res = merge_raw(read_raw_stack(files, times=times), {"output_space": "camera_rgb", "demosaic": args.demosaic})
     return res.radiance.astype(np.float64), res.mask
 
 
@@ -234,6 +235,8 @@ def main() -> None:
     ap.add_argument("--peers", default=",".join(PEERS), help=f"comma-separated, of {', '.join(PEERS)}")
     ap.add_argument("--cases", default="all", help="'all' or indices into CASES, e.g. 0,3")
     ap.add_argument("--hdrgen", default=None, help="path of the hdrgen program (raw2hdr's merger)")
+    ap.add_argument("--demosaic", default="menon2007", choices=("menon2007", "malvar2004"),
+                    help="derender's demosaic (the merge's default is malvar2004)")
     ap.add_argument("--workdir", default=None, help="keep the files here (default: a temporary folder)")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))

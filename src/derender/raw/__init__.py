@@ -11,5 +11,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "groundtruth": ["raw_to_camera_rgb", "raw_ground_truth"],
     "noise": ["NoiseModel", "estimate_noise", "estimate_noise_pairs", "estimate_noise_single"],
     "optimal": ["OUTPUT_SPACES", "mosaic_observations", "merge_mosaic_optimal", "demosaic_variance", "output_matrix", "raw_merge"],
-    "mosaic": ["LOW", "HIGH", "DEMOSAIC_METHODS", "sorted_raw_frames", "cfa_channel_index", "merge_raw_mosaics", "white_balance_mosaic", "wb_from_patch", "demosaic_bayer", "spread_mask", "finite_float32"],
+    "mosaic": ["LOW", "HIGH", "DEMOSAIC_METHODS", "DEMOSAIC_ALIASES", "MASK_RADIUS", "demosaic_name", "sorted_raw_frames", "cfa_channel_index", "merge_raw_mosaics", "white_balance_mosaic", "wb_from_patch", "demosaic_bayer", "spread_mask", "finite_float32"],
 })

@@ -30,7 +30,9 @@ from derender.core.types import HDRResult, RawFrame
 from derender.raw.mosaic import (
     HIGH,
     LOW,
+    MASK_RADIUS,
     demosaic_bayer,
+    demosaic_name,
     finite_float32,
     merge_raw_mosaics,
     sorted_raw_frames,
@@ -60,7 +62,7 @@ def raw_to_camera_rgb(frames: RawFrame | Sequence[RawFrame], demosaic: str = "ma
     frames : RawFrame or sequence of RawFrame
         The bracket (:func:`derender.io.raw.read_raw_stack`), with exposure times.
     demosaic : str
-        ``"malvar2004"`` or ``"bilinear"`` (:data:`~derender.raw.mosaic.DEMOSAIC_METHODS`).
+        ``"malvar2004"`` (paper 1's), ``"menon2007"`` or ``"bilinear"`` (:data:`~derender.raw.mosaic.DEMOSAIC_METHODS`).
     low, high : float
         The normalised values eq. 11's binary weight keeps (paper 1, Sec. 4.2).
     clip_negative : bool
@@ -106,7 +108,7 @@ def raw_to_camera_rgb(frames: RawFrame | Sequence[RawFrame], demosaic: str = "ma
     rgb = finite_float32(demosaic_bayer(hdr, pattern, demosaic), clip_negative)
     info = {"colour_space": "camera_rgb", "exposure_times": times.tolist(), "demosaic": demosaic,
             "low": low, "high": high, "cfa_pattern": pattern, "mosaic_mask": mmask}
-    return HDRResult(radiance=rgb, mask=spread_mask(mmask), info=info)
+    return HDRResult(radiance=rgb, mask=spread_mask(mmask, MASK_RADIUS[demosaic_name(demosaic)]), info=info)
 
 
 def raw_ground_truth(frames: RawFrame | Sequence[RawFrame], wb: str | Sequence[float] | None = "as_shot",
@@ -141,7 +143,7 @@ def raw_ground_truth(frames: RawFrame | Sequence[RawFrame], wb: str | Sequence[f
     wb_patch : (x, y, w, h), optional
         A neutral region of the merged mosaic that sets the white balance (overrides ``wb``).
     demosaic : str
-        ``"malvar2004"`` or ``"bilinear"`` (:data:`~derender.raw.mosaic.DEMOSAIC_METHODS`).
+        ``"malvar2004"`` (paper 1's), ``"menon2007"`` or ``"bilinear"`` (:data:`~derender.raw.mosaic.DEMOSAIC_METHODS`).
     low, high : float
         The normalised values eq. 11's binary weight keeps (paper 1, Sec. 4.2).
     clip_negative : bool
@@ -212,4 +214,4 @@ def raw_ground_truth(frames: RawFrame | Sequence[RawFrame], wb: str | Sequence[f
             "wb_multipliers": np.asarray(mult, dtype=np.float64).tolist(),
             "camera_to_xyz": camera_to_xyz_matrix(m), "camera_to_linear_srgb": cam_to_srgb,
             "low": low, "high": high, "cfa_pattern": pattern, "mosaic_mask": mmask}
-    return HDRResult(radiance=finite_float32(srgb, clip_negative), mask=spread_mask(mmask), info=info)
+    return HDRResult(radiance=finite_float32(srgb, clip_negative), mask=spread_mask(mmask, MASK_RADIUS[demosaic_name(demosaic)]), info=info)

@@ -5,7 +5,9 @@
    ``w = 1`` where ``low <= v <= high`` (0.8e-3 and 0.92 in the paper) and merged as
    ``HDR_L = sum_i w_i v_i / dt_i / sum_i w_i`` on the Bayer mosaic.
 2. :func:`white_balance_mosaic` / :func:`wb_from_patch` -- one multiplier per CFA colour.
-3. :func:`demosaic_bayer` -- Malvar, He & Cutler (2004) via ``colour_demosaicing``.
+3. :func:`demosaic_bayer` -- Malvar, He & Cutler (2004) via ``colour_demosaicing`` (paper 1's
+   choice), or Menon, Andriani & Calvagno (2007, without its refining step; the noise-optimal
+   merge's default, :func:`derender.raw.optimal.raw_merge`), or bilinear.
 """
 
 from __future__ import annotations
@@ -28,9 +30,12 @@ __all__ = [
     "merge_raw_mosaics",
     "white_balance_mosaic",
     "wb_from_patch",
+    "DEMOSAIC_ALIASES",
+    "demosaic_name",
     "demosaic_bayer",
     "spread_mask",
     "finite_float32",
+    "MASK_RADIUS",
 ]
 
 
@@ -43,12 +48,28 @@ HIGH = 0.92
 
 
 #: Demosaicing methods accepted by :func:`demosaic_bayer`.
-DEMOSAIC_METHODS = ("malvar2004", "bilinear")
+DEMOSAIC_METHODS = ("malvar2004", "bilinear", "menon2007")
 
 
-#: Half-width of the neighbourhood a mask flag is spread over after demosaicing
-#: (Malvar's kernels are 5x5).
-_MASK_RADIUS = 2
+#: Short names accepted for :data:`DEMOSAIC_METHODS` (``-O demosaic=malvar``).
+DEMOSAIC_ALIASES = {"malvar": "malvar2004", "menon": "menon2007", "ddfapd": "menon2007"}
+
+
+#: Half-width of the neighbourhood a mask flag is spread over after demosaicing, per method
+#: (Malvar's kernels are 5x5; Menon's outputs combine photosites up to 4 away).
+MASK_RADIUS = {"malvar2004": 2, "bilinear": 1, "menon2007": 4}
+
+
+def demosaic_name(method: str | None, default: str = "malvar2004") -> str:
+    """The :data:`DEMOSAIC_METHODS` name of ``method`` (an alias of :data:`DEMOSAIC_ALIASES` or
+    None for ``default``); an unknown name is an :class:`InputError` naming the choices."""
+    if method is None:
+        return default
+    name = DEMOSAIC_ALIASES.get(str(method).lower(), str(method).lower())
+    if name not in DEMOSAIC_METHODS:
+        raise InputError(f"unknown demosaicing method {method!r}; choose one of "
+                         f"{', '.join(DEMOSAIC_METHODS + tuple(DEMOSAIC_ALIASES))}")
+    return name
 
 
 # --------------------------------------------------------------------------- helpers
@@ -240,15 +261,19 @@ def wb_from_patch(mosaic: np.ndarray, pattern: str, patch: tuple[int, int, int, 
 def demosaic_bayer(mosaic: np.ndarray, pattern: str, method: str = "malvar2004") -> np.ndarray:
     """Demosaic a linear Bayer mosaic to (H, W, 3) float32 (Algorithm 2, step 3).
 
-    ``method``: ``"malvar2004"`` (Malvar, He & Cutler 2004, the paper's choice) or
-    ``"bilinear"``; both from ``colour_demosaicing``.
+    ``method``: ``"malvar2004"`` (Malvar, He & Cutler 2004, the paper's choice),
+    ``"menon2007"`` (Menon, Andriani & Calvagno 2007, DDFAPD, without its refining step) or
+    ``"bilinear"``; all from ``colour_demosaicing`` (aliases: :data:`DEMOSAIC_ALIASES`).
     """
     import colour_demosaicing as cd
 
     p = pattern.upper()
     cfa_channel_index((2, 2), p)  # validates the pattern
+    method = demosaic_name(method)
     if method == "malvar2004":
         out = cd.demosaicing_CFA_Bayer_Malvar2004(np.asarray(mosaic, dtype=np.float64), p)
+    elif method == "menon2007":
+        out = cd.demosaicing_CFA_Bayer_Menon2007(np.asarray(mosaic, dtype=np.float64), p, refining_step=False)
     elif method == "bilinear":
         out = cd.demosaicing_CFA_Bayer_bilinear(np.asarray(mosaic, dtype=np.float64), p)
     else:
@@ -256,13 +281,14 @@ def demosaic_bayer(mosaic: np.ndarray, pattern: str, method: str = "malvar2004")
     return np.asarray(out, dtype=np.float32)
 
 
-def spread_mask(mosaic_mask: np.ndarray) -> np.ndarray:
-    """Spread the per-photosite mask over the demosaicing support; bright (1) wins over dark (2)."""
+def spread_mask(mosaic_mask: np.ndarray, radius: int = 2) -> np.ndarray:
+    """Spread the per-photosite mask over the demosaicing support (``radius``:
+    :data:`MASK_RADIUS` of the demosaic); bright (1) wins over dark (2)."""
     from scipy.ndimage import maximum_filter
 
     if not np.any(mosaic_mask):
         return np.zeros(mosaic_mask.shape, dtype=np.uint8)
-    size = 2 * _MASK_RADIUS + 1
+    size = 2 * int(radius) + 1
     bright = maximum_filter((mosaic_mask == HDRResult.MASK_BRIGHT).view(np.uint8), size=size, mode="nearest")
     dark = maximum_filter((mosaic_mask == HDRResult.MASK_DARK).view(np.uint8), size=size, mode="nearest")
     out = np.zeros(mosaic_mask.shape, dtype=np.uint8)

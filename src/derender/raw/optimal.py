@@ -27,12 +27,20 @@ it is a lower bound, not a measurement). ``g`` and ``sigma^2`` come from the bra
 (:func:`derender.raw.noise.estimate_noise`) unless given.
 
 Then the mosaic is white-balanced (one multiplier per CFA colour; none for ``camera_rgb``),
-demosaiced once (Malvar, He & Cutler 2004, a linear filter) and put in the output space by
+demosaiced once (Malvar, He & Cutler 2004, a linear filter, by default; or Menon, Andriani &
+Calvagno 2007) and put in the output space by
 the file's own matrices: ``camera_rgb``, ``linear_srgb`` (``XYZ_TO_LINEAR_SRGB @
 camera_to_xyz``, as :func:`derender.raw.groundtruth.raw_ground_truth`) or ``xyz`` (D65). All
 three steps are linear, so the variance goes through them exactly for independent
 photosites: ``Var[o] = sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` with Malvar's kernels
-``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). The radiance is in units of the white level per second,
+``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). Menon's
+demosaic is linear once its direction per red and blue photosite is chosen: its ``K_c(p)``
+are the weights given the directions (built per pixel), plus ``P(flip) (out' - out)^2`` for
+a direction the noise may have chosen wrongly (:func:`derender.raw.kernels.menon_rows`;
+its values by the formulas, :func:`derender.raw.kernels.menon_values`: 2.2 s at 24 MP
+against 0.8 s for Malvar with its variance, the weights with the variance 86 s --
+benchmarks/bench_raw.py ``--demosaic-speed``; colour_demosaicing's NumPy Menon, no
+variance: 2.4 s at 6 MP). The radiance is in units of the white level per second,
 ``X / (white - black)``, as :func:`derender.raw.mosaic.merge_raw_mosaics` gives it.
 """
 
@@ -47,8 +55,9 @@ from derender.core.colorimetry import XYZ_TO_LINEAR_SRGB, camera_to_xyz_matrix
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
 from derender.raw.mosaic import (
-    DEMOSAIC_METHODS,
+    MASK_RADIUS,
     demosaic_bayer,
+    demosaic_name,
     sorted_raw_frames,
     spread_mask,
     wb_from_patch,
@@ -182,6 +191,9 @@ def merge_mosaic_optimal(d: list[np.ndarray], saturated: list[np.ndarray], ceili
 def _malvar_kernels(pattern: str, method: str) -> np.ndarray:
     """(2, 2, 3, 5, 5): the demosaic's linear kernel for output phase (py, px) and channel c,
     read off its responses to unit impulses (Malvar 2004 is linear and shift-invariant per phase)."""
+    if method == "menon2007":
+        raise InputError("Menon 2007 is not one linear filter per CFA phase: its variance is computed "
+                         "in demosaic_compiled, given its directions")
     n = 16
     k = np.zeros((2, 2, 3, 5, 5))
     for py in range(2):
@@ -352,6 +364,8 @@ def demosaic_compiled(x: np.ndarray, var: np.ndarray | None, shape: tuple[int, i
     from derender.raw.kernels import KERNEL_LOCK, demosaic_rows
 
     p = pattern.upper()
+    if method == "menon2007":
+        return _menon_compiled(x, var, shape, p, multipliers, matrix, clip_negative)
     ntaps, dy, dx, k = _tap_table(p, method)
     taps = np.ascontiguousarray(np.einsum("oc,yxtc->yxto", np.asarray(matrix, np.float64), k))
     lut = {"R": 0, "G": 1, "B": 2}
@@ -368,6 +382,57 @@ def demosaic_compiled(x: np.ndarray, var: np.ndarray | None, shape: tuple[int, i
     with KERNEL_LOCK:
         demosaic_rows(x, var_planes, mult, ntaps, dy, dx, taps, taps * taps, folded, folded * folded,
                       bool(clip_negative), var is not None, out, var_out)
+    return out, (var_out if var is not None else None)
+
+
+#: Menon 2007's direction classifier (``colour_demosaicing``'s kernel ``k``): offsets (dy, dx) and
+#: weights of ``scipy.ndimage.convolve(D_H, k)`` (the kernel flipped); ``d_V`` uses them transposed.
+_MENON_CLASSIFIER = np.array([[0, 0, 1, 0, 1], [0, 0, 0, 1, 0], [0, 0, 3, 0, 3], [0, 0, 0, 1, 0], [0, 0, 1, 0, 1]],
+                             np.float64)
+
+
+#: The classifier's noise in units of the photosites' sigma: ``d_V - d_H`` sums 2 x 8 gradients
+#: ``|C(x) - C(x + 2)|`` with weights of squares summing to 24 per direction, each gradient a
+#: combination of photosites whose squared weights sum to 0.75 (eq. (3)); taken as independent:
+#: ``sqrt(2 * 24 * 0.75) = 6``.
+_MENON_MARGIN_SD = 6.0
+
+
+def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
+    """:func:`demosaic_compiled` for ``method="menon2007"``: the directions
+    (:func:`derender.raw.kernels.menon_directions`), then the demosaic, matrix and variance given
+    them (:func:`derender.raw.kernels.menon_rows`)."""
+    from derender.raw.kernels import KERNEL_LOCK, menon_directions, menon_rows, menon_values
+
+    lut = {"R": 0, "G": 1, "B": 2}
+    chan = np.array([[lut[pattern[0]], lut[pattern[1]]], [lut[pattern[2]], lut[pattern[3]]]], np.int64)
+    red_row = np.array([np.any(chan[0] == 0), np.any(chan[1] == 0)])
+    mult = np.asarray(multipliers, np.float32)[chan]
+    h, w = shape
+    xm = interleave(np.asarray(x, np.float32), shape)
+    for a in range(2):
+        for b in range(2):
+            xm[a::2, b::2] *= mult[a, b]
+    ia, ib = np.nonzero(_MENON_CLASSIFIER)
+    kdy, kdx, kw = (2 - ia).astype(np.int64), (2 - ib).astype(np.int64), _MENON_CLASSIFIER[ia, ib].copy()
+    direction = np.empty((h, w), np.uint8)
+    margin = np.empty((h, w), np.float32)
+    out = _empty((h, w, 3), np.float32)
+    if var is None:
+        vm, var_out = xm, np.empty((1, 1, 3), np.float32)
+    else:
+        vm = interleave(np.asarray(var, np.float32), shape)
+        for a in range(2):
+            for b in range(2):
+                vm[a::2, b::2] *= mult[a, b] * mult[a, b]
+        var_out = _empty((h, w, 3), np.float32)
+    with KERNEL_LOCK:
+        menon_directions(xm, chan, kdy, kdx, kw, direction, margin)
+        if var is not None:            # the variance from the weights (their values are overwritten below)
+            menon_rows(xm, vm, chan, red_row, direction, margin, _MENON_MARGIN_SD,
+                       np.ascontiguousarray(matrix, np.float64), bool(clip_negative), True, out, var_out)
+        menon_values(xm, chan, red_row, direction, np.ascontiguousarray(matrix, np.float64), bool(clip_negative),
+                     np.empty((3, h, w), np.float32), out)    # one code path for the values, variance or not
     return out, (var_out if var is not None else None)
 
 
@@ -401,7 +466,9 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     wb_patch : (x, y, w, h), optional
         A neutral region of the merged mosaic that sets the white balance.
     demosaic : str
-        ``"malvar2004"`` or ``"bilinear"``.
+        ``"malvar2004"`` (default), ``"menon2007"`` (closer to the scene; its variance exact
+        given its directions, but its variance pass is about 100x slower) or ``"bilinear"``
+        (aliases ``malvar``, ``menon``).
     variance : bool
         Also give the per-pixel variance of the radiance.
     clip_negative : bool
@@ -463,8 +530,7 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     pattern = frames[0].cfa_pattern.upper()
     if (gain is None) != (read_noise is None):
         raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
-    if demosaic not in DEMOSAIC_METHODS:
-        raise InputError(f"unknown demosaicing method {demosaic!r}; choose one of {', '.join(DEMOSAIC_METHODS)}")
+    demosaic = demosaic_name(demosaic)
     mosaics, black, white = compiled_frames(frames)
     profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
     if gain is None and len(frames) == 1 and profile is not None:
@@ -494,4 +560,4 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
             "units": "white level per second", "white_minus_black_dn": float(np.median(span)),
             "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
             "output_matrix": mat.tolist()}
-    return HDRResult(radiance=out, mask=spread_mask(mmask), variance=var_out, info=info)
+    return HDRResult(radiance=out, mask=spread_mask(mmask, MASK_RADIUS[demosaic]), variance=var_out, info=info)
