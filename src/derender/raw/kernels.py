@@ -354,6 +354,25 @@ def _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, x
         var_out[y, xx, 2] = _finite(v2, False)
 
 
+@njit(inline="always")
+def _tap_sums(planes, weights, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2):  # pragma: no cover
+    """Inside the border: ``a_o[jj] += sum_t weights[py, px, t, o] * planes[tap's phase, row][jj + off]``
+    over the taps of output phase ``(py, px)`` on plane row ``i`` (values or their variances)."""
+    for t in range(ntaps[py, px]):
+        sy = py + tap_dy[py, px, t]
+        sx = px + tap_dx[py, px, t]
+        src = planes[sy & 1, sx & 1, i + (sy >> 1)]
+        off = sx >> 1
+        w0 = weights[py, px, t, 0]
+        w1 = weights[py, px, t, 1]
+        w2 = weights[py, px, t, 2]
+        for jj in range(j0, j1):
+            val = np.float64(src[jj + off])
+            a0[jj] += w0 * val
+            a1[jj] += w1 * val
+            a2[jj] += w2 * val
+
+
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, folded, folded2, clip_negative,
                   do_var, out, var_out):  # pragma: no cover - compiled
@@ -389,19 +408,7 @@ def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, 
             a0 = np.zeros(nj)
             a1 = np.zeros(nj)
             a2 = np.zeros(nj)
-            for t in range(ntaps[py, px]):
-                sy = py + tap_dy[py, px, t]
-                sx = px + tap_dx[py, px, t]
-                src = planes[sy & 1, sx & 1, i + (sy >> 1)]
-                off = sx >> 1
-                w0 = folded[py, px, t, 0]
-                w1 = folded[py, px, t, 1]
-                w2 = folded[py, px, t, 2]
-                for jj in range(j0, j1):
-                    val = np.float64(src[jj + off])
-                    a0[jj] += w0 * val
-                    a1[jj] += w1 * val
-                    a2[jj] += w2 * val
+            _tap_sums(planes, folded, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2)
             for jj in range(j0, j1):
                 xx = 2 * jj + px
                 out[y, xx, 0] = _finite(a0[jj], clip_negative)
@@ -411,19 +418,7 @@ def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, 
                 a0[:] = 0.0
                 a1[:] = 0.0
                 a2[:] = 0.0
-                for t in range(ntaps[py, px]):
-                    sy = py + tap_dy[py, px, t]
-                    sx = px + tap_dx[py, px, t]
-                    src = var_planes[sy & 1, sx & 1, i + (sy >> 1)]
-                    off = sx >> 1
-                    w0 = folded2[py, px, t, 0]
-                    w1 = folded2[py, px, t, 1]
-                    w2 = folded2[py, px, t, 2]
-                    for jj in range(j0, j1):
-                        val = np.float64(src[jj + off])
-                        a0[jj] += w0 * val
-                        a1[jj] += w1 * val
-                        a2[jj] += w2 * val
+                _tap_sums(var_planes, folded2, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2)
                 for jj in range(j0, j1):
                     xx = 2 * jj + px
                     var_out[y, xx, 0] = _finite(a0[jj], False)
