@@ -399,7 +399,8 @@ def write_bracket(bracket: SimulatedBracket, outdir: str | os.PathLike, jpeg_qua
                         black_level=cam.black_level, white_level=cam.white_level,
                         xyz_to_camera=bracket.xyz_to_camera, as_shot_neutral=neutral, exposure_time=t_exif,
                         make=cam.make, model=cam.model, bits=cam.bits, noise_profile=noise_profile,
-                        fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None)
+                        fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None,
+                        sensitivity_type=3 if lum else None)      # the sensor's white is the ISO's saturation
         jpg = write_jpeg(outdir / "jpeg" / f"{j:02d}.jpg", bracket.jpeg_codes[j],
                          t_exif, cam.make, cam.model, quality=jpeg_quality,
                          fnumber=lum["fnumbers"][j] if lum else None, iso=lum["isos"][j] if lum else None,

@@ -4,7 +4,8 @@ Writes DNG 1.4 with: NewSubfileType 0, PhotometricInterpretation CFA (32803),
 CFARepeatPatternDim / CFAPattern, BlackLevelRepeatDim / BlackLevel, WhiteLevel,
 ColorMatrix1 (XYZ -> camera, SRATIONAL), CalibrationIlluminant1 (21 = D65),
 AsShotNeutral, ExposureTime (tag 33434 in IFD0, as TIFF/EP allows), Make, Model,
-UniqueCameraModel and, when given, FNumber, ISOSpeedRatings and NoiseProfile (51041: ``Var[x] = S x + O`` for the signal
+UniqueCameraModel and, when given, FNumber, ISOSpeedRatings, SensitivityType (with ISOSpeed when
+it is 3, a saturation-based speed, as EXIF 2.3 writes it) and NoiseProfile (51041: ``Var[x] = S x + O`` for the signal
 ``x = (raw - black) / (white - black)``, as Adobe's converter writes it). Adobe DNG
 Specification 1.4, chapter 4.
 """
@@ -46,10 +47,11 @@ def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, cfa_pattern: str, 
               white_level: int, xyz_to_camera: np.ndarray, as_shot_neutral: np.ndarray,
               exposure_time: float, make: str, model: str, bits: int = 14,
               noise_profile: tuple[float, float] | None = None, fnumber: float | None = None,
-              iso: int | None = None) -> Path:
+              iso: int | None = None, sensitivity_type: int | None = None) -> Path:
     """Write ``mosaic`` (H, W) uint16 as an uncompressed single-IFD DNG, atomically
     (``noise_profile``: the (S, O) of the NoiseProfile tag; ``fnumber``, ``iso``: FNumber and
-    ISOSpeedRatings in IFD0, as TIFF/EP allows)."""
+    ISOSpeedRatings in IFD0, as TIFF/EP allows; ``sensitivity_type``: EXIF 2.3's SensitivityType,
+    3 for an ISO speed from saturation, which then also goes to ISOSpeed)."""
     import tifffile
 
     mosaic = np.ascontiguousarray(mosaic, dtype=np.uint16)
@@ -83,6 +85,10 @@ def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, cfa_pattern: str, 
         extratags.append((33437, "2I", 1, to_rational(fnumber, 1000), True))            # FNumber
     if iso is not None:
         extratags.append((34855, "H", 1, int(iso), True))                                # ISOSpeedRatings
+    if sensitivity_type is not None:
+        extratags.append((34864, "H", 1, int(sensitivity_type), True))                   # SensitivityType
+        if int(sensitivity_type) == 3 and iso is not None:
+            extratags.append((34867, "I", 1, int(iso), True))                            # ISOSpeed
     if noise_profile is not None:
         extratags.append((51041, "d", 2, tuple(float(v) for v in noise_profile), True))   # NoiseProfile
     path = Path(path)
