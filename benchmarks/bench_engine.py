@@ -15,11 +15,11 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 pytest.importorskip("pytest_benchmark")
 
-from runner import generate_bench_bracket
+from runner import generate_bench_bracket  # noqa: E402  (after the skips: pytest-benchmark is optional)
 
-from derender.engine.tables import TableMerge, weight_table
+from derender.engine.tables import TableMerge, weight_table  # noqa: E402
 from derender.io.exr import write_exr_fast  # noqa: E402
-from derender.io.images import read_codes
+from derender.io.images import read_codes  # noqa: E402
 
 SIZE = (3000, 2000)
 

@@ -185,6 +185,7 @@ def spacing_rows_held_out():
     """Every 8-bit method on the Fujifilm X-T3 (``rawtoaces-spectral``; no method was looked at on
     it while choosing), 1.5 EV (12 frames), scenes 0 and 1, white 255, plain merges."""
     from conftest import require_shared
+
     from derender.evaluation.linearity import SPACING_METHODS, spacing_rows
 
     require_shared("rawtoaces-spectral")

@@ -6,11 +6,11 @@ import shutil
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from PIL import Image
 
 from derender.camera import simulate_bracket, write_bracket
 from derender.io.exr import read_exr
-from helpers import run_cli
 
 
 @pytest.fixture(scope="module")

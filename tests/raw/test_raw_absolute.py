@@ -4,12 +4,12 @@ speed, docs/raw.md)."""
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from derender.camera.luminance import simulate_luminance, truth_luminance_cd_m2
 from derender.core.errors import InputError
 from derender.photometry.calibration import RAW_SATURATION_EXPOSURE, raw_exif_factor
 from derender.photometry.illuminance import luminance_cd_m2
-from helpers import run_cli
 
 
 @pytest.fixture(scope="module")
