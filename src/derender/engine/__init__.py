@@ -25,7 +25,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "variance": ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares", "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "INFLATE_ROBUST", "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"],
     "variance_kernels": ["table_merge_var_rows", "stabilized_merge_var_rows", "variance_finish_rows"],
     "overlap": ["OVERLAP_ROWS", "RING_SLOTS", "RowsDone", "OutputRing", "merge_writing", "run_bands"],
-    "weights": ["F32_MAX", "weight_hat", "weight_trapezoid", "weight_gaussian", "WEIGHTS", "get_weight", "FLOOR_SHARE", "FLOOR_MIN_COUNT", "FLOOR_MIN_CODE", "FLOOR_MAX_CODE", "black_codes", "floor_weights"],
+    "weights": ["F32_MAX", "weight_hat", "weight_trapezoid", "weight_gaussian", "WEIGHTS", "get_weight", "FLOOR_SHARE", "FLOOR_MIN_COUNT", "FLOOR_MIN_CODE", "FLOOR_MAX_CODE", "FLOOR_PILE", "black_codes", "floor_weights"],
     "float_merge": ["merge_linear"],
     "motion": [],
     "motion.run": ["MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement", "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT", "SCENE_CHECK_PIXELS"],

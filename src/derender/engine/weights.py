@@ -17,7 +17,9 @@ over the pixels that show it in a frame ``j``, at least :data:`FLOOR_SHARE` of t
 least ``z - 1`` in the longest frame with at most half of ``t_j`` (the exposure halved, the
 code did not fall); the floor is the run of such codes from code 0 up (codes seen fewer than
 :data:`FLOOR_MIN_COUNT` times are passed over). A floor below :data:`FLOOR_MIN_CODE` is a
-digital camera's crushed blacks (code 0 already has no weight) and is left as it is. The
+digital camera's crushed blacks (code 0 already has no weight) and is left as it is; so is a
+run the shortest frame does not pile up in (:data:`FLOOR_PILE`: a black offset is where the
+unexposed scene sits). The
 channels of the ``"mean"`` weight mode share one weight per pixel: a channel at its floor then
 adds nothing to that weight, but its value still enters the mean with the other channels'
 weight (measured on Memorial: the floor halves the debevec merge's excess in the darkest decade).
@@ -42,6 +44,7 @@ __all__ = [
     "FLOOR_MIN_COUNT",
     "FLOOR_MIN_CODE",
     "FLOOR_MAX_CODE",
+    "FLOOR_PILE",
     "black_codes",
     "floor_weights",
 ]
@@ -114,6 +117,11 @@ FLOOR_MIN_COUNT = 50
 #: (:func:`black_codes`): the highest measured on a digital bracket is 6 (iPhone, green), where
 #: the Gaussian weight is below 1 % of mid-grey's.
 FLOOR_MIN_CODE = 8
+#: A floor is where the unexposed scene piles up: at least this share of the shortest frame's
+#: pixels sit at codes 1 to the floor (Memorial: 0.9 and more per channel). Without it, codes a
+#: steep toe leaves sparse and noise dominates (a synthetic gamma-and-knee bracket with read
+#: noise: "floors" of 26-33) would pass the halving test.
+FLOOR_PILE = 0.25
 #: :func:`black_codes` looks for the floor below this code only.
 FLOOR_MAX_CODE = 64
 
@@ -121,7 +129,8 @@ FLOOR_MAX_CODE = 64
 def black_codes(codes: np.ndarray, times) -> list[int]:
     """Per channel, the bracket's black floor (module docstring): the highest code of the run,
     from code 0 up, of codes that did not fall when the exposure was halved; 0 when that is
-    below :data:`FLOOR_MIN_CODE`. ``codes`` (N, P, 3) integer codes of the same P pixels in
+    below :data:`FLOOR_MIN_CODE` or when fewer than :data:`FLOOR_PILE` of the shortest frame's pixels
+    sit at codes 1 to it. ``codes`` (N, P, 3) integer codes of the same P pixels in
     every frame (a method's samples, or a subsample of the held frames), ``times`` (N,)."""
     z = np.asarray(codes)
     t = np.asarray(times, dtype=np.float64).reshape(-1)
@@ -152,7 +161,9 @@ def black_codes(codes: np.ndarray, times) -> list[int]:
             if flat[c, code] < FLOOR_SHARE * tot[c, code]:
                 break
             floor = code
-        out[c] = floor if floor >= FLOOR_MIN_CODE else 0
+        zs = z[order[0], :, c]
+        pile = float(np.mean((zs >= 1) & (zs <= floor)))
+        out[c] = floor if floor >= FLOOR_MIN_CODE and pile >= FLOOR_PILE else 0
     return out
 
 
