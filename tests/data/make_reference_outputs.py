@@ -72,7 +72,11 @@ change per pixel 0.222 sim-camera, 0.343 sim-simple, 0.0114 Memorial, 0.0102 Fro
 differ by per-channel gains only take gains consistent over the whole pair graph; response-table
 weights floored: Memorial 0.765 / 0.455 and Frobisher 0.076 / 0.018 max relative change per pixel
 (stabilized / stabilized-joint); both simulated auto-pipeline brackets unchanged, max relative
-change 0).
+change 0); then issue 36 (cross-method agreement): ``debevec`` and ``robertson`` (no merge weight at
+or below the bracket's black floor, ``derender.engine.weights.black_codes``: Memorial's film base
+at codes R 15, G 20, B 19; max relative change per pixel 0.933 / 1.4e6 on Memorial, the latter on
+column 0's padding (codes 0, 0, 255), 0.5 or more on 2925 / 15506 pixels, its dark ceiling; the
+simulated brackets and Frobisher unchanged, max relative change 0).
 """
 
 from __future__ import annotations

@@ -62,8 +62,9 @@ def _oracle_table(frames, plan, weights_k):
         mean = s1 / s0
         d = np.maximum(s2 / s0 - mean * mean, 0.0)
         r = w2 / s0 ** 2
+        rob = (wc * wc * (u - mean) ** 2).sum(0) / s0 ** 2       # the robust (sandwich) term
         var_u = (vm.inflate * q / s0 ** 2 + vm.inflate_dis * d * r / np.maximum(1 - r, vm.r_floor)
-                 + vm.inflate_sys * d)
+                 + vm.inflate_sys * d + vm.inflate_robust * rob)
     return var_u, s0 > 0
 
 
@@ -78,6 +79,7 @@ def test_table_kernel_variance_equals_formula(domain, channel_weights, method):
     vm = variance_tables(values, domain, method)
     vm.edge = 0.0
     vm.inflate_dis = 0.5        # the methods' constants leave it 0: exercise the term too
+    vm.inflate_robust = 0.7     # likewise
     plan = TablePlan(values=values, weights=hat, channel_weights=channel_weights, domain=domain, variance=vm)
     n = frames.shape[0]
     res = table_kernel_merge(frames, plan, list(range(n - 1, -1, -1)), threads=2)
@@ -109,6 +111,7 @@ def test_matrix_kernel_variance_equals_formula():
     vm = matrix_variance_tables(lin, "stabilized")
     vm.edge = 0.0
     vm.inflate_sys = 0.3
+    vm.inflate_robust = 0.6
     plan = MatrixPlan(values=lin, matrices=mats, weights=hat, shifts=shifts, variance=vm)
     res = merge_matrix_frames(frames, plan, times, threads=2)
     plain = merge_matrix_frames(frames, MatrixPlan(values=lin, matrices=mats, weights=hat, shifts=shifts), times,
@@ -121,6 +124,8 @@ def test_matrix_kernel_variance_equals_formula():
     w2 = np.zeros((h, w))
     s1 = np.zeros((h, w, 3))
     s2 = np.zeros((h, w, 3))
+    p1 = np.zeros((h, w, 3))
+    p2 = np.zeros((h, w, 3))
     q = np.zeros((h, w, 3))
     usable = np.zeros((h, w), bool)
     m32 = mats.astype(np.float32)
@@ -141,6 +146,8 @@ def test_matrix_kernel_variance_equals_formula():
         w2 += wmin ** 2
         s1 += wmin[..., None] * v
         s2 += wmin[..., None] * v * v
+        p1 += (wmin ** 2)[..., None] * v
+        p2 += (wmin ** 2)[..., None] * v * v
         q += (wmin ** 2)[..., None] * s_nq
     ok = usable & (s0 > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -148,7 +155,8 @@ def test_matrix_kernel_variance_equals_formula():
         d = np.maximum(s2 / s0[..., None] - mean ** 2, 0)
         r = (w2 / s0 ** 2)[..., None]
         var = (vm.inflate * q / s0[..., None] ** 2 + vm.inflate_dis * d * r / np.maximum(1 - r, vm.r_floor)
-               + vm.inflate_sys * d + vm.shared ** 2 * np.asarray(res.radiance, dtype=np.float64) ** 2)
+               + vm.inflate_sys * d + vm.shared ** 2 * np.asarray(res.radiance, dtype=np.float64) ** 2
+               + vm.inflate_robust * np.maximum(p2 - 2 * mean * p1 + mean ** 2 * w2[..., None], 0) / s0[..., None] ** 2)
     assert ok.mean() > 0.9
     np.testing.assert_allclose(np.asarray(res.variance, dtype=np.float64)[ok], var[ok], rtol=RTOL, atol=0)
 

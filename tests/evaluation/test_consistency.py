@@ -162,21 +162,58 @@ def test_flicker_bands_are_given_back_and_a_moving_thing_is_not():
     assert info["frames"][1]["flicker"] > 0
 
 
-#: Issue 36's line: the median relative sigma at most 0.10 on Memorial. Measured: debevec 0.43,
-#: robertson 0.23, stabilized 0.21 on Memorial (Frobisher 0.08 / 0.14 / 0.32): the frames disagree
-#: through each method's model (debevec's sources on Memorial: disagreement 85 % of the variance,
-#: noise 3 %), and the variance says so. The bound below is today's with a margin; the agreement
-#: line (>= 90 % within the combined 95 % interval) is tested as written.
-REL_SIGMA_TODAY = 0.5
+#: Issue 36's line: the median relative sigma at most 0.10 on Memorial. Not met; the bounds
+#: below are what the merges reach, with a margin of 0.01. Measured on Memorial (main before the
+#: black floor and the robust disagreement term -> now): debevec 0.43 -> 0.186, robertson 0.23 ->
+#: 0.207, stabilized 0.205 (unchanged); Frobisher 0.080 / 0.144 / 0.316 (bound 0.5 there). What is
+#: left on Memorial is the edge term (debevec 68 % of its variance, robertson 63 %), the shared
+#: term (``SHARED`` 0.07-0.09 relative) and the stabilised merge's inflated noise (65 %): priors
+#: chosen on the simulator's tuning families, where the errors are 20-30 % (docs/uncertainty.md).
+REL_SIGMA_BOUND = {"memorial": {"debevec": 0.20, "robertson": 0.22, "stabilized": 0.215},
+                   "frobisher": {"debevec": 0.5, "robertson": 0.5, "stabilized": 0.5}}
 
 
 @pytest.mark.shared_data
 @pytest.mark.parametrize("bracket,folder", [("memorial", "debevec-memorial"), ("frobisher", "colour-hdri-frobisher")])
 def test_methods_agree_within_their_sigma_on_still_brackets(bracket, folder):
+    """Issue 36, cross-method agreement: every pair within the combined 95 % interval on >= 90 %
+    of the pixel-channels (measured on Memorial >= 0.999, Frobisher >= 0.995), each method's
+    median relative sigma within :data:`REL_SIGMA_BOUND` (on main, before the black floor and
+    the robust term, debevec's was 0.43 on Memorial: this fails there)."""
     from derender.evaluation.consistency import method_agreement
 
     root = require_shared(folder).parent
+    bound = REL_SIGMA_BOUND[bracket]
     for row in method_agreement(bracket, root=root):
+        a, b = row["pair"].split(" / ")
         assert row["pixels"] > 100_000, row
         assert row["within95"] >= 0.90, row
-        assert row["rel_sigma_a"] <= REL_SIGMA_TODAY and row["rel_sigma_b"] <= REL_SIGMA_TODAY, row
+        assert row["rel_sigma_a"] <= bound[a] and row["rel_sigma_b"] <= bound[b], row
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("method", ["debevec", "robertson"])
+def test_memorial_merges_agree_with_debevecs_own_map_down_to_the_darkest_decade(method):
+    """Peer: Debevec's own ``memorial.hdr``. After one scale (the median log luminance ratio), the
+    median luminance change is at most 0.03 and the darkest decade (luminance below a tenth of
+    the map's median) within 15 % of it. Measured: debevec 0.023 and 1.085, robertson 0.018 and
+    1.088; before the bracket's black floor (film base at codes R 15, G 20, B 19) had no weight
+    0.053 and 1.69 (debevec), 0.020 and 1.95 (robertson)."""
+    from derender.core.colorimetry import luminance
+    from derender.evaluation.consistency import bracket_inputs
+    from derender.hdr.files import merge_files
+    from derender.io.rgbe import read_hdr
+
+    folder = require_shared("debevec-memorial")
+    paths, kw = bracket_inputs("memorial", folder.parent)
+    res = merge_files(paths, method=method, **kw)
+    assert res.info["black_codes"][1] >= 17          # the film base: green 17-18 over the shortest frame
+    la = luminance(np.asarray(res.radiance, dtype=np.float64))
+    lb = luminance(read_hdr(folder / "memorial.hdr").astype(np.float64))
+    ok = (la > 0) & (lb > 0)
+    d = np.log(la[ok]) - np.log(lb[ok])
+    d -= np.median(d)
+    assert float(np.median(np.abs(d))) <= 0.03
+    dark = lb[ok] < 0.1 * np.median(lb[ok])
+    assert dark.sum() > 10_000
+    assert abs(float(np.exp(np.median(d[dark]))) - 1.0) <= 0.15

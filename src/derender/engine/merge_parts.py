@@ -100,11 +100,12 @@ def add_frame_to_tile(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, in
 @njit(inline="always")
 def add_frame_to_tile_var(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights, inv_var, ik, use_inv_var, colour_w,
                           use_colour_w, lin, mats32, acc, usable, tnq, tq, sqm32, split, s64,
-                          s32):  # pragma: no cover - compiled
+                          s32, robust):  # pragma: no cover - compiled
     """:func:`add_frame_to_tile` (the same arithmetic, the same ``acc``) and, with the weight of
     frames measured in every channel (``wmin``; zero adds zeros), the variance's sums of the
     frame's estimate ``v`` (:func:`derender.engine.variance_kernels.stabilized_merge_var_rows`):
-    ``s64`` (7, tile) float64 ``sum w``, ``sum w v_c``, ``sum w v_c^2``; ``s32`` (7, tile)
+    ``s64`` (13, tile) float64 ``sum w``, ``sum w v_c``, ``sum w v_c^2`` and, when ``robust``,
+    ``sum w^2 v_c``, ``sum w^2 v_c^2`` (the robust term of :mod:`derender.engine.variance`); ``s32`` (7, tile)
     float32 ``sum w^2``, ``sum w^2 s_c^2`` (noise + quantisation, ``s_c^2 = sum_k M_ck^2
     tnq[z_k, k]``) and, on ``split`` rows, the quantisation alone (``tq``)."""
     a00 = mats32[j, 0, 0]
@@ -147,6 +148,17 @@ def add_frame_to_tile_var(frames, valid, whole, j, y, yy, sx, x0, xe, w, weights
         s64[5, t] += b1 * np.float64(v1)
         s64[6, t] += b2 * np.float64(v2)
         ww = wmin * wmin
+        if robust:
+            wwd = np.float64(ww)
+            c0 = wwd * np.float64(v0)
+            c1 = wwd * np.float64(v1)
+            c2 = wwd * np.float64(v2)
+            s64[7, t] += c0
+            s64[8, t] += c1
+            s64[9, t] += c2
+            s64[10, t] += c0 * np.float64(v0)
+            s64[11, t] += c1 * np.float64(v1)
+            s64[12, t] += c2 * np.float64(v2)
         n0 = tnq[j, z0, 0]
         n1 = tnq[j, z1, 1]
         n2 = tnq[j, z2, 2]

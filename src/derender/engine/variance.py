@@ -16,7 +16,9 @@ weighted mean ``u = sum w_j u_j / sum w_j``. Its variance, per pixel and channel
   ``D = sum w_j (u_j - u)^2 / sum w_j``, as the variance of the mean
   ``D r / max(1 - r, R_FLOOR)`` with ``r = sum w_j^2 / (sum w_j)^2`` (1 / effective frames),
   and, for the part of it that is systematic (a pipeline change does not average out),
-  ``D`` itself;
+  ``D`` itself; or, robustly, ``R = sum w_j^2 (u_j - u)^2 / (sum w_j)^2`` (the
+  heteroscedasticity-consistent, "sandwich", variance of a weighted mean: each frame's own
+  deviation is its error, weighted as the frame is weighted; :data:`INFLATE_ROBUST`);
 * **shared model error** (the response curve's shape, the colour matrices: the same in every
   frame, so it does not average out with their number): ``SHARED^2 r^2`` (relative);
 * **edges** (errors every frame shares at a pixel because of where it lies: demosaicing, JPEG's
@@ -27,13 +29,25 @@ weighted mean ``u = sum w_j u_j / sum w_j``. Its variance, per pixel and channel
 The independent terms combine as ``sum w_j^2 s_j^2 / (sum w_j)^2``; in the matrix merge frame
 ``j``'s channel ``c`` has ``s_jc^2 = sum_k M_jck^2 s_jk^2`` (channels mixed by ``M_j``). So
 
-    Var u = INFLATE (V_noise + V_quant) + INFLATE_DIS V_dis + INFLATE_SYS D      (u's own domain)
+    Var u = INFLATE (V_noise + V_quant) + INFLATE_DIS V_dis + INFLATE_SYS D + INFLATE_ROBUST R   (u's own domain)
     Var r = [r^2 if log domain else 1] Var u + SHARED^2 r^2 + EDGE^2 Var_3x3(r)
 
 Where no frame has weight (the saturation policy's bound from the shortest or longest frame)
 the value is a bound, not a measurement: ``Var r = CENSORED r^2`` plus that frame's own noise
 and quantisation. The constants were chosen on the tuning families (``paper``, ``camera``)
-only (docs/uncertainty.md, "The classic and stabilised merges"). The engine's compiled
+only (docs/uncertainty.md, "The classic and stabilised merges").
+
+Why ``R`` for Debevec's merge (issue 36). ``INFLATE_SYS D`` does not shrink with the number of
+frames, and ``D`` weighs a frame's squared deviation by its weight ``w_j``, not by ``w_j^2``:
+a few frames of small weight that are far off (a film's toe or shoulder, codes 20-32 and
+240-254 on Memorial, off by 0.2-0.8 in ln) dominate ``D`` while they move the weighted mean
+little. Measured with Debevec's merge (``D`` after the black floor of
+:mod:`derender.engine.weights`): the median ``sqrt D`` is 0.28 on Memorial (16 frames, 1 EV) and
+0.18-0.46 on the tuning families' brackets (7 frames at 3 EV, 12 at 1 EV), but the median
+``sqrt R`` is 0.058 on Memorial against 0.071-0.115 there: Memorial's frames disagree where
+the merge does not listen to them. ``R`` shrinks as ``1 / frames`` when the deviations are
+independent between frames, and keeps the 95 % coverage of the tuning families' 12-frame 1 EV
+brackets (where ``c D`` was chosen on 7-frame brackets only). The engine's compiled
 kernels (:mod:`derender.engine.variance_kernels`) accumulate ``sum w``, ``sum w u``,
 ``sum w u^2``, ``sum w^2`` and ``sum w^2 s^2`` in the same pass as the radiance.
 """
@@ -45,7 +59,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares",
-           "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"]
+           "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "INFLATE_ROBUST",
+           "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"]
 
 #: Shot noise of the sensor signal relative to white: ``Var x = SHOT x`` (a 24 000 e- full well
 #: times ~2.4 for white balance and colour-matrix gains).
@@ -63,6 +78,8 @@ INFLATE_DIS = 1.0
 EDGE = 1.0
 #: Factor on the systematic disagreement ``D``; tuned on ``paper`` and ``camera``.
 INFLATE_SYS = 0.0
+#: Factor on the robust (sandwich) variance of the weighted mean ``R``; tuned on ``paper`` and ``camera``.
+INFLATE_ROBUST = 0.0
 #: Relative variance of a bound (a pixel no frame measures).
 CENSORED = 1.0
 #: Smallest ``1 - r`` in the disagreement term (bounds it at ``D r / R_FLOOR``).
@@ -74,7 +91,7 @@ SOURCES = ("noise", "quantisation", "disagreement", "shared", "edges")
 
 _BIG = 1e12
 
-#: ``(INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS)`` per method, chosen on the tuning families ``paper`` and
+#: ``(INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS, INFLATE_ROBUST)`` per method, chosen on the tuning families ``paper`` and
 #: ``camera`` only (docs/uncertainty.md); a method not listed takes the module's defaults.
 #: Grid search minimising ``(cov50 - 0.5)^2 + 4 (cov95 - 0.95)^2`` over the pixel-channels of 6
 #: brackets (``paper``, ``camera`` x seeds 0-2, 192x128, 7 exposures, nikon-d5100), INFLATE >= 1;
@@ -82,18 +99,19 @@ _BIG = 1e12
 #: "95 % coverage >= 0.90 on each tuning family, 50 % within 0.40-0.60": a random search of 500
 #: and a local grid over all five, penalty ``100 sum max(0, 0.90 - cov95)^2`` + the 50 % excess
 #: first (docs/uncertainty.md).
-METHOD_CONSTANTS: dict[str, tuple[float, float, float, float, float]] = {
-    "debevec": (1.0, 0.0, 0.07, 0.85, 0.4),
-    "robertson": (16.0, 0.0, 0.07, 1.0, 0.05),
-    "stabilized": (96.0, 0.0, 0.09, 0.3, 0.0),
-    "stabilized-joint": (32.0, 0.0, 0.0, 0.47, 8.0),
+METHOD_CONSTANTS: dict[str, tuple[float, float, float, float, float, float]] = {
+    "debevec": (1.0, 0.0, 0.07, 1.0, 0.0, 1.0),
+    "robertson": (16.0, 0.0, 0.07, 1.0, 0.05, 0.0),
+    "stabilized": (96.0, 0.0, 0.09, 0.3, 0.0, 0.0),
+    "stabilized-joint": (32.0, 0.0, 0.0, 0.47, 8.0, 0.0),
 }
 
 
 def method_constants(method: str | None) -> dict:
     """The :class:`VarianceModel` constants of ``method`` (:data:`METHOD_CONSTANTS`)."""
-    a, b, s, e, c = METHOD_CONSTANTS.get(method or "", (INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS))
-    return {"inflate": a, "inflate_dis": b, "shared": s, "edge": e, "inflate_sys": c}
+    a, b, s, e, c, d = METHOD_CONSTANTS.get(method or "", (INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS,
+                                                          INFLATE_ROBUST))
+    return {"inflate": a, "inflate_dis": b, "shared": s, "edge": e, "inflate_sys": c, "inflate_robust": d}
 
 
 @dataclass
@@ -111,13 +129,15 @@ class VarianceModel:
     shared: float = SHARED
     edge: float = EDGE
     inflate_sys: float = INFLATE_SYS
+    inflate_robust: float = INFLATE_ROBUST
     censored: float = CENSORED
     r_floor: float = R_FLOOR
 
     def constants(self) -> np.ndarray:
-        """``[inflate, inflate_dis, shared^2, censored, r_floor, inflate_sys]`` float64, as the kernels take them."""
+        """``[inflate, inflate_dis, shared^2, censored, r_floor, inflate_sys, inflate_robust]`` float64, as the
+        kernels take them."""
         return np.array([self.inflate, self.inflate_dis, self.shared ** 2, self.censored, self.r_floor,
-                         self.inflate_sys], dtype=np.float64)
+                         self.inflate_sys, self.inflate_robust], dtype=np.float64)
 
 
 def _noise_quant_linear(lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -11,10 +11,13 @@ inverse variance, value, noise + quantisation, quantisation: 16 bytes per frame,
 channel) serves both. At the end of each tile they become the variance of
 :mod:`derender.engine.variance`:
 
-    Var u = a (Qn + Qq) / S0^2 + b D r / max(1 - r, r_floor) + c D,   r = W2 / S0^2,
-    D = S2 / S0 - (S1 / S0)^2,   Var r = [r^2 if log] Var u + shared^2 r^2
+    Var u = a (Qn + Qq) / S0^2 + b D r / max(1 - r, r_floor) + c D + e R,   r = W2 / S0^2,
+    D = S2 / S0 - (S1 / S0)^2,   R = (P2 - 2 mu P1 + mu^2 W2) / S0^2,   mu = S1 / S0,
+    Var r = [r^2 if log] Var u + shared^2 r^2
 
-(``k = [a, b, shared^2, censored, r_floor, c]``). In the log domain the kernel writes the
+(``k = [a, b, shared^2, censored, r_floor, c, e]``; ``P1 = sum w^2 u``, ``P2 = sum w^2 u^2``,
+float64, summed only when ``e`` is not 0: ``R = sum w^2 (u - mu)^2 / S0^2`` is the robust
+variance of the weighted mean, :mod:`derender.engine.variance`). In the log domain the kernel writes the
 relative variance (``Var u`` + ``shared^2``, without the factor ``r^2``) and the caller
 multiplies it by the radiance squared after its exponential (vectorised, instead of one
 ``exp`` per pixel-channel here); in the ``"mean"`` mode (one weight per pixel) ``sum w`` and
@@ -58,13 +61,16 @@ def _acc(vs, c, t, wc, uc, nq, q, split, own, log_domain):  # pragma: no cover -
 
 # Positional on purpose: a numba kernel takes plain arrays and scalars (no records, no keyword defaults).
 @njit(inline="always")
-def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m):  # pragma: no cover - compiled
-    """(noise, quant, disagreement, shared) variance of a merged value ``m`` (radiance) from its sums."""
+def _finish_var(s0, s1, s2, w2, qn, qq, k, log_domain, m, p1, p2):  # pragma: no cover - compiled
+    """(noise, quant, disagreement, shared) variance of a merged value ``m`` (radiance) from its
+    sums (``p1``, ``p2``: ``sum w^2 u``, ``sum w^2 u^2``, read when ``k[6]`` is not 0)."""
     inv = 1.0 / s0
     r = w2 * inv * inv
     mu = s1 * inv
     d = max(s2 * inv - mu * mu, 0.0)
     vd = k[5] * d
+    if k[6] != 0.0:
+        vd += k[6] * max((p2 - 2.0 * mu * p1 + mu * mu * w2) * inv * inv, 0.0)
     if k[1] != 0.0:        # the methods' constants have none: no division
         vd += k[1] * d * r / max(1.0 - r, k[4])
     vn = k[0] * qn * inv * inv
@@ -129,6 +135,7 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
     vals = pk[:, :, :, 1]
     tnq = pk[:, :, :, 2]
     tqq = pk[:, :, :, 3]
+    robust = k[6] != 0.0
     for y in prange(y0, y1):
         split = y % stride == 0
         num64 = np.zeros((3, tile), dtype=np.float64)
@@ -141,6 +148,8 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
         w2s = np.zeros((3, tile), dtype=np.float32)      # sum w^2
         qnq = np.zeros((3, tile), dtype=np.float32)      # sum w^2 (noise + quantisation)
         qq = np.zeros((3, tile), dtype=np.float32)       # sum w^2 quantisation (sampled rows)
+        p1 = np.zeros((3, tile), dtype=np.float64)       # sum w^2 u (robust term)
+        p2 = np.zeros((3, tile), dtype=np.float64)       # sum w^2 u^2 (robust term)
         for x0 in range(0, w, tile):
             xe = min(x0 + tile, w)
             num64[:, :] = 0.0
@@ -155,6 +164,9 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                 s1[:, :] = 0.0
             if split:
                 qq[:, :] = 0.0
+            if robust:
+                p1[:, :] = 0.0
+                p2[:, :] = 0.0
             for kk in range(n):
                 j = order[kk]
                 for x in range(x0, xe):
@@ -179,6 +191,16 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         e1 = e0
                         e2 = e0
                     w2s[0, t] += e0
+                    if robust:
+                        b0 = np.float64(e0) * np.float64(v0)
+                        b1 = np.float64(e1) * np.float64(v1)
+                        b2 = np.float64(e2) * np.float64(v2)
+                        p1[0, t] += b0
+                        p1[1, t] += b1
+                        p1[2, t] += b2
+                        p2[0, t] += b0 * np.float64(v0)
+                        p2[1, t] += b1 * np.float64(v1)
+                        p2[2, t] += b2 * np.float64(v2)
                     qnq[0, t] += e0 * tnq[j, z0, 0]
                     qnq[1, t] += e1 * tnq[j, z1, 1]
                     qnq[2, t] += e2 * tnq[j, z2, 2]
@@ -248,7 +270,8 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
                         swu = num64[c, t] if log_domain else s1[c, t]
                         qc = np.float64(qq[c, t]) if split else 0.0
                         pn, pq, pd, ps = _finish_var(sw, swu, s2[c, t], np.float64(w2s[dc, t]),
-                                                     np.float64(qnq[c, t]) - qc, qc, k, log_domain, m)
+                                                     np.float64(qnq[c, t]) - qc, qc, k, log_domain, m, p1[c, t],
+                                                     p2[c, t])
                     else:
                         if jj < 0:
                             jj = j_short if bright[frames[j_short, y, x, c]] else j_long
@@ -266,7 +289,7 @@ def table_merge_var_rows(frames, valid, ref, order, values, weights, independent
 def _bright_set_sums(frames, valid, whole, shifts, y, x, h, w, weights, inv_var, inv_k, use_inv_var, colour_w,
                      use_colour_w, lin, mats32, sqm, tnq, tq, mu0, mu1, mu2, split, vs):  # pragma: no cover
     """A pixel no frame measures in every channel (the brightest-channel weights): its sums
-    ``vs`` (11,) (S0, W2, sum w (v - mu)^2 (3), Qnq (3), Qq (3)) around its merged mean, the
+    ``vs`` (14,) (S0, W2, sum w (v - mu)^2 (3), Qnq (3), Qq (3), sum w^2 (v - mu)^2 (3)) around its merged mean, the
     frames read a second time (rare pixels)."""
     zero = np.float32(0.0)
     tiny = np.float32(1e-30)
@@ -307,6 +330,7 @@ def _bright_set_sums(frames, valid, whole, shifts, y, x, h, w, weights, inv_var,
             mu = mu0 if c == 0 else (mu1 if c == 1 else mu2)
             vc = np.float64(max(l0 * m32[c, 0] + l1 * m32[c, 1] + l2 * m32[c, 2], zero)) - mu
             vs[2 + c] += wd * vc * vc
+            vs[11 + c] += ww * vc * vc
             vs[5 + c] += ww * (sq[c, 0] * n0 + sq[c, 1] * n1 + sq[c, 2] * n2)
             if split:
                 vs[8 + c] += ww * (sq[c, 0] * tq[j, z0, 0] + sq[c, 1] * tq[j, z1, 1] + sq[c, 2] * tq[j, z2, 2])
@@ -350,13 +374,14 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
     ivp = pk[:, :, :, 1]
     tnq = pk[:, :, :, 2]
     tqp = pk[:, :, :, 3]
+    robust = k[6] != 0.0
     for y in prange(y0, y1):
         split = y % stride == 0
         acc = np.empty((8, tile), dtype=np.float32)
         usable = np.empty(tile, dtype=np.bool_)
-        s64 = np.empty((7, tile), dtype=np.float64)    # S0, sum w v (3), sum w v^2 (3)
+        s64 = np.empty((13, tile), dtype=np.float64)   # S0, sum w v (3), sum w v^2 (3), sum w^2 v (3), sum w^2 v^2 (3)
         s32 = np.empty((7, tile), dtype=np.float32)    # W2, Qnq (3), Qq (3)
-        vb = np.empty(11, dtype=np.float64)
+        vb = np.empty(14, dtype=np.float64)
         for x0 in range(0, w, tile):
             xe = min(x0 + tile, w)
             acc[:, :] = zero
@@ -369,7 +394,7 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     continue
                 add_frame_to_tile_var(frames, valid, whole, j, y, yy, shifts[j, 1], x0, xe, w, weights, ivp,
                                       inv_k[j], use_inv_var, colour_w, use_colour_w, linp, mats32, acc, usable,
-                                      tnq, tqp, sqm32, split, s64, s32)
+                                      tnq, tqp, sqm32, split, s64, s32, robust)
             for x in range(x0, xe):
                 t = x - x0
                 if usable[t] and acc[0, t] > zero:
@@ -383,7 +408,8 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                         m = np.float64(out[c, y - row0, x])
                         qc = np.float64(s32[4 + c, t]) if split else 0.0
                         pn, pq, pd, ps = _finish_var(sw, s64[1 + c, t], s64[4 + c, t], np.float64(s32[0, t]),
-                                                     np.float64(s32[1 + c, t]) - qc, qc, k, False, m)
+                                                     np.float64(s32[1 + c, t]) - qc, qc, k, False, m,
+                                                     s64[7 + c, t], s64[10 + c, t])
                         _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
                     continue
                 if not usable[t] and acc[4, t] > zero:
@@ -399,7 +425,7 @@ def stabilized_merge_var_rows(frames, shifts, valid, ref, lin, mats32, mats64, w
                     for c in range(3):
                         m = np.float64(out[c, y - row0, x])
                         pn, pq, pd, ps = _finish_var(vb[0], 0.0, vb[2 + c], vb[1], vb[5 + c] - vb[8 + c], vb[8 + c],
-                                                     k, False, m)
+                                                     k, False, m, 0.0, vb[11 + c])
                         _store(var, parts, y, row0, x, c, pn, pq, pd, ps, stride, big)
                     continue
                 jj, code = fallback_frame(frames, valid, whole, ref, shifts, j_short, j_long, bright, y, x, h, w)

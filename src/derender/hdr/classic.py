@@ -35,7 +35,7 @@ from derender.engine.plans import FrameAccess, MethodDefaults, TablePlan
 from derender.engine.run import ENGINES
 from derender.engine.tables import curve_value_tables, weight_table
 from derender.engine.variance import variance_tables
-from derender.engine.weights import WEIGHTS
+from derender.engine.weights import WEIGHTS, black_codes, floor_weights
 from derender.hdr.registry import merge
 from derender.response.curves import (
     DEFAULT_SAMPLES,
@@ -213,13 +213,15 @@ class DebevecMethod(MethodDefaults):
                                                     censor=self.censor)
         self.fitted = curves
         values = curve_value_tables(curves, access.times, self.domain)
-        return TablePlan(values=values, weights=white_weights(weight_table(self.weight), curves),
+        self.black = black_codes(access.samples, access.times) if access.samples is not None else [0, 0, 0]
+        weights = floor_weights(white_weights(weight_table(self.weight), curves), self.black)
+        return TablePlan(values=values, weights=weights,
                          channel_weights=self.channel_weights,
                          domain=self.domain, block_rows=self.block_rows,
                          variance=variance_tables(values, self.domain, "debevec") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
-        result.info.update({"method": "debevec", "curves": self.fitted,
+        result.info.update({"method": "debevec", "curves": self.fitted, "black_codes": self.black,
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
 
 
@@ -265,12 +267,13 @@ class RobertsonMethod(MethodDefaults):
                                             max_pixels=self.max_pixels, weight=self.weight, tie=self.tie)
         self.fitted = curves
         values = curve_value_tables(curves, access.times, "linear")
-        return TablePlan(values=values, weights=robertson_weight_table(curves, self.weight),
+        self.black = black_codes(access.samples, access.times)
+        return TablePlan(values=values, weights=floor_weights(robertson_weight_table(curves, self.weight), self.black),
                          channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear",
                          variance=variance_tables(values, "linear", "robertson") if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
-        result.info.update({"method": "robertson", "curves": self.fitted,
+        result.info.update({"method": "robertson", "curves": self.fitted, "black_codes": self.black,
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
 
 
