@@ -29,7 +29,7 @@ from derender.hdr.stabilize.curves import Curve, as_curve
 from derender.hdr.stabilize.pair_fit import effective_codes, fit_pair, pair_cost, pair_costs_power, pair_residuals
 from derender.hdr.stabilize.solvers import bounded_minimizer, drive, find_root, minimize_bounded
 
-__all__ = ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"]
+__all__ = ["NARROW", "XATOL", "TIME_FOLLOW", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"]
 
 
 _W = LUMINANCE_WEIGHTS_REC709

@@ -415,9 +415,11 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
         mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
                                     n_iter=ransac_iter, info=info["colour_model"])
         how = ["joint"] * n
+    if "follows_times" in ge.info:
+        info["gamma_level"] = {k: ge.info[k] for k in ("level_gain", "follows_times", "time_residuals")}
     if ge.info.get("follows_times") and ge.method == "times":
         mats = anchor_to_times(mats, times, ref if mode == "reference" else None)
-        info["anchored_to_times"] = True
+        info["gamma_level"]["anchored_to_times"] = True
     from derender.hdr.stabilize import grey_balance as gb
 
     if gb.GREY_BALANCE:
@@ -529,6 +531,8 @@ def stabilization_info(stab: Stabilization) -> dict:
         info["hidden_saturation"] = stab.info["hidden_saturation"]
     if "grey_balance" in stab.info:
         info["grey_balance"] = stab.info["grey_balance"]
+    if "gamma_level" in stab.info:
+        info["gamma_level"] = stab.info["gamma_level"]
     if "colour_model" in stab.info:
         info["colour_model"] = stab.info["colour_model"]
     if al.shifts is not None:
