@@ -27,7 +27,11 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   H_j maps image j's linear values onto the reference's, so the stabilised images
   ``I'_j = H_j L_j`` (eq. 10) are all in the reference's exposure and colour rendering;
   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not bias
-  the colours (times serve the gamma level, the noise weights and the joint gauge).
+  the colours (times serve the gamma level, the noise weights and the joint gauge). Beyond the
+  paper: when the frames' exposures follow their times (one rendering; the gamma level's check,
+  :data:`TIME_FOLLOW`), each matrix's luminance scale is set from the times instead
+  (:func:`anchor_to_times`): a fit to a frame 8-10 stops from the reference reads its
+  noisy dark codes and carried 0.935-0.941 of the time ratio.
   Brackets whose frames differ by per-channel gains only (one rendering: a fixed pipeline, a
   film) take gains consistent over all neighbour pairs instead (:func:`diagonal_bracket`,
   :func:`graph_gains`): then the map does not depend on the reference (beyond the paper).
