@@ -201,11 +201,33 @@ def test_luminance_does_not_depend_on_the_bracket(spacing_rows_held_out, method)
     1 / 1.5 / 2 EV, whites 255 and 250-254, ``--deghost``) is in docs/results-luminance.md
     (``benchmarks/bench_luminance_spacing.py``). Measured (seeds 0 / 1; median, worst decade): debevec
     0.9 % / 0.9 %, 1.011 / 1.009; robertson 1.1 % / 1.4 %, 0.966 / 0.958; stabilized and
-    stabilized-joint 2.6 % / 2.6 %, 1.039 / 1.042 (a tilt from the stabiliser's gamma level, measured
-    on the results page). At 2 EV robertson, stabilized and stabilized-joint miss on this camera."""
+    stabilized-joint 0.6 % / 0.6 %, 0.994 / 1.003 (before their level and scale followed the times:
+    2.6 % / 2.6 %, 1.039 / 1.042, a tilt measured on the results page). At 2 EV robertson misses on
+    this camera."""
     rows = [r for r in spacing_rows_held_out if r["method"] == method]
     assert len(rows) == 2
     for r in rows:
         assert r["frames"] == 12 and all(c > 300 for c in r["counts"]), r["counts"]
         assert r["median_abs"] <= 0.03, (r["seed"], r["median_abs"])
         assert np.all(np.abs(np.asarray(r["decades"]) - 1.0) <= 0.05), (r["seed"], r["decades"])
+
+
+def test_stabilised_luminance_follows_the_times_at_2_ev():
+    """The stabilised merges on a 2-EV bracket of the fixed gamma-2.2 rendering (Fujifilm X-T3, not
+    looked at while choosing; 9 frames, scene 1, white 255), where both missed issue 36's line before
+    (stabilized 1.9 %, a decade at 1.050; stabilized-joint 3.0 %, 1.063: the gammas' level read
+    from pair gains extrapolated to white, 0.7 % high, and the shortest frames' matrices). The pairs'
+    gains read at their own colours follow the times (``gamma_level``), so the level comes from them
+    and the matrices' scale from the times (:func:`derender.hdr.stabilize.method.anchor_to_times`):
+    measured 1.4 % / 0.7 %, worst decades 1.025 / 1.014. The line (median <= 3 %, every decade
+    within +-5 %) is asserted; which level was taken is tested in ``tests/hdr/test_stabilize_families.py``."""
+    from conftest import require_shared
+    from derender.evaluation.linearity import spacing_rows
+
+    require_shared("rawtoaces-spectral")
+    rows = list(spacing_rows(["fujifilm-x-t3"], [2.0], [1], ["255"], ["stabilized", "stabilized-joint"], (False,)))
+    assert len(rows) == 2
+    for r in rows:
+        assert r["frames"] == 9 and all(c > 300 for c in r["counts"]), r["counts"]
+        assert r["median_abs"] <= 0.03, (r["method"], r["median_abs"])
+        assert np.all(np.abs(np.asarray(r["decades"]) - 1.0) <= 0.05), (r["method"], r["decades"])

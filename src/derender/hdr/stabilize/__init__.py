@@ -27,7 +27,11 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   H_j maps image j's linear values onto the reference's, so the stabilised images
   ``I'_j = H_j L_j`` (eq. 10) are all in the reference's exposure and colour rendering;
   the merge divides by ``t_ref``. Wrong EXIF times and gain changes therefore do not bias
-  the colours (times serve the gamma level, the noise weights and the joint gauge).
+  the colours (times serve the gamma level, the noise weights and the joint gauge). Beyond the
+  paper: when the frames' exposures follow their times (one rendering; the gamma level's check,
+  :data:`TIME_FOLLOW`), each matrix's luminance scale is set from the times instead
+  (:func:`anchor_to_times`): a fit to a frame 8-10 stops from the reference reads its
+  noisy dark codes and carried 0.935-0.941 of the time ratio.
   Brackets whose frames differ by per-channel gains only (one rendering: a fixed pipeline, a
   film) take gains consistent over all neighbour pairs instead (:func:`diagonal_bracket`,
   :func:`graph_gains`): then the map does not depend on the reference (beyond the paper).
@@ -62,9 +66,9 @@ __getattr__, __dir__, __all__ = attach(__name__, {
                         "diagonal_bracket", "graph_gains"],
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "grey_balance": ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "GREY_MAX_GAIN", "grey_balance"],
-    "exponents": ["NARROW", "XATOL", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
+    "exponents": ["NARROW", "XATOL", "TIME_FOLLOW", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
     "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_TIE_CODES", "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"],
-    "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack", "stabilized_joint_stack"],
+    "method": ["anchor_to_times", "Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack", "stabilized_joint_stack"],
     "frame_exponents": ["EXPONENT_DEGREE", "EXPONENT_MAX", "EXPONENT_STEP", "EXPONENT_GRID", "EXPONENT_FREE_OFFSETS",
                         "warp_codes", "interp_table", "search_exponents", "gauge_exponents"],
     "frame_views": ["ShiftedFrames", "ShiftedValid", "HeldValid", "CodeFrameRows", "LazyAlignment"],

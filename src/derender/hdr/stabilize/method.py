@@ -14,6 +14,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709 as _W
 from derender.core.errors import InputError
 from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
@@ -41,7 +42,7 @@ from derender.hdr.stabilize.filmic import (
 from derender.hdr.stabilize.frame_views import CodeFrameRows, HeldValid, LazyAlignment, ShiftedFrames
 from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
 
-__all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
+__all__ = ["anchor_to_times", "Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
            "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
            "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack",
            "stabilized_joint_stack"]
@@ -414,6 +415,11 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
         mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
                                     n_iter=ransac_iter, info=info["colour_model"])
         how = ["joint"] * n
+    if "follows_times" in ge.info:
+        info["gamma_level"] = {k: ge.info[k] for k in ("level_gain", "follows_times", "time_residuals")}
+    if ge.info.get("follows_times") and ge.method == "times":
+        mats = anchor_to_times(mats, times, ref if mode == "reference" else None)
+        info["gamma_level"]["anchored_to_times"] = True
     from derender.hdr.stabilize import grey_balance as gb
 
     if gb.GREY_BALANCE:
@@ -423,6 +429,27 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
     info["timings"] = {"response_s": t2 - t1, "matrices_s": t3 - t2}
     return Stabilization(mode=mode, reference=ref, gammas=ge, matrices=mats, alignment=al, times=times,
                          curves=curves, how=how, info=info)
+
+
+def anchor_to_times(mats: np.ndarray, times: np.ndarray, reference: int | None) -> np.ndarray:
+    """The matrices rescaled so that their luminance gain on white follows the exposure times:
+    ``lum(H_j 1) = t_ref / t_j`` (``reference`` given, :func:`colour_matrices_to_reference`), or
+    ``lum(K_j 1)`` equal for every frame, their mean (``reference=None``,
+    :func:`joint_colour_matrices`). Colour (each matrix's shape) is kept, only its scale changes.
+
+    Used when the bracket's exposures follow its times (``GammaEstimate.info["follows_times"]``,
+    :func:`~derender.hdr.stabilize.exponents.estimate_gammas_blocks`: one rendering, the gammas'
+    level set from the times): the fitted scale of a frame far from the reference is then worse
+    than the times' (on a pure gamma-2.2 camera at 2 EV, the shortest frames' fits, 8-10 stops from
+    the reference through blocks at codes near 11, carry 0.935-0.941 of the time ratio: the
+    convexity of ``J^gamma`` lifts the mean of noisy dark codes)."""
+    m = np.array(mats, dtype=np.float64, copy=True)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    lum = np.einsum("c,jcd->j", _W, m)          # lum(M_j 1)
+    if not np.all(np.isfinite(lum)) or np.any(lum <= 0):
+        return m
+    target = t[reference] / t if reference is not None else np.full(t.shape, float(np.mean(lum)))
+    return m * (target / lum)[:, None, None]
 
 
 def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
@@ -504,6 +531,8 @@ def stabilization_info(stab: Stabilization) -> dict:
         info["hidden_saturation"] = stab.info["hidden_saturation"]
     if "grey_balance" in stab.info:
         info["grey_balance"] = stab.info["grey_balance"]
+    if "gamma_level" in stab.info:
+        info["gamma_level"] = stab.info["gamma_level"]
     if "colour_model" in stab.info:
         info["colour_model"] = stab.info["colour_model"]
     if al.shifts is not None:
