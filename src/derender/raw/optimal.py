@@ -471,8 +471,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         A neutral region of the merged mosaic that sets the white balance.
     demosaic : str
         ``"malvar2004"`` (default), ``"menon2007"`` (closer to the scene; its variance exact
-        given its directions, but its variance pass is about 100x slower) or ``"bilinear"``
-        (aliases ``malvar``, ``menon``).
+        given its directions, but its variance pass is about 100x slower), ``"ahd"`` (Hirakawa &
+        Parks 2005, dcraw's; :mod:`derender.raw.ahd`) or ``"bilinear"`` (aliases ``malvar``, ``menon``).
     variance : bool
         Also give the per-pixel variance of the radiance.
     clip_negative : bool
