@@ -301,15 +301,16 @@ def _weights(k, x, cy, cx, h, w, chan, red_row, vertical):  # pragma: no cover -
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var, out, var_out,
-             choice):  # pragma: no cover - compiled
+def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var, out, var_out, choice,
+             direction_term=True):  # pragma: no cover - compiled
     """Step 5, the output matrix and the variance (module docstring) in one pass.
 
     ``x`` (H, W) the white-balanced mosaic (``var`` its variance, photosites independent),
     ``gh``, ``gv`` from :func:`ahd_greens`, ``homo`` from :func:`ahd_homogeneity`; ``matrix``
     (3, 3). Writes ``out`` (H, W, 3) float32 (negatives 0 with ``clip_negative``), with
     ``do_var`` ``var_out`` (H, W, 3) float32, and ``choice`` (H, W) uint8: 0 horizontal, 1
-    vertical, 2 the mean of both."""
+    vertical, 2 the mean of both. ``direction_term=False`` leaves out ``P(flip) Delta^2`` (for
+    comparison)."""
     h, w = x.shape
     for row in prange(h):
         cy = np.int64(row)
@@ -348,9 +349,6 @@ def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var,
             d0 = 0.0
             d1 = 0.0
             d2 = 0.0
-            e0 = 0.0
-            e1 = 0.0
-            e2 = 0.0
             for i in range(7):
                 yy = cy + i - 3
                 if yy < 0 or yy >= h:
@@ -401,7 +399,7 @@ def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var,
             e2 = matrix[2, 0] * dr + matrix[2, 1] * dg + matrix[2, 2] * db
             dd = d0 + d1 + d2
             ee = e0 * e0 + e1 * e1 + e2 * e2
-            if dd > 0.0 and ee > 0.0:
+            if direction_term and dd > 0.0 and ee > 0.0:
                 p = 0.5 * math.erfc(math.sqrt(ee / dd) * 0.7071067811865476)
                 f = 0.25 if pick == 2 else 1.0           # from or to the mean: half of Delta
                 v0 += p * f * e0 * e0
@@ -430,7 +428,8 @@ def lab_scale(mosaic: np.ndarray) -> float:
 
 def ahd_demosaic(mosaic: np.ndarray, pattern: str, variance: np.ndarray | None = None,
                  matrix: np.ndarray | None = None, *, scale: float | None = None, clip_negative: bool = False,
-                 lab_matrix: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+                 lab_matrix: np.ndarray | None = None,
+                 direction_term: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """AHD (module docstring) of a white-balanced (H, W) Bayer mosaic.
 
     Parameters
@@ -449,6 +448,8 @@ def ahd_demosaic(mosaic: np.ndarray, pattern: str, variance: np.ndarray | None =
         Set negative outputs to 0.
     lab_matrix : (3, 3) array, optional
         The RGB-to-XYZ matrix of step 3 (default :data:`LAB_MATRIX`).
+    direction_term : bool
+        Add ``P(flip) Delta^2`` to the variance (module docstring); False for comparison.
 
     Returns
     -------
@@ -489,7 +490,7 @@ def ahd_demosaic(mosaic: np.ndarray, pattern: str, variance: np.ndarray | None =
         ahd_greens(x, chan, gh, gv)
         ahd_homogeneity(x, gh, gv, chan, red_row, lab, homo)
         ahd_rows(x, v, gh, gv, homo, chan, red_row, m, bool(clip_negative), variance is not None, out, var_out,
-                 choice)
+                 choice, bool(direction_term))
     return out, (var_out if variance is not None else None), choice
 
 
