@@ -21,13 +21,14 @@ def _directional(x, pattern):
     x = np.ascontiguousarray(x, np.float32)
     gh = np.empty((h, w), np.float32)
     gv = np.empty((h, w), np.float32)
-    ahd_greens(x, chan, gh, gv)
+    clamps = np.empty((h, w), np.uint8)
+    ahd_greens(x, chan, gh, gv, clamps)
     out = []
     for d in range(2):
         homo = np.zeros((2, h, w), np.uint8)
         homo[d] = 1                                   # every pixel more homogeneous in direction d
         o = np.empty((h, w, 3), np.float32)
-        ahd_rows(x, x, gh, gv, homo, chan, red_row, np.eye(3), False, False, o, np.empty((1, 1, 3), np.float32),
+        ahd_rows(x, x, gh, gv, clamps, homo, chan, red_row, np.eye(3), False, False, o, np.empty((1, 1, 3), np.float32),
                  np.empty((h, w), np.uint8))
         out.append(o.astype(np.float64))
     return out + [0.5 * (out[0] + out[1])]

@@ -120,9 +120,10 @@ def _green_estimate(x, y, xx, h, w, vertical):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def ahd_greens(x, chan, gh, gv):  # pragma: no cover - compiled
+def ahd_greens(x, chan, gh, gv, state):  # pragma: no cover - compiled
     """Step 1: ``gh``, ``gv`` (H, W) the horizontal and vertical greens of the white-balanced
-    mosaic ``x`` (``chan`` (2, 2): the CFA colour of each phase, 0 R, 1 G, 2 B)."""
+    mosaic ``x`` (``chan`` (2, 2): the CFA colour of each phase, 0 R, 1 G, 2 B); ``state`` (H, W)
+    uint8 their clamps, ``s_H + 4 s_V`` (0 the filter, 1 the first neighbour, 2 the second)."""
     h, w = x.shape
     for row in prange(h):
         y = np.int64(row)                        # prange's index is unsigned (uint64 - int64 is float)
@@ -130,9 +131,13 @@ def ahd_greens(x, chan, gh, gv):  # pragma: no cover - compiled
             if chan[y & 1, xx & 1] == 1:
                 gh[y, xx] = x[y, xx]
                 gv[y, xx] = x[y, xx]
+                state[y, xx] = 0
             else:
-                gh[y, xx] = _green_estimate(x, y, xx, h, w, False)[0]
-                gv[y, xx] = _green_estimate(x, y, xx, h, w, True)[0]
+                vh, sh = _green_estimate(x, y, xx, h, w, False)
+                vv, sv = _green_estimate(x, y, xx, h, w, True)
+                gh[y, xx] = vh
+                gv[y, xx] = vv
+                state[y, xx] = sh + 4 * sv
 
 
 @njit(cache=True, nogil=True)
@@ -241,12 +246,13 @@ def _tap(k, c, y, xx, cy, cx, wt):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _green_taps(k, c, x, y, xx, cy, cx, h, w, chan, vertical, wt):  # pragma: no cover - compiled
-    """The weights of the green at (y, xx) (mirrored) in direction ``vertical``, times ``wt``."""
+def _green_taps(k, c, clamps, y, xx, cy, cx, h, w, chan, vertical, wt):  # pragma: no cover - compiled
+    """The weights of the green at (y, xx) (mirrored) in direction ``vertical``, times ``wt``
+    (``clamps``: the ``state`` of :func:`ahd_greens`)."""
     if chan[y & 1, xx & 1] == 1:
         _tap(k, c, y, xx, cy, cx, wt)
         return
-    state = _green_estimate(x, y, xx, h, w, vertical)[1]
+    state = (clamps[y, xx] >> 2) if vertical else (clamps[y, xx] & 3)
     if vertical:
         a, b = _mirror(y - 1, h), _mirror(y + 1, h)
         if state == 1:
@@ -274,8 +280,9 @@ def _green_taps(k, c, x, y, xx, cy, cx, h, w, chan, vertical, wt):  # pragma: no
 
 
 @njit(cache=True, nogil=True)
-def _weights(k, x, cy, cx, h, w, chan, red_row, vertical):  # pragma: no cover - compiled
-    """``K_c(p)`` of step 2 at (cy, cx) in one direction, into the zeroed (3, 7, 7) ``k``."""
+def _weights(k, clamps, cy, cx, h, w, chan, red_row, vertical):  # pragma: no cover - compiled
+    """``K_c(p)`` of step 2 at (cy, cx) in one direction, into the zeroed (3, 7, 7) ``k``
+    (``clamps``: the ``state`` of :func:`ahd_greens`)."""
     c = chan[cy & 1, cx & 1]
     if c == 1:
         _tap(k, 1, cy, cx, cy, cx, 1.0)
@@ -286,27 +293,27 @@ def _weights(k, x, cy, cx, h, w, chan, red_row, vertical):  # pragma: no cover -
                 yy = cy if side == 0 else _mirror(cy + s, h)
                 x1 = _mirror(cx + s, w) if side == 0 else cx
                 _tap(k, o, yy, x1, cy, cx, 0.5)
-                _green_taps(k, o, x, yy, x1, cy, cx, h, w, chan, vertical, -0.5)
+                _green_taps(k, o, clamps, yy, x1, cy, cx, h, w, chan, vertical, -0.5)
         return
     _tap(k, c, cy, cx, cy, cx, 1.0)
-    _green_taps(k, 1, x, cy, cx, cy, cx, h, w, chan, vertical, 1.0)
+    _green_taps(k, 1, clamps, cy, cx, cy, cx, h, w, chan, vertical, 1.0)
     o = 2 - c
-    _green_taps(k, o, x, cy, cx, cy, cx, h, w, chan, vertical, 1.0)
+    _green_taps(k, o, clamps, cy, cx, cy, cx, h, w, chan, vertical, 1.0)
     for dy in (-1, 1):
         yy = _mirror(cy + dy, h)
         for dx in (-1, 1):
             x1 = _mirror(cx + dx, w)
             _tap(k, o, yy, x1, cy, cx, 0.25)
-            _green_taps(k, o, x, yy, x1, cy, cx, h, w, chan, vertical, -0.25)
+            _green_taps(k, o, clamps, yy, x1, cy, cx, h, w, chan, vertical, -0.25)
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var, out, var_out, choice,
+def ahd_rows(x, var, gh, gv, clamps, homo, chan, red_row, matrix, clip_negative, do_var, out, var_out, choice,
              direction_term=True):  # pragma: no cover - compiled
     """Step 5, the output matrix and the variance (module docstring) in one pass.
 
     ``x`` (H, W) the white-balanced mosaic (``var`` its variance, photosites independent),
-    ``gh``, ``gv`` from :func:`ahd_greens`, ``homo`` from :func:`ahd_homogeneity`; ``matrix``
+    ``gh``, ``gv`` and their ``clamps`` from :func:`ahd_greens`, ``homo`` from :func:`ahd_homogeneity`; ``matrix``
     (3, 3). Writes ``out`` (H, W, 3) float32 (negatives 0 with ``clip_negative``), with
     ``do_var`` ``var_out`` (H, W, 3) float32, and ``choice`` (H, W) uint8: 0 horizontal, 1
     vertical, 2 the mean of both. ``direction_term=False`` leaves out ``P(flip) Delta^2`` (for
@@ -341,8 +348,8 @@ def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var,
                 out[cy, cx, o] = v
             if not do_var:
                 continue
-            _weights(kh, x, cy, cx, h, w, chan, red_row, False)
-            _weights(kv, x, cy, cx, h, w, chan, red_row, True)
+            _weights(kh, clamps, cy, cx, h, w, chan, red_row, False)
+            _weights(kv, clamps, cy, cx, h, w, chan, red_row, True)
             v0 = 0.0
             v1 = 0.0
             v2 = 0.0
@@ -353,7 +360,7 @@ def ahd_rows(x, var, gh, gv, homo, chan, red_row, matrix, clip_negative, do_var,
                 yy = cy + i - 3
                 if yy < 0 or yy >= h:
                     continue
-                for j in range(7):
+                for j in range(0 if 2 <= i <= 4 else 2, 7 if 2 <= i <= 4 else 5):   # the support: a cross
                     xj = cx + j - 3
                     if xj < 0 or xj >= w:
                         continue
@@ -476,6 +483,7 @@ def ahd_demosaic(mosaic: np.ndarray, pattern: str, variance: np.ndarray | None =
     m = np.eye(3) if matrix is None else np.ascontiguousarray(matrix, np.float64)
     gh = np.empty((h, w), np.float32)
     gv = np.empty((h, w), np.float32)
+    clamps = np.empty((h, w), np.uint8)
     homo = np.empty((2, h, w), np.uint8)
     out = np.empty((h, w, 3), np.float32)
     choice = np.empty((h, w), np.uint8)
@@ -487,9 +495,9 @@ def ahd_demosaic(mosaic: np.ndarray, pattern: str, variance: np.ndarray | None =
     from derender.raw.kernels import KERNEL_LOCK
 
     with KERNEL_LOCK:
-        ahd_greens(x, chan, gh, gv)
+        ahd_greens(x, chan, gh, gv, clamps)
         ahd_homogeneity(x, gh, gv, chan, red_row, lab, homo)
-        ahd_rows(x, v, gh, gv, homo, chan, red_row, m, bool(clip_negative), variance is not None, out, var_out,
+        ahd_rows(x, v, gh, gv, clamps, homo, chan, red_row, m, bool(clip_negative), variance is not None, out, var_out,
                  choice, bool(direction_term))
     return out, (var_out if variance is not None else None), choice
 
