@@ -33,7 +33,7 @@ merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-speed 6016x4000 [--with-colour-demosaicing]
 
 ``--demosaic-candidates``: colour_demosaicing's Malvar 2004, bilinear and Menon 2007 (with and
-without its refining step) on the noise-free true mosaic and on derender's merged mosaic of
+without its refining step) and derender's AHD (:mod:`derender.raw.ahd`) on the noise-free true mosaic and on derender's merged mosaic of
 every case, against the scene (one scale fitted): median / darkest / brightest decade.
 ``--demosaic-speed``: the compiled demosaic passes on a random mosaic of that size.
 """
@@ -150,23 +150,29 @@ def coverage(size, exposures, seed=3):
               f"| {a['coverage95']:.3f} | {a['coverage50']:.3f} | {sc['coverage95']:.3f} | {sc['coverage50']:.3f} |")
 
 
-def demosaic_candidates(size, exposures, seed=3):
-    """The demosaic candidates' table (module docstring) for every case of :data:`CASES`."""
+def demosaic_candidates(size, exposures, seed=3, white_balanced=False):
+    """The demosaic candidates' table (module docstring) for every case of :data:`CASES`; with
+    ``white_balanced`` each mosaic is multiplied by the bracket's as-shot white balance before
+    the demosaic and divided by it after (as dcraw and the merge's ``linear_srgb`` output do),
+    so that the result is camera RGB still."""
     import colour_demosaicing as cd
 
     from derender.camera import simulate_bracket
     from derender.camera.sensor import mosaic_signal
     from derender.camera.spectral import load_camera
     from derender.evaluation.raw_merge import bracket_raw_frames
-    from derender.raw.mosaic import sorted_raw_frames, spread_mask
+    from derender.raw.ahd import ahd_demosaic
+    from derender.raw.mosaic import cfa_channel_index, sorted_raw_frames, spread_mask
     from derender.raw.noise import estimate_noise_frames
     from derender.raw.optimal import compiled_frames, interleave, merge_compiled
 
     cands = {"Malvar 2004": lambda m: cd.demosaicing_CFA_Bayer_Malvar2004(m, "RGGB"),
              "bilinear": lambda m: cd.demosaicing_CFA_Bayer_bilinear(m, "RGGB"),
              "Menon 2007": lambda m: cd.demosaicing_CFA_Bayer_Menon2007(m, "RGGB", refining_step=False),
-             "Menon 2007 + refining": lambda m: cd.demosaicing_CFA_Bayer_Menon2007(m, "RGGB", refining_step=True)}
-    print(f"## Demosaic candidates: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}\n")
+             "Menon 2007 + refining": lambda m: cd.demosaicing_CFA_Bayer_Menon2007(m, "RGGB", refining_step=True),
+             "AHD 2005": lambda m: ahd_demosaic(m, "RGGB")[0]}
+    print(f"## Demosaic candidates: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}"
+          f"{', white-balanced first' if white_balanced else ''}\n")
     print("| camera | scene | mosaic | " + " | ".join(cands) + " |")
     print("|---|---|---|" + "---|" * len(cands))
     for cam_name, bits, kind in CASES:
@@ -177,18 +183,21 @@ def demosaic_candidates(size, exposures, seed=3):
         noise = estimate_noise_frames(mosaics, black, white, times)
         x, _, m = merge_compiled(mosaics, black, white, times, noise, scale=1.0 / (white[0] - black[0]))
         truth = np.asarray(b.camera_rgb_per_s, np.float64)
+        wb = np.asarray(ordered[len(ordered) // 2].as_shot_wb, np.float64) if white_balanced else np.ones(3)
+        gains = wb[cfa_channel_index(m.shape, "RGGB")]
         for label, mos in (("true", mosaic_signal(b.camera_rgb_per_s).astype(np.float64)),
                            ("merged", interleave(x, m.shape).astype(np.float64))):
             cells = []
             for fn in cands.values():
-                sc = _scaled_scores(np.asarray(fn(mos), np.float64), truth, spread_mask(m))
+                sc = _scaled_scores(np.asarray(fn(mos * gains), np.float64) / wb, truth, spread_mask(m))
                 cells.append(f"{100 * sc['median']:.2f} / {100 * sc['dark_decade']:.2f} / "
                              f"{100 * sc['bright_decade']:.2f}")
             print(f"| {cam_name} | {kind} | {label} | " + " | ".join(cells) + " |", flush=True)
 
 
-def demosaic_speed(size, with_colour_demosaicing=False):
-    """Wall and CPU seconds (best of 2) of the compiled demosaic passes on a random mosaic of ``size``."""
+def demosaic_speed(size, with_colour_demosaicing=False, skip=()):
+    """Wall and CPU seconds (best of 2) of the compiled demosaic passes on a random mosaic of ``size``
+    (the passes whose name contains one of ``skip`` left out)."""
     from derender.raw.optimal import demosaic_compiled
 
     w, h = size
@@ -203,6 +212,8 @@ def demosaic_speed(size, with_colour_demosaicing=False):
     mult = np.array([2.0, 1.0, 1.5])
 
     def timed(name, fn, repeats=2):
+        if any(k in name for k in skip):
+            return
         fn()
         wall = cpu = float("inf")
         for _ in range(repeats):
@@ -216,6 +227,8 @@ def demosaic_speed(size, with_colour_demosaicing=False):
     timed("compiled Menon 2007, no variance", lambda: demosaic_compiled(x, None, (h, w), "RGGB", mult, mat,
                                                                           "menon2007"))
     timed("compiled Menon 2007 + variance", lambda: demosaic_compiled(x, v, (h, w), "RGGB", mult, mat, "menon2007"))
+    timed("compiled AHD 2005, no variance", lambda: demosaic_compiled(x, None, (h, w), "RGGB", mult, mat, "ahd"))
+    timed("compiled AHD 2005 + variance", lambda: demosaic_compiled(x, v, (h, w), "RGGB", mult, mat, "ahd"))
     if with_colour_demosaicing:
         import colour_demosaicing as cd
 
@@ -317,15 +330,20 @@ def main() -> None:
     ap.add_argument("--no-hdrutils-speed", action="store_true")
     ap.add_argument("--coverage-only", action="store_true")
     ap.add_argument("--demosaic-candidates", action="store_true")
+    ap.add_argument("--white-balanced", action="store_true",
+                    help="--demosaic-candidates on the mosaics white-balanced first (as-shot), undone after")
     ap.add_argument("--demosaic-speed", default=None, help="WxH: time the compiled demosaic passes")
     ap.add_argument("--with-colour-demosaicing", action="store_true")
+    ap.add_argument("--skip-passes", default="", help="comma-separated: --demosaic-speed leaves out the passes "
+                                                       "whose name contains one, e.g. 'Menon 2007 + variance'")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
     if args.demosaic_candidates:
-        demosaic_candidates((w, h), args.exposures)
+        demosaic_candidates((w, h), args.exposures, white_balanced=args.white_balanced)
         return
     if args.demosaic_speed:
-        demosaic_speed(tuple(int(v) for v in args.demosaic_speed.split("x")), args.with_colour_demosaicing)
+        demosaic_speed(tuple(int(v) for v in args.demosaic_speed.split("x")), args.with_colour_demosaicing,
+                       tuple(k for k in args.skip_passes.split(",") if k))
         return
     if args.coverage_only:
         coverage((w, h), args.exposures)

@@ -7,9 +7,12 @@ program merges those very files, with the exposure times given (the simulated DN
 ISO or f-number, so EXIF readers cannot compute exposures; every peer is given the exact
 times, not dcraw's rounded print-out):
 
-* ``derender`` -- ``derender merge --method raw -O output_space=camera_rgb -O demosaic=D``
+* ``derender`` -- ``derender merge --method raw -O output_space=S -O demosaic=D`` (``--derender-space S``,
+  default ``camera_rgb``, scored after one scale; ``linear_srgb`` white-balances before the
+  demosaic as dcraw does and is scored after a 3x3 fit, as the peers in sRGB are)
   (:func:`derender.hdr.raw.merge_raw`, noise estimated from the frames; ``--demosaic D``,
-  default ``menon2007``, the closer of its two demosaics; ``malvar2004`` is the merge's default);
+  default ``menon2007``; ``ahd``, dcraw's and LibRaw's interpolator, :mod:`derender.raw.ahd`;
+  ``malvar2004`` is the merge's default);
 * ``hdrutils`` -- HDRutils (PyPI) ``merge(demosaic_first=False, color_space='raw',
   wb=[1, 1, 1], demosaic='malvar', exp=times)``, as docs/raw.md says it runs with today's rawpy;
 * ``pfstools`` -- Debian pfstools: ``pfsinhdrgen`` (what ``pfsinme`` runs after
@@ -95,7 +98,8 @@ def run_derender(files, times, work: Path, args):
     from derender.hdr.raw import merge_raw
     from derender.io.raw import read_raw_stack
 
-    res = merge_raw(read_raw_stack(files, times=times), {"output_space": "camera_rgb", "demosaic": args.demosaic})
+    res = merge_raw(read_raw_stack(files, times=times), {"output_space": args.derender_space,
+                                                         "demosaic": args.demosaic})
     return res.radiance.astype(np.float64), res.mask
 
 
@@ -217,11 +221,13 @@ def run_case(cam_name, bits, kind, size, exposures, seed, peers, args, work: Pat
         if m is not None and mask is None:
             mask = m
         fits = [FITS[name]] + (["matrix"] if name == "derender" else [])
+        if name == "derender" and args.derender_space != "camera_rgb":
+            fits = ["matrix"]             # white-balanced sRGB or XYZ: a 3x3 fit, as pfstools and Luminance HDR get
         for fit in fits:
             a = raw_scores(_fitted(rad, truth, fit), truth, mask)
             own = raw_scores(_fitted(rad, ref, fit), ref, mask)         # same pipeline without noise, same fit
             clean_err = raw_scores(_fitted(ref, truth, fit), truth, mask)   # its demosaic and colour path alone
-            label = name if fit == FITS[name] else f"{name} (3x3 fit)"
+            label = name if fit == fits[0] else f"{name} (3x3 fit)"
             rows.append({"peer": label, "fit": fit, "scene": a, "noise_free": own, "clean_vs_scene": clean_err,
                          "seconds": secs})
     return rows
@@ -235,8 +241,11 @@ def main() -> None:
     ap.add_argument("--peers", default=",".join(PEERS), help=f"comma-separated, of {', '.join(PEERS)}")
     ap.add_argument("--cases", default="all", help="'all' or indices into CASES, e.g. 0,3")
     ap.add_argument("--hdrgen", default=None, help="path of the hdrgen program (raw2hdr's merger)")
-    ap.add_argument("--demosaic", default="menon2007", choices=("menon2007", "malvar2004"),
+    ap.add_argument("--demosaic", default="menon2007", choices=("menon2007", "malvar2004", "ahd"),
                     help="derender's demosaic (the merge's default is malvar2004)")
+    ap.add_argument("--derender-space", default="camera_rgb", choices=("camera_rgb", "linear_srgb", "xyz"),
+                    help="derender's output space (linear_srgb: white balance before the demosaic, as dcraw "
+                         "does, then a 3x3 fit like the peers in sRGB)")
     ap.add_argument("--workdir", default=None, help="keep the files here (default: a temporary folder)")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))

@@ -1,7 +1,7 @@
 """RAW development: the noise-optimal merge (censored Poisson-Gaussian ML, noise from the frames, a variance),
 paper 1's binary-weight merge (Sec. 4.2, Alg. 2), white balance, demosaicing, ground truth in linear sRGB.
 
-Modules: :mod:`derender.raw.groundtruth`, :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`,
+Modules: :mod:`derender.raw.ahd`, :mod:`derender.raw.groundtruth`, :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`,
 :mod:`derender.raw.optimal`.
 """
 

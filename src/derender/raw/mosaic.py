@@ -7,7 +7,8 @@
 2. :func:`white_balance_mosaic` / :func:`wb_from_patch` -- one multiplier per CFA colour.
 3. :func:`demosaic_bayer` -- Malvar, He & Cutler (2004) via ``colour_demosaicing`` (paper 1's
    choice), or Menon, Andriani & Calvagno (2007, without its refining step; the noise-optimal
-   merge's default, :func:`derender.raw.optimal.raw_merge`), or bilinear.
+   merge's default, :func:`derender.raw.optimal.raw_merge`), or bilinear; or Hirakawa & Parks
+   (2005, AHD, dcraw's and LibRaw's; :mod:`derender.raw.ahd`).
 """
 
 from __future__ import annotations
@@ -48,16 +49,16 @@ HIGH = 0.92
 
 
 #: Demosaicing methods accepted by :func:`demosaic_bayer`.
-DEMOSAIC_METHODS = ("malvar2004", "bilinear", "menon2007")
+DEMOSAIC_METHODS = ("malvar2004", "bilinear", "menon2007", "ahd")
 
 
 #: Short names accepted for :data:`DEMOSAIC_METHODS` (``-O demosaic=malvar``).
-DEMOSAIC_ALIASES = {"malvar": "malvar2004", "menon": "menon2007", "ddfapd": "menon2007"}
+DEMOSAIC_ALIASES = {"malvar": "malvar2004", "menon": "menon2007", "ddfapd": "menon2007", "ahd2005": "ahd"}
 
 
 #: Half-width of the neighbourhood a mask flag is spread over after demosaicing, per method
-#: (Malvar's kernels are 5x5; Menon's outputs combine photosites up to 4 away).
-MASK_RADIUS = {"malvar2004": 2, "bilinear": 1, "menon2007": 4}
+#: (Malvar's kernels are 5x5; Menon's outputs combine photosites up to 4 away, AHD's up to 3).
+MASK_RADIUS = {"malvar2004": 2, "bilinear": 1, "menon2007": 4, "ahd": 3}
 
 
 def demosaic_name(method: str | None, default: str = "malvar2004") -> str:
@@ -263,7 +264,8 @@ def demosaic_bayer(mosaic: np.ndarray, pattern: str, method: str = "malvar2004")
 
     ``method``: ``"malvar2004"`` (Malvar, He & Cutler 2004, the paper's choice),
     ``"menon2007"`` (Menon, Andriani & Calvagno 2007, DDFAPD, without its refining step) or
-    ``"bilinear"``; all from ``colour_demosaicing`` (aliases: :data:`DEMOSAIC_ALIASES`).
+    ``"bilinear"``, all from ``colour_demosaicing``, or ``"ahd"`` (Hirakawa & Parks 2005 as dcraw
+    computes it, :func:`derender.raw.ahd.ahd_demosaic`; aliases: :data:`DEMOSAIC_ALIASES`).
     """
     import colour_demosaicing as cd
 
@@ -276,6 +278,10 @@ def demosaic_bayer(mosaic: np.ndarray, pattern: str, method: str = "malvar2004")
         out = cd.demosaicing_CFA_Bayer_Menon2007(np.asarray(mosaic, dtype=np.float64), p, refining_step=False)
     elif method == "bilinear":
         out = cd.demosaicing_CFA_Bayer_bilinear(np.asarray(mosaic, dtype=np.float64), p)
+    elif method == "ahd":
+        from derender.raw.ahd import ahd_demosaic
+
+        out = ahd_demosaic(mosaic, p)[0]
     else:
         raise InputError(f"unknown demosaicing method {method!r}; choose one of {', '.join(DEMOSAIC_METHODS)}")
     return np.asarray(out, dtype=np.float32)

@@ -191,8 +191,8 @@ def merge_mosaic_optimal(d: list[np.ndarray], saturated: list[np.ndarray], ceili
 def _malvar_kernels(pattern: str, method: str) -> np.ndarray:
     """(2, 2, 3, 5, 5): the demosaic's linear kernel for output phase (py, px) and channel c,
     read off its responses to unit impulses (Malvar 2004 is linear and shift-invariant per phase)."""
-    if method == "menon2007":
-        raise InputError("Menon 2007 is not one linear filter per CFA phase: its variance is computed "
+    if method in ("menon2007", "ahd"):
+        raise InputError(f"{method} is not one linear filter per CFA phase: its variance is computed "
                          "in demosaic_compiled, given its directions")
     n = 16
     k = np.zeros((2, 2, 3, 5, 5))
@@ -366,6 +366,10 @@ def demosaic_compiled(x: np.ndarray, var: np.ndarray | None, shape: tuple[int, i
     p = pattern.upper()
     if method == "menon2007":
         return _menon_compiled(x, var, shape, p, multipliers, matrix, clip_negative)
+    if method == "ahd":
+        from derender.raw.ahd import ahd_planes
+
+        return ahd_planes(x, var, shape, p, multipliers, matrix, clip_negative)
     ntaps, dy, dx, k = _tap_table(p, method)
     taps = np.ascontiguousarray(np.einsum("oc,yxtc->yxto", np.asarray(matrix, np.float64), k))
     lut = {"R": 0, "G": 1, "B": 2}
@@ -467,8 +471,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         A neutral region of the merged mosaic that sets the white balance.
     demosaic : str
         ``"malvar2004"`` (default), ``"menon2007"`` (closer to the scene; its variance exact
-        given its directions, but its variance pass is about 100x slower) or ``"bilinear"``
-        (aliases ``malvar``, ``menon``).
+        given its directions, but its variance pass is about 100x slower), ``"ahd"`` (Hirakawa &
+        Parks 2005, dcraw's; :mod:`derender.raw.ahd`) or ``"bilinear"`` (aliases ``malvar``, ``menon``).
     variance : bool
         Also give the per-pixel variance of the radiance.
     clip_negative : bool
