@@ -175,10 +175,12 @@ def wls_normal(r2, xs, pair_of, design_g, design_s, params, first, clip):  # pra
 
 
 @njit(inline="always")
-def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, x):  # pragma: no cover - compiled
+def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, near, tol, x):  # pragma: no cover - compiled
     """Newton steps of the censored likelihood at photosite ``xx`` of row ``y`` (``rows``: that
     row of every frame; ``vrows``: whether each frame takes part there) from ``x``:
-    ``(x, information)``."""
+    ``(x, information)``. A censored sample more than ``near`` sigma above its level
+    (``z < -near``: ``lambda(z) < 1e-14``, the score's term ``< 1e-14 e / sd``) is skipped; the
+    steps stop once one is below ``tol`` sigma (``step^2 I < tol^2``), else after ``iterations``."""
     py = y & 1
     px = xx & 1
     info = 0.0
@@ -197,16 +199,21 @@ def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iteratio
             else:
                 sd = math.sqrt(v)
                 z = (white[j] - black[j, py, px] - x * e) / sd
+                if z < -near:
+                    continue
                 lam = inverse_mills(z)
                 score += e * lam / sd
                 info += e * e * lam * max(lam - z, 0.0) / v
         if info > 0.0:
-            x += score / info
+            step = score / info
+            x += step
+            if step * step * info < tol * tol:
+                break
     return x, info
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iterations, near, inv_span,
+def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iterations, near, newton_tol, inv_span,
                x_out, var_out, mask_out, bright):  # pragma: no cover - compiled
     """The censored ML merge of :func:`derender.raw.optimal.merge_mosaic_optimal`, per photosite.
 
@@ -221,8 +228,9 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
     :func:`demosaic_rows` reads), and
     ``bright`` in ``mask_out`` where every frame is saturated (``X`` the bound ``max_j c_j / e_j``,
     variance ``X^2``). Each row is done frame by frame over the whole row (the pooled start,
-    two reweighted rounds: loops without branches that the compiler vectorises), then the
-    Newton steps at the photosites that need them."""
+    two reweighted rounds, which photosites have a censored sample within ``near`` sigma of its
+    level: loops without branches that the compiler vectorises), then the Newton steps at the
+    photosites that need them, until a step is below ``newton_tol`` sigma or after ``iterations``."""
     n = len(mosaics)
     h, w = mask_out.shape
     for y in prange(h):
@@ -232,7 +240,6 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
         den = np.zeros(w)
         bound = np.zeros(w)
         bound_all = np.zeros(w)
-        nsat = np.zeros(w, np.int64)
         rows = np.empty((n, w), mosaics[0].dtype)     # the row of every frame (one list access per frame)
         vrows = np.ones((n, w), np.uint8)
         for j in range(n):
@@ -256,7 +263,6 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
                 un = code < wl and ok
                 num[xx] += (code - bb) if un else 0.0
                 den[xx] += e if un else 0.0
-                nsat[xx] += 1 if (ok and not un) else 0
                 q = q1 if odd else q0
                 bound[xx] = max(bound[xx], q if ok else 0.0)
                 bound_all[xx] = max(bound_all[xx], q)
@@ -291,6 +297,25 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
             for xx in range(w):
                 if info[xx] > zero and den[xx] > 0.0:
                     x[xx] += score[xx] / info[xx]
+        # which photosites need the Newton steps: a censored sample within ``near`` sigma of its
+        # level (a branch-free loop per frame, float32; elsewhere lambda(z) < 1e-14)
+        close = np.zeros(w, np.uint8)
+        if censored:
+            nr = np.float32(near)
+            for j in range(n):
+                r = rows[j]
+                vr = vrows[j]
+                e = np.float32(expo[j])
+                wl = white[j]
+                g = np.float32(gain[j])
+                sv = np.float32(s2[j])
+                c0 = np.float32(wl - black[j, py, 0])
+                c1 = np.float32(wl - black[j, py, 1])
+                for xx in range(w):
+                    xe = x[xx] * e
+                    cc = c1 if (xx & 1) == 1 else c0
+                    hit = r[xx] >= wl and vr[xx] != 0 and cc - xe > -nr * math.sqrt(g * max(xe, zero) + sv)
+                    close[xx] |= np.uint8(1) if hit else np.uint8(0)
         for xx in range(w):
             px = xx & 1
             jx = xx >> 1
@@ -302,16 +327,9 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
                 continue
             xv = np.float64(x[xx])
             iv = np.float64(info[xx])
-            if censored and nsat[xx] > 0:
-                close = False
-                for j in range(n):
-                    code = rows[j, xx]
-                    if code >= white[j] and vrows[j, xx] != 0:
-                        e = expo[j]
-                        if white[j] - black[j, py, xx & 1] - xv * e > -near * math.sqrt(gain[j] * max(xv * e, 0.0) + s2[j]):
-                            close = True
-                if close:
-                    xv, iv = _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, xv)
+            if close[xx] != 0:
+                xv, iv = _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, near,
+                                           newton_tol, xv)
             x_out[py, px, i, jx] = xv * sp
             var_out[py, px, i, jx] = (1.0 / iv) * sp * sp if iv > 0.0 else 0.0
             mask_out[y, xx] = 0
@@ -357,8 +375,49 @@ def _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, x
 @njit(inline="always")
 def _tap_sums(planes, weights, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2):  # pragma: no cover
     """Inside the border: ``a_o[jj] += sum_t weights[py, px, t, o] * planes[tap's phase, row][jj + off]``
-    over the taps of output phase ``(py, px)`` on plane row ``i`` (values or their variances)."""
-    for t in range(ntaps[py, px]):
+    over the taps of output phase ``(py, px)`` on plane row ``i`` (values or their variances);
+    four taps per sweep of the row (a quarter of the accumulators' loads and stores), then the rest."""
+    nt = ntaps[py, px]
+    t = 0
+    while t + 4 <= nt:
+        sy0 = py + tap_dy[py, px, t]
+        sx0 = px + tap_dx[py, px, t]
+        sy1 = py + tap_dy[py, px, t + 1]
+        sx1 = px + tap_dx[py, px, t + 1]
+        sy2 = py + tap_dy[py, px, t + 2]
+        sx2 = px + tap_dx[py, px, t + 2]
+        sy3 = py + tap_dy[py, px, t + 3]
+        sx3 = px + tap_dx[py, px, t + 3]
+        s0 = planes[sy0 & 1, sx0 & 1, i + (sy0 >> 1)]
+        s1 = planes[sy1 & 1, sx1 & 1, i + (sy1 >> 1)]
+        s2 = planes[sy2 & 1, sx2 & 1, i + (sy2 >> 1)]
+        s3 = planes[sy3 & 1, sx3 & 1, i + (sy3 >> 1)]
+        o0 = sx0 >> 1
+        o1 = sx1 >> 1
+        o2 = sx2 >> 1
+        o3 = sx3 >> 1
+        w00 = weights[py, px, t, 0]
+        w01 = weights[py, px, t, 1]
+        w02 = weights[py, px, t, 2]
+        w10 = weights[py, px, t + 1, 0]
+        w11 = weights[py, px, t + 1, 1]
+        w12 = weights[py, px, t + 1, 2]
+        w20 = weights[py, px, t + 2, 0]
+        w21 = weights[py, px, t + 2, 1]
+        w22 = weights[py, px, t + 2, 2]
+        w30 = weights[py, px, t + 3, 0]
+        w31 = weights[py, px, t + 3, 1]
+        w32 = weights[py, px, t + 3, 2]
+        for jj in range(j0, j1):
+            v0 = np.float64(s0[jj + o0])
+            v1 = np.float64(s1[jj + o1])
+            v2 = np.float64(s2[jj + o2])
+            v3 = np.float64(s3[jj + o3])
+            a0[jj] += w00 * v0 + w10 * v1 + w20 * v2 + w30 * v3
+            a1[jj] += w01 * v0 + w11 * v1 + w21 * v2 + w31 * v3
+            a2[jj] += w02 * v0 + w12 * v1 + w22 * v2 + w32 * v3
+        t += 4
+    while t < nt:
         sy = py + tap_dy[py, px, t]
         sx = px + tap_dx[py, px, t]
         src = planes[sy & 1, sx & 1, i + (sy >> 1)]
@@ -371,6 +430,7 @@ def _tap_sums(planes, weights, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1,
             a0[jj] += w0 * val
             a1[jj] += w1 * val
             a2[jj] += w2 * val
+        t += 1
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")

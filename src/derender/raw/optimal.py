@@ -88,6 +88,11 @@ _NEAR = 8.0
 _ITERATIONS = 6
 
 
+#: The compiled merge stops a photosite's Newton steps once a step is below this many sigma
+#: (the float64 reference :func:`merge_mosaic_optimal` always takes :data:`_ITERATIONS`).
+_NEWTON_TOL = 1e-6
+
+
 def _black_mosaic(frame: RawFrame, shape: tuple[int, int]) -> np.ndarray:
     bl = np.asarray(frame.black_level, dtype=np.float64)
     bl = np.broadcast_to(bl.reshape(-1)[0], (2, 2)) if bl.size == 1 else bl.reshape(2, 2)
@@ -316,7 +321,7 @@ def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.
     valid = np.ones((len(mosaics), 1, 1), np.uint8) if valid is None else np.ascontiguousarray(valid, np.uint8)
     with KERNEL_LOCK:
         merge_rows(mosaics, valid, black, np.asarray(white, np.float64), np.asarray(exposures, np.float64), g, s2,
-                   bool(censored), int(iterations), _NEAR, scale, x, var, mask, HDRResult.MASK_BRIGHT)
+                   bool(censored), int(iterations), _NEAR, _NEWTON_TOL, scale, x, var, mask, HDRResult.MASK_BRIGHT)
     return x, var, mask
 
 
