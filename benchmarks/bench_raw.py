@@ -368,7 +368,7 @@ def stages(size, exposures, tile=None, repeats=3, folder=None):
             hdr = HDRResult(radiance=res[0], variance=res[1], mask=spread_mask(m, 2), info={})
             timed("write radiance + variance EXR (zip)",
                   lambda: write_outputs(hdr, where / "m.exr", where / "v.exr", name="raw"))
-            del frames, ordered, mosaics, x, v, m, res, hdr
+            frames = ordered = mosaics = x = v = m = res = hdr = None     # freed before the whole merge
             timed("merge_files in memory (read, noise, merge, variance, demosaic)",
                   lambda: merge_files(files, method="raw", options={"variance": True}))
         for name in ("m.exr", "v.exr"):
