@@ -31,11 +31,13 @@ merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
     PYTHONPATH=src python benchmarks/bench_raw.py --coverage-only
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-candidates
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-speed 6016x4000 [--with-colour-demosaicing]
+    PYTHONPATH=src python benchmarks/bench_raw.py --stages --speed-exposures 9 --speed-tile 6016x4000 [--stages-folder DIR]
 
 ``--demosaic-candidates``: colour_demosaicing's Malvar 2004, bilinear and Menon 2007 (with and
 without its refining step) and derender's AHD (:mod:`derender.raw.ahd`) on the noise-free true mosaic and on derender's merged mosaic of
 every case, against the scene (one scale fitted): median / darkest / brightest decade.
 ``--demosaic-speed``: the compiled demosaic passes on a random mosaic of that size.
+``--stages``: the merge of the speed bracket stage by stage (:func:`stages`).
 """
 
 from __future__ import annotations
@@ -317,6 +319,76 @@ def speed(size, exposures, tile=None, repeats=3, hdrutils=True):
     return rows
 
 
+def stages(size, exposures, tile=None, repeats=3, folder=None):
+    """Best of ``repeats`` (wall and CPU seconds, the stages interleaved) of the RAW merge stage by
+    stage on the bracket of :func:`speed`: LibRaw decoding (the floor), derender's read, the
+    noise fit, the merge (black and white levels, pooled start, two reweighted rounds, the
+    censored Newton steps; and without censoring, so that the Newton steps' share shows), the
+    demosaic with and without its variance, the mask, the EXR writing, and the whole merge in
+    memory. ``folder``: keep the DNG files there (written once) instead of a temporary folder."""
+    import rawpy
+
+    from derender.engine.outputs import write_outputs
+    from derender.hdr.files import merge_files
+    from derender.io.raw import read_raw_bracket
+    from derender.raw.mosaic import sorted_raw_frames, spread_mask
+    from derender.raw.noise import estimate_noise_frames
+    from derender.raw.optimal import compiled_frames, demosaic_compiled, merge_compiled, output_matrix
+
+    rows = {}
+
+    def timed(name, fn):
+        w0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        w, c = time.perf_counter() - w0, time.process_time() - c0
+        bw, bc = rows.get(name, (np.inf, np.inf))
+        rows[name] = (min(bw, w), min(bc, c))
+        return out
+
+    with tempfile.TemporaryDirectory() as tmp:
+        where = Path(folder or tmp)
+        where.mkdir(parents=True, exist_ok=True)
+        files = sorted(where.glob("*.dng"))
+        if len(files) != exposures:
+            files, _ = _tiled_dngs(size, exposures, tile or size, where)
+
+        def decode():
+            for f in files:
+                with rawpy.imread(str(f)) as r:
+                    np.array(r.raw_image_visible, copy=True)
+
+        merge_files(files[:2], method="raw", options={"variance": True})      # numba's cache loaded once
+        for _ in range(repeats):
+            timed("LibRaw decode, frame after frame (the floor)", decode)
+            frames = timed("derender read (LibRaw in threads, DNG tags)", lambda: read_raw_bracket(files))
+            ordered, times = sorted_raw_frames(frames)
+            mosaics, black, white = compiled_frames(ordered)
+            noise = timed("noise fit (frame pairs)", lambda: estimate_noise_frames(mosaics, black, white, times))
+            inv = 1.0 / (white[0] - black[0])
+            x, v, m = timed("merge: levels, pooled start, 2 reweighted rounds, censored Newton steps",
+                            lambda: merge_compiled(mosaics, black, white, times, noise, scale=inv))
+            timed("merge without censoring (no Newton steps)",
+                  lambda: merge_compiled(mosaics, black, white, times, noise, censored=False, scale=inv))
+            mat = output_matrix(ordered[len(ordered) // 2], "linear_srgb")
+            wb = ordered[len(ordered) // 2].as_shot_wb
+            res = timed("demosaic (Malvar) + colour matrix + variance",
+                        lambda: demosaic_compiled(x, v, m.shape, "RGGB", wb, mat))
+            timed("demosaic (Malvar) + colour matrix, no variance",
+                  lambda: demosaic_compiled(x, None, m.shape, "RGGB", wb, mat))
+            timed("mask spread", lambda: spread_mask(m, 2))
+            from derender.core.types import HDRResult
+
+            hdr = HDRResult(radiance=res[0], variance=res[1], mask=spread_mask(m, 2), info={})
+            timed("write radiance + variance EXR (zip)",
+                  lambda: write_outputs(hdr, where / "m.exr", where / "v.exr", name="raw"))
+            frames = ordered = mosaics = x = v = m = res = hdr = None     # freed before the whole merge
+            timed("merge_files in memory (read, noise, merge, variance, demosaic)",
+                  lambda: merge_files(files, method="raw", options={"variance": True}))
+        for name in ("m.exr", "v.exr"):
+            (where / name).unlink(missing_ok=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", default="384x256")
@@ -336,6 +408,8 @@ def main() -> None:
     ap.add_argument("--with-colour-demosaicing", action="store_true")
     ap.add_argument("--skip-passes", default="", help="comma-separated: --demosaic-speed leaves out the passes "
                                                        "whose name contains one, e.g. 'Menon 2007 + variance'")
+    ap.add_argument("--stages", action="store_true", help="the merge stage by stage at --speed-size/--speed-tile")
+    ap.add_argument("--stages-folder", default=None, help="keep the speed bracket's DNG files in this folder")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
     if args.demosaic_candidates:
@@ -344,6 +418,9 @@ def main() -> None:
     if args.demosaic_speed:
         demosaic_speed(tuple(int(v) for v in args.demosaic_speed.split("x")), args.with_colour_demosaicing,
                        tuple(k for k in args.skip_passes.split(",") if k))
+        return
+    if args.stages:
+        _print_stages(args)
         return
     if args.coverage_only:
         coverage((w, h), args.exposures)
@@ -391,6 +468,22 @@ def _print_speed(args) -> None:
     print("|---|---|---|---|")
     for name, (wall, cpu) in rows.items():
         print(f"| {name} | {wall:.3f} | {wall / dec_w:.2f}x | {cpu:.3f} |")
+
+
+def _print_stages(args) -> None:
+    import os
+
+    sw, sh = (int(v) for v in args.speed_size.split("x"))
+    tile = None if args.speed_tile is None else tuple(int(v) for v in args.speed_tile.split("x"))
+    rows = stages((sw, sh), args.speed_exposures, tile, folder=args.stages_folder)
+    fw, fh = tile or (sw, sh)
+    print(f"\n## Stages: {args.speed_exposures} frames of {fw}x{fh} ({fw * fh / 1e6:.1f} MP), {os.cpu_count()} CPUs, "
+          f"load average {os.getloadavg()[0]:.1f}, best of 3\n")
+    dec_w, dec_c = rows["LibRaw decode, frame after frame (the floor)"]
+    print("| stage | wall s | x floor (wall) | CPU s | x floor (CPU) |")
+    print("|---|---|---|---|---|")
+    for name, (wall, cpu) in rows.items():
+        print(f"| {name} | {wall:.3f} | {wall / dec_w:.2f}x | {cpu:.3f} | {cpu / dec_c:.2f}x |")
 
 
 if __name__ == "__main__":

@@ -64,12 +64,13 @@ class RawOptions:
     gain, read_noise : float or None
         The sensor's noise (None: estimated from the frames).
     demosaic : str
-        ``malvar2004`` (``malvar``; the default: a linear filter, its variance exact, 0.8 s at
-        24 MP), ``menon2007`` (``menon``; 0.2-0.6 points closer to the scene in median on
-        simulated brackets, its variance exact given its chosen directions plus a
-        direction-flip term, but that variance pass takes about 86 s at 24 MP), ``ahd``
-        (Hirakawa & Parks 2005, dcraw's and LibRaw's; closer still, its variance exact given its
-        chosen directions plus a direction-flip term; :mod:`derender.raw.ahd`) or ``bilinear``
+        ``malvar2004`` (``malvar``; the default: a linear filter, its variance exact, about
+        1 s at 24 MP), ``menon2007`` (``menon``; 0.2-0.6 points closer to the scene in median
+        on simulated brackets, its variance exact given its chosen directions plus a
+        direction-flip term; about 4x Malvar's time with the variance), ``ahd`` (Hirakawa &
+        Parks 2005, dcraw's and LibRaw's; closer still, its variance exact given its chosen
+        directions plus a direction-flip term, about 13x Malvar's time; :mod:`derender.raw.ahd`)
+        or ``bilinear``
         (:data:`derender.raw.mosaic.DEMOSAIC_METHODS`; docs/results-raw.md).
     variance : bool
         Also give the per-pixel variance (``estimator="optimal"``).

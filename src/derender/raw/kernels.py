@@ -18,14 +18,9 @@ the thread count):
 * :func:`demosaic_rows` -- white balance, the demosaic (a linear filter per CFA phase: the
   taps of :func:`derender.raw.optimal.demosaic_variance`), the colour matrix and the
   variance ``sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` in one pass, borders reflected
-  as ``scipy.ndimage`` does (``mode="reflect"``);
-* :func:`menon_directions`, :func:`menon_values`, :func:`menon_rows` -- Menon, Andriani &
-  Calvagno (2007, "Demosaicing with directional filtering and a posteriori decision", IEEE
-  TIP 16(1)), without its refining step, as ``colour_demosaicing`` computes it (borders
-  mirrored): the direction per red and blue photosite, the values by the formulas, and the
-  variance through each pixel's weights given the directions (slow: ~86 s at 24 MP).
+  as ``scipy.ndimage`` does (``mode="reflect"``).
 
-The inverse Mills ratio ``lambda(z) = phi(z) / Q(z)`` is ``sqrt(2/pi) exp(-z^2/2) /
+Menon 2007's demosaic and its variance are :mod:`derender.raw.menon`. The inverse Mills ratio ``lambda(z) = phi(z) / Q(z)`` is ``sqrt(2/pi) exp(-z^2/2) /
 erfc(z / sqrt 2)`` (erfc keeps its relative accuracy in the tail) for ``z < 30`` and Laplace's
 continued fraction ``z + 1/(z + 2/(z + 3/(z + ...)))`` beyond. Launches are serialised by
 :data:`KERNEL_LOCK` (numba's fallback thread pool cannot run two parallel kernels at once).
@@ -39,8 +34,8 @@ import threading
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["KERNEL_LOCK", "inverse_mills", "grid_samples", "merge_rows", "demosaic_rows", "wls_normal",
-           "menon_directions", "menon_values", "menon_rows"]
+__all__ = ["KERNEL_LOCK", "inverse_mills", "finite_value", "grid_samples", "merge_rows", "demosaic_rows",
+           "wls_normal"]
 
 #: Serialises launches of this module's parallel kernels.
 KERNEL_LOCK = threading.Lock()
@@ -73,7 +68,7 @@ def _reflect(i, n):  # pragma: no cover - compiled
 
 
 @njit(inline="always")
-def _finite(a, clip_negative):  # pragma: no cover - compiled
+def finite_value(a, clip_negative):  # pragma: no cover - compiled
     """``a``, or 0 where it is NaN or infinite (or negative, with ``clip_negative``)."""
     if not math.isfinite(a) or (clip_negative and a < 0.0):
         return 0.0
@@ -175,10 +170,12 @@ def wls_normal(r2, xs, pair_of, design_g, design_s, params, first, clip):  # pra
 
 
 @njit(inline="always")
-def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, x):  # pragma: no cover - compiled
+def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, near, tol, x):  # pragma: no cover - compiled
     """Newton steps of the censored likelihood at photosite ``xx`` of row ``y`` (``rows``: that
     row of every frame; ``vrows``: whether each frame takes part there) from ``x``:
-    ``(x, information)``."""
+    ``(x, information)``. A censored sample more than ``near`` sigma above its level
+    (``z < -near``: ``lambda(z) < 1e-14``, the score's term ``< 1e-14 e / sd``) is skipped; the
+    steps stop once one is below ``tol`` sigma (``step^2 I < tol^2``), else after ``iterations``."""
     py = y & 1
     px = xx & 1
     info = 0.0
@@ -197,16 +194,21 @@ def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iteratio
             else:
                 sd = math.sqrt(v)
                 z = (white[j] - black[j, py, px] - x * e) / sd
+                if z < -near:
+                    continue
                 lam = inverse_mills(z)
                 score += e * lam / sd
                 info += e * e * lam * max(lam - z, 0.0) / v
         if info > 0.0:
-            x += score / info
+            step = score / info
+            x += step
+            if step * step * info < tol * tol:
+                break
     return x, info
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iterations, near, inv_span,
+def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iterations, near, newton_tol, inv_span,
                x_out, var_out, mask_out, bright):  # pragma: no cover - compiled
     """The censored ML merge of :func:`derender.raw.optimal.merge_mosaic_optimal`, per photosite.
 
@@ -221,8 +223,9 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
     :func:`demosaic_rows` reads), and
     ``bright`` in ``mask_out`` where every frame is saturated (``X`` the bound ``max_j c_j / e_j``,
     variance ``X^2``). Each row is done frame by frame over the whole row (the pooled start,
-    two reweighted rounds: loops without branches that the compiler vectorises), then the
-    Newton steps at the photosites that need them."""
+    two reweighted rounds, which photosites have a censored sample within ``near`` sigma of its
+    level: loops without branches that the compiler vectorises), then the Newton steps at the
+    photosites that need them, until a step is below ``newton_tol`` sigma or after ``iterations``."""
     n = len(mosaics)
     h, w = mask_out.shape
     for y in prange(h):
@@ -232,7 +235,6 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
         den = np.zeros(w)
         bound = np.zeros(w)
         bound_all = np.zeros(w)
-        nsat = np.zeros(w, np.int64)
         rows = np.empty((n, w), mosaics[0].dtype)     # the row of every frame (one list access per frame)
         vrows = np.ones((n, w), np.uint8)
         for j in range(n):
@@ -256,7 +258,6 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
                 un = code < wl and ok
                 num[xx] += (code - bb) if un else 0.0
                 den[xx] += e if un else 0.0
-                nsat[xx] += 1 if (ok and not un) else 0
                 q = q1 if odd else q0
                 bound[xx] = max(bound[xx], q if ok else 0.0)
                 bound_all[xx] = max(bound_all[xx], q)
@@ -291,6 +292,25 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
             for xx in range(w):
                 if info[xx] > zero and den[xx] > 0.0:
                     x[xx] += score[xx] / info[xx]
+        # which photosites need the Newton steps: a censored sample within ``near`` sigma of its
+        # level (a branch-free loop per frame, float32; elsewhere lambda(z) < 1e-14)
+        close = np.zeros(w, np.uint8)
+        if censored:
+            nr = np.float32(near)
+            for j in range(n):
+                r = rows[j]
+                vr = vrows[j]
+                e = np.float32(expo[j])
+                wl = white[j]
+                g = np.float32(gain[j])
+                sv = np.float32(s2[j])
+                c0 = np.float32(wl - black[j, py, 0])
+                c1 = np.float32(wl - black[j, py, 1])
+                for xx in range(w):
+                    xe = x[xx] * e
+                    cc = c1 if (xx & 1) == 1 else c0
+                    hit = r[xx] >= wl and vr[xx] != 0 and cc - xe > -nr * math.sqrt(g * max(xe, zero) + sv)
+                    close[xx] |= np.uint8(1) if hit else np.uint8(0)
         for xx in range(w):
             px = xx & 1
             jx = xx >> 1
@@ -302,16 +322,9 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
                 continue
             xv = np.float64(x[xx])
             iv = np.float64(info[xx])
-            if censored and nsat[xx] > 0:
-                close = False
-                for j in range(n):
-                    code = rows[j, xx]
-                    if code >= white[j] and vrows[j, xx] != 0:
-                        e = expo[j]
-                        if white[j] - black[j, py, xx & 1] - xv * e > -near * math.sqrt(gain[j] * max(xv * e, 0.0) + s2[j]):
-                            close = True
-                if close:
-                    xv, iv = _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, xv)
+            if close[xx] != 0:
+                xv, iv = _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iterations, near,
+                                           newton_tol, xv)
             x_out[py, px, i, jx] = xv * sp
             var_out[py, px, i, jx] = (1.0 / iv) * sp * sp if iv > 0.0 else 0.0
             mask_out[y, xx] = 0
@@ -345,20 +358,61 @@ def _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, x
             v0 += taps2[py, px, t, 0] * vv
             v1 += taps2[py, px, t, 1] * vv
             v2 += taps2[py, px, t, 2] * vv
-    out[y, xx, 0] = _finite(a0, clip_negative)
-    out[y, xx, 1] = _finite(a1, clip_negative)
-    out[y, xx, 2] = _finite(a2, clip_negative)
+    out[y, xx, 0] = finite_value(a0, clip_negative)
+    out[y, xx, 1] = finite_value(a1, clip_negative)
+    out[y, xx, 2] = finite_value(a2, clip_negative)
     if do_var:
-        var_out[y, xx, 0] = _finite(v0, False)
-        var_out[y, xx, 1] = _finite(v1, False)
-        var_out[y, xx, 2] = _finite(v2, False)
+        var_out[y, xx, 0] = finite_value(v0, False)
+        var_out[y, xx, 1] = finite_value(v1, False)
+        var_out[y, xx, 2] = finite_value(v2, False)
 
 
 @njit(inline="always")
 def _tap_sums(planes, weights, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2):  # pragma: no cover
     """Inside the border: ``a_o[jj] += sum_t weights[py, px, t, o] * planes[tap's phase, row][jj + off]``
-    over the taps of output phase ``(py, px)`` on plane row ``i`` (values or their variances)."""
-    for t in range(ntaps[py, px]):
+    over the taps of output phase ``(py, px)`` on plane row ``i`` (values or their variances);
+    four taps per sweep of the row (a quarter of the accumulators' loads and stores), then the rest."""
+    nt = ntaps[py, px]
+    t = 0
+    while t + 4 <= nt:
+        sy0 = py + tap_dy[py, px, t]
+        sx0 = px + tap_dx[py, px, t]
+        sy1 = py + tap_dy[py, px, t + 1]
+        sx1 = px + tap_dx[py, px, t + 1]
+        sy2 = py + tap_dy[py, px, t + 2]
+        sx2 = px + tap_dx[py, px, t + 2]
+        sy3 = py + tap_dy[py, px, t + 3]
+        sx3 = px + tap_dx[py, px, t + 3]
+        s0 = planes[sy0 & 1, sx0 & 1, i + (sy0 >> 1)]
+        s1 = planes[sy1 & 1, sx1 & 1, i + (sy1 >> 1)]
+        s2 = planes[sy2 & 1, sx2 & 1, i + (sy2 >> 1)]
+        s3 = planes[sy3 & 1, sx3 & 1, i + (sy3 >> 1)]
+        o0 = sx0 >> 1
+        o1 = sx1 >> 1
+        o2 = sx2 >> 1
+        o3 = sx3 >> 1
+        w00 = weights[py, px, t, 0]
+        w01 = weights[py, px, t, 1]
+        w02 = weights[py, px, t, 2]
+        w10 = weights[py, px, t + 1, 0]
+        w11 = weights[py, px, t + 1, 1]
+        w12 = weights[py, px, t + 1, 2]
+        w20 = weights[py, px, t + 2, 0]
+        w21 = weights[py, px, t + 2, 1]
+        w22 = weights[py, px, t + 2, 2]
+        w30 = weights[py, px, t + 3, 0]
+        w31 = weights[py, px, t + 3, 1]
+        w32 = weights[py, px, t + 3, 2]
+        for jj in range(j0, j1):
+            v0 = np.float64(s0[jj + o0])
+            v1 = np.float64(s1[jj + o1])
+            v2 = np.float64(s2[jj + o2])
+            v3 = np.float64(s3[jj + o3])
+            a0[jj] += w00 * v0 + w10 * v1 + w20 * v2 + w30 * v3
+            a1[jj] += w01 * v0 + w11 * v1 + w21 * v2 + w31 * v3
+            a2[jj] += w02 * v0 + w12 * v1 + w22 * v2 + w32 * v3
+        t += 4
+    while t < nt:
         sy = py + tap_dy[py, px, t]
         sx = px + tap_dx[py, px, t]
         src = planes[sy & 1, sx & 1, i + (sy >> 1)]
@@ -371,6 +425,7 @@ def _tap_sums(planes, weights, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1,
             a0[jj] += w0 * val
             a1[jj] += w1 * val
             a2[jj] += w2 * val
+        t += 1
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
@@ -411,9 +466,9 @@ def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, 
             _tap_sums(planes, folded, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2)
             for jj in range(j0, j1):
                 xx = 2 * jj + px
-                out[y, xx, 0] = _finite(a0[jj], clip_negative)
-                out[y, xx, 1] = _finite(a1[jj], clip_negative)
-                out[y, xx, 2] = _finite(a2[jj], clip_negative)
+                out[y, xx, 0] = finite_value(a0[jj], clip_negative)
+                out[y, xx, 1] = finite_value(a1[jj], clip_negative)
+                out[y, xx, 2] = finite_value(a2[jj], clip_negative)
             if do_var:
                 a0[:] = 0.0
                 a1[:] = 0.0
@@ -421,285 +476,12 @@ def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, 
                 _tap_sums(var_planes, folded2, ntaps, tap_dy, tap_dx, py, px, i, j0, j1, a0, a1, a2)
                 for jj in range(j0, j1):
                     xx = 2 * jj + px
-                    var_out[y, xx, 0] = _finite(a0[jj], False)
-                    var_out[y, xx, 1] = _finite(a1[jj], False)
-                    var_out[y, xx, 2] = _finite(a2[jj], False)
+                    var_out[y, xx, 0] = finite_value(a0[jj], False)
+                    var_out[y, xx, 1] = finite_value(a1[jj], False)
+                    var_out[y, xx, 2] = finite_value(a2[jj], False)
             for jj in range(0, j0):
                 _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
                               clip_negative, out, var_out)
             for jj in range(j1, nj):
                 _border_pixel(x, var, mult, ntaps, tap_dy, tap_dx, taps, taps2, do_var, y, 2 * jj + px,
                               clip_negative, out, var_out)
-
-
-# --------------------------------------------------------------------------- Menon 2007 (DDFAPD)
-@njit(inline="always")
-def _mirror(i, n):  # pragma: no cover - compiled
-    """scipy.ndimage's ``mirror`` border (``c b | a b c | b a``, period 2n - 2): keeps the CFA phase."""
-    if n == 1:
-        return 0
-    m = 2 * n - 2
-    i = i % m
-    if i >= n:
-        i = m - i
-    return i
-
-
-@njit(inline="always")
-def _directional_green(x, y, xx, h, w, horizontal):  # pragma: no cover - compiled
-    """Menon 2007 eq. (3): green at a red or blue photosite from its row (``horizontal``) or column."""
-    if horizontal:
-        return (0.5 * (x[y, _mirror(xx - 1, w)] + x[y, _mirror(xx + 1, w)] + x[y, xx])
-                - 0.25 * (x[y, _mirror(xx - 2, w)] + x[y, _mirror(xx + 2, w)]))
-    return (0.5 * (x[_mirror(y - 1, h), xx] + x[_mirror(y + 1, h), xx] + x[y, xx])
-            - 0.25 * (x[_mirror(y - 2, h), xx] + x[_mirror(y + 2, h), xx]))
-
-
-@njit(parallel=True, nogil=True, cache=True)
-def menon_directions(x, chan, kdy, kdx, kw, direction, margin):  # pragma: no cover - compiled
-    """Menon, Andriani & Calvagno (2007) Sec. II-A: the direction of the green interpolation.
-
-    ``x`` (H, W) the white-balanced mosaic, ``chan`` (2, 2) the CFA colour of each phase (0 R,
-    1 G, 2 B). At every red and blue photosite the colour differences ``C_H = x - G_H`` and
-    ``C_V = x - G_V`` (eq. 3), their gradients ``D_H = |C_H(y, x) - C_H(y, x + 2)|`` (and ``D_V``
-    down the column, borders mirrored), summed over the classifier's window (offsets ``kdy``,
-    ``kdx``, weights ``kw``; zero outside the image) give ``d_H``, ``d_V``; ``direction`` (H, W)
-    uint8 is 1 (horizontal) where ``d_V >= d_H``, else 0 -- as
-    ``colour_demosaicing.demosaicing_CFA_Bayer_Menon2007`` decides it; ``margin`` (H, W)
-    float32 is ``d_V - d_H`` (0 at green photosites)."""
-    h, w = x.shape
-    ch = np.zeros((h, w), np.float32)
-    cv = np.zeros((h, w), np.float32)
-    for y in prange(h):
-        for xx in range(w):
-            if chan[y & 1, xx & 1] != 1:
-                ch[y, xx] = x[y, xx] - _directional_green(x, y, xx, h, w, True)
-                cv[y, xx] = x[y, xx] - _directional_green(x, y, xx, h, w, False)
-    for y in prange(h):
-        for xx in range(w):
-            if chan[y & 1, xx & 1] == 1:
-                direction[y, xx] = 1
-                margin[y, xx] = 0.0
-                continue
-            dh = 0.0
-            dv = 0.0
-            for t in range(kw.shape[0]):
-                yy = y + kdy[t]
-                x1 = xx + kdx[t]
-                if 0 <= yy < h and 0 <= x1 < w:
-                    dh += kw[t] * abs(np.float64(ch[yy, x1]) - ch[yy, _mirror(x1 + 2, w)])
-                yy = y + kdx[t]
-                x1 = xx + kdy[t]
-                if 0 <= yy < h and 0 <= x1 < w:
-                    dv += kw[t] * abs(np.float64(cv[yy, x1]) - cv[_mirror(yy + 2, h), x1])
-            direction[y, xx] = 1 if dv >= dh else 0
-            margin[y, xx] = dv - dh
-
-
-@njit(inline="always")
-def _tap(g, c, y, x, cy, cx, h, w, wt, touched, tl, nt):  # pragma: no cover - compiled
-    """Add ``wt`` to channel ``c``'s weight of photosite (y, x) (mirrored) in the 9x9 window at (cy, cx)."""
-    yy = _mirror(y, h)
-    xx = _mirror(x, w)
-    k = (yy - cy + 4) * 9 + (xx - cx + 4)
-    if not touched[k]:
-        touched[k] = True
-        tl[nt[0]] = k
-        nt[0] += 1
-    g[c, k] += wt
-
-
-@njit(cache=True, nogil=True)
-def _tap_green(g, c, y, x, cy, cx, h, w, wt, chan, direction, flip, touched, tl, nt):  # pragma: no cover - compiled
-    """Green at photosite (y, x): its own value, or eq. (3) in the direction chosen there (the
-    other one at the centre (cy, cx) with ``flip``)."""
-    yy = _mirror(y, h)
-    xx = _mirror(x, w)
-    if chan[yy & 1, xx & 1] == 1:
-        _tap(g, c, yy, xx, cy, cx, h, w, wt, touched, tl, nt)
-        return
-    _tap(g, c, yy, xx, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-    horizontal = direction[yy, xx] == 1
-    if flip and yy == cy and xx == cx:
-        horizontal = not horizontal
-    if horizontal:
-        _tap(g, c, yy, xx - 1, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap(g, c, yy, xx + 1, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap(g, c, yy, xx - 2, cy, cx, h, w, -0.25 * wt, touched, tl, nt)
-        _tap(g, c, yy, xx + 2, cy, cx, h, w, -0.25 * wt, touched, tl, nt)
-    else:
-        _tap(g, c, yy - 1, xx, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap(g, c, yy + 1, xx, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap(g, c, yy - 2, xx, cy, cx, h, w, -0.25 * wt, touched, tl, nt)
-        _tap(g, c, yy + 2, xx, cy, cx, h, w, -0.25 * wt, touched, tl, nt)
-
-
-@njit(cache=True, nogil=True)
-def _tap_at_green(g, c, k, y, x, cy, cx, h, w, wt, chan, red_row, direction, flip, touched, tl,
-                  nt):  # pragma: no cover - compiled
-    """Colour ``k`` (0 red, 2 blue) at the green photosite (y, x): ``G + mean(K) - mean(G)`` over
-    its two ``k`` neighbours (along the row that holds ``k``, else the column; eq. (7))."""
-    yy = _mirror(y, h)
-    xx = _mirror(x, w)
-    _tap(g, c, yy, xx, cy, cx, h, w, wt, touched, tl, nt)
-    along_row = red_row[yy & 1] == (k == 0)
-    if along_row:
-        _tap(g, c, yy, xx - 1, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap(g, c, yy, xx + 1, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap_green(g, c, yy, xx - 1, cy, cx, h, w, -0.5 * wt, chan, direction, flip, touched, tl, nt)
-        _tap_green(g, c, yy, xx + 1, cy, cx, h, w, -0.5 * wt, chan, direction, flip, touched, tl, nt)
-    else:
-        _tap(g, c, yy - 1, xx, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap(g, c, yy + 1, xx, cy, cx, h, w, 0.5 * wt, touched, tl, nt)
-        _tap_green(g, c, yy - 1, xx, cy, cx, h, w, -0.5 * wt, chan, direction, flip, touched, tl, nt)
-        _tap_green(g, c, yy + 1, xx, cy, cx, h, w, -0.5 * wt, chan, direction, flip, touched, tl, nt)
-
-
-@njit(cache=True, nogil=True)
-def _menon_weights(g, cy, cx, h, w, chan, red_row, direction, flip, touched, tl, nt):  # pragma: no cover - compiled
-    """The weights ``K_c(p)`` of the three outputs at (cy, cx) given the directions (the centre's
-    flipped with ``flip``), into the 9x9 window ``g`` (3, 81); ``tl[:nt[0]]`` lists the cells set."""
-    nt[0] = 0
-    own = chan[cy & 1, cx & 1]
-    for c in range(3):
-        if c == own:
-            _tap(g, c, cy, cx, cy, cx, h, w, 1.0, touched, tl, nt)
-        elif c == 1:
-            _tap_green(g, c, cy, cx, cy, cx, h, w, 1.0, chan, direction, flip, touched, tl, nt)
-        elif own == 1:
-            _tap_at_green(g, c, c, cy, cx, cy, cx, h, w, 1.0, chan, red_row, direction, flip, touched, tl, nt)
-        else:                      # red at blue, blue at red: eq. (8) in the chosen direction
-            _tap(g, c, cy, cx, cy, cx, h, w, 1.0, touched, tl, nt)
-            horizontal = direction[cy, cx] == 1
-            if flip:
-                horizontal = not horizontal
-            for s in (-1, 1):
-                sy = 0 if horizontal else s
-                sx = s if horizontal else 0
-                _tap_at_green(g, c, c, cy + sy, cx + sx, cy, cx, h, w, 0.5, chan, red_row, direction, flip,
-                              touched, tl, nt)
-                _tap_at_green(g, c, own, cy + sy, cx + sx, cy, cx, h, w, -0.5, chan, red_row, direction, flip,
-                              touched, tl, nt)
-
-
-@njit(cache=True, nogil=True)
-def _apply_weights(g, x, var, cy, cx, matrix, do_var, touched, tl, nt, acc):  # pragma: no cover - compiled
-    """``acc[0:3] = sum_p (M K(p)) x_p``, ``acc[3:6] = sum_p (M K(p))^2 var_p``; clears ``g``."""
-    for o in range(6):
-        acc[o] = 0.0
-    for n in range(nt[0]):
-        k = tl[n]
-        yy = cy - 4 + k // 9
-        xx = cx - 4 + k % 9
-        val = np.float64(x[yy, xx])
-        vv = np.float64(var[yy, xx]) if do_var else 0.0
-        for o in range(3):
-            wo = matrix[o, 0] * g[0, k] + matrix[o, 1] * g[1, k] + matrix[o, 2] * g[2, k]
-            acc[o] += wo * val
-            acc[3 + o] += wo * wo * vv
-        g[0, k] = 0.0
-        g[1, k] = 0.0
-        g[2, k] = 0.0
-        touched[k] = False
-
-
-@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def menon_rows(x, var, chan, red_row, direction, margin, margin_sd, matrix, clip_negative, do_var, out,
-               var_out):  # pragma: no cover - compiled
-    """Menon 2007's demosaic (without its refining step), the colour matrix and the variance in one pass.
-
-    ``x`` (H, W) the white-balanced mosaic (``var`` its variance), ``direction`` and ``margin``
-    from :func:`menon_directions`. Given the directions every output is a linear combination of
-    photosites within 4 of it (green: eq. (3); red and blue at green: eq. (7); red at blue and
-    blue at red: eq. (8) in the chosen direction, through the estimates at green): the pass
-    builds those weights per pixel (``K_c(p)``, borders mirrored), then ``out_o = sum_p (sum_c
-    M_oc K_c(p)) x_p`` and ``var_o = sum_p (sum_c M_oc K_c(p))^2 var_p`` -- exact for
-    independent photosites *given the directions*. The direction is itself chosen from noisy
-    photosites: at a red or blue photosite the other direction's output ``out'`` (the centre's
-    direction flipped) adds ``P(flip) (out' - out)^2``, with ``P(flip) = Phi(-|margin| / sd)``
-    and ``sd = margin_sd * sqrt(mean var over the 3x3 around it)`` (the classifier's noise, its
-    eight gradient terms taken as independent). ``out`` (H, W, 3) float32 (negatives 0 with
-    ``clip_negative``), ``var_out`` (H, W, 3) float32 if ``do_var``."""
-    h, w = x.shape
-    for cy in prange(h):
-        g = np.zeros((3, 81))
-        touched = np.zeros(81, np.bool_)
-        tl = np.zeros(81, np.int64)
-        nt = np.zeros(1, np.int64)
-        acc = np.zeros(6)
-        alt = np.zeros(6)
-        for cx in range(w):
-            _menon_weights(g, cy, cx, h, w, chan, red_row, direction, False, touched, tl, nt)
-            _apply_weights(g, x, var, cy, cx, matrix, do_var, touched, tl, nt, acc)
-            for o in range(3):
-                out[cy, cx, o] = _finite(acc[o], clip_negative)
-            if not do_var:
-                continue
-            if chan[cy & 1, cx & 1] != 1:
-                s = 0.0
-                for dy in range(-1, 2):
-                    for dx in range(-1, 2):
-                        s += var[_mirror(cy + dy, h), _mirror(cx + dx, w)]
-                sd = margin_sd * math.sqrt(max(s / 9.0, 0.0))
-                z = abs(np.float64(margin[cy, cx])) / sd if sd > 0 else np.inf
-                p = 0.5 * math.erfc(z * 0.7071067811865476)
-                if p > 1e-6:
-                    _menon_weights(g, cy, cx, h, w, chan, red_row, direction, True, touched, tl, nt)
-                    _apply_weights(g, x, var, cy, cx, matrix, False, touched, tl, nt, alt)
-                    for o in range(3):
-                        acc[3 + o] += p * (alt[o] - acc[o]) ** 2
-            for o in range(3):
-                var_out[cy, cx, o] = _finite(acc[3 + o], False)
-
-
-@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def menon_values(x, chan, red_row, direction, matrix, clip_negative, rgb, out):  # pragma: no cover - compiled
-    """Menon 2007's demosaic (no refining step) and the colour matrix by its formulas, plane by
-    plane (the values of :func:`menon_rows` without building weights): green (eq. (3) in the
-    chosen direction), red and blue at green (eq. (7)), red at blue and blue at red (eq. (8)),
-    borders mirrored. ``rgb`` (3, H, W) float32 scratch; ``out`` (H, W, 3) float32."""
-    h, w = x.shape
-    for y in prange(h):
-        for xx in range(w):
-            c = chan[y & 1, xx & 1]
-            rgb[0, y, xx] = 0.0
-            rgb[2, y, xx] = 0.0
-            if c == 1:
-                rgb[1, y, xx] = x[y, xx]
-            else:
-                rgb[1, y, xx] = _directional_green(x, y, xx, h, w, direction[y, xx] == 1)
-                rgb[c, y, xx] = x[y, xx]
-    for y in prange(h):                      # red and blue at green photosites
-        for xx in range(w):
-            if chan[y & 1, xx & 1] != 1:
-                continue
-            for k in (0, 2):
-                if red_row[y & 1] == (k == 0):
-                    a = _mirror(xx - 1, w)
-                    b = _mirror(xx + 1, w)
-                    rgb[k, y, xx] = rgb[1, y, xx] + 0.5 * (x[y, a] + x[y, b]) - 0.5 * (rgb[1, y, a] + rgb[1, y, b])
-                else:
-                    a = _mirror(y - 1, h)
-                    b = _mirror(y + 1, h)
-                    rgb[k, y, xx] = rgb[1, y, xx] + 0.5 * (x[a, xx] + x[b, xx]) - 0.5 * (rgb[1, a, xx] + rgb[1, b, xx])
-    for y in prange(h):                      # red at blue, blue at red
-        for xx in range(w):
-            c = chan[y & 1, xx & 1]
-            if c == 1:
-                continue
-            k = 2 - c
-            if direction[y, xx] == 1:
-                a = _mirror(xx - 1, w)
-                b = _mirror(xx + 1, w)
-                rgb[k, y, xx] = x[y, xx] + 0.5 * (rgb[k, y, a] + rgb[k, y, b]) - 0.5 * (rgb[c, y, a] + rgb[c, y, b])
-            else:
-                a = _mirror(y - 1, h)
-                b = _mirror(y + 1, h)
-                rgb[k, y, xx] = x[y, xx] + 0.5 * (rgb[k, a, xx] + rgb[k, b, xx]) - 0.5 * (rgb[c, a, xx] + rgb[c, b, xx])
-    for y in prange(h):
-        for xx in range(w):
-            r = np.float64(rgb[0, y, xx])
-            g = np.float64(rgb[1, y, xx])
-            b = np.float64(rgb[2, y, xx])
-            for o in range(3):
-                out[y, xx, o] = _finite(matrix[o, 0] * r + matrix[o, 1] * g + matrix[o, 2] * b, clip_negative)

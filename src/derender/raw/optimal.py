@@ -35,12 +35,11 @@ three steps are linear, so the variance goes through them exactly for independen
 photosites: ``Var[o] = sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` with Malvar's kernels
 ``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). Menon's
 demosaic is linear once its direction per red and blue photosite is chosen: its ``K_c(p)``
-are the weights given the directions (built per pixel), plus ``P(flip) (out' - out)^2`` for
-a direction the noise may have chosen wrongly (:func:`derender.raw.kernels.menon_rows`;
-its values by the formulas, :func:`derender.raw.kernels.menon_values`: 2.2 s at 24 MP
-against 0.8 s for Malvar with its variance, the weights with the variance 86 s --
-benchmarks/bench_raw.py ``--demosaic-speed``; colour_demosaicing's NumPy Menon, no
-variance: 2.4 s at 6 MP). The radiance is in units of the white level per second,
+are the weights given the directions, a fixed filter bank indexed by the directions near the
+pixel, plus ``P(flip) (out' - out)^2`` for a direction the noise may have chosen wrongly
+(:mod:`derender.raw.menon`). At 24 MP the demosaic with its variance takes about 1 s with
+Malvar's kernels and about 4x that with Menon's (benchmarks/bench_raw.py ``--demosaic-speed``;
+docs/results-raw.md). The radiance is in units of the white level per second,
 ``X / (white - black)``, as :func:`derender.raw.mosaic.merge_raw_mosaics` gives it.
 """
 
@@ -86,6 +85,11 @@ _NEAR = 8.0
 
 #: Newton steps of the censored likelihood (converged to < 1e-6 relative on simulated brackets).
 _ITERATIONS = 6
+
+
+#: The compiled merge stops a photosite's Newton steps once a step is below this many sigma
+#: (the float64 reference :func:`merge_mosaic_optimal` always takes :data:`_ITERATIONS`).
+_NEWTON_TOL = 1e-6
 
 
 def _black_mosaic(frame: RawFrame, shape: tuple[int, int]) -> np.ndarray:
@@ -316,7 +320,7 @@ def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.
     valid = np.ones((len(mosaics), 1, 1), np.uint8) if valid is None else np.ascontiguousarray(valid, np.uint8)
     with KERNEL_LOCK:
         merge_rows(mosaics, valid, black, np.asarray(white, np.float64), np.asarray(exposures, np.float64), g, s2,
-                   bool(censored), int(iterations), _NEAR, scale, x, var, mask, HDRResult.MASK_BRIGHT)
+                   bool(censored), int(iterations), _NEAR, _NEWTON_TOL, scale, x, var, mask, HDRResult.MASK_BRIGHT)
     return x, var, mask
 
 
@@ -389,55 +393,29 @@ def demosaic_compiled(x: np.ndarray, var: np.ndarray | None, shape: tuple[int, i
     return out, (var_out if var is not None else None)
 
 
-#: Menon 2007's direction classifier (``colour_demosaicing``'s kernel ``k``): offsets (dy, dx) and
-#: weights of ``scipy.ndimage.convolve(D_H, k)`` (the kernel flipped); ``d_V`` uses them transposed.
-_MENON_CLASSIFIER = np.array([[0, 0, 1, 0, 1], [0, 0, 0, 1, 0], [0, 0, 3, 0, 3], [0, 0, 0, 1, 0], [0, 0, 1, 0, 1]],
-                             np.float64)
-
-
-#: The classifier's noise in units of the photosites' sigma: ``d_V - d_H`` sums 2 x 8 gradients
-#: ``|C(x) - C(x + 2)|`` with weights of squares summing to 24 per direction, each gradient a
-#: combination of photosites whose squared weights sum to 0.75 (eq. (3)); taken as independent:
-#: ``sqrt(2 * 24 * 0.75) = 6``.
-_MENON_MARGIN_SD = 6.0
-
-
 def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
-    """:func:`demosaic_compiled` for ``method="menon2007"``: the directions
-    (:func:`derender.raw.kernels.menon_directions`), then the demosaic, matrix and variance given
-    them (:func:`derender.raw.kernels.menon_rows`)."""
-    from derender.raw.kernels import KERNEL_LOCK, menon_directions, menon_rows, menon_values
+    """:func:`demosaic_compiled` for ``method="menon2007"``: the white-balanced mosaic (and its
+    variance) through :func:`derender.raw.menon.menon_demosaic`."""
+    from derender.raw.menon import menon_demosaic
 
     lut = {"R": 0, "G": 1, "B": 2}
     chan = np.array([[lut[pattern[0]], lut[pattern[1]]], [lut[pattern[2]], lut[pattern[3]]]], np.int64)
-    red_row = np.array([np.any(chan[0] == 0), np.any(chan[1] == 0)])
     mult = np.asarray(multipliers, np.float32)[chan]
     h, w = shape
     xm = interleave(np.asarray(x, np.float32), shape)
     for a in range(2):
         for b in range(2):
             xm[a::2, b::2] *= mult[a, b]
-    ia, ib = np.nonzero(_MENON_CLASSIFIER)
-    kdy, kdx, kw = (2 - ia).astype(np.int64), (2 - ib).astype(np.int64), _MENON_CLASSIFIER[ia, ib].copy()
-    direction = np.empty((h, w), np.uint8)
-    margin = np.empty((h, w), np.float32)
     out = _empty((h, w, 3), np.float32)
-    if var is None:
-        vm, var_out = xm, np.empty((1, 1, 3), np.float32)
-    else:
+    vm = var_out = None
+    if var is not None:
         vm = interleave(np.asarray(var, np.float32), shape)
         for a in range(2):
             for b in range(2):
                 vm[a::2, b::2] *= mult[a, b] * mult[a, b]
         var_out = _empty((h, w, 3), np.float32)
-    with KERNEL_LOCK:
-        menon_directions(xm, chan, kdy, kdx, kw, direction, margin)
-        if var is not None:            # the variance from the weights (their values are overwritten below)
-            menon_rows(xm, vm, chan, red_row, direction, margin, _MENON_MARGIN_SD,
-                       np.ascontiguousarray(matrix, np.float64), bool(clip_negative), True, out, var_out)
-        menon_values(xm, chan, red_row, direction, np.ascontiguousarray(matrix, np.float64), bool(clip_negative),
-                     np.empty((3, h, w), np.float32), out)    # one code path for the values, variance or not
-    return out, (var_out if var is not None else None)
+    menon_demosaic(xm, vm, pattern, matrix, clip_negative, out, var_out)
+    return out, var_out
 
 
 def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "linear_srgb",
@@ -471,8 +449,9 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         A neutral region of the merged mosaic that sets the white balance.
     demosaic : str
         ``"malvar2004"`` (default), ``"menon2007"`` (closer to the scene; its variance exact
-        given its directions, but its variance pass is about 100x slower), ``"ahd"`` (Hirakawa &
-        Parks 2005, dcraw's; :mod:`derender.raw.ahd`) or ``"bilinear"`` (aliases ``malvar``, ``menon``).
+        given its directions; its pass with the variance about 4x Malvar's), ``"ahd"`` (Hirakawa &
+        Parks 2005, dcraw's; :mod:`derender.raw.ahd`; about 13x Malvar's) or ``"bilinear"``
+        (aliases ``malvar``, ``menon``).
     variance : bool
         Also give the per-pixel variance of the radiance.
     clip_negative : bool
