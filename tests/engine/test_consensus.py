@@ -113,7 +113,11 @@ def test_variance_follows_the_factor_and_other_plans_are_left_alone():
 def test_object_pixels_left_to_the_reference_lose_its_bias_on_a_moving_bracket():
     """Tuning family ``paper`` (auto pipeline: gain and gamma change per frame), three objects
     moving: Robertson's object pixels that only the reference shows were 2.5x the still twin's
-    error without the correction (docs/results-ghosts.md)."""
+    error without the correction (docs/results-ghosts.md). Ghost removal leaves out 4.3 % here,
+    below the refit's 5 %: since the motion-compensated fill also runs without a refit (issue
+    36), the uncorrected ``object_seen`` error is 0.317 (0.353 without the fill) and the
+    corrected one 0.243 (0.237): the correction takes a quarter off, where it took a third off
+    the unfilled merge."""
     from derender.camera import simulate_bracket
     from derender.camera.motion import MotionSpec
     from derender.core.types import Stack
@@ -131,5 +135,6 @@ def test_object_pixels_left_to_the_reference_lose_its_bias_on_a_moving_bracket()
         r = merge_seeded(stack, "robertson", 1, motion=MotionOptions(reference=ref, deghost=True, consensus=cons))
         errs[cons] = zone_errors(r.radiance, b.truth_linear_srgb, b.motion_zones, seen)
         assert np.all(np.isfinite(r.radiance)) and r.radiance.min() >= 0
-    assert errs[True]["object_seen"] < 0.75 * errs[False]["object_seen"], errs
+    assert errs[True]["object_seen"] < 0.8 * errs[False]["object_seen"], errs
+    assert errs[True]["object_seen"] < 0.25, errs
     assert errs[True]["static"] == pytest.approx(errs[False]["static"], rel=0.02)

@@ -84,13 +84,19 @@ def test_mapping_z2_flags_a_ghost_and_not_a_clipped_frame():
 
 
 #: The issue's lines on the still real brackets are chroma p95 <= 0.03 and p99 <= 0.06,
-#: luminance p99 <= 0.06. Measured at this commit (``docs/gallery.md``): p95 <= 0.022
-#: everywhere; p99 up to 0.23 (chroma) and 0.29 (luminance): the iPhone's flickering monitor,
-#: which ghost removal keeps as the reference frame shows it, and Memorial's film edges. The
-#: p95 line is tested as written; the p99 bounds below are what holds today with a margin, so
-#: that a regression (before: p95 0.08-0.99, p99 0.13-1.43) fails.
-P99_CHROMA_TODAY = 0.30
-P99_LUMINANCE_TODAY = 0.40
+#: luminance p99 <= 0.06. Measured at this commit (``docs/gallery.md``): p95 <= 0.012 everywhere;
+#: on Memorial and Frobisher chroma p99 <= 0.048 (the line, tested as written) and luminance p99
+#: <= 0.067 (Memorial's debevec: ghost removal leaves out the blue scan borders some frames
+#: carry along the film's edges, which the plain merge blends in); on the iPhone p99 up to 0.108
+#: (chroma) and 0.216 (luminance): the skyline, where one translation cannot register the
+#: handheld frames (3-6 px apart on the buildings once the monitor is registered) and ghost
+#: removal shows the reference's edges (``tests/hdr/test_real_motion.py`` asks for that). The
+#: bounds below hold with a small margin; the code before the fill ran without a refit gave
+#: chroma p99 0.147 and luminance p99 0.255 on the iPhone and 0.070 / 0.082 on Memorial.
+P99_CHROMA_LINE = 0.06
+P99_LUMINANCE_TRIPOD = 0.075
+P99_CHROMA_HANDHELD = 0.12
+P99_LUMINANCE_HANDHELD = 0.24
 
 
 @pytest.mark.shared_data
@@ -111,8 +117,9 @@ def test_the_gallery_still_brackets_do_not_change_with_deghost():
     for row in still:
         assert row["rejected"] < 0.03, row
         assert row["chroma_p95"] <= 0.03, row
-        assert row["chroma_p99"] <= P99_CHROMA_TODAY, row
-        assert row["luminance_p99"] <= P99_LUMINANCE_TODAY, row
+        handheld = row["bracket"] == "iphone"
+        assert row["chroma_p99"] <= (P99_CHROMA_HANDHELD if handheld else P99_CHROMA_LINE), row
+        assert row["luminance_p99"] <= (P99_LUMINANCE_HANDHELD if handheld else P99_LUMINANCE_TRIPOD), row
     for row in rows:                      # the motion brackets: ghost removal did something, and the map
         if not row["still"]:              # shows the reference: one monotone curve per channel within 3 codes
             assert row["rejected"] > 0.0, row

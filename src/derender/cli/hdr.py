@@ -174,7 +174,8 @@ def merge_cmd(
     ghost_threshold: Optional[float] = typer.Option(None, "--ghost-threshold", help="Ghost test threshold (window "
                                                     "mean of z^2 per channel; default 4: lower removes more)."),
     ghost_mask: Optional[Path] = typer.Option(None, "--ghost-mask", help="PNG of where frames were left out "
-                                              "(ghosts, or not covered after alignment): 0 none, 255 all but the "
+                                              "(ghosts, also where their motion-compensated view replaced them, "
+                                              "or not covered after alignment): 0 none, 255 all but the "
                                               "reference."),
     option: List[str] = typer.Option([], "--option", "-O",
                                      help="A method option as NAME=VALUE (repeat; 'derender methods' lists them), "
@@ -459,7 +460,8 @@ def motion_options(reference: Optional[str], align: Optional[str], deghost: bool
 
 
 def _ghost_png(ghosts, n_images: int):
-    """8-bit RGB picture of :attr:`HDRResult.ghosts`: frames left out per pixel, 255 = all but the reference."""
+    """8-bit RGB picture of :attr:`HDRResult.ghosts`: frames left out (or replaced by their
+    motion-compensated view) per pixel, 255 = all but the reference."""
     import numpy as np
 
     g = np.zeros((1, 1), np.uint8) if ghosts is None else np.asarray(ghosts)

@@ -254,8 +254,9 @@ class HDRResult:
     info : dict
         Free-form details (curves, gammas, matrices, reference index, timings).
     ghosts : numpy.ndarray or None
-        (H, W) uint8, how many frames did not take part at each pixel because they disagreed
-        with the reference frame (ghost removal) or did not cover it after alignment; None
+        (H, W) uint8, how many frames did not take part at each pixel with their own codes
+        because they disagreed with the reference frame (ghost removal: left out, or replaced by
+        their motion-compensated view) or did not cover it after alignment; None
         when the engine neither aligned nor removed ghosts (:mod:`derender.engine.motion`).
     plan : object or None
         The engine's plan the map was merged with (:mod:`derender.engine.plans`: how each

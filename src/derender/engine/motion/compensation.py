@@ -16,7 +16,11 @@ The object is still in the other frames, elsewhere. Per frame ``j`` with rejecte
    has, as paper 2's per-colour tables need), tested against the reference with the same
    test and the same offset and spread as frame j itself (:class:`~derender.engine.motion.deghost.ConsistencyTest`);
 4. where the warped frame agrees and the frame had been rejected, its warped codes replace its
-   own and it takes part again.
+   own and it takes part again. "Agrees" is the detection's own rule: outside the warped
+   frame's rejected regions *dilated* as the detection dilates them (without the dilation a
+   flow of about a pixel gave back the margins the detection had added around a moving
+   person, and those margins showed the person's other instants: measured on the sculpture
+   garden, issue 36).
 
 A clipped reference bounds the radiance from one side only, so a wrong flow that brings a
 brighter patch there would pass the test: the flow is trusted only where its forward-backward
@@ -93,7 +97,7 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
         fwd, reliable = _checked_flow(a8, b8, (hs, ws))
         iy, ix, ok = _flow_samples(fwd, reliable, step, (h, w), None if valid is None else valid[j])
         q, _, _ = test.statistic(frames[j][iy, ix], j, ok, agreement, on_grid=True)
-        use_g = test.sub(rejected[j]) & ~test.regions_grid(q) & (ok != 0)
+        use_g = test.sub(rejected[j]) & ~test.regions_grid(q, dilate=True) & (ok != 0)
         if not use_g.any():
             return {"frame": j, "filled": 0.0}
         filled = _fill_from_flow(frames[j], rejected[j], use_g, fwd, step)

@@ -19,7 +19,9 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
    cleaned into regions; inconsistent frames get no weight there. The method is then
    *calibrated again without them* (fit, detect, refit: its response samples, the
    stabiliser's gamma/3x3 fits read only consistent pixels) and the decision is made once
-   more with the refitted model.
+   more with the refitted model. After the last decision (refitted or not) the rejected
+   pixels are filled from each frame's motion-compensated view where it passes
+   (:mod:`derender.engine.motion.compensation`).
 4. **Merge**: the method's plan on the engine's kernels with the ``valid`` planes
    (:func:`derender.engine.frames.merge_held`, the plain run's dispatch:
    :func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
@@ -423,6 +425,7 @@ class _GhostRemoval:
         self.motion, self.threads = motion, threads
         self.threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
         self.spare: list = []          # a round's rejection plane, reused by the next round
+        self.before_fill: np.ndarray | None = None     # frames rejected per pixel before the last fill
 
     def detect(self, plan, valid):
         from derender.engine.motion.deghost import detect_ghosts
@@ -435,13 +438,17 @@ class _GhostRemoval:
         from derender.engine.motion.deghost import ConsistencyTest
 
         test = ConsistencyTest(plan, self.frames[self.ref], self.ref, self.threshold)
+        # the frames whose own codes will not be merged at each pixel: the fill takes the rejections
+        # back where a frame's warped view passes, but those pixels are not that frame's codes either
+        self.before_fill = rejected.sum(axis=0, dtype=np.uint8)
         info["compensation"] = compensate_frames(self.frames, test, rejected, valid, info["agreements"],
                                                  threads=self.threads)
 
     def run(self, plan, access, valid, ainfo: dict):
         """``(plan, access, valid, ghosts, rejected_anywhere, info)`` after ghost removal: the
         (refitted) plan and its access, ``valid`` without the rejected pixels, the count of
-        frames rejected per pixel (None: none) and where any was."""
+        frames rejected per pixel before the fill (None: none; a filled frame takes part with
+        its warped codes, not its own) and where any frame is still left out."""
         from derender.engine.motion.deghost import REFIT_MIN_REJECTED, merge_valid
 
         frames, ref, compensate = self.frames, self.ref, self.motion.compensate
@@ -455,10 +462,11 @@ class _GhostRemoval:
                 if rejected is not None:
                     self.spare.append(rejected)
                 rejected, ginfo = self.detect(plan, valid)
-        if rejected is not None and compensate and not refits:
+        refit = rejected is not None and refits and ginfo["rejected"] >= REFIT_MIN_REJECTED
+        if rejected is not None and compensate and not refit:
             self.fill(plan, rejected, ginfo, valid)      # else after the refit (filled pixels posterised the fits)
         rounds = 1
-        if rejected is not None and refits and ginfo["rejected"] >= REFIT_MIN_REJECTED:
+        if refit:
             # fit, detect, refit: the method's calibration on the consistent (and filled) pixels only
             access = _access(self.method, self.source, frames, merge_valid(valid, rejected, in_place=True), ref,
                              self.threads)
@@ -472,7 +480,9 @@ class _GhostRemoval:
         ghosts = anywhere = None
         if rejected is not None:
             ghosts = rejected.sum(axis=0, dtype=np.uint8)
-            anywhere = ghosts > 0
+            anywhere = ghosts > 0              # where frames are left out of the merge (the consensus corrects there)
+            if self.before_fill is not None:   # the ghost map: left out or replaced by the warped view
+                ghosts = self.before_fill
         covered = valid is None              # then the merged validity is the rejections' alone: counted
         valid = merge_valid(valid, rejected, in_place=True)
         self.spare.clear()
@@ -488,8 +498,9 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     calibrated on what is left. ``info`` records ``reference`` (index by time),
     ``reference_input`` (index among the images as given, 0-based), ``align`` (shifts or
     homographies) and ``deghost`` (threshold, rejected fraction per frame, rounds);
-    ``result.ghosts`` is the (H, W) uint8 count of frames excluded at each pixel (rejected
-    as inconsistent or not covered after warping)."""
+    ``result.ghosts`` is the (H, W) uint8 count of frames whose own codes are not merged at
+    each pixel (rejected as inconsistent, also where the motion-compensated fill replaced them,
+    or not covered after warping)."""
     t0 = time.perf_counter()
     n = source.n
     align = motion.align_for(method.own_align)
