@@ -73,10 +73,10 @@ differ by per-channel gains only take gains consistent over the whole pair graph
 weights floored: Memorial 0.765 / 0.455 and Frobisher 0.076 / 0.018 max relative change per pixel
 (stabilized / stabilized-joint); both simulated auto-pipeline brackets unchanged, max relative
 change 0); then ``robertson`` (issue 36, luminance that does not depend on the bracket: its
-calibration's observations that stopped following the exposure, a channel stuck, any channel at
-its white, the rim of a clipped region, are bounds, not data, and codes at or above a detected
-white get no merge weight, ``derender.response.robertson2003.calibration_bounds``: another curve;
-max relative change per pixel 0.985 sim-camera, 0.972 sim-simple, 0.276 Memorial, 0.71 Frobisher).
+calibration's observations that stopped following the exposure, a channel stuck or at its
+white, the rim of a clipped region, are bounds, not data, and codes at or above a detected white
+get no merge weight, ``derender.response.robertson2003.calibration_bounds``: another curve; max
+relative change per pixel 0.967 sim-camera, 0.969 sim-simple, 0.242 Memorial, 0.782 Frobisher).
 """
 
 from __future__ import annotations

@@ -146,8 +146,7 @@ class RobertsonOptions:
         The calibration's and the merge's level weight.
     censor : bool
         Observations that stopped following the exposure (a channel at the camera's white or
-        stuck below it, any channel of the pixel clipped, the rim of a clipped region) are bounds,
-        not data, in the calibration, and codes at or above a channel's white get no weight in the
+        stuck below it, the rim of a clipped region) are bounds, not data, in the calibration, and codes at or above a channel's white get no weight in the
         merge (:func:`~derender.response.robertson2003.calibration_bounds`); False: every
         observation is data (the former calibration).
     block_rows, engine, variance

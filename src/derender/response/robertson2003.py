@@ -70,29 +70,29 @@ simulator brackets). What is computed here:
    ``paper`` 42.61 -> 42.65, ``camera`` 43.06 -> 43.64 dB (tuning); held out ``dslr-lut``
    40.13 -> 42.47, ``phone-local`` 41.14 -> 41.61, ``drift`` 43.32 -> 43.10.
 8. **Bounds are not data** (``censor=True``, the default; :func:`calibration_bounds`). With the
-   frames in order of exposure, a pixel's observations are bounds (its exposure is *at least*
-   what the codes say), left out of ``E_i`` and of the update, from the first frame where a
-   channel is stuck below the top code
-   (:func:`~derender.response.debevec1997.censored_observations`), where any channel is at or
-   above its white code (:func:`~derender.response.debevec1997.white_codes`, which the merge
-   then gives no weight, as Debevec's does), or where the pixel is on the rim of a clipped
-   region (a neighbour +-2 pixels away clipped while it is not, :func:`robertson_clusters`;
-   Debevec's :func:`~derender.response.curves.uniform_samples` drops such samples). One clipped
-   channel makes the pixel's others bounds: the camera clips its sensor channels *before* the
-   3x3 matrix, so the other channels' codes are then mixed from a clipped value and stop
-   following the exposure while still below 255 (green codes 118, 127, 160, 243 in frames 4x
-   apart, next to a red channel at 234, 250, 255). Those observations are few (at 2 EV,
-   2-15 % of a code's) but each is off by 0.5-2.5 in ``ln``, always upwards at the top codes:
-   the mean update followed them, and the 2-stop step left its shape to them, so the curve
-   rippled with the period of the step (luminance family, fixed gamma-2.2 rendering, Canon
-   EOS 5D Mark III, 2 EV, scene 1: 1.07 at code 96, 1.12-1.16 at 160-192, 1.24 at 224 of the
-   true gamma relative to code 128; every decade after the grey card's spot 0.93-0.98).
-   Measured on that bracket, spot-scaled median abs error: 3.85 % before; stuck codes
-   censored 3.73 %; a pixel's channels all bounds once one is stuck or at 255: 1.75 %; and the
-   white codes and the rims (this): 0.8 %.
-   A per-code median instead of the mean (no censoring) gave 0.73 % there but bent the curves
-   of the auto-pipeline ``camera`` family, whose frames disagree by design (PSNR L, outdoor
-   seeds 0-2: 43.75 -> 38.71 dB): not kept.
+   frames in order of exposure, a channel's observations of a pixel are bounds (its exposure is
+   *at least* what the code says), left out of ``E_i`` and of the update, from the first frame
+   where the channel is stuck below the top code
+   (:func:`~derender.response.debevec1997.censored_observations`), where it is at or above its
+   white code (:func:`~derender.response.debevec1997.white_codes`, which the merge then gives no
+   weight, as Debevec's does), or where the pixel is on the rim of a clipped region (a neighbour
+   +-2 pixels away clipped while it is not, :func:`robertson_clusters`; Debevec's
+   :func:`~derender.response.curves.uniform_samples` drops such samples: demosaicing and JPEG mix
+   the clipped neighbour in). Those observations are few (at 2 EV, 2-15 % of a code's) but
+   each is off by 0.5-2.5 in ``ln``, upwards at the top codes: the mean update followed them,
+   and the 2-stop step left its shape to them, so the curve rippled with the period of the step
+   (luminance family, fixed gamma-2.2 rendering, Canon EOS 5D Mark III, 2 EV, scene 1: 1.07 at
+   code 96, 1.12-1.16 at 160-192, 1.24 at 224 of the true gamma relative to code 128; every
+   decade after the grey card's spot 0.93-0.98). Measured on that bracket, spot-scaled median
+   abs error: 3.85 % before; stuck codes censored 3.73 %; with the white codes and the rims
+   (this) 1.78 %. Making a pixel's three channels bounds once one is stuck, clipped or on a rim
+   (the simulator clips its sensor channels before the 3x3 matrix, which bends the others'
+   codes: green 118, 127, 160, 243 in frames 4x apart next to a red channel at 234, 250, 255)
+   gave 0.8 % there, but recoloured the iPhone bracket's sky (block B/G 3.70 -> 4.37; per
+   channel 3.42) and worsened Memorial's round trip (weighted median / p95 3.07 / 10.8 -> 3.97 /
+   14.6 codes; per channel 3.27 / 13.5): not kept. A per-code median instead of the mean (no
+   censoring) gave 0.73 % but bent the curves of the auto-pipeline ``camera`` family, whose
+   frames disagree by design (PSNR L, outdoor seeds 0-2: 43.75 -> 38.71 dB): not kept.
 
 Measured (simulator, 8 brackets outdoor/indoor x simple/camera x seeds 0-1, 192x128, 7
 exposures, PSNR L vs truth): literal Robertson 27.1 dB (OpenCV's 27.0), this one 42.4 dB,
@@ -324,7 +324,7 @@ def _start_curve(z: np.ndarray, times: np.ndarray, n_levels: int, tie: float = 0
     idx = np.linspace(0, p - 1, min(p, START_SAMPLES)).astype(np.int64)
     log_t = np.log(times)
     g = solve_debevec_tied([z[:, idx, c] for c in range(3)], log_t, lam=DEFAULT_LAMBDA, weights="hat",
-                           n_levels=n_levels, tie=tie, keep=None if keep is None else [keep[:, idx]] * 3)
+                           n_levels=n_levels, tie=tie, keep=None if keep is None else [keep[:, idx, c] for c in range(3)])
     return make_monotonic(g)
 
 
@@ -348,25 +348,26 @@ def _update_variance(y: np.ndarray, sq: np.ndarray, cnt: np.ndarray, ok: np.ndar
 
 def calibration_bounds(z: np.ndarray, times: np.ndarray, rim: np.ndarray | None = None,
                        n_levels: int = 256) -> tuple[np.ndarray, list[int]]:
-    """Which observations of the calibration pixels are data: ``(keep, white)``, ``keep`` (N, P)
-    bool (True = data, for the pixel's three channels) and ``white`` the channels' white codes.
+    """Which observations of the calibration pixels are data: ``(keep, white)``, ``keep`` (N, P, 3)
+    bool (True = data) and ``white`` the channels' white codes.
 
     ``z`` (N, P, 3) codes of P pixels in N frames with exposure ``times``; ``rim`` (N, P) the
     frames where the pixel is beside a clipped one (:func:`robertson_clusters`; None: nowhere).
-    With the frames in order of exposure, an observation and every longer frame's of its pixel
-    are bounds (the exposure is *at least* what the codes say) from the first frame where
+    With the frames in order of exposure, a channel's observation and every longer frame's of that
+    channel are bounds (the exposure is *at least* what the code says) from the first frame where
 
-    * a channel has stopped following the exposure
+    * the channel has stopped following the exposure
       (:func:`~derender.response.debevec1997.censored_observations`: an upper-half code that
       does not rise by more than one code in the next longer frame),
-    * or a channel is at or above its white code
+    * or the channel is at or above its white code
       (:func:`~derender.response.debevec1997.white_codes` of those censored observations; the
       top code when none is found),
     * or the pixel is on a rim (``rim``).
 
-    One channel clipped makes the pixel's other channels bounds too: the camera clips its
-    sensor channels before the 3x3 colour matrix, so once one of them is clipped the others'
-    codes are mixed from a clipped value.
+    Per channel: making a pixel's other channels bounds too once one is clipped (a camera clips
+    its sensor channels before the 3x3 matrix) served the simulator's fixed pipeline as well, but
+    recoloured the iPhone bracket's sky (block B/G 3.70 -> 4.37; per channel 3.42) and took data
+    from Memorial's film frames (module docstring, point 8).
     """
     from derender.response.debevec1997 import censored_observations, white_codes
 
@@ -375,9 +376,9 @@ def calibration_bounds(z: np.ndarray, times: np.ndarray, rim: np.ndarray | None 
     per = [z[:, :, c] for c in range(3)]
     stuck = [censored_observations(zc, log_t, n_levels) for zc in per]
     white = white_codes(per, stuck, log_t, n_levels)
-    bad = ~(stuck[0] & stuck[1] & stuck[2]) | np.any(z >= np.asarray(white), axis=2)
+    bad = ~np.stack(stuck, axis=-1) | (z >= np.asarray(white))
     if rim is not None:
-        bad |= np.asarray(rim, dtype=bool)
+        bad |= np.asarray(rim, dtype=bool)[:, :, None]
     order = np.argsort(log_t, kind="stable")
     spread = np.logical_or.accumulate(bad[order], axis=0)
     keep = np.empty_like(spread)
@@ -405,6 +406,8 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
     mid = n_levels // 2
     tie = DEFAULT_TIE if tie is None else float(tie)
     keep, white = calibration_bounds(z, times, rim, n_levels) if censor else (None, None)
+    if keep is not None:
+        keep = np.broadcast_to(keep if keep.ndim == 3 else keep[:, :, None], z.shape)
     g = _start_curve(z, times, n_levels, tie, keep)
     d2 = np.diff(np.eye(n_levels), n=2, axis=0)
     smooth2 = float(lam) * (d2.T @ d2)
@@ -412,11 +415,12 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
     # estimates average in the log domain: see the module docstring, point 5
     wz = base[z]  # (N, P, 3)
     if keep is not None:
-        wz = wz * keep[:, :, None]    # bounds are neither in E_i nor updated
+        keep = np.broadcast_to(keep if keep.ndim == 3 else keep[:, :, None], z.shape)
+        wz = wz * keep    # bounds are neither in E_i nor updated
     den = wz.sum(axis=0)[None] - wz
     live_obs = den > 1e-6 * base.max()
     if keep is not None:
-        live_obs &= keep[:, :, None]
+        live_obs &= keep
     live_obs = live_obs.ravel()
     den = np.where(den > 0, den, 1.0)
     iters = 0
