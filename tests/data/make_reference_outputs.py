@@ -76,7 +76,13 @@ change 0); then issue 36 (cross-method agreement): ``debevec`` and ``robertson``
 or below the bracket's black floor, ``derender.engine.weights.black_codes``: Memorial's film base
 at codes R 15, G 20, B 19; max relative change per pixel 0.933 / 1.4e6 on Memorial, the latter on
 column 0's padding (codes 0, 0, 255), 0.5 or more on 2925 / 15506 pixels, its dark ceiling; the
-simulated brackets and Frobisher unchanged, max relative change 0).
+simulated brackets and Frobisher unchanged, max relative change 0); then ``robertson`` (issue 36,
+luminance that does not depend on the bracket: its calibration's observations that stopped
+following the exposure, a channel stuck or at its white, the rim of a clipped region, are bounds,
+not data, and codes at or above a detected white get no merge weight,
+``derender.response.robertson2003.calibration_bounds``: another curve; max relative change per
+pixel 0.967 sim-camera, 0.969 sim-simple, 0.242 Memorial, 0.782 Frobisher, measured before the
+black floor was merged with it).
 """
 
 from __future__ import annotations

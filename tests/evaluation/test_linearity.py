@@ -200,10 +200,11 @@ def test_luminance_does_not_depend_on_the_bracket(spacing_rows_held_out, method)
     median abs error <= 3 % and every decade's median ratio within +-5 %. The full grid (4 cameras,
     1 / 1.5 / 2 EV, whites 255 and 250-254, ``--deghost``) is in docs/results-luminance.md
     (``benchmarks/bench_luminance_spacing.py``). Measured (seeds 0 / 1; median, worst decade): debevec
-    0.9 % / 0.9 %, 1.011 / 1.009; robertson 1.1 % / 1.4 %, 0.966 / 0.958; stabilized and
-    stabilized-joint 0.6 % / 0.6 %, 0.994 / 1.003 (before their level and scale followed the times:
-    2.6 % / 2.6 %, 1.039 / 1.042, a tilt measured on the results page). At 2 EV robertson misses on
-    this camera."""
+    0.9 % / 0.9 %, 1.011 / 1.009; robertson 0.6 % / 0.8 %, 1.007 / 1.016 (1.1 % / 1.4 %, 0.966 / 0.958
+    before its calibration's bounds); stabilized and stabilized-joint 0.6 % / 0.6 %, 0.994 / 1.003
+    (before their level and scale followed the times: 2.6 % / 2.6 %, 1.039 / 1.042, a tilt measured
+    on the results page). At 2 EV robertson and the stabilised merges missed on this camera before
+    those changes (the two tests below)."""
     rows = [r for r in spacing_rows_held_out if r["method"] == method]
     assert len(rows) == 2
     for r in rows:
@@ -222,6 +223,7 @@ def test_stabilised_luminance_follows_the_times_at_2_ev():
     measured 1.4 % / 0.7 %, worst decades 1.025 / 1.014. The line (median <= 3 %, every decade
     within +-5 %) is asserted; which level was taken is tested in ``tests/hdr/test_stabilize_families.py``."""
     from conftest import require_shared
+
     from derender.evaluation.linearity import spacing_rows
 
     require_shared("rawtoaces-spectral")
@@ -231,3 +233,41 @@ def test_stabilised_luminance_follows_the_times_at_2_ev():
         assert r["frames"] == 9 and all(c > 300 for c in r["counts"]), r["counts"]
         assert r["median_abs"] <= 0.03, (r["method"], r["median_abs"])
         assert np.all(np.abs(np.asarray(r["decades"]) - 1.0) <= 0.05), (r["method"], r["decades"])
+
+
+def test_robertson_has_no_two_stop_ripple_on_a_held_out_camera():
+    """Issue 36's line for ``robertson`` where it missed: 2 EV (9 frames), on the Fujifilm X-T3
+    (``rawtoaces-spectral``; held out: not looked at while choosing), scene 1, white drawn in
+    250..254, the luminance family's fixed gamma-2.2 rendering. With ``--spot`` on the grey card,
+    the median abs error <= 3 % and every decade within +-5 %; and the curve itself, green channel
+    relative to code 128, within +-5 % of the true gamma 2.2 over codes 96-224 (where the 2-stop
+    ripple was) with the white found below 255. Before the calibration's bounds
+    (:func:`derender.response.robertson2003.calibration_bounds`) this bracket read 4.4 %, worst
+    decade 0.932 (the test failed at its median, 4.38 %), the curve 1.000-1.257 of the gamma over
+    codes 96-224; now 1.5 %, worst decade 0.981, the curve 0.994-1.045 and the white 250."""
+    import math
+
+    from conftest import require_shared
+
+    from derender.camera.luminance import simulate_luminance, truth_luminance_cd_m2
+    from derender.core.types import Stack
+    from derender.evaluation.families import smooth_mask
+    from derender.evaluation.linearity import linearity_scores, saturate_below
+    from derender.hdr.registry import merge_seeded
+
+    require_shared("rawtoaces-spectral")
+    n = int(math.ceil(16 / 2.0)) + 1
+    b = simulate_luminance(render="gamma", size=(192, 128), exposures=n, stops=2.0, seed=1, camera="fujifilm-x-t3")
+    codes = saturate_below(b.jpeg_codes, 1)
+    res = merge_seeded(Stack(images=codes.astype(np.float32) * np.float32(1 / 255), times=b.times), "robertson", 0)
+    sc = linearity_scores(res.radiance, truth_luminance_cd_m2(b.truth_linear_srgb), b.params["luminance"]["spot"],
+                          score_mask=smooth_mask(b.truth_linear_srgb), merge_mask=res.mask)
+    assert all(c > 300 for c in sc["counts"]), sc["counts"]
+    assert sc["median_abs"] <= 0.03, sc["median_abs"]
+    assert np.all(np.abs(np.asarray(sc["decades"]) - 1.0) <= 0.05), sc["decades"]
+    curves = res.info["curves"]
+    z = np.arange(96, 225)
+    g = curves.log_inverse[:, 1]
+    ratio = np.exp(g[z] - g[128] - 2.2 * np.log(z / 128.0))
+    assert np.all(np.abs(ratio - 1.0) <= 0.05), (z[np.argmax(np.abs(ratio - 1.0))], ratio.min(), ratio.max())
+    assert all(250 <= w < 255 for w in curves.params["white_codes"]), curves.params["white_codes"]

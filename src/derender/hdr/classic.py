@@ -144,6 +144,11 @@ class RobertsonOptions:
         The calibration: iterations, pixels sampled (seeded), the channel tie (None: the default).
     weight : str
         The calibration's and the merge's level weight.
+    censor : bool
+        Observations that stopped following the exposure (a channel at the camera's white or
+        stuck below it, the rim of a clipped region) are bounds, not data, in the calibration, and codes at or above a channel's white get no weight in the
+        merge (:func:`~derender.response.robertson2003.calibration_bounds`); False: every
+        observation is data (the former calibration).
     block_rows, engine, variance
         As :class:`DebevecOptions`.
     """
@@ -156,6 +161,7 @@ class RobertsonOptions:
     block_rows: int | None = None
     engine: str = "auto"
     tie: float | None = None
+    censor: bool = True
     variance: bool = False
 
     def __post_init__(self) -> None:
@@ -244,6 +250,7 @@ class RobertsonMethod(MethodDefaults):
     """Robertson et al. (2003) on the engine: grid samples, iterative curves, the ML merge in tables."""
 
     name = "robertson"
+    sample_cluster = 9          # each grid pixel with its 8 neighbours (response.robertson2003.robertson_positions)
 
     def __init__(self, options: RobertsonOptions):
         self.options = options
@@ -251,6 +258,7 @@ class RobertsonMethod(MethodDefaults):
         self.tie = DEFAULT_TIE if options.tie is None else float(options.tie)
         self.curves, self.n_iter, self.max_pixels = options.curves, int(options.n_iter), int(options.max_pixels)
         self.weight, self.seed, self.block_rows = options.weight, int(options.seed), options.block_rows
+        self.censor = bool(options.censor)
 
     def sample_positions(self, h: int, w: int):
         from derender.response.robertson2003 import robertson_positions
@@ -258,13 +266,14 @@ class RobertsonMethod(MethodDefaults):
         return robertson_positions(h, w, self.max_pixels, self.seed)
 
     def plan(self, access: FrameAccess) -> TablePlan:
-        from derender.response.robertson2003 import robertson_from_samples
+        from derender.response.robertson2003 import robertson_clusters, robertson_from_samples
 
         check_usable_samples(access.samples, access.histograms)
         curves = self.curves
         if curves is None:
-            curves = robertson_from_samples(access.samples, access.times, n_iter=self.n_iter,
-                                            max_pixels=self.max_pixels, weight=self.weight, tie=self.tie)
+            z, rim = robertson_clusters(access.samples)
+            curves = robertson_from_samples(z, access.times, n_iter=self.n_iter, max_pixels=self.max_pixels,
+                                            weight=self.weight, tie=self.tie, censor=self.censor, rim=rim)
         self.fitted = curves
         values = curve_value_tables(curves, access.times, "linear")
         self.black = black_codes(access.samples, access.times)
@@ -293,18 +302,21 @@ def _robertson_level_weights(curves, weight: Any) -> tuple[np.ndarray, np.ndarra
 
 
 def robertson_weight_table(curves, weight: Any) -> np.ndarray:
-    """(256, 3) float32 weights of the ML merge on 8-bit codes: ``noise_weights`` of ``curves`` at the codes."""
+    """(256, 3) float32 weights of the ML merge on 8-bit codes: ``noise_weights`` of ``curves`` at the
+    codes, none at or above the channels' white codes (:func:`white_weights`)."""
     from derender.engine.tables import code_values
 
     lv, w = _robertson_level_weights(curves, weight)
     z = code_values().astype(np.float64)
-    return np.ascontiguousarray(np.stack([np.interp(z, lv, w[:, c]) for c in range(3)], -1), dtype=np.float32)
+    return white_weights(np.stack([np.interp(z, lv, w[:, c]) for c in range(3)], -1), curves)
 
 
 def _robertson_weight_fn(curves, weight: Any) -> Callable[[int, np.ndarray], np.ndarray]:
     """``(j, block) -> weights`` of the ML merge for :func:`merge_linear` (any bit depth; the
-    channels share them or not as :data:`ROBERTSON_CHANNEL_WEIGHTS` tells the merge)."""
+    channels share them or not as :data:`ROBERTSON_CHANNEL_WEIGHTS` tells the merge); none at or
+    above the channels' white codes (:func:`white_weights`, values binned to the curves' levels)."""
     lv, w = _robertson_level_weights(curves, weight)
+    w = white_weights(w, curves)
 
     def fn(j: int, block: np.ndarray) -> np.ndarray:
         b = np.clip(np.asarray(block, dtype=np.float64), 0.0, 1.0)
@@ -385,7 +397,7 @@ def robertson_stack(stack: Stack, options: RobertsonOptions) -> HDRResult:
     curves = o.curves
     if curves is None:
         curves = calibrate_robertson(stack, n_iter=o.n_iter, max_pixels=o.max_pixels, weight=o.weight, seed=o.seed,
-                                     tie=method.tie)
+                                     tie=method.tie, censor=o.censor)
     t1 = time.perf_counter()
     res = _reference_merge(stack, "robertson", curves, o.weight, o.block_rows, o.variance,
                            {"weight_fn": _robertson_weight_fn(curves, o.weight),

@@ -69,6 +69,30 @@ simulator brackets). What is computed here:
    the range): PSNR L on the families (outdoor + indoor, seeds 0-1, 192x128, 7 exposures)
    ``paper`` 42.61 -> 42.65, ``camera`` 43.06 -> 43.64 dB (tuning); held out ``dslr-lut``
    40.13 -> 42.47, ``phone-local`` 41.14 -> 41.61, ``drift`` 43.32 -> 43.10.
+8. **Bounds are not data** (``censor=True``, the default; :func:`calibration_bounds`). With the
+   frames in order of exposure, a channel's observations of a pixel are bounds (its exposure is
+   *at least* what the code says), left out of ``E_i`` and of the update, from the first frame
+   where the channel is stuck below the top code
+   (:func:`~derender.response.debevec1997.censored_observations`), where it is at or above its
+   white code (:func:`~derender.response.debevec1997.white_codes`, which the merge then gives no
+   weight, as Debevec's does), or where the pixel is on the rim of a clipped region (a neighbour
+   +-2 pixels away clipped while it is not, :func:`robertson_clusters`; Debevec's
+   :func:`~derender.response.curves.uniform_samples` drops such samples: demosaicing and JPEG mix
+   the clipped neighbour in). Those observations are few (at 2 EV, 2-15 % of a code's) but
+   each is off by 0.5-2.5 in ``ln``, upwards at the top codes: the mean update followed them,
+   and the 2-stop step left its shape to them, so the curve rippled with the period of the step
+   (luminance family, fixed gamma-2.2 rendering, Canon EOS 5D Mark III, 2 EV, scene 1: 1.07 at
+   code 96, 1.12-1.16 at 160-192, 1.24 at 224 of the true gamma relative to code 128; every
+   decade after the grey card's spot 0.93-0.98). Measured on that bracket, spot-scaled median
+   abs error: 3.85 % before; stuck codes censored 3.73 %; with the white codes and the rims
+   (this) 1.78 %. Making a pixel's three channels bounds once one is stuck, clipped or on a rim
+   (the simulator clips its sensor channels before the 3x3 matrix, which bends the others'
+   codes: green 118, 127, 160, 243 in frames 4x apart next to a red channel at 234, 250, 255)
+   gave 0.8 % there, but recoloured the iPhone bracket's sky (block B/G 3.70 -> 4.37; per
+   channel 3.42) and worsened Memorial's round trip (weighted median / p95 3.07 / 10.8 -> 3.97 /
+   14.6 codes; per channel 3.27 / 13.5): not kept. A per-code median instead of the mean (no
+   censoring) gave 0.73 % but bent the curves of the auto-pipeline ``camera`` family, whose
+   frames disagree by design (PSNR L, outdoor seeds 0-2: 43.75 -> 38.71 dB): not kept.
 
 Measured (simulator, 8 brackets outdoor/indoor x simple/camera x seeds 0-1, 192x128, 7
 exposures, PSNR L vs truth): literal Robertson 27.1 dB (OpenCV's 27.0), this one 42.4 dB,
@@ -86,6 +110,7 @@ from derender.core.errors import StackError
 from derender.core.types import Stack
 from derender.response.curves import (
     CHANNELS,
+    CLUSTER_REACH,
     DEFAULT_LAMBDA,
     DEFAULT_TIE,
     ResponseCurves,
@@ -104,16 +129,20 @@ from derender.response.curves import (
 __all__ = [
     "calibrate_robertson",
     "robertson_positions",
+    "robertson_clusters",
     "robertson_from_samples",
+    "calibration_bounds",
     "noise_weights",
     "ROBERTSON_LAMBDA",
+    "RIM_CODES",
 ]
 
 
 # --------------------------------------------------------------------------- Robertson
 def calibrate_robertson(stack: Stack, *, n_iter: int = 30, tol: float = 1e-6, max_pixels: int = 40_000,
                         weight: Any = "gaussian", n_levels: int = 256, seed: int = 0,
-                        lam: float | None = None, balance: bool = True, tie: float | None = None) -> ResponseCurves:
+                        lam: float | None = None, balance: bool = True, tie: float | None = None,
+                        censor: bool = True) -> ResponseCurves:
     """Iterative response recovery of Robertson, Borman & Stevenson (1999; JEI 2003, Sec. 3), made robust.
 
     Alternates the leave-one-out ML radiance with the log-domain update of ``g = ln I``,
@@ -124,7 +153,9 @@ def calibrate_robertson(stack: Stack, *, n_iter: int = 30, tol: float = 1e-6, ma
     channel. Uses at most ``max_pixels`` pixels (a regular grid). ``lam`` is the smoothing
     weight. ``tie``: the channel tie of :func:`derender.response.curves.solve_tied` in the start
     and in every smoothing step (default :data:`~derender.response.curves.DEFAULT_TIE`; 0: the
-    channels independent). The result is strictly increasing.
+    channels independent). ``censor``: observations that stopped following the exposure are
+    bounds, not data (:func:`calibration_bounds`; module docstring, point 8). The result is
+    strictly increasing.
 
     Parameters
     ----------
@@ -149,12 +180,16 @@ def calibrate_robertson(stack: Stack, *, n_iter: int = 30, tol: float = 1e-6, ma
     tie : float, optional
         Channel tie of the smoothing (default
         :data:`~derender.response.curves.DEFAULT_TIE`).
+    censor : bool
+        Leave the observations that stopped following the exposure out of the calibration
+        (:func:`calibration_bounds`); False: every observation is data (the former calibration).
 
     Returns
     -------
     ResponseCurves
         ``log_inverse`` (n_levels, 3) ``g = ln f^-1``, strictly increasing, with
-        ``g_G(mid) = 0``; ``params`` records the iterations and settings.
+        ``g_G(mid) = 0``; ``params`` records the iterations and settings (with ``censor``, the
+        channels' ``white_codes``, which the merge gives no weight).
 
     Raises
     ------
@@ -183,15 +218,51 @@ def calibrate_robertson(stack: Stack, *, n_iter: int = 30, tol: float = 1e-6, ma
     check_usable(stack, n_levels)
     n_img, h, w_, _ = stack.images.shape
     ys, xs = robertson_positions(h, w_, max_pixels, seed)
-    z = to_codes(stack.images[:, ys, xs, :], n_levels)  # (N, P, 3)
+    z, rim = robertson_clusters(to_codes(stack.images[:, ys, xs, :], n_levels), n_levels)  # (N, P, 3), (N, P)
     return robertson_from_samples(z, stack.times, n_iter=n_iter, tol=tol, max_pixels=max_pixels, weight=weight,
                                   n_levels=n_levels, lam=ROBERTSON_LAMBDA if lam is None else lam,
-                                  balance=balance, tie=tie)
+                                  balance=balance, tie=tie, censor=censor, rim=rim)
+
+
+#: Positions per calibration pixel in :func:`robertson_positions`: the pixel and its 8 neighbours.
+CLUSTER = 9
 
 
 def robertson_positions(h: int, w: int, max_pixels: int = 40_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """The pixels :func:`calibrate_robertson` reads: at most ``max_pixels`` on a regular grid (no border)."""
-    return grid_positions(h, w, min(int(max_pixels), h * w), seed, border=0.0)
+    """The positions :func:`calibrate_robertson` reads: at most ``max_pixels`` pixels on a regular
+    grid (no border), each as a cluster of :data:`CLUSTER` positions, the pixel (5th) and its 8
+    neighbours at ``+-``:data:`~derender.response.curves.CLUSTER_REACH` pixels (clipped
+    to the image), for :func:`robertson_clusters`."""
+    ys, xs = grid_positions(h, w, min(int(max_pixels), h * w), seed, border=0.0)
+    d = np.array([-CLUSTER_REACH, 0, CLUSTER_REACH])
+    dy, dx = np.meshgrid(d, d, indexing="ij")
+    yy = np.clip(ys[:, None] + dy.ravel()[None, :], 0, h - 1)
+    xx = np.clip(xs[:, None] + dx.ravel()[None, :], 0, w - 1)
+    return yy.ravel(), xx.ravel()
+
+
+#: A pixel is on the rim of a clipped region in a frame when one of its neighbours has a channel
+#: within this many codes of the top code (250 and above for 8-bit codes, as
+#: :func:`~derender.response.curves.uniform_samples` counts clipped) and its own channels are all below that.
+RIM_CODES = 5
+
+
+def robertson_clusters(codes: np.ndarray, n_levels: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """The calibration pixels' codes and where they are on a rim, from the codes at
+    :func:`robertson_positions` (``codes`` (N, 9 P, 3)): ``(z, rim)``, ``z`` (N, P, 3) int64 the
+    pixels' own codes and ``rim`` (N, P) bool, True in the frames where one of the pixel's
+    neighbours is clipped (a channel at ``n_levels - 1 -`` :data:`RIM_CODES` or above) while the
+    pixel's channels are all below that."""
+    c = np.asarray(codes)
+    n_img, p9, _ = c.shape
+    c = c.reshape(n_img, p9 // CLUSTER, CLUSTER, 3)
+    mid = CLUSTER // 2
+    z = c[:, :, mid, :].astype(np.int64)
+    top = c.max(axis=3)                                       # (N, P, 9) brightest channel per position
+    clip = n_levels - 1 - RIM_CODES
+    around = np.delete(top, mid, axis=2).max(axis=2)
+    rim = (around >= clip) & (top[:, :, mid] < clip)
+    return z, rim
 
 
 #: Smoothness weight of the per-iteration Whittaker smoothing of ``g`` (data weights normalised to mean 1).
@@ -239,7 +310,8 @@ def noise_weights(g: np.ndarray, base: np.ndarray) -> np.ndarray:
 START_SAMPLES = 1000
 
 
-def _start_curve(z: np.ndarray, times: np.ndarray, n_levels: int, tie: float = 0.0) -> np.ndarray:
+def _start_curve(z: np.ndarray, times: np.ndarray, n_levels: int, tie: float = 0.0,
+                 keep: np.ndarray | None = None) -> np.ndarray:
     """Starting curve: Debevec & Malik's least squares on up to :data:`START_SAMPLES` of the pixels.
 
     Robertson's iteration converges slowly from a linear or gamma start when frames are
@@ -252,7 +324,7 @@ def _start_curve(z: np.ndarray, times: np.ndarray, n_levels: int, tie: float = 0
     idx = np.linspace(0, p - 1, min(p, START_SAMPLES)).astype(np.int64)
     log_t = np.log(times)
     g = solve_debevec_tied([z[:, idx, c] for c in range(3)], log_t, lam=DEFAULT_LAMBDA, weights="hat",
-                           n_levels=n_levels, tie=tie)
+                           n_levels=n_levels, tie=tie, keep=None if keep is None else [keep[:, idx, c] for c in range(3)])
     return make_monotonic(g)
 
 
@@ -274,11 +346,54 @@ def _update_variance(y: np.ndarray, sq: np.ndarray, cnt: np.ndarray, ok: np.ndar
     return np.where(two, np.clip(var, VARIANCE_FLOOR * med, VARIANCE_CAP * med), med)
 
 
+def calibration_bounds(z: np.ndarray, times: np.ndarray, rim: np.ndarray | None = None,
+                       n_levels: int = 256) -> tuple[np.ndarray, list[int]]:
+    """Which observations of the calibration pixels are data: ``(keep, white)``, ``keep`` (N, P, 3)
+    bool (True = data) and ``white`` the channels' white codes.
+
+    ``z`` (N, P, 3) codes of P pixels in N frames with exposure ``times``; ``rim`` (N, P) the
+    frames where the pixel is beside a clipped one (:func:`robertson_clusters`; None: nowhere).
+    With the frames in order of exposure, a channel's observation and every longer frame's of that
+    channel are bounds (the exposure is *at least* what the code says) from the first frame where
+
+    * the channel has stopped following the exposure
+      (:func:`~derender.response.debevec1997.censored_observations`: an upper-half code that
+      does not rise by more than one code in the next longer frame),
+    * or the channel is at or above its white code
+      (:func:`~derender.response.debevec1997.white_codes` of those censored observations; the
+      top code when none is found),
+    * or the pixel is on a rim (``rim``).
+
+    Per channel: making a pixel's other channels bounds too once one is clipped (a camera clips
+    its sensor channels before the 3x3 matrix) served the simulator's fixed pipeline as well, but
+    recoloured the iPhone bracket's sky (block B/G 3.70 -> 4.37; per channel 3.42) and took data
+    from Memorial's film frames (module docstring, point 8).
+    """
+    from derender.response.debevec1997 import censored_observations, white_codes
+
+    z = np.asarray(z, dtype=np.int64)
+    log_t = np.log(np.asarray(times, dtype=np.float64))
+    per = [z[:, :, c] for c in range(3)]
+    stuck = [censored_observations(zc, log_t, n_levels) for zc in per]
+    white = white_codes(per, stuck, log_t, n_levels)
+    bad = ~np.stack(stuck, axis=-1) | (z >= np.asarray(white))
+    if rim is not None:
+        bad |= np.asarray(rim, dtype=bool)[:, :, None]
+    order = np.argsort(log_t, kind="stable")
+    spread = np.logical_or.accumulate(bad[order], axis=0)
+    keep = np.empty_like(spread)
+    keep[order] = ~spread
+    return keep, white
+
+
 def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30, tol: float = 1e-6,
                            max_pixels: int = 40_000, weight: Any = "gaussian", n_levels: int = 256,
                            lam: float = ROBERTSON_LAMBDA, balance: bool = True,
-                           tie: float | None = None) -> ResponseCurves:
-    """:func:`calibrate_robertson` on sampled codes ``z`` (N, P, 3) int of a bracket with ``times`` (s)."""
+                           tie: float | None = None, censor: bool = True,
+                           rim: np.ndarray | None = None) -> ResponseCurves:
+    """:func:`calibrate_robertson` on sampled codes ``z`` (N, P, 3) int of a bracket with ``times`` (s);
+    ``rim`` (N, P) bool: where each pixel is beside a clipped one (:func:`robertson_clusters`), read
+    with ``censor``."""
     times = np.asarray(times, dtype=np.float64)
     z = np.asarray(z).astype(np.int64)
     base = level_weights(weight, n_levels)
@@ -290,14 +405,23 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
             raise StackError(f"channel {CHANNELS[c]} has no usable pixel; cannot recover its response")
     mid = n_levels // 2
     tie = DEFAULT_TIE if tie is None else float(tie)
-    g = _start_curve(z, times, n_levels, tie)
+    keep, white = calibration_bounds(z, times, rim, n_levels) if censor else (None, None)
+    if keep is not None:
+        keep = np.broadcast_to(keep if keep.ndim == 3 else keep[:, :, None], z.shape)
+    g = _start_curve(z, times, n_levels, tie, keep)
     d2 = np.diff(np.eye(n_levels), n=2, axis=0)
     smooth2 = float(lam) * (d2.T @ d2)
     # the other frames count with the base weight w (not the merge's w / g'^2) and their
     # estimates average in the log domain: see the module docstring, point 5
     wz = base[z]  # (N, P, 3)
+    if keep is not None:
+        keep = np.broadcast_to(keep if keep.ndim == 3 else keep[:, :, None], z.shape)
+        wz = wz * keep    # bounds are neither in E_i nor updated
     den = wz.sum(axis=0)[None] - wz
-    live_obs = (den > 1e-6 * base.max()).ravel()
+    live_obs = den > 1e-6 * base.max()
+    if keep is not None:
+        live_obs &= keep
+    live_obs = live_obs.ravel()
     den = np.where(den > 0, den, 1.0)
     iters = 0
     for iters in range(1, int(n_iter) + 1):
@@ -345,7 +469,10 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
             break
     params = {"iterations": iters, "max_pixels": int(max_pixels), "lambda": float(lam),
               "weight": weight if isinstance(weight, str) else "custom", "calibration_weights": "base, log domain",
-              "merge_weights": "base / g'^2", "tie": tie}
+              "merge_weights": "base / g'^2", "tie": tie, "censor": bool(censor)}
+    if keep is not None:
+        params["censored"] = int((~keep).sum())
+        params["white_codes"] = [int(v) for v in white]
     if balance:
         g, info = balance_channels(g, z, mode="grey-axis" if tie > 0 else "neutral")
         params.update(info)
