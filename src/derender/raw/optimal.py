@@ -69,6 +69,7 @@ __all__ = [
     "mosaic_observations",
     "merge_mosaic_optimal",
     "demosaic_variance",
+    "linear_demosaic_kernels",
     "output_matrix",
     "compiled_frames",
     "merge_compiled",
@@ -207,6 +208,13 @@ def _malvar_kernels(pattern: str, method: str) -> np.ndarray:
     return k
 
 
+def linear_demosaic_kernels(pattern: str, method: str = "malvar2004") -> np.ndarray:
+    """(2, 2, 3, 5, 5): a linear demosaic's kernel for output CFA phase (py, px) and channel c
+    (correlation offsets -2..2), read off its responses to unit impulses (Malvar 2004 by
+    default; ``bilinear`` too; Menon 2007 is not linear)."""
+    return _malvar_kernels(pattern.upper(), demosaic_name(method))
+
+
 def demosaic_variance(var_mosaic: np.ndarray, pattern: str, matrix: np.ndarray | None = None,
                       method: str = "malvar2004") -> np.ndarray:
     """(H, W, 3) variance of ``matrix @ demosaic(mosaic)`` for independent photosites of variance
@@ -294,18 +302,23 @@ def compiled_frames(frames: Sequence[RawFrame]):
 def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.ndarray, noise: NoiseModel, *,
                    censored: bool = True, iterations: int = _ITERATIONS,
                    scale: np.ndarray | float = 1.0,
-                   valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   valid: np.ndarray | None = None,
+                   variance_factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`merge_mosaic_optimal` on :func:`compiled_frames` in one compiled pass
     (:func:`derender.raw.kernels.merge_rows`), with the noise model per frame
     (:meth:`~derender.raw.noise.NoiseModel.per_frame`). Returns ``(x, var, mask)``: ``X``
     and its variance times ``scale`` (per CFA phase, (2, 2), or a number) and its square,
     float32 split by CFA phase ((2, 2, ceil(H/2), ceil(W/2)); :func:`interleave` makes the
     mosaic), and the (H, W) uint8 mask. ``valid`` (N, H, W) bool: where each frame takes part
-    (None: everywhere)."""
+    (None: everywhere); ``variance_factor`` (N, 2, 2): per frame and CFA phase, the factor on
+    the model's variance of its samples (resampled frames; None: 1)."""
     from derender.raw.kernels import KERNEL_LOCK, merge_rows
 
     h, w = mosaics[0].shape
     g, s2 = noise.per_frame(len(mosaics))
+    f = np.ones((len(mosaics), 2, 2)) if variance_factor is None else np.asarray(variance_factor, np.float64)
+    g = np.ascontiguousarray(g[:, None, None] * f)
+    s2 = np.ascontiguousarray(s2[:, None, None] * f)
     scale = np.broadcast_to(np.asarray(scale, np.float64), (2, 2)).copy()
     x = _empty((2, 2, (h + 1) // 2, (w + 1) // 2), np.float32)
     var = _empty(x.shape, np.float32)
@@ -436,11 +449,45 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
     return out, (var_out if var is not None else None)
 
 
+def _merge_shifted(frames, shifts, times, black, white, noise, pattern, valid_stack, output_space, wb,
+                   xyz_to_camera, variance, clip_negative, censored) -> HDRResult:
+    """:func:`raw_merge` for frames at ``shifts`` (:func:`derender.raw.register.merge_shifted`):
+    per-colour merge, then white balance and the output matrix; the variance through them
+    with the colours taken as independent."""
+    from derender.raw.register import merge_shifted
+
+    mosaics = [np.asarray(f.mosaic) for f in frames]
+    rgb, var, mmask = merge_shifted(mosaics, np.asarray(shifts, np.float64), black, white, times, noise, pattern,
+                                    valid_stack, censored=censored)
+    ref = frames[len(frames) // 2]
+    mat = output_matrix(ref, output_space, xyz_to_camera)
+    mult = _multipliers(ref, output_space, wb, None, None, pattern, mmask)
+    full = mat * mult[None, :]
+    h, w = mmask.shape
+    out = (rgb.reshape(-1, 3).astype(np.float64) @ full.T).reshape(h, w, 3)
+    var_out = None
+    if variance:
+        var_out = np.ascontiguousarray((var.reshape(-1, 3).astype(np.float64) @ (full ** 2).T).reshape(h, w, 3),
+                                       dtype=np.float32)
+    out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+    if clip_negative:
+        out = np.maximum(out, 0.0)
+    info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": "malvar2004",
+            "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
+            "units": "white level per second", "white_minus_black_dn": float(np.median(white[0] - black[0])),
+            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
+            "output_matrix": mat.tolist(), "merged_in": "colour (frames shifted)"}
+    return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
+                     mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
+
+
 def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "linear_srgb",
               gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
               wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
               variance: bool = True, clip_negative: bool = True, censored: bool = True,
-              xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None) -> HDRResult:
+              xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None,
+              noise: NoiseModel | None = None, variance_factor: Sequence[np.ndarray] | None = None,
+              shifts: Sequence[tuple[float, float]] | None = None) -> HDRResult:
     """Noise-optimal merge of RAW frames: censored Poisson-Gaussian ML on the mosaic, demosaiced once.
 
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
@@ -480,6 +527,18 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     valid : sequence of (H, W) bool arrays, optional
         Per frame (in the order given), where it takes part: an aligned frame's border, the
         photosites ghost removal rejects (:func:`derender.hdr.raw.merge_raw` with ``motion``).
+    noise : NoiseModel, optional
+        The noise model to use (instead of ``gain`` and ``read_noise`` or an estimate from
+        ``frames``: resampled frames would bias the estimate low).
+    variance_factor : sequence of (2, 2) arrays, optional
+        Per frame (in the order given) and CFA phase, the factor on the noise model's
+        variance of its samples (a resampled frame's ``sum w^2``,
+        :func:`derender.raw.register.resample_mosaic`; None: 1).
+    shifts : sequence of (dy, dx), optional
+        Per frame (in the order given), where the reference's content sits in it
+        (photosites, :func:`derender.hdr.raw.raw_motion`): the frames are merged per colour
+        at the reference's photosites (:func:`derender.raw.register.merge_shifted`; Malvar's
+        colours, whatever ``demosaic`` says) instead of on the mosaic.
 
     Returns
     -------
@@ -520,6 +579,12 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     given = [frames] if isinstance(frames, RawFrame) else list(frames)
     frames, times = sorted_raw_frames(given)
     valid_stack = None
+    factor_stack = None
+    if variance_factor is not None:
+        if len(variance_factor) != len(given):
+            raise InputError(f"variance_factor has {len(variance_factor)} entries for {len(given)} frames")
+        by_id = {id(f): np.broadcast_to(np.asarray(v, np.float64), (2, 2)) for f, v in zip(given, variance_factor)}
+        factor_stack = np.stack([by_id[id(f)] for f in frames])
     if valid is not None:
         if len(valid) != len(given):
             raise InputError(f"valid has {len(valid)} masks for {len(given)} frames")
@@ -533,7 +598,9 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     demosaic = demosaic_name(demosaic)
     mosaics, black, white = compiled_frames(frames)
     profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
-    if gain is None and len(frames) == 1 and profile is not None:
+    if noise is not None:
+        pass
+    elif gain is None and len(frames) == 1 and profile is not None:
         span0 = float(np.median(white[0] - black[0]))
         noise = NoiseModel(profile[0] * span0, profile[1] * span0 ** 2, "NoiseProfile")
     elif gain is None and len(frames) == 1:
@@ -545,10 +612,18 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         noise = estimate_noise_frames(mosaics, black, white, times, isos)
     else:
         noise = NoiseModel(float(gain), float(read_noise) ** 2, "given")
+    if shifts is not None:
+        if wb_patch is not None:
+            raise InputError("wb_patch is not available with shifts; give wb")
+        if len(shifts) != len(given):
+            raise InputError(f"shifts has {len(shifts)} entries for {len(given)} frames")
+        by_id = {id(f): (float(s[0]), float(s[1])) for f, s in zip(given, shifts)}
+        return _merge_shifted(frames, [by_id[id(f)] for f in frames], times, black, white, noise, pattern,
+                              valid_stack, output_space, wb, xyz_to_camera, variance, clip_negative, censored)
     top = int(np.argmax(white))
     span = white[top] - black[top]                       # (2, 2): white - black per CFA phase
     x, var, mmask = merge_compiled(mosaics, black, white, times, noise, censored=censored, scale=1.0 / span,
-                                   valid=valid_stack)
+                                   valid=valid_stack, variance_factor=factor_stack)
     del mosaics
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space, xyz_to_camera)
