@@ -9,14 +9,21 @@ takes for RAW files (:func:`derender.hdr.files.merge_files` hands them over).
 
 The RAW method runs outside the engine for now: the engine's plans look up 8-bit codes.
 Motion (:func:`raw_motion`, a :class:`~derender.engine.motion.run.MotionOptions` given as
-``motion=``) is done on the mosaic: alignment by even-photosite shifts (the CFA phase kept)
-found by the engine's chained MTB registration (:func:`derender.engine.motion.align.chain_transforms`)
-on a grey rendering of each frame (2x2 blocks, gamma 1/2.2), and ghost removal by the Poisson-Gaussian noise model
+``motion=``) is done on the mosaic. Alignment: the engine's chained MTB registration
+(:func:`derender.engine.motion.align.chain_transforms`) on a grey rendering of each frame (2x2
+blocks, gamma 1/2.2) gives even-photosite shifts, each refined to a fraction of a photosite
+against its neighbour towards the reference and chained (:mod:`derender.raw.register`). When
+every shift is whole and even the frames are shifted (the CFA phase kept) and merged on the
+mosaic; otherwise every frame's colours are resampled at the reference's photosites and merged
+per colour (:func:`derender.raw.register.merge_shifted`), with the noise model fitted on the
+smooth photosites of the resampled frames (``_flat_photosites``: elsewhere their
+differences hold the resampling's error). Ghost removal by the Poisson-Gaussian noise model
 between each frame and the reference: per photosite ``z = (d_j / e_j - d_r / e_r) /
 sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at the reference's
 value), its mean over a 5x5 window against the engine's threshold
 (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`); a censored sample is inconsistent
-when the other frame puts the value more than 3 sigma below its saturation level. ``--spot``,
+when the other frame puts the value more than 3 sigma below its saturation level; for a
+resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``). ``--spot``,
 ``--vignetting``, ``--profile`` (its photometric factor and vignetting), ``--view``/``.hdr``
 output, ``--preview``, ``--mask`` and ``--report`` act on the merged map as for any method.
 """
@@ -139,11 +146,15 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], options: RawOptions | Mappi
             extra = {"noise": motion_info["noise"], "variance_factor": motion_info["variance_factor"]}
         if motion_info is not None and motion_info["resampled"]:
             # sub-photosite or odd shifts: every frame's colours at the reference's photosites,
-            # merged per colour (derender.raw.register.merge_shifted), from the frames as read
+            # merged per colour, from the frames as read
+            from derender.raw.register import raw_merge_shifted
+
             frames, valid = original, motion_info["kept"]
-            extra = {"noise": motion_info["noise"], "shifts": motion_info["shifts"]}
-        res = raw_merge(frames, output_space=o.output_space, gain=o.gain, read_noise=o.read_noise, demosaic=o.demosaic,
-                        variance=o.variance, valid=valid, **extra)
+            res = raw_merge_shifted(frames, motion_info["shifts"], motion_info["noise"], valid=valid,
+                                    output_space=o.output_space, variance=o.variance)
+        else:
+            res = raw_merge(frames, output_space=o.output_space, gain=o.gain, read_noise=o.read_noise,
+                            demosaic=o.demosaic, variance=o.variance, valid=valid, **extra)
         if motion_info is not None:
             res.info["raw_motion"] = motion_info
             res.info.update(_summary_fields(motion_info, motion, frames))
@@ -335,28 +346,58 @@ def _align_mosaics(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             valid[j] &= ok
             resampled = True
         out[j] = replace(frames[j], mosaic=mos)
-    noise = _bracket_noise(out, times, given, _flat_photosites(out[ref]) if resampled else None)
+    noise = (_shifted_noise(frames, [total[j] for j in range(n)], times, ref, given) if resampled
+             else _bracket_noise(out, times, given))
     return out, shifts, factors, noise, pairs
 
 
-#: Photosites near a 2x2 window whose mean differs from its 5x5 neighbourhood's by more than
-#: this fraction count as texture: left out of the noise fit of a resampled bracket (unless
-#: fewer than 3 % of the photosites are left: then the flattest 3 %).
-_FLAT = 0.01
+#: A photosite is smooth where, within 3 photosites, no 2x2-window mean differs from its 5x5
+#: neighbourhood's by more than this many noise sigma (the noise fit of a shifted bracket).
+_FLAT_SIGMA = 3.5
 
 
-def _flat_photosites(frame: RawFrame) -> np.ndarray:
-    """(H, W) bool: where the frame is smooth (the noise fit of a resampled bracket, whose frame
-    differences would otherwise hold the resampling's error where the scene has texture)."""
+def _flat_photosites(frame: RawFrame, noise) -> np.ndarray:
+    """(H, W) bool: where the frame has no texture above its noise (``noise`` a
+    :class:`~derender.raw.noise.NoiseModel`; an upper bound is enough): the photosites whose
+    frame differences hold no misalignment's error, for the noise fit of a shifted bracket."""
     from scipy.ndimage import maximum_filter, uniform_filter
 
-    m = np.asarray(frame.mosaic, np.float64) - np.tile(_black22(frame), ((np.asarray(frame.mosaic).shape[0] + 1) // 2,
-                                                                         (np.asarray(frame.mosaic).shape[1] + 1) // 2))[
-        :np.asarray(frame.mosaic).shape[0], :np.asarray(frame.mosaic).shape[1]]
-    box = uniform_filter(m, size=2, mode="nearest")
-    dev = np.abs(box - uniform_filter(box, size=5, mode="nearest")) / np.maximum(np.abs(box), 1e-9)
-    dev = maximum_filter(dev, size=7, mode="nearest")
-    return dev <= max(_FLAT, float(np.percentile(dev, 3)))       # at least the flattest 3 %
+    y = np.asarray(frame.mosaic, np.float64)
+    h, w = y.shape
+    d = y - np.tile(_black22(frame), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    box = uniform_filter(d, size=2, mode="nearest")
+    sd = np.sqrt(noise.variance(np.maximum(box, 0.0)) / 4.0)
+    dev = np.abs(box - uniform_filter(box, size=5, mode="nearest")) / sd
+    dev[y >= float(frame.white_level)] = np.inf
+    return maximum_filter(dev, size=7, mode="nearest") <= _FLAT_SIGMA
+
+
+def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref: int, given: tuple):
+    """The noise model of a shifted bracket: the frames moved by their shifts rounded to even
+    photosites (exact samples, the CFA phase kept), the fit (:func:`derender.raw.noise.estimate_noise_frames`)
+    on the photosites where the reference has no texture above its noise (there a residual shift of
+    a photosite changes nothing), found with the reference's own green-pair estimate (an upper
+    bound) and again with the bracket's; the green-pair estimate if too few are left."""
+    from dataclasses import replace
+
+    from derender.raw.noise import NoiseModel, estimate_noise_single
+    from derender.raw.optimal import mosaic_observations
+
+    if given[0] is not None and given[1] is not None:
+        return NoiseModel(float(given[0]), float(given[1]) ** 2, "given")
+    moved = list(frames)
+    for j, s in enumerate(shifts):
+        dy, dx = _even(s)
+        if (dy, dx) != (0, 0):
+            moved[j] = replace(frames[j], mosaic=_shifted(np.asarray(frames[j].mosaic), dy, dx)[0])
+    d, sat, ceil = mosaic_observations([frames[ref]])
+    noise = estimate_noise_single(d[0], sat[0], ceil[0], frames[ref].cfa_pattern)
+    for _ in range(2):
+        try:
+            noise = _bracket_noise(moved, times, given, _flat_photosites(frames[ref], noise))
+        except InputError:
+            break
+    return noise
 
 
 def _black22(frame: RawFrame) -> np.ndarray:
@@ -429,12 +470,24 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     thr = float(threshold or GHOST_THRESHOLD)
     rejected = [0.0] * len(frames)
     if shifted is not None:
+        from scipy.ndimage import correlate1d
+
         from derender.raw.register import phase_scale, shifted_box
 
         originals, shift_values = shifted
         scale = phase_scale(originals[ref].mosaic, _black22(originals[ref]), whites[ref], times[ref])
-        box_r, bsat_r, _, _ = shifted_box(d_r / times[ref], sat_r, (0, 0), scale)
-        vbox_r = shifted_box((g[ref] * x_r * times[ref] + s2[ref]) / times[ref] ** 2, sat_r, (0, 0), scale ** 2)[0]
+        sc2 = plane(scale) ** 2
+
+        def smooth(v: np.ndarray, taps: np.ndarray) -> np.ndarray:
+            return correlate1d(correlate1d(v, taps, axis=0, mode="nearest"), taps, axis=1, mode="nearest")
+
+        # the difference of the window sums is compared as the 3x3 mean of the windows (4x4
+        # photosites weighted 1, 2, 2, 1 per axis, / 9): its variance the photosites' weighted
+        # by (1, 4, 4, 1) per axis / 81
+        mean3, var4 = np.ones(3) / 3.0, np.array([1.0, 4.0, 4.0, 1.0]) / 9.0
+        pair3 = np.array([1.0, 2.0, 2.0, 1.0]) / 3.0           # a window's photosites, 3x3 mean
+        vq_r = (g[ref] * x_r * times[ref] + s2[ref]) / times[ref] ** 2 / sc2
+        box_r, bsat_r = shifted_box(d_r / times[ref], sat_r, (0, 0), scale)[:2]
     for j in range(len(frames)):
         if j == ref:
             continue
@@ -452,11 +505,17 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
         if shifted is not None:
             o = originals[j]
             d_o = np.asarray(o.mosaic, np.float64) - planes[j]
-            box_j, bsat_j, inside, f = shifted_box(d_o / times[j], np.asarray(o.mosaic) >= whites[j],
-                                                   shift_values[j], scale)
-            vbox_j = f * shifted_box((g[j] * x_r * times[j] + s2[j]) / times[j] ** 2, sat_r, (0, 0), scale ** 2)[0]
-            zb = (box_j - box_r) ** 2 / (vbox_j + vbox_r)
-            z2 = np.where(inside & ~bsat_j & ~bsat_r, zb, z2)
+            box_j, bsat_j, inside, (wy, wx) = shifted_box(d_o / times[j], np.asarray(o.mosaic) >= whites[j],
+                                                          shift_values[j], scale)
+            vq_j = (g[j] * x_r * times[j] + s2[j]) / times[j] ** 2 / sc2
+            # frame j's photosites enter through the window, the 3x3 mean and Keys' weights
+            ky, kx = np.convolve(pair3, wy[wy != 0]) ** 2, np.convolve(pair3, wx[wx != 0]) ** 2
+            var_j = correlate1d(correlate1d(vq_j, ky, axis=0, mode="nearest"), kx, axis=1, mode="nearest")
+            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + smooth(vq_r, var4))
+            use = inside & (smooth((bsat_j | bsat_r).astype(np.float64), mean3) == 0.0)
+            # near saturation (a window holds a saturated photosite) only the censored samples'
+            # rule applies: a resampled sample of another colour carries the demosaic's error
+            z2 = np.where(use, zb, np.where(sat_j | sat_r, z2, 0.0))
         bad = uniform_filter(z2, size=5, mode="nearest") > thr
         valid[j] &= ~bad
         kept[j] &= ~bad

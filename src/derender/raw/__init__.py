@@ -2,7 +2,7 @@
 paper 1's binary-weight merge (Sec. 4.2, Alg. 2), white balance, demosaicing, ground truth in linear sRGB.
 
 Modules: :mod:`derender.raw.groundtruth`, :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`,
-:mod:`derender.raw.optimal`.
+:mod:`derender.raw.optimal`, :mod:`derender.raw.register` (sub-photosite registration).
 """
 
 from derender.core.lazy import attach

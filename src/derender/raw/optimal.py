@@ -449,45 +449,12 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
     return out, (var_out if var is not None else None)
 
 
-def _merge_shifted(frames, shifts, times, black, white, noise, pattern, valid_stack, output_space, wb,
-                   xyz_to_camera, variance, clip_negative, censored) -> HDRResult:
-    """:func:`raw_merge` for frames at ``shifts`` (:func:`derender.raw.register.merge_shifted`):
-    per-colour merge, then white balance and the output matrix; the variance through them
-    with the colours taken as independent."""
-    from derender.raw.register import merge_shifted
-
-    mosaics = [np.asarray(f.mosaic) for f in frames]
-    rgb, var, mmask = merge_shifted(mosaics, np.asarray(shifts, np.float64), black, white, times, noise, pattern,
-                                    valid_stack, censored=censored)
-    ref = frames[len(frames) // 2]
-    mat = output_matrix(ref, output_space, xyz_to_camera)
-    mult = _multipliers(ref, output_space, wb, None, None, pattern, mmask)
-    full = mat * mult[None, :]
-    h, w = mmask.shape
-    out = (rgb.reshape(-1, 3).astype(np.float64) @ full.T).reshape(h, w, 3)
-    var_out = None
-    if variance:
-        var_out = np.ascontiguousarray((var.reshape(-1, 3).astype(np.float64) @ (full ** 2).T).reshape(h, w, 3),
-                                       dtype=np.float32)
-    out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-    if clip_negative:
-        out = np.maximum(out, 0.0)
-    info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": "malvar2004",
-            "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
-            "units": "white level per second", "white_minus_black_dn": float(np.median(white[0] - black[0])),
-            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
-            "output_matrix": mat.tolist(), "merged_in": "colour (frames shifted)"}
-    return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
-                     mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
-
-
 def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "linear_srgb",
               gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
               wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
               variance: bool = True, clip_negative: bool = True, censored: bool = True,
               xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None,
-              noise: NoiseModel | None = None, variance_factor: Sequence[np.ndarray] | None = None,
-              shifts: Sequence[tuple[float, float]] | None = None) -> HDRResult:
+              noise: NoiseModel | None = None, variance_factor: Sequence[np.ndarray] | None = None) -> HDRResult:
     """Noise-optimal merge of RAW frames: censored Poisson-Gaussian ML on the mosaic, demosaiced once.
 
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
@@ -534,11 +501,6 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         Per frame (in the order given) and CFA phase, the factor on the noise model's
         variance of its samples (a resampled frame's ``sum w^2``,
         :func:`derender.raw.register.resample_mosaic`; None: 1).
-    shifts : sequence of (dy, dx), optional
-        Per frame (in the order given), where the reference's content sits in it
-        (photosites, :func:`derender.hdr.raw.raw_motion`): the frames are merged per colour
-        at the reference's photosites (:func:`derender.raw.register.merge_shifted`; Malvar's
-        colours, whatever ``demosaic`` says) instead of on the mosaic.
 
     Returns
     -------
@@ -612,14 +574,6 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         noise = estimate_noise_frames(mosaics, black, white, times, isos)
     else:
         noise = NoiseModel(float(gain), float(read_noise) ** 2, "given")
-    if shifts is not None:
-        if wb_patch is not None:
-            raise InputError("wb_patch is not available with shifts; give wb")
-        if len(shifts) != len(given):
-            raise InputError(f"shifts has {len(shifts)} entries for {len(given)} frames")
-        by_id = {id(f): (float(s[0]), float(s[1])) for f, s in zip(given, shifts)}
-        return _merge_shifted(frames, [by_id[id(f)] for f in frames], times, black, white, noise, pattern,
-                              valid_stack, output_space, wb, xyz_to_camera, variance, clip_negative, censored)
     top = int(np.argmax(white))
     span = white[top] - black[top]                       # (2, 2): white - black per CFA phase
     x, var, mmask = merge_compiled(mosaics, black, white, times, noise, censored=censored, scale=1.0 / span,

@@ -1,45 +1,53 @@
-"""Sub-photosite registration of RAW mosaics: a translation estimated on the CFA planes, each plane resampled.
+"""Sub-photosite registration of RAW mosaics: translations to a fraction of a photosite, colours resampled.
 
-A Bayer mosaic is four phase planes ``P_ab[i, k] = mosaic[2i + a, 2k + b]`` (``a, b`` in
-{0, 1}), each a half-resolution image of one colour. When the content of the reference frame at
-photosite ``p`` sits at ``p + s`` in frame ``j`` (a translation ``s = (dy, dx)`` in photosites,
-the sign of :func:`derender.engine.motion.align.chain_transforms`), every plane of frame ``j``
-is the same plane of the reference displaced by ``s / 2`` plane samples:
+A translation ``s = (dy, dx)`` (photosites; the sign of
+:func:`derender.engine.motion.align.chain_transforms`: the reference's content at photosite ``p``
+sits at ``p + s`` in frame ``j``) moves the scene against the colour filter array: where ``s`` is
+odd or fractional, frame ``j`` has no sample of the reference's colour at ``p + s``.
 
-    P^j_ab(u + s / 2) = P^ref_ab(u)                                              (1)
+**Estimation** (:func:`refine_shift`), at the sensor's full resolution. Each frame's sliding 2x2
+window sum of ``d / (e k)`` (``d`` DN above black, ``e`` the exposure, ``k`` per CFA phase the
+reference's median level: :func:`phase_scale`) holds one photosite of every colour whatever the
+window's phase, so it has no CFA pattern and can be shifted by any amount. Gauss-Newton (Lucas &
+Kanade 1981) minimises
 
-whatever the colour -- no colour is mixed, so (1) holds at the sensor's full resolution.
+    sum_p w(p) rho(B_j(p + s) - kappa B_a(p))                                    (1)
 
-**Estimation** (:func:`refine_shift`): Gauss-Newton (Lucas & Kanade 1981) on (1) for the
-four planes together, exposure-normalised (``d / e``: DN above black per unit exposure), with
-one shared ``s`` and a gain ``kappa`` (an exposure that is not exactly its nominal value):
-minimise ``sum w (P^j(u + s/2) - kappa P^a(u))^2`` over the photosites well exposed in both
-frames (above 8 read-noise sigma, below 85 % of the level), ``w = 1 / (x (1/e_a + 1/e_j))``
-(the Poisson variance of the difference, ``x`` the reference's value) times Tukey's biweight of
-the normalised residual (moving things, hot pixels); ``P^j(u + s/2)`` and its derivative
-by the Keys (1981) cubic convolution (``a = -1/2``). The start is the caller's (the
-engine's MTB on 2x2 blocks, whole blocks) improved to the best of the 3 x 3 whole-block
-neighbours by the median weighted residual (MTB on blocks can miss by one block).
+over ``s`` and a gain ``kappa`` (an exposure not exactly its nominal value), ``B_j(p + s)`` and
+its derivatives by Keys' (1981) cubic convolution (``a = -1/2``), over the windows well exposed
+in both frames (every photosite unsaturated and below 85 % of its level, the sum above 10
+read-noise sigma), ``w = 1 / (B (1/e_a + 1/e_j) + ...)`` the Poisson part of the difference's
+variance and ``rho`` Tukey's biweight (moving things). It starts from the best of the 5 x 5
+whole shifts around the caller's (the engine's MTB on 2x2 blocks: whole blocks, and it can miss by
+one), by the median weighted residual; a refinement that does not lower that median (frames
+stops apart with few common samples) is not taken. :func:`derender.hdr.raw.raw_motion` refines
+each frame against its neighbour towards the reference and chains the shifts, as the engine does.
 
-**Resampling** (:func:`resample_mosaic`): the reference's photosite ``p`` (colour ``c``)
-takes frame ``j``'s colour ``c`` at ``p + s``: from the plane of colour ``c`` (either green
-plane for green) whose samples lie nearest that point, by the Keys kernel, separable weights
-``w_y w_x`` (constant over a plane, since ``s`` is). The value is ``sum w d`` and its variance
-``sum w^2 Var[d]``: with the Poisson-Gaussian variance of the target's value, ``f * (g X e +
-sigma^2)`` with ``f = (sum w_y^2)(sum w_x^2)`` per plane (:func:`plane_weights`; 1 for a
-whole-photosite source, 0.41-0.64 at half a plane sample), which the merge takes as a per-frame,
-per-phase variance factor (:func:`derender.raw.optimal.merge_compiled`). A sample whose support
-is saturated everywhere is censored (set to the white level); a sample whose support is
-partly saturated, or reaches outside the frame, takes no part (``valid`` False): a censored
-observation says ``X e >= c``, which an interpolation of saturated and unsaturated samples
-does not say (measured: censoring them at ``c`` biased the edges of clipped regions). Whole
-even shifts are copies (no resampling: the CFA phase is kept), and a shift within
-:data:`SNAP` photosites of a whole one is taken as whole, so a still or tripod bracket is
-merged bit for bit as without registration.
+**Resampling** (:func:`resample_rgb`): frame ``j``'s colour ``c`` at ``p + s`` is Malvar, He &
+Cutler's (2004) demosaic of frame ``j`` for colour ``c`` at the 4 x 4 photosites around ``p + s``,
+weighted by Keys: one linear filter ``C`` of about 8 x 8 photosites per output CFA phase and
+colour (constant over the frame, since ``s`` is), borders mirrored as the demosaic does. At a
+whole shift it is the demosaic of frame ``j`` at ``p + s`` exactly. Its noise variance is
+``sum_q C[q]^2 Var[d(q)]``: :func:`variance_factors` gives it over the variance of a photosite of
+colour ``c``, each photosite's variance taken proportional to its colour's level (shot noise),
+and the merge multiplies the noise model by it per frame, phase and colour
+(:func:`derender.raw.optimal.merge_compiled`). A colour whose support is saturated everywhere is
+censored (at the level); one whose support is partly saturated takes no part (an interpolation
+of saturated and unsaturated samples is neither a measurement nor a bound at ``c``); one whose
+point ``p + s`` lies outside frame ``j`` takes no part.
 
-The samples of neighbouring output photosites share sources, so the merged mosaic's noise is
-correlated over a few photosites after resampling; the demosaic's variance treats photosites as
-independent (docs/raw.md, "Motion on the mosaic", for what this does to the coverage).
+**Merging in colour** (:func:`merge_shifted`): each colour is merged on its own, by the censored
+maximum likelihood of :mod:`derender.raw.optimal`, over every frame's resampled colour (the
+reference's too: its own colour exact, the two others its demosaic), and the three are the
+output: no second demosaic. A frame resampled onto the reference's mosaic and then demosaiced
+again stacks two interpolations: on handheld brackets that left the static zone 1.45x the still
+bracket's error (measured, docs/results-raw.md). The colours of one frame share photosites, so
+their noise is correlated: :func:`colour_correlation` gives it per phase, and the output
+matrix's variance uses it (averaged over the frames: the merge's weights are not followed).
+
+Whole even shifts need none of this: :func:`derender.hdr.raw.raw_motion` shifts those mosaics
+(the CFA phase kept) and merges on the mosaic, and a shift within :data:`SNAP` of a whole number
+is taken as whole, so a still or tripod bracket is merged bit for bit as without registration.
 """
 
 from __future__ import annotations
@@ -48,8 +56,8 @@ import math
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
-from derender.core.errors import InputError
 
 __all__ = [
     "SNAP",
@@ -59,6 +67,9 @@ __all__ = [
     "resample_mosaic",
     "resample_rgb",
     "merge_shifted",
+    "raw_merge_shifted",
+    "colour_correlation",
+    "variance_factors",
     "phase_scale",
     "shifted_box",
 ]
@@ -75,11 +86,16 @@ _STEPS = 30
 #: Tukey biweight constant, in robust sigmas of the normalised residual.
 _TUKEY = 4.685
 
-#: At most about this many samples per plane enter the estimate (every k-th row).
-_MAX_SAMPLES = 1 << 18
+#: At most about this many 2x2 windows enter the estimate (a regular grid, every k-th row and column).
+_MAX_SAMPLES = 1 << 16
+
+#: Fewer common well-exposed samples than this: the pair's shift is refined to whole photosites
+#: only (on simulated tripod brackets, 389-702 samples gave fractions of 0.17-0.22 photosite
+#: where the truth was whole, 3-6 standard errors of the fit away).
+_MIN_FRACTION_SAMPLES = 1000
 
 #: Fewer common well-exposed samples than this: the pair's shift is not refined.
-_MIN_SAMPLES = 512
+_MIN_SAMPLES = 64
 
 
 def _keys(x: np.ndarray) -> np.ndarray:
@@ -199,7 +215,8 @@ def _prepare(mosaic: np.ndarray, black, white: float):
 
 def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
                     pattern: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frame ``j``'s mosaic on the reference's photosites (module docstring, resampling):
+    """Frame ``j``'s mosaic on the reference's photosites: at each photosite the reference's colour
+    of :func:`resample_rgb` (for ghost removal's test per photosite, and a merge on the mosaic):
     ``(codes, valid, factor)`` -- (H, W) float64 codes (the target phase's black level plus the
     resampled value above black; the white level where the support is saturated everywhere),
     (H, W) bool where the sample takes part, and the (2, 2) variance factor per phase."""
@@ -250,6 +267,27 @@ def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     return values, state, factors
 
 
+def variance_factors(pattern: str, shift, colour_level: np.ndarray) -> np.ndarray:
+    """(3, 2, 2): per colour and output phase, the variance of a resampled colour (:func:`resample_rgb`)
+    over the variance of a photosite of that colour, ``sum C[q]^2 V(q) / V_c``, each photosite's
+    variance taken as its colour's ``colour_level`` (R, G, B: a typical variance, ``g L e +
+    sigma^2`` at the colour's typical level ``L`` in the frame)."""
+    p = pattern.upper()
+    lut = {"R": 0, "G": 1, "B": 2}
+    kernels, _ = _resampling_kernels(p, float(shift[0]), float(shift[1]))
+    lv = np.asarray(colour_level, np.float64)
+    out = np.ones((3, 2, 2))
+    for a in range(2):
+        for b in range(2):
+            for c in range(3):
+                ker, oy, ox = kernels[a][b][c]
+                uy = (a + oy + np.arange(ker.shape[0])) & 1
+                ux = (b + ox + np.arange(ker.shape[1])) & 1
+                col = np.array([[lut[p[2 * i + k]] for k in ux] for i in uy])
+                out[c, a, b] = float(np.sum(ker ** 2 * lv[col]) / lv[c])
+    return out
+
+
 def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
                   noise, pattern: str, valid: np.ndarray | None = None,
                   censored: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -258,8 +296,9 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
     ``shift``; module docstring, merging in colour). ``mosaics`` (N, H, W) exposure-sorted,
     ``black`` (N, 2, 2), ``white`` (N,), ``exposures`` (N,), ``valid`` (N, H, W) where each
     frame may take part (ghost removal; None: everywhere). Returns camera RGB (H, W, 3) in
-    units of the white level per second, its variance (H, W, 3) (colours taken as
-    independent) and the (H, W) mask (bright where a colour has every frame saturated)."""
+    units of the white level per second, its variance (H, W, 3), the (H, W) mask (bright where
+    a colour has every frame saturated) and the colours' correlation per CFA phase (2, 2, 3, 3),
+    the frames' :func:`colour_correlation` averaged (the merge's weights are not followed)."""
     from numba.typed import List
 
     from derender.raw.optimal import interleave, merge_compiled
@@ -271,8 +310,26 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
     x_out = np.empty((h, w, 3), np.float32)
     v_out = np.empty((h, w, 3), np.float32)
     mask = np.zeros((h, w), np.uint8)
+    rho = np.zeros((2, 2, 3, 3))
+    for j in range(n):
+        rho += colour_correlation(pattern, shifts[j]) / n
+    # each colour's typical level per unit exposure (median of the unshifted frame, else the
+    # middle one), and in each frame its typical variance g L e + sigma^2 per colour
+    k = next((j for j in range(n) if tuple(shifts[j]) == (0.0, 0.0)), n // 2)
+    mk = np.asarray(mosaics[k], np.float64)
+    lut = {"R": 0, "G": 1, "B": 2}
+    parts: list = [[], [], []]
+    for a in range(2):
+        for b in range(2):
+            d = mk[a::2, b::2] - black[k][a, b]
+            good = (mk[a::2, b::2] < white[k]) & (d > 0)
+            parts[lut[pattern.upper()[2 * a + b]]].append(d[good] / float(exposures[k]))
+    level = np.array([float(np.median(np.concatenate(q))) if sum(x.size for x in q) else 0.0 for q in parts])
+    g_f, s2_f = noise.per_frame(n)
+    weighted = [variance_factors(pattern, shifts[j], g_f[j] * level * float(exposures[j]) + s2_f[j])
+                for j in range(n)]
     for c in range(3):
-        codes, ok, factors = [], np.empty((n, h, w), bool), np.empty((n, 2, 2))
+        codes, ok, factors, loose = [], np.empty((n, h, w), bool), np.empty((n, 2, 2)), []
         for j in range(n):
             vals, state, f = resample_rgb(mosaics[j], shifts[j], black[j], white[j], pattern, (c,))
             vals, state = vals[0], state[0]
@@ -281,13 +338,42 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
             ok[j] = state != 0
             if valid is not None:
                 ok[j] &= np.asarray(valid[j], bool)
-            factors[j] = f[c]
+            factors[j] = weighted[j][c]
+            if tuple(shifts[j]) == (0.0, 0.0):
+                loose.append((j, state == 0))
+        # an unshifted frame's colour whose support is partly saturated (biased low) stands in
+        # only where no frame measures the colour at all (ghost removal kept the reference alone)
+        for j, part in loose:
+            ok[j] |= part & ~np.any(np.delete(ok, j, axis=0), axis=0)
         x, var, m = merge_compiled(List(codes), np.zeros((n, 2, 2)), ceil, exposures, noise, censored=censored,
                                    scale=1.0 / span, valid=ok, variance_factor=factors)
         x_out[..., c] = interleave(x, (h, w))
         v_out[..., c] = interleave(var, (h, w))
         mask = np.maximum(mask, m)
-    return x_out, v_out, mask
+    return x_out, v_out, mask, rho
+
+
+def colour_correlation(pattern: str, shift) -> np.ndarray:
+    """(2, 2, 3, 3): per output CFA phase, the correlation of a frame's three resampled colours
+    (:func:`resample_rgb`) for photosites of equal variance: ``sum C_c C_c' / sqrt(sum C_c^2
+    sum C_c'^2)`` over the filters' common photosites."""
+    kernels, _ = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]))
+    out = np.ones((2, 2, 3, 3))
+    for a in range(2):
+        for b in range(2):
+            full = []
+            y0 = min(kernels[a][b][c][1] for c in range(3))
+            x0 = min(kernels[a][b][c][2] for c in range(3))
+            for c in range(3):
+                ker, oy, ox = kernels[a][b][c]
+                canvas = np.zeros((16, 16))
+                canvas[oy - y0:oy - y0 + ker.shape[0], ox - x0:ox - x0 + ker.shape[1]] = ker
+                full.append(canvas.ravel())
+            f = np.array(full)
+            cov = f @ f.T
+            d = np.sqrt(np.diag(cov))
+            out[a, b] = cov / np.outer(d, d)
+    return out
 
 
 def _taps(w: np.ndarray) -> np.ndarray:
@@ -338,6 +424,49 @@ def _box_image(mosaic: np.ndarray, e: float, black: np.ndarray, white: float, sc
     return y, ~nbad & (dsum > 10.0 * read_sd)
 
 
+@njit(cache=True, nogil=True)
+def _keys_grid(img, ok, ri, ci, iy, ix, wy, wx, dwy, dwx, need_y, need_x, derivative, val, gy, gx,
+               usable):  # pragma: no cover - compiled
+    """Keys' 4 x 4 interpolation of ``img`` at ``(ri[r] + iy + fy, ci[c] + ix + fx)`` (the
+    weights ``wy``, ``wx`` of the fractions given; their derivatives ``dwy``, ``dwx``): values and
+    derivatives on the grid, ``usable`` where every needed tap is inside and ``ok``."""
+    h, w = img.shape
+    for r in range(ri.shape[0]):
+        for c in range(ci.shape[0]):
+            good = True
+            v = 0.0
+            dy = 0.0
+            dx = 0.0
+            for m in range(4):
+                y = ri[r] + iy + m - 1
+                inside_y = 0 <= y < h
+                if need_y[m] and not inside_y:
+                    good = False
+                    break
+                if not inside_y:
+                    continue
+                for n in range(4):
+                    x = ci[c] + ix + n - 1
+                    inside_x = 0 <= x < w
+                    if need_x[n] and (not inside_x or not ok[y, x]):
+                        if need_y[m]:
+                            good = False
+                            break
+                    if not inside_x:
+                        continue
+                    q = img[y, x]
+                    v += wy[m] * wx[n] * q
+                    if derivative:
+                        dy += dwy[m] * wx[n] * q
+                        dx += wy[m] * dwx[n] * q
+                if not good:
+                    break
+            usable[r, c] = good
+            val[r, c] = v
+            gy[r, c] = dy
+            gx[r, c] = dx
+
+
 def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: tuple[float, float],
                  black: tuple[np.ndarray, np.ndarray], white: tuple[float, float],
                  read_sd: float = 2.0) -> tuple[np.ndarray, dict]:
@@ -352,50 +481,36 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
     bb = np.asarray(black[1], np.float64).reshape(2, 2)
     # one scale per CFA phase (the reference's median exposure-normalised value), so that a
     # window's sum weighs the colours alike whatever its phase
-    scale = np.ones((2, 2))
-    ra = np.asarray(ref_mosaic, np.float64)
-    for a in range(2):
-        for b in range(2):
-            d = ra[a::2, b::2] - ba[a, b]
-            good = (ra[a::2, b::2] < float(white[0])) & (d > 0)
-            scale[a, b] = max(float(np.median(d[good])) / e_a, 1e-30) if good.any() else 1.0
-    scale /= scale.mean()
+    scale = phase_scale(ref_mosaic, ba, float(white[0]), e_a)
     ya, oka = _box_image(ref_mosaic, e_a, ba, float(white[0]), scale, read_sd)
     yb, okb = _box_image(mosaic, e_b, bb, float(white[1]), scale, read_sd)
-    okb = okb.astype(np.float64)
     hp, wp = ya.shape
-    stride = max(1, (hp * wp) // _MAX_SAMPLES)
-    rows = slice(0, hp, stride)
-    va, oka = ya[rows], oka[rows]
+    k = max(1, math.ceil(math.sqrt(hp * wp / _MAX_SAMPLES)))     # a regular grid of windows
+    ri, ci = np.arange(0, hp, k), np.arange(0, wp, k)
+    va, oka = ya[np.ix_(ri, ci)], oka[np.ix_(ri, ci)]
     # the Poisson part of the difference's variance (a constant gain drops out of the estimate)
     wa = 1.0 / (np.maximum(va, 0.0) * (1.0 / e_a + 1.0 / e_b) + 16.0 * read_sd ** 2 * (1 / e_a ** 2 + 1 / e_b ** 2))
     info = {"start": [int(start[0]), int(start[1])], "refined": False, "samples": 0, "steps": 0, "gain": 1.0}
-    full = (hp, wp)
+    offsets = np.arange(-1, 3)
 
     def sample(s: np.ndarray, derivative: bool):
-        """Frame b's box image at p + s on the sampled rows: values, d/dy, d/dx, where usable."""
+        """Frame b's box image at p + s on the grid: values, d/dy, d/dx (None without
+        ``derivative``), where usable (every tap inside, well exposed, and the reference's too)."""
         iy, ix = math.floor(s[0]), math.floor(s[1])
         fy, fx = s[0] - iy, s[1] - ix
         wy, wx = keys_weights(fy), keys_weights(fx)
-        val = np.full(full, np.nan)
-        v, (rs, cs) = _convolve(yb, (iy, ix), wy, wx, full)
-        val[rs, cs] = v
-        okv = np.zeros(full)
-        o, (rs2, cs2) = _convolve(okb, (iy, ix), (wy != 0).astype(float), (wx != 0).astype(float), full)
-        okv[rs2, cs2] = o
-        ntap = float(np.count_nonzero(wy) * np.count_nonzero(wx))
-        usable = (okv >= ntap - 0.5)[rows] & np.isfinite(val[rows]) & oka
-        if not derivative:
-            return val[rows], None, None, usable
-        gy = np.full(full, np.nan)
-        gx = np.full(full, np.nan)
-        wy4, wx4 = _keys(fy - np.arange(-1, 3)), _keys(fx - np.arange(-1, 3))
-        g, (r3, c3) = _convolve(yb, (iy, ix), keys_weights(fy, True), wx4, full)
-        gy[r3, c3] = g
-        g, (r3, c3) = _convolve(yb, (iy, ix), wy4, keys_weights(fx, True), full)
-        gx[r3, c3] = g
-        usable &= np.isfinite(gy[rows]) & np.isfinite(gx[rows])
-        return val[rows], gy[rows], gx[rows], usable
+        dwy, dwx = keys_weights(fy, True), keys_weights(fx, True)
+        if derivative:
+            need_y, need_x = (wy != 0) | (dwy != 0), (wx != 0) | (dwx != 0)
+        else:
+            need_y, need_x = wy != 0, wx != 0
+        val = np.empty(va.shape)
+        gy = np.empty(va.shape)
+        gx = np.empty(va.shape)
+        usable = np.empty(va.shape, np.bool_)
+        _keys_grid(yb, okb, ri, ci, iy, ix, wy, wx, dwy, dwx, need_y, need_x, bool(derivative), val, gy, gx, usable)
+        usable &= oka
+        return val, (gy if derivative else None), (gx if derivative else None), usable
 
     def cost(s: np.ndarray) -> tuple[float, int]:
         val, _, _, sel = sample(s, False)
@@ -415,13 +530,15 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
     if not np.isfinite(best_cost):
         return s0, {**info, "samples": n_best}
     s, kappa = best.copy(), 1.0
+    se = np.zeros(2)
     scale_z = None
-    steps = n = 0
+    steps = n = done = 0
     for steps in range(1, _STEPS + 1):
         val, gy, gx, sel = sample(s, True)
         n = int(sel.sum())
         if n < _MIN_SAMPLES:
             break
+        done += 1
         r = val[sel] - kappa * va[sel]
         z = r * np.sqrt(wa[sel])
         if scale_z is None or steps <= 3:
@@ -429,23 +546,37 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
         zz = z / (_TUKEY * scale_z)
         wt = wa[sel] * np.where(np.abs(zz) < 1, (1 - zz ** 2) ** 2, 0.0)
         jac = np.stack([gy[sel], gx[sel], -va[sel]], axis=1)
+        jtj = jac.T @ (jac * wt[:, None])
         try:
-            step = -np.linalg.solve(jac.T @ (jac * wt[:, None]), jac.T @ (wt * r))
+            step = -np.linalg.solve(jtj, jac.T @ (wt * r))
+            cov = np.linalg.inv(jtj) * float(np.sum(wt * r * r)) / max(n - 3, 1)
         except np.linalg.LinAlgError:
             break
+        se = np.sqrt(np.maximum(np.diag(cov)[:2], 0.0))
         s = s + step[:2]
         kappa = kappa + step[2]
         if np.max(np.abs(step[:2])) < 1e-4 or np.max(np.abs(s - best)) > 3.0:
             break
-    if not np.all(np.isfinite(s)) or np.max(np.abs(s - best)) > 3.0:
-        return best, {**info, "samples": n, "steps": steps}
-    return s, {**info, "refined": True, "samples": int(n), "steps": steps, "gain": float(kappa)}
+    if not done or not np.all(np.isfinite(s)) or np.max(np.abs(s - best)) > 3.0:
+        return best, {**info, "samples": n, "steps": done}
+    # a refinement that does not lower the median residual of the best whole shift is not taken
+    # (few common samples: frames stops apart)
+    # each component indistinguishable from a whole number (within 3 standard errors of the
+    # estimate) is taken as whole
+    s = np.where(np.abs(s - np.rint(s)) <= 3.0 * se, np.rint(s), s)
+    if n < _MIN_FRACTION_SAMPLES:      # too few to trust a fraction (biased by 0.2 photosite, measured)
+        s = np.rint(s)
+    c_final, _ = cost(s)
+    whole = np.rint(s)
+    c_whole, _ = cost(whole) if np.any(whole != s) else (np.inf, 0)
+    if c_whole < min(c_final, best_cost):
+        best, best_cost = whole, c_whole
+    if not c_final < best_cost:
+        return best, {**info, "samples": n, "steps": done, "kept_whole": True}
+    return s, {**info, "refined": True, "samples": int(n), "steps": done, "gain": float(kappa),
+               "standard_error": [round(float(v), 4) for v in se]}
 
 
-def _check_pattern(pattern: str) -> None:
-    p = pattern.upper()
-    if len(p) != 4 or sorted(p) != ["B", "G", "G", "R"]:
-        raise InputError(f"unsupported CFA pattern {pattern!r}; expected a Bayer pattern such as 'RGGB'")
 
 
 def phase_scale(mosaic: np.ndarray, black: np.ndarray, white: float, exposure: float) -> np.ndarray:
@@ -466,8 +597,9 @@ def phase_scale(mosaic: np.ndarray, black: np.ndarray, white: float, exposure: f
 def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndarray) -> tuple:
     """The sliding 2x2 sum of ``values / scale`` (per CFA phase; (H, W) per photosite) at the
     reference's photosites ``p + shift`` (window ``[p + s, p + s + 1]``, Keys between whole
-    shifts): ``(box, saturated, inside, factor)`` -- (H, W) float64, (H, W) bool (a saturated
-    photosite in the support), (H, W) bool (the support inside the frame) and ``sum w^2``."""
+    shifts): ``(box, saturated, inside, (wy, wx))`` -- (H, W) float64, (H, W) bool (a saturated
+    photosite in the support), (H, W) bool (the support inside the frame) and Keys' weights
+    per axis (rows, columns)."""
     v = np.asarray(values, np.float64)
     h, w = v.shape
     sc = np.tile(scale, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
@@ -485,4 +617,66 @@ def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndar
     ns, (rs2, cs2) = _convolve(sbox, (iy, ix), (wy != 0).astype(float), (wx != 0).astype(float), (h, w))
     sat[rs2, cs2] = ns > 0.5
     inside[rs, cs] = True
-    return out, sat, inside, float(np.sum(wy ** 2) * np.sum(wx ** 2))
+    return out, sat, inside, (wy, wx)
+
+
+def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = "linear_srgb", wb=None,
+                      variance: bool = True, clip_negative: bool = True, censored: bool = True):
+    """:func:`derender.raw.optimal.raw_merge` for frames at ``shifts`` (per frame as given,
+    (dy, dx) photosites: the reference's content at ``p`` sits at ``p + s`` in the frame):
+    every frame's colours at the reference's photosites merged per colour
+    (:func:`merge_shifted`), then white balance (``wb``, else the as-shot multipliers of the
+    middle frame of the time-sorted stack) and the output matrix; the variance through them with
+    the colours' correlation per CFA phase (:func:`colour_correlation`). ``noise`` the
+    :class:`~derender.raw.noise.NoiseModel`; ``valid`` per frame as given, where it may take
+    part (ghost removal). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``."""
+    from derender.core.errors import InputError
+    from derender.core.types import HDRResult
+    from derender.raw.mosaic import MASK_RADIUS, sorted_raw_frames, spread_mask
+    from derender.raw.optimal import compiled_frames, output_matrix
+
+    given = list(frames)
+    if len(shifts) != len(given) or (valid is not None and len(valid) != len(given)):
+        raise InputError(f"shifts and valid need one entry per frame ({len(given)})")
+    frames, times = sorted_raw_frames(given)
+    index = {id(f): j for j, f in enumerate(given)}
+    order = [index[id(f)] for f in frames]
+    shift_arr = np.array([[float(shifts[j][0]), float(shifts[j][1])] for j in order])
+    valid_stack = None if valid is None else np.stack([np.asarray(valid[j], bool) for j in order])
+    pattern = frames[0].cfa_pattern.upper()
+    _, black, white = compiled_frames(frames)
+    mosaics = [np.asarray(f.mosaic) for f in frames]
+    rgb, var, mmask, rho = merge_shifted(mosaics, shift_arr, black, white, times, noise, pattern, valid_stack,
+                                         censored=censored)
+    ref = frames[len(frames) // 2]
+    mat = output_matrix(ref, output_space)
+    if output_space == "camera_rgb":
+        mult = np.ones(3)
+    else:
+        mult = np.asarray(ref.as_shot_wb if wb is None else wb, dtype=np.float64).reshape(-1)
+        if mult.size != 3 or not np.all(np.isfinite(mult)) or np.any(mult <= 0):
+            raise InputError(f"white-balance multipliers must be 3 positive numbers (R, G, B), got {mult.tolist()}")
+    full = mat * mult[None, :]
+    h, w = mmask.shape
+    out = (rgb.reshape(-1, 3).astype(np.float64) @ full.T).reshape(h, w, 3)
+    var_out = None
+    if variance:
+        # Var[o] = sum_cc' F_oc F_oc' rho_cc' sigma_c sigma_c', rho of the photosite's phase
+        sd = np.sqrt(np.maximum(var.astype(np.float64), 0.0))
+        var_out = np.empty((h, w, 3), np.float32)
+        for a in range(2):
+            for b in range(2):
+                q = np.einsum("oc,cd,od->ocd", full, rho[a, b], full)
+                s_ab = sd[a::2, b::2]
+                var_out[a::2, b::2] = np.einsum("ocd,yxc,yxd->yxo", q, s_ab, s_ab)
+    out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+    if clip_negative:
+        out = np.maximum(out, 0.0)
+    span = white - black.mean(axis=(1, 2))
+    info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": "malvar2004",
+            "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
+            "units": "white level per second", "white_minus_black_dn": float(span[int(np.argmax(white))]),
+            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
+            "output_matrix": mat.tolist(), "merged": "per colour, frames resampled at the reference's photosites"}
+    return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
+                     mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
