@@ -13,7 +13,8 @@ the thread count):
 * :func:`merge_rows` -- the censored maximum-likelihood merge of
   :func:`derender.raw.optimal.merge_mosaic_optimal` (pooled start, two reweighted rounds,
   Newton steps where a saturated sample is within ``near`` sigma of its level), with a
-  gain and read variance *per frame* and exposures ``e_j`` (``t_j S_j / N_j^2``, relative),
+  gain and read variance *per frame* and CFA phase (a resampled frame's variance factor,
+  :mod:`derender.raw.register`, folded in) and exposures ``e_j`` (``t_j S_j / N_j^2``, relative),
   the sums in float64 registers, the outputs stored as float32;
 * :func:`demosaic_rows` -- white balance, the demosaic (a linear filter per CFA phase: the
   taps of :func:`derender.raw.optimal.demosaic_variance`), the colour matrix and the
