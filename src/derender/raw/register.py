@@ -330,6 +330,7 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
                 for j in range(n)]
     for c in range(3):
         codes, ok, factors, loose = [], np.empty((n, h, w), bool), np.empty((n, 2, 2)), []
+        measured = np.empty((n, h, w), bool)
         for j in range(n):
             vals, state, f = resample_rgb(mosaics[j], shifts[j], black[j], white[j], pattern, (c,))
             vals, state = vals[0], state[0]
@@ -338,13 +339,15 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
             ok[j] = state != 0
             if valid is not None:
                 ok[j] &= np.asarray(valid[j], bool)
+            measured[j] = ok[j] & (state == 1)
             factors[j] = weighted[j][c]
             if tuple(shifts[j]) == (0.0, 0.0):
                 loose.append((j, state == 0))
         # an unshifted frame's colour whose support is partly saturated (biased low) stands in
-        # only where no frame measures the colour at all (ghost removal kept the reference alone)
+        # only where no other frame measures the colour at all (ghost removal kept the reference
+        # alone, or the others kept are censored: censored samples alone bound it from below only)
         for j, part in loose:
-            ok[j] |= part & ~np.any(np.delete(ok, j, axis=0), axis=0)
+            ok[j] |= part & ~np.any(np.delete(measured, j, axis=0), axis=0)
         x, var, m = merge_compiled(List(codes), np.zeros((n, 2, 2)), ceil, exposures, noise, censored=censored,
                                    scale=1.0 / span, valid=ok, variance_factor=factors)
         x_out[..., c] = interleave(x, (h, w))
