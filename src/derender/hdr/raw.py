@@ -23,7 +23,10 @@ sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at t
 value), its mean over a 5x5 window against the engine's threshold
 (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`); a censored sample is inconsistent
 when the other frame puts the value more than 3 sigma below its saturation level; for a
-resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``). ``--spot``,
+resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``); beside
+saturation a frame longer than the reference is tested per photosite with 10 % of the value
+allowed for the resampling's error, and a photosite whose resampled sample is left untested
+(its support partly saturated) is left out. ``--spot``,
 ``--vignetting``, ``--profile`` (its photometric factor and vignetting), ``--view``/``.hdr``
 output, ``--preview``, ``--mask`` and ``--report`` act on the merged map as for any method.
 """
@@ -169,6 +172,11 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], options: RawOptions | Mappi
 #: A censored sample is inconsistent with the other frame when that frame's value lies more
 #: than this many sigma below the saturation level (ghost removal on RAW frames).
 _CENSOR_SIGMA = 3.0
+
+#: Relative error of a resampled colour (the demosaic's, at the shifted photosite) allowed for
+#: in the per-photosite ghost test beside saturation (ghost removal on resampled RAW frames;
+#: measured on the simulator's ``paper`` family).
+_RESAMPLE_ERROR = 0.1
 
 
 def _grey8(frame: RawFrame) -> np.ndarray:
@@ -519,10 +527,21 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             var_j = correlate1d(correlate1d(vq_j, ky, axis=0, mode="nearest"), kx, axis=1, mode="nearest")
             zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + smooth(vq_r, var4))
             use = inside & (smooth((bsat_j | bsat_r).astype(np.float64), mean3) == 0.0)
-            # near saturation (a window holds a saturated photosite) only the censored samples'
-            # rule applies: a resampled sample of another colour carries the demosaic's error
-            z2 = np.where(use, zb, np.where(sat_j | sat_r, z2, 0.0))
+            # near saturation (a window holds a saturated photosite) the censored samples' rule,
+            # and for a frame longer than the reference, where its resampled sample is measured
+            # (support unsaturated: ``valid``), the per-photosite z with the resampled colour's
+            # error allowed for (``_RESAMPLE_ERROR``; a ghost beside the long frame's saturation
+            # went untested). Testing the shorter frames so too made the object zone worse
+            # (docs/results-raw.md, measured).
+            z2e = (d_j / times[j] - d_r / times[ref]) ** 2 / (
+                v_j * plane(factors[j]) / times[j] ** 2 + v_r / times[ref] ** 2 + (_RESAMPLE_ERROR * x_r) ** 2)
+            tested = valid[j] & (times[j] > times[ref])
+            z2 = np.where(use, zb, np.where(sat_j | sat_r, z2, np.where(tested, z2e, 0.0)))
         bad = uniform_filter(z2, size=5, mode="nearest") > thr
+        if shifted is not None:
+            # untested (near saturation, the resampled sample's support partly saturated): the
+            # merge would take this frame's colours there unchecked; left out
+            bad |= ~use & ~valid[j]
         valid[j] &= ~bad
         kept[j] &= ~bad
         rejected[j] = float(np.mean(bad))
