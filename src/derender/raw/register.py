@@ -58,7 +58,6 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-
 __all__ = [
     "SNAP",
     "keys_weights",
@@ -494,7 +493,6 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
     # the Poisson part of the difference's variance (a constant gain drops out of the estimate)
     wa = 1.0 / (np.maximum(va, 0.0) * (1.0 / e_a + 1.0 / e_b) + 16.0 * read_sd ** 2 * (1 / e_a ** 2 + 1 / e_b ** 2))
     info = {"start": [int(start[0]), int(start[1])], "refined": False, "samples": 0, "steps": 0, "gain": 1.0}
-    offsets = np.arange(-1, 3)
 
     def sample(s: np.ndarray, derivative: bool):
         """Frame b's box image at p + s on the grid: values, d/dy, d/dx (None without
