@@ -32,12 +32,18 @@ merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-candidates
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-speed 6016x4000 [--with-colour-demosaicing]
     PYTHONPATH=src python benchmarks/bench_raw.py --stages --speed-exposures 9 --speed-tile 6016x4000 [--stages-folder DIR]
+    PYTHONPATH=src python benchmarks/bench_raw.py --motion [--motion-seeds 0,1,2]
 
 ``--demosaic-candidates``: colour_demosaicing's Malvar 2004, bilinear and Menon 2007 (with and
 without its refining step) and derender's AHD (:mod:`derender.raw.ahd`) on the noise-free true mosaic and on derender's merged mosaic of
 every case, against the scene (one scale fitted): median / darkest / brightest decade.
 ``--demosaic-speed``: the compiled demosaic passes on a random mosaic of that size.
 ``--stages``: the merge of the speed bracket stage by stage (:func:`stages`).
+``--motion``: issue 38's motion line with the ghost experiment's protocol
+(:mod:`derender.evaluation.ghosts`: nikon-d5100, outdoor, 192x128, 7 exposures, the ``paper``
+family, ``MotionSpec(objects=3, shake=4)``), ``--align translation --deghost`` at the truth's
+reference on the tripod and handheld brackets, each zone's median error (3x3 fit) over the still
+twin's, and the shifts found against the simulator's.
 """
 
 from __future__ import annotations
@@ -388,6 +394,36 @@ def stages(size, exposures, tile=None, repeats=3, folder=None):
             (where / name).unlink(missing_ok=True)
     return rows
 
+def motion(seeds) -> None:
+    """Issue 38's motion line (module docstring, ``--motion``)."""
+    from derender.camera import simulate_bracket
+    from derender.camera.motion import MotionSpec
+    from derender.engine.motion.run import MotionOptions
+    from derender.evaluation.ghosts import zone_errors
+    from derender.evaluation.raw_merge import bracket_raw_frames
+    from derender.hdr.raw import merge_raw
+
+    base = MotionSpec(objects=3, shake=4)
+    print("| seed | setting | static / still | swept / still | object / still | largest shift error (photosites) "
+          "| s per merge |")
+    print("|---|---|---|---|---|---|---|")
+    for seed in seeds:
+        kw = dict(kind="outdoor", size=(192, 128), exposures=7, seed=seed, family="paper")
+        still = simulate_bracket("nikon-d5100", motion=base.still(), **kw)
+        mo = MotionOptions(reference=still.params["motion"]["reference"], align="translation", deghost=True)
+        rs = merge_raw(bracket_raw_frames(still), motion=mo)
+        for name, spec in (("tripod", base.tripod()), ("handheld", base)):
+            b = simulate_bracket("nikon-d5100", motion=spec, **kw)
+            t0 = time.perf_counter()
+            rm = merge_raw(bracket_raw_frames(b), motion=mo)
+            dt = time.perf_counter() - t0
+            m = zone_errors(rm.radiance, b.truth_linear_srgb, b.motion_zones)
+            z = zone_errors(rs.radiance, still.truth_linear_srgb, b.motion_zones)
+            err = np.max(np.abs(np.array(rm.info["raw_motion"]["shifts"], float)
+                                + np.array(b.params["motion"]["shifts_dy_dx"], float)))
+            print(f"| {seed} | {name} | {m['static'] / z['static']:.3f} | {m['swept'] / z['swept']:.3f} "
+                  f"| {m['object'] / z['object']:.3f} | {err:.2f} | {dt:.2f} |", flush=True)
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -410,7 +446,12 @@ def main() -> None:
                                                        "whose name contains one, e.g. 'Menon 2007 + variance'")
     ap.add_argument("--stages", action="store_true", help="the merge stage by stage at --speed-size/--speed-tile")
     ap.add_argument("--stages-folder", default=None, help="keep the speed bracket's DNG files in this folder")
+    ap.add_argument("--motion", action="store_true", help="issue 38's motion line (module docstring)")
+    ap.add_argument("--motion-seeds", default="0,1,2")
     args = ap.parse_args()
+    if args.motion:
+        motion([int(v) for v in args.motion_seeds.split(",")])
+        return
     w, h = (int(v) for v in args.size.split("x"))
     if args.demosaic_candidates:
         demosaic_candidates((w, h), args.exposures, white_balanced=args.white_balanced)

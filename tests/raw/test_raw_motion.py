@@ -1,5 +1,6 @@
-"""Motion on RAW brackets (derender.hdr.raw.raw_motion): even-photosite alignment by Ward's MTB on a
-grey rendering, ghost removal by the Poisson-Gaussian model against the reference; simulated DNG
+"""Motion on RAW brackets (derender.hdr.raw.raw_motion): alignment by Ward's MTB on a grey rendering
+refined to a fraction of a photosite (derender.raw.register), ghost removal by the Poisson-Gaussian
+model against the reference; simulated DNG
 mosaics with camera shake and moving discs (derender.camera.motion), scored per motion zone
 against the scene at the reference instant."""
 
@@ -26,26 +27,27 @@ def moving():
                             pipeline="fixed", motion=MotionSpec(objects=3, shake=3))
 
 
-def test_alignment_finds_the_even_shifts(moving):
-    """The simulator's shifts (dy, dx) per frame are [2, 2], [2, 2], [0, 0], [0, 1], [1, 0]: the even
-    ones are found exactly (the sign is the engine's: content of the reference at (y, x) is at
-    (y + dy, x + dx) in the frame), the odd ones stay (an odd shift would change the CFA phase).
-    Static-zone median error against the scene: measured 7.30 % without, 6.51 % aligned."""
+def test_alignment_finds_the_shifts(moving):
+    """The simulator's shifts (dy, dx) per frame are [2, 2], [2, 2], [0, 0], [0, 1], [1, 0]: found to
+    0.05 photosite (measured: exactly, after the 0.1-photosite snap), odd ones included (the sign is
+    the engine's: content of the reference at (y, x) is at (y + dy, x + dx) in the frame;
+    derender.raw.register; the 2x2-block MTB alone kept only the even part). Static-zone median
+    error against the scene: measured 7.30 % without, 4.01 % aligned (the 2x2-block MTB alone, even
+    shifts only: 6.51 %; the same scene without shake: 4.05 %)."""
     frames = bracket_raw_frames(moving)
     ref = moving.params["motion"]["reference"]
     plain = merge_raw(frames, {"output_space": "camera_rgb"})
     res = merge_raw(frames, {"output_space": "camera_rgb"}, motion=MotionOptions(reference=ref, align="translation"))
-    true = moving.params["motion"]["shifts_dy_dx"]
-    found = res.info["raw_motion"]["shifts"]
-    for (ty, tx), (fy, fx) in zip(true, found):
-        assert (fy, fx) == (-(ty // 2) * 2, -(tx // 2) * 2), (true, found)
-    assert _zone_median(res, moving, ZONE_STATIC) < 0.95 * _zone_median(plain, moving, ZONE_STATIC)
+    true = -np.array(moving.params["motion"]["shifts_dy_dx"], float)
+    found = np.array(res.info["raw_motion"]["shifts"], float)
+    assert np.max(np.abs(found - true)) <= 0.05, (true, found)
+    assert _zone_median(res, moving, ZONE_STATIC) < 0.65 * _zone_median(plain, moving, ZONE_STATIC)
 
 
 def test_ghost_removal_keeps_the_reference_where_things_move(moving):
     """Where a disc is at the reference instant the plain merge is wrong by 59 % (median), aligned and
-    ghost-free by 10.5 % (measured); the variance stays finite and the reference frame is never
-    rejected."""
+    ghost-free by 10.2 % (measured; even shifts only: 10.5 %); the variance stays finite and the
+    reference frame is never rejected."""
     frames = bracket_raw_frames(moving)
     ref = moving.params["motion"]["reference"]
     plain = merge_raw(frames, {"output_space": "camera_rgb"})

@@ -1,8 +1,9 @@
 """RAW development: the noise-optimal merge (censored Poisson-Gaussian ML, noise from the frames, a variance),
 paper 1's binary-weight merge (Sec. 4.2, Alg. 2), white balance, demosaicing, ground truth in linear sRGB.
 
-Modules: :mod:`derender.raw.ahd`, :mod:`derender.raw.groundtruth`, :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`,
-:mod:`derender.raw.optimal`.
+Modules: :mod:`derender.raw.ahd`, :mod:`derender.raw.groundtruth`, :mod:`derender.raw.menon`,
+:mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`, :mod:`derender.raw.optimal`,
+:mod:`derender.raw.register` (sub-photosite registration).
 """
 
 from derender.core.lazy import attach

@@ -13,7 +13,8 @@ the thread count):
 * :func:`merge_rows` -- the censored maximum-likelihood merge of
   :func:`derender.raw.optimal.merge_mosaic_optimal` (pooled start, two reweighted rounds,
   Newton steps where a saturated sample is within ``near`` sigma of its level), with a
-  gain and read variance *per frame* and exposures ``e_j`` (``t_j S_j / N_j^2``, relative),
+  gain and read variance *per frame* and CFA phase (a resampled frame's variance factor,
+  :mod:`derender.raw.register`, folded in) and exposures ``e_j`` (``t_j S_j / N_j^2``, relative),
   the sums in float64 registers, the outputs stored as float32;
 * :func:`demosaic_rows` -- white balance, the demosaic (a linear filter per CFA phase: the
   taps of :func:`derender.raw.optimal.demosaic_variance`), the colour matrix and the
@@ -187,7 +188,7 @@ def _newton_photosite(rows, vrows, y, xx, black, white, expo, gain, s2, iteratio
                 continue
             code = rows[j, xx]
             e = expo[j]
-            v = gain[j] * max(x * e, 0.0) + s2[j]
+            v = gain[j, py, px] * max(x * e, 0.0) + s2[j, py, px]
             if code < white[j]:
                 score += e * (code - black[j, py, px] - x * e) / v
                 info += e * e / v
@@ -213,8 +214,9 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
     """The censored ML merge of :func:`derender.raw.optimal.merge_mosaic_optimal`, per photosite.
 
     ``mosaics``: a typed list of (H, W) uint16; ``black`` (N, 2, 2), ``white`` (N,), ``expo``
-    (N,), ``gain`` (N,), ``s2`` (N,) per frame: ``d_j = y_j - black_j ~ N(X e_j, gain_j
-    max(X e_j, 0) + s2_j)``, censored at ``white_j - black_j`` where ``y_j >= white_j``;
+    (N,), ``gain`` (N, 2, 2), ``s2`` (N, 2, 2) per frame and CFA phase (a resampled frame's
+    variance factor folded in, :mod:`derender.raw.register`): ``d_j = y_j - black_j ~ N(X e_j,
+    gain_j max(X e_j, 0) + s2_j)``, censored at ``white_j - black_j`` where ``y_j >= white_j``;
     ``valid`` (N, H, W) uint8 says where each frame takes part (alignment's border, ghost
     removal), or (N, 1, 1) for everywhere. Where no frame takes part unsaturated the photosite
     is the bound of the frames that take part (of every frame, if none does).
@@ -278,13 +280,18 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
                 r = rows[j]
                 e = np.float32(expo[j])
                 wl = np.float32(white[j])
-                g = np.float32(gain[j])
-                sv = np.float32(s2[j])
+                g0 = np.float32(gain[j, py, 0])
+                g1 = np.float32(gain[j, py, 1])
+                sv0 = np.float32(s2[j, py, 0])
+                sv1 = np.float32(s2[j, py, 1])
                 b0 = np.float32(black[j, py, 0])
                 b1 = np.float32(black[j, py, 1])
                 for xx in range(w):
                     code = np.float32(r[xx])
-                    bb = b1 if (xx & 1) == 1 else b0
+                    odd = (xx & 1) == 1
+                    bb = b1 if odd else b0
+                    g = g1 if odd else g0
+                    sv = sv1 if odd else sv0
                     xe = x[xx] * e
                     wj = e / (g * max(xe, zero) + sv) if (code < wl and vrows[j, xx] != 0) else zero
                     score[xx] += wj * (code - bb - xe)
@@ -302,13 +309,18 @@ def merge_rows(mosaics, valid, black, white, expo, gain, s2, censored, iteration
                 vr = vrows[j]
                 e = np.float32(expo[j])
                 wl = white[j]
-                g = np.float32(gain[j])
-                sv = np.float32(s2[j])
+                g0 = np.float32(gain[j, py, 0])
+                g1 = np.float32(gain[j, py, 1])
+                sv0 = np.float32(s2[j, py, 0])
+                sv1 = np.float32(s2[j, py, 1])
                 c0 = np.float32(wl - black[j, py, 0])
                 c1 = np.float32(wl - black[j, py, 1])
                 for xx in range(w):
                     xe = x[xx] * e
-                    cc = c1 if (xx & 1) == 1 else c0
+                    odd = (xx & 1) == 1
+                    cc = c1 if odd else c0
+                    g = g1 if odd else g0
+                    sv = sv1 if odd else sv0
                     hit = r[xx] >= wl and vr[xx] != 0 and cc - xe > -nr * math.sqrt(g * max(xe, zero) + sv)
                     close[xx] |= np.uint8(1) if hit else np.uint8(0)
         for xx in range(w):

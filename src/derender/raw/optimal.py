@@ -68,6 +68,7 @@ __all__ = [
     "mosaic_observations",
     "merge_mosaic_optimal",
     "demosaic_variance",
+    "linear_demosaic_kernels",
     "output_matrix",
     "compiled_frames",
     "merge_compiled",
@@ -211,6 +212,13 @@ def _malvar_kernels(pattern: str, method: str) -> np.ndarray:
     return k
 
 
+def linear_demosaic_kernels(pattern: str, method: str = "malvar2004") -> np.ndarray:
+    """(2, 2, 3, 5, 5): a linear demosaic's kernel for output CFA phase (py, px) and channel c
+    (correlation offsets -2..2), read off its responses to unit impulses (Malvar 2004 by
+    default; ``bilinear`` too; Menon 2007 is not linear)."""
+    return _malvar_kernels(pattern.upper(), demosaic_name(method))
+
+
 def demosaic_variance(var_mosaic: np.ndarray, pattern: str, matrix: np.ndarray | None = None,
                       method: str = "malvar2004") -> np.ndarray:
     """(H, W, 3) variance of ``matrix @ demosaic(mosaic)`` for independent photosites of variance
@@ -298,18 +306,23 @@ def compiled_frames(frames: Sequence[RawFrame]):
 def merge_compiled(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.ndarray, noise: NoiseModel, *,
                    censored: bool = True, iterations: int = _ITERATIONS,
                    scale: np.ndarray | float = 1.0,
-                   valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   valid: np.ndarray | None = None,
+                   variance_factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`merge_mosaic_optimal` on :func:`compiled_frames` in one compiled pass
     (:func:`derender.raw.kernels.merge_rows`), with the noise model per frame
     (:meth:`~derender.raw.noise.NoiseModel.per_frame`). Returns ``(x, var, mask)``: ``X``
     and its variance times ``scale`` (per CFA phase, (2, 2), or a number) and its square,
     float32 split by CFA phase ((2, 2, ceil(H/2), ceil(W/2)); :func:`interleave` makes the
     mosaic), and the (H, W) uint8 mask. ``valid`` (N, H, W) bool: where each frame takes part
-    (None: everywhere)."""
+    (None: everywhere); ``variance_factor`` (N, 2, 2): per frame and CFA phase, the factor on
+    the model's variance of its samples (resampled frames; None: 1)."""
     from derender.raw.kernels import KERNEL_LOCK, merge_rows
 
     h, w = mosaics[0].shape
     g, s2 = noise.per_frame(len(mosaics))
+    f = np.ones((len(mosaics), 2, 2)) if variance_factor is None else np.asarray(variance_factor, np.float64)
+    g = np.ascontiguousarray(g[:, None, None] * f)
+    s2 = np.ascontiguousarray(s2[:, None, None] * f)
     scale = np.broadcast_to(np.asarray(scale, np.float64), (2, 2)).copy()
     x = _empty((2, 2, (h + 1) // 2, (w + 1) // 2), np.float32)
     var = _empty(x.shape, np.float32)
@@ -422,7 +435,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
               gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
               wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
               variance: bool = True, clip_negative: bool = True, censored: bool = True,
-              xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None) -> HDRResult:
+              xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None,
+              noise: NoiseModel | None = None, variance_factor: Sequence[np.ndarray] | None = None) -> HDRResult:
     """Noise-optimal merge of RAW frames: censored Poisson-Gaussian ML on the mosaic, demosaiced once.
 
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
@@ -463,6 +477,13 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     valid : sequence of (H, W) bool arrays, optional
         Per frame (in the order given), where it takes part: an aligned frame's border, the
         photosites ghost removal rejects (:func:`derender.hdr.raw.merge_raw` with ``motion``).
+    noise : NoiseModel, optional
+        The noise model to use (instead of ``gain`` and ``read_noise`` or an estimate from
+        ``frames``: resampled frames would bias the estimate low).
+    variance_factor : sequence of (2, 2) arrays, optional
+        Per frame (in the order given) and CFA phase, the factor on the noise model's
+        variance of its samples (a resampled frame's ``sum w^2``,
+        :func:`derender.raw.register.resample_mosaic`; None: 1).
 
     Returns
     -------
@@ -503,6 +524,12 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     given = [frames] if isinstance(frames, RawFrame) else list(frames)
     frames, times = sorted_raw_frames(given)
     valid_stack = None
+    factor_stack = None
+    if variance_factor is not None:
+        if len(variance_factor) != len(given):
+            raise InputError(f"variance_factor has {len(variance_factor)} entries for {len(given)} frames")
+        by_id = {id(f): np.broadcast_to(np.asarray(v, np.float64), (2, 2)) for f, v in zip(given, variance_factor)}
+        factor_stack = np.stack([by_id[id(f)] for f in frames])
     if valid is not None:
         if len(valid) != len(given):
             raise InputError(f"valid has {len(valid)} masks for {len(given)} frames")
@@ -516,7 +543,9 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     demosaic = demosaic_name(demosaic)
     mosaics, black, white = compiled_frames(frames)
     profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
-    if gain is None and len(frames) == 1 and profile is not None:
+    if noise is not None:
+        pass
+    elif gain is None and len(frames) == 1 and profile is not None:
         span0 = float(np.median(white[0] - black[0]))
         noise = NoiseModel(profile[0] * span0, profile[1] * span0 ** 2, "NoiseProfile")
     elif gain is None and len(frames) == 1:
@@ -531,7 +560,7 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     top = int(np.argmax(white))
     span = white[top] - black[top]                       # (2, 2): white - black per CFA phase
     x, var, mmask = merge_compiled(mosaics, black, white, times, noise, censored=censored, scale=1.0 / span,
-                                   valid=valid_stack)
+                                   valid=valid_stack, variance_factor=factor_stack)
     del mosaics
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space, xyz_to_camera)
