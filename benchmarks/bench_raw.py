@@ -394,6 +394,7 @@ def stages(size, exposures, tile=None, repeats=3, folder=None):
             (where / name).unlink(missing_ok=True)
     return rows
 
+
 def motion(seeds) -> None:
     """Issue 38's motion line (module docstring, ``--motion``)."""
     from derender.camera import simulate_bracket
