@@ -239,8 +239,9 @@ def raw_motion(frames: Sequence[RawFrame], motion: MotionOptions, gain: float | 
     if motion.deghost and n > 1:
         if noise is None:
             noise = _bracket_noise(frames, times, (gain, read_noise))
-        rejected = _reject_ghosts(frames, times, ref, valid, motion.ghost_threshold, noise, factors, kept,
-                                  (given_frames, shifts) if resampled else None)
+        rejected = _reject_ghosts(frames, times, ref, valid, threshold=motion.ghost_threshold, noise=noise,
+                                  factors=factors, kept=kept,
+                                  shifted=(given_frames, shifts) if resampled else None)
     info = {"reference": ref, "align": align, "shifts": shifts, "deghost": bool(motion.deghost),
             "rejected": rejected, "variance_factor": factors, "noise": noise, "pairs": pairs,
             "resampled": resampled, "kept": kept}
@@ -454,7 +455,24 @@ def _per_frame_noise(noise, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return g, s2
 
 
-def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: list[np.ndarray],
+#: The shifted path's ghost test compares the difference of two frames' 2x2-window sums as the
+#: 3x3 mean of the windows (4x4 photosites weighted 1, 2, 2, 1 per axis, / 9): these taps per axis
+#: (the 3x3 mean) ...
+_WINDOW_MEAN3 = np.ones(3) / 3.0
+#: ... its variance, the photosites' weighted by (1, 4, 4, 1) per axis / 81 ...
+_WINDOW_VAR4 = np.array([1.0, 4.0, 4.0, 1.0]) / 9.0
+#: ... and a window's photosites in the 3x3 mean.
+_WINDOW_PAIR3 = np.array([1.0, 2.0, 2.0, 1.0]) / 3.0
+
+
+def _separable(v: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """``v`` correlated with ``taps`` along both axes (edges repeated)."""
+    from scipy.ndimage import correlate1d
+
+    return correlate1d(correlate1d(v, taps, axis=0, mode="nearest"), taps, axis=1, mode="nearest")
+
+
+def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: list[np.ndarray], *,
                    threshold: float | None, noise, factors: np.ndarray, kept: list[np.ndarray],
                    shifted: tuple | None = None) -> list[float]:
     """Ghost removal by the Poisson-Gaussian model (module docstring): ``valid[j]`` loses where the
@@ -494,15 +512,8 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
         originals, shift_values = shifted
         scale = phase_scale(originals[ref].mosaic, _black22(originals[ref]), whites[ref], times[ref])
         sc2 = plane(scale) ** 2
-
-        def smooth(v: np.ndarray, taps: np.ndarray) -> np.ndarray:
-            return correlate1d(correlate1d(v, taps, axis=0, mode="nearest"), taps, axis=1, mode="nearest")
-
-        # the difference of the window sums is compared as the 3x3 mean of the windows (4x4
-        # photosites weighted 1, 2, 2, 1 per axis, / 9): its variance the photosites' weighted
-        # by (1, 4, 4, 1) per axis / 81
-        mean3, var4 = np.ones(3) / 3.0, np.array([1.0, 4.0, 4.0, 1.0]) / 9.0
-        pair3 = np.array([1.0, 2.0, 2.0, 1.0]) / 3.0           # a window's photosites, 3x3 mean
+        smooth = _separable
+        mean3, var4, pair3 = _WINDOW_MEAN3, _WINDOW_VAR4, _WINDOW_PAIR3
         vq_r = (g[ref] * x_r * times[ref] + s2[ref]) / times[ref] ** 2 / sc2
         box_r, bsat_r = shifted_box(d_r / times[ref], sat_r, (0, 0), scale)[:2]
     for j in range(len(frames)):

@@ -288,7 +288,7 @@ def variance_factors(pattern: str, shift, colour_level: np.ndarray) -> np.ndarra
 
 
 def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
-                  noise, pattern: str, valid: np.ndarray | None = None,
+                  noise, pattern: str, *, valid: np.ndarray | None = None,
                   censored: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The censored ML merge (:func:`derender.raw.optimal.merge_compiled`) done per colour on
     the frames' colours at the reference's photosites (:func:`resample_rgb`, each frame at its
@@ -469,6 +469,43 @@ def _keys_grid(img, ok, ri, ci, iy, ix, wy, wx, dwy, dwx, need_y, need_x, deriva
             gx[r, c] = dx
 
 
+def _gauss_newton(sample, va: np.ndarray, wa: np.ndarray, best: np.ndarray) -> tuple:
+    """Robust (Tukey-weighted) Gauss-Newton steps of the shift and a gain ``kappa`` from ``best``:
+    ``sample(s, True)`` gives frame b's values, their derivatives and where usable at ``p + s``;
+    ``va`` the reference's values, ``wa`` their inverse variances. Returns ``(s, kappa,
+    standard errors of s, samples, steps done)``; it stops on a step below 1e-4 photosite, on
+    too few samples, or 3 photosites away from ``best``."""
+    s, kappa = best.copy(), 1.0
+    se = np.zeros(2)
+    scale_z = None
+    n = done = 0
+    for steps in range(1, _STEPS + 1):
+        val, gy, gx, sel = sample(s, True)
+        n = int(sel.sum())
+        if n < _MIN_SAMPLES:
+            break
+        done += 1
+        r = val[sel] - kappa * va[sel]
+        z = r * np.sqrt(wa[sel])
+        if scale_z is None or steps <= 3:
+            scale_z = 1.4826 * float(np.median(np.abs(z))) + 1e-30
+        zz = z / (_TUKEY * scale_z)
+        wt = wa[sel] * np.where(np.abs(zz) < 1, (1 - zz ** 2) ** 2, 0.0)
+        jac = np.stack([gy[sel], gx[sel], -va[sel]], axis=1)
+        jtj = jac.T @ (jac * wt[:, None])
+        try:
+            step = -np.linalg.solve(jtj, jac.T @ (wt * r))
+            cov = np.linalg.inv(jtj) * float(np.sum(wt * r * r)) / max(n - 3, 1)
+        except np.linalg.LinAlgError:
+            break
+        se = np.sqrt(np.maximum(np.diag(cov)[:2], 0.0))
+        s = s + step[:2]
+        kappa = kappa + step[2]
+        if np.max(np.abs(step[:2])) < 1e-4 or np.max(np.abs(s - best)) > 3.0:
+            break
+    return s, kappa, se, n, done
+
+
 def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: tuple[float, float],
                  black: tuple[np.ndarray, np.ndarray], white: tuple[float, float],
                  read_sd: float = 2.0) -> tuple[np.ndarray, dict]:
@@ -530,34 +567,7 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
                 best, best_cost, n_best = cand, c, n
     if not np.isfinite(best_cost):
         return s0, {**info, "samples": n_best}
-    s, kappa = best.copy(), 1.0
-    se = np.zeros(2)
-    scale_z = None
-    steps = n = done = 0
-    for steps in range(1, _STEPS + 1):
-        val, gy, gx, sel = sample(s, True)
-        n = int(sel.sum())
-        if n < _MIN_SAMPLES:
-            break
-        done += 1
-        r = val[sel] - kappa * va[sel]
-        z = r * np.sqrt(wa[sel])
-        if scale_z is None or steps <= 3:
-            scale_z = 1.4826 * float(np.median(np.abs(z))) + 1e-30
-        zz = z / (_TUKEY * scale_z)
-        wt = wa[sel] * np.where(np.abs(zz) < 1, (1 - zz ** 2) ** 2, 0.0)
-        jac = np.stack([gy[sel], gx[sel], -va[sel]], axis=1)
-        jtj = jac.T @ (jac * wt[:, None])
-        try:
-            step = -np.linalg.solve(jtj, jac.T @ (wt * r))
-            cov = np.linalg.inv(jtj) * float(np.sum(wt * r * r)) / max(n - 3, 1)
-        except np.linalg.LinAlgError:
-            break
-        se = np.sqrt(np.maximum(np.diag(cov)[:2], 0.0))
-        s = s + step[:2]
-        kappa = kappa + step[2]
-        if np.max(np.abs(step[:2])) < 1e-4 or np.max(np.abs(s - best)) > 3.0:
-            break
+    s, kappa, se, n, done = _gauss_newton(sample, va, wa, best)
     if not done or not np.all(np.isfinite(s)) or np.max(np.abs(s - best)) > 3.0:
         return best, {**info, "samples": n, "steps": done}
     # a refinement that does not lower the median residual of the best whole shift is not taken
@@ -647,7 +657,7 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     pattern = frames[0].cfa_pattern.upper()
     _, black, white = compiled_frames(frames)
     mosaics = [np.asarray(f.mosaic) for f in frames]
-    rgb, var, mmask, rho = merge_shifted(mosaics, shift_arr, black, white, times, noise, pattern, valid_stack,
+    rgb, var, mmask, rho = merge_shifted(mosaics, shift_arr, black, white, times, noise, pattern, valid=valid_stack,
                                          censored=censored)
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space)

@@ -386,6 +386,30 @@ def calibration_bounds(z: np.ndarray, times: np.ndarray, rim: np.ndarray | None 
     return keep, white
 
 
+def _monotone_updates(tot: np.ndarray, sq: np.ndarray, cnt: np.ndarray, base: np.ndarray,
+                      g: np.ndarray) -> tuple[list, list, list]:
+    """Robertson's update per channel from the per-code sums of the leave-one-out log estimates
+    (``tot``, their squares ``sq``, counts ``cnt``; (n_levels, 3)): the mean per code, its
+    precision ``q`` (normalised to mean 1) and its monotone projection; ``(monos, qs, live)``,
+    ``live[c]`` False where no frame overlaps another (a single exposure: the start ``g`` kept)."""
+    n_levels = g.shape[0]
+    monos, qs, live = [], [], []
+    for c in range(3):
+        ok = (cnt[:, c] > 0) & (base > 0)
+        live.append(bool(ok.any()))
+        if not ok.any():
+            monos.append(g[:, c].copy())
+            qs.append(np.zeros(n_levels))
+            continue
+        y = np.zeros(n_levels)
+        y[ok] = tot[ok, c] / cnt[ok, c]
+        q = np.where(ok, cnt[:, c] / _update_variance(y, sq[:, c], cnt[:, c], ok), 0.0)
+        q /= q[ok].mean()
+        monos.append(np.where(ok, isotonic_weighted(y, q, MIN_STEP), 0.0))  # monotone projection, then smooth
+        qs.append(q)
+    return monos, qs, live
+
+
 def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30, tol: float = 1e-6,
                            max_pixels: int = 40_000, weight: Any = "gaussian", n_levels: int = 256,
                            lam: float = ROBERTSON_LAMBDA, balance: bool = True,
@@ -415,7 +439,6 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
     # estimates average in the log domain: see the module docstring, point 5
     wz = base[z]  # (N, P, 3)
     if keep is not None:
-        keep = np.broadcast_to(keep if keep.ndim == 3 else keep[:, :, None], z.shape)
         wz = wz * keep    # bounds are neither in E_i nor updated
     den = wz.sum(axis=0)[None] - wz
     live_obs = den > 1e-6 * base.max()
@@ -438,20 +461,7 @@ def robertson_from_samples(z: np.ndarray, times: np.ndarray, *, n_iter: int = 30
         sq = np.bincount(fl, weights=te[live_obs] ** 2, minlength=3 * n_levels).reshape(n_levels, 3)
         cnt = np.bincount(fl, minlength=3 * n_levels).reshape(n_levels, 3).astype(np.float64)
         new = np.empty_like(g)
-        monos, qs, live = [], [], []
-        for c in range(3):
-            ok = (cnt[:, c] > 0) & (base > 0)
-            live.append(bool(ok.any()))
-            if not ok.any():  # no frame overlaps another (a single exposure): keep the start
-                monos.append(g[:, c].copy())
-                qs.append(np.zeros(n_levels))
-                continue
-            y = np.zeros(n_levels)
-            y[ok] = tot[ok, c] / cnt[ok, c]
-            q = np.where(ok, cnt[:, c] / _update_variance(y, sq[:, c], cnt[:, c], ok), 0.0)
-            q /= q[ok].mean()
-            monos.append(np.where(ok, isotonic_weighted(y, q, MIN_STEP), 0.0))  # monotone projection, then smooth
-            qs.append(q)
+        monos, qs, live = _monotone_updates(tot, sq, cnt, base, g)
         if tie > 0 and all(live):
             # the three Whittaker smoothers in one system, tied: see solve_tied
             cols = solve_tied([np.diag(q + 1e-12) + smooth2 for q in qs], [q * m for q, m in zip(qs, monos)], tie)
