@@ -280,7 +280,7 @@ def test_compiled_demosaic_is_colour_demosaicing_and_the_variance_filters(shape)
 
 @pytest.mark.parametrize("shape", [(16, 20), (17, 23), (5, 6)])
 def test_compiled_menon_is_colour_demosaicing(shape):
-    """The compiled Menon 2007 (derender.raw.kernels.menon_directions, menon_rows) against its
+    """The compiled Menon 2007 (derender.raw.menon.menon_directions, menon_rows) against its
     peer, colour_demosaicing's demosaicing_CFA_Bayer_Menon2007 without the refining step (white
     balance first, the matrix after), borders and odd sizes included, every Bayer pattern.
     Measured: 0 to 5e-7 absolute on values in [0, 3]."""

@@ -40,7 +40,7 @@ fixed, each output is a linear combination of photosites within 3 of it: ``out_o
 exact (:func:`ahd_rows` builds ``K`` per pixel). The direction is chosen from the noisy
 photosites; where the noise may have chosen the other one the output moves by ``Delta_o =
 out_H,o - out_V,o`` (half of it from or to a tie). As for Menon's demosaic
-(:func:`derender.raw.kernels.menon_rows`) that adds ``P(flip) Delta_o^2``, with ``P(flip) =
+(:func:`derender.raw.menon.menon_rows`) that adds ``P(flip) Delta_o^2``, with ``P(flip) =
 Phi(-z)`` and ``z^2 = sum_o Delta_o^2 / sum_o Var[Delta_o]`` (``Var[Delta_o] = sum_p (sum_c
 M_oc (K_H,c(p) - K_V,c(p)))^2 v_p``): the chance that noise alone makes the two directions'
 difference look as it does. Where the two directions agree within their noise the choice is a
