@@ -15,12 +15,14 @@ Rows, all on the same DNG files:
   wb=[1, 1, 1], demosaic='malvar')`` with the times given (its EXIF reader needs ISO, which
   the simulated DNGs do not state), if installed.
 
-Scores in camera RGB (no white balance or matrix, so that HDRutils' colour path plays no
-part), after one scale factor fitted per result (the project's trimmed fit,
-``relative_errors(fit="scale")``; it is ~1 for derender, whose units are exact): median and
-p90 relative error, darkest decade and brightest unclipped decade
-(:func:`derender.evaluation.raw_merge.raw_scores`), against (a) the demosaiced true mosaic
-(the merge's error alone) and (b) the scene's camera RGB (demosaicing error included); and
+Scores in camera RGB (no matrix, so that HDRutils' colour path plays no part), after one
+scale factor fitted per result (the project's trimmed fit, ``relative_errors(fit="scale")``;
+it is ~1 for derender, whose units are exact): median and p90 relative error, darkest decade
+and brightest unclipped decade (:func:`derender.evaluation.raw_merge.raw_scores`), against (a)
+the demosaiced true mosaic, through each merge's own demosaic path (the merge's error alone:
+derender demosaics the white-balanced mosaic and divides the balance out,
+:func:`derender.evaluation.raw_merge.demosaiced_truth`; paper 1's and HDRutils' Malvar see the
+mosaic as it is) and (b) the scene's camera RGB (demosaicing error included); and
 for derender the coverage of its variance (against (a)).
 
 Speed: LibRaw decoding the frames (``rawpy.imread`` + the mosaic copy) against ``derender
@@ -89,7 +91,7 @@ def accuracy(size, exposures, seed=3):
     from derender.camera import simulate_bracket, write_bracket
     from derender.camera.sensor import mosaic_signal
     from derender.camera.spectral import load_camera
-    from derender.evaluation.raw_merge import true_noise
+    from derender.evaluation.raw_merge import demosaiced_truth, true_noise
     from derender.io.raw import read_raw_stack
     from derender.raw.groundtruth import raw_to_camera_rgb
     from derender.raw.mosaic import demosaic_bayer
@@ -117,7 +119,10 @@ def accuracy(size, exposures, seed=3):
             for name, res in list(results.items()) + ([("hdrutils", None)] if hu is not None else []):
                 rad = hu if res is None else res.radiance.astype(np.float64)
                 var = None if res is None else res.variance
-                a = _scaled_scores(rad, demo_truth, mask, var)
+                # each merge against its own demosaic of the true mosaic: derender's demosaics the
+                # white-balanced mosaic (the balance divided out after), paper 1's and HDRutils' do not
+                own = demo_truth if name in ("paper1", "hdrutils") else demosaiced_truth(b, res.info)
+                a = _scaled_scores(rad, own, mask, var)
                 s = _scaled_scores(rad, scene_truth, mask)
                 rows.append({"camera": f"{cam_name} {bits}-bit", "scene": kind, "method": name, "demosaiced": a,
                              "scene_truth": s,

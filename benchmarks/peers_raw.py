@@ -8,8 +8,9 @@ ISO or f-number, so EXIF readers cannot compute exposures; every peer is given t
 times, not dcraw's rounded print-out):
 
 * ``derender`` -- ``derender merge --method raw -O output_space=S -O demosaic=D`` (``--derender-space S``,
-  default ``camera_rgb``, scored after one scale; ``linear_srgb`` white-balances before the
-  demosaic as dcraw does and is scored after a 3x3 fit, as the peers in sRGB are)
+  default ``camera_rgb``, scored after one scale; ``linear_srgb`` and ``xyz`` are scored after a
+  3x3 fit, as the peers in sRGB are; every space demosaics the white-balanced mosaic, as dcraw
+  does, and ``camera_rgb`` divides the balance out after the demosaic)
   (:func:`derender.hdr.raw.merge_raw`, noise estimated from the frames; ``--demosaic D``,
   default ``menon2007``; ``ahd``, dcraw's and LibRaw's interpolator, :mod:`derender.raw.ahd`;
   ``malvar2004`` is the merge's default);
@@ -244,8 +245,8 @@ def main() -> None:
     ap.add_argument("--demosaic", default="menon2007", choices=("menon2007", "malvar2004", "ahd"),
                     help="derender's demosaic (the merge's default is malvar2004)")
     ap.add_argument("--derender-space", default="camera_rgb", choices=("camera_rgb", "linear_srgb", "xyz"),
-                    help="derender's output space (linear_srgb: white balance before the demosaic, as dcraw "
-                         "does, then a 3x3 fit like the peers in sRGB)")
+                    help="derender's output space (linear_srgb, xyz: a 3x3 fit like the peers in sRGB; every "
+                         "space demosaics the white-balanced mosaic, as dcraw does)")
     ap.add_argument("--workdir", default=None, help="keep the files here (default: a temporary folder)")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))

@@ -3,7 +3,10 @@
 :func:`read_raw` returns a :class:`~derender.core.types.RawFrame`: the Bayer mosaic
 (uint16), CFA pattern, black and white level, as-shot white balance, the DNG
 ``ColorMatrix`` (XYZ -> camera), the exposure time and, when the DNG has one, its
-``NoiseProfile`` (``extra["noise_profile"]``: ``(S, O)`` of ``Var[x] = S x + O``). RAW
+``NoiseProfile`` (``extra["noise_profile"]``: ``(S, O)`` of ``Var[x] = S x + O``). The
+as-shot white balance is the DNG's ``AsShotNeutral``, else LibRaw's camera multipliers; a file
+that states neither gets ones and ``extra["as_shot_wb_missing"] = True`` (the RAW merge then
+balances its demosaic by a grey-world estimate, :func:`derender.raw.optimal.white_balances`). RAW
 *development* (merging, white balance, demosaicing, colour) is :mod:`derender.raw`.
 """
 
@@ -105,18 +108,23 @@ def read_raw(path: str | os.PathLike) -> RawFrame:
         raise InputError(f"no such file: {path}")
     lib = _libraw_fields(path)
     tags = _dng_tags(path) if path.suffix.lower() == ".dng" else {}
+    wb = _as_shot_wb(tags, lib["wb4"])
+    extra = _extra(path, tags)
+    if wb is None:
+        wb = np.ones(3)
+        extra["as_shot_wb_missing"] = True
     return RawFrame(
         mosaic=lib["mosaic"],
         cfa_pattern=lib["cfa"],
         black_level=lib["black"],
         white_level=lib["white"],
-        as_shot_wb=_as_shot_wb(tags, lib["wb4"]),
+        as_shot_wb=wb,
         xyz_to_camera=_xyz_to_camera(tags, lib["xyz_cam"], lib["cmat"]),
         exposure_time=_exposure_time(path, tags, lib["shutter"]),
         path=str(path),
         make=str(tags.get("Make", "")).strip("\x00 "),
         model=str(tags.get("Model", tags.get("UniqueCameraModel", ""))).strip("\x00 "),
-        extra=_extra(path, tags),
+        extra=extra,
     )
 
 
@@ -149,14 +157,16 @@ def _libraw_fields(path: Path) -> dict:
     return out
 
 
-def _as_shot_wb(tags: dict, wb4: np.ndarray) -> np.ndarray:
-    """White balance multipliers as R, G, B with G = 1: the DNG's AsShotNeutral, else LibRaw's."""
+def _as_shot_wb(tags: dict, wb4: np.ndarray) -> np.ndarray | None:
+    """White balance multipliers as R, G, B with G = 1: the DNG's AsShotNeutral, else LibRaw's
+    camera multipliers; None when the file states neither (positive)."""
     if "AsShotNeutral" in tags:
         neutral = _rationals(tags["AsShotNeutral"])[:3]
-        return neutral[1] / neutral if np.all(neutral > 0) else np.ones(3)
+        if np.all(neutral > 0):
+            return neutral[1] / neutral
     g = wb4[1] if wb4[1] > 0 else 1.0
     wb = np.array([wb4[0], g, wb4[2]]) / g
-    return wb if np.all(wb > 0) else np.ones(3)
+    return wb if np.all(wb > 0) else None
 
 
 def _xyz_to_camera(tags: dict, xyz_cam: np.ndarray, cmat: np.ndarray) -> np.ndarray | None:

@@ -26,14 +26,25 @@ estimate is the bound ``X = c / t_min`` (mask 1) with variance ``X^2`` (sigma = 
 it is a lower bound, not a measurement). ``g`` and ``sigma^2`` come from the bracket
 (:func:`derender.raw.noise.estimate_noise`) unless given.
 
-Then the mosaic is white-balanced (one multiplier per CFA colour; none for ``camera_rgb``),
-demosaiced once (Malvar, He & Cutler 2004, a linear filter, by default; or Menon, Andriani &
-Calvagno 2007) and put in the output space by
-the file's own matrices: ``camera_rgb``, ``linear_srgb`` (``XYZ_TO_LINEAR_SRGB @
-camera_to_xyz``, as :func:`derender.raw.groundtruth.raw_ground_truth`) or ``xyz`` (D65). All
-three steps are linear, so the variance goes through them exactly for independent
-photosites: ``Var[o] = sum_p (sum_c M_oc K_c(p))^2 w_p^2 Var[X_p]`` with Malvar's kernels
-``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). Menon's
+Then, in every output space, one path: the mosaic is white-balanced (one multiplier ``w_c``
+per CFA colour), demosaiced once (Malvar, He & Cutler 2004, a linear filter, by default; or
+Menon, Andriani & Calvagno 2007; or AHD) and put in the output space by one 3x3 matrix,
+
+    o = M diag(u / w) D(W x),
+
+``W x`` the balanced mosaic, ``D`` the demosaic, ``u`` the balance the output keeps and ``M``
+the file's own matrix: ``camera_rgb`` (``M = I``, ``u = 1``: the balance is divided out after
+the demosaic), ``linear_srgb`` (``M = XYZ_TO_LINEAR_SRGB @ camera_to_xyz``, as
+:func:`derender.raw.groundtruth.raw_ground_truth`, ``u = w``) or ``xyz`` (D65, ``u = w``).
+The balance ``w`` is the user's (``wb``, ``wb_patch``) or the file's as-shot one (AsShotNeutral,
+else the camera multipliers); where the file states none, ``u = 1`` and ``w`` is the grey-world
+estimate of the merged mosaic (:func:`white_balances`). Demosaicing the balanced mosaic is what
+dcraw and LibRaw do: the demosaics' colour-difference and gradient terms assume that a neutral
+surface gives equal channels; in ``camera_rgb`` it takes 0.1-0.4 points off the median
+relative error against the scene on simulated DNG brackets (docs/results-raw.md). All three
+steps are linear, so the variance goes through them exactly for independent photosites:
+``Var[o] = sum_p (sum_c M'_oc K_c(p))^2 w_p^2 Var[X_p]`` with ``M' = M diag(u / w)``,
+Malvar's kernels ``K_c`` per CFA phase and the multipliers ``w_p`` (:func:`demosaic_variance`). Menon's
 demosaic is linear once its direction per red and blue photosite is chosen: its ``K_c(p)``
 are the weights given the directions, a fixed filter bank indexed by the directions near the
 pixel, plus ``P(flip) (out' - out)^2`` for a direction the noise may have chosen wrongly
@@ -55,6 +66,7 @@ from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
 from derender.raw.mosaic import (
     MASK_RADIUS,
+    cfa_channel_index,
     demosaic_bayer,
     demosaic_name,
     sorted_raw_frames,
@@ -70,6 +82,8 @@ __all__ = [
     "demosaic_variance",
     "linear_demosaic_kernels",
     "output_matrix",
+    "grey_world_wb",
+    "white_balances",
     "compiled_frames",
     "merge_compiled",
     "interleave",
@@ -255,16 +269,46 @@ def output_matrix(frame: RawFrame, output_space: str,
     return c2x if output_space == "xyz" else XYZ_TO_LINEAR_SRGB @ c2x
 
 
-def _multipliers(frame: RawFrame, output_space: str, wb, wb_patch, x: np.ndarray, pattern: str,
-                 mask: np.ndarray) -> np.ndarray:
-    if output_space == "camera_rgb":
+def grey_world_wb(mosaic: np.ndarray, pattern: str, mask: np.ndarray | None = None) -> np.ndarray:
+    """White-balance multipliers (R, G, B), G = 1, that make the mean of each CFA colour equal
+    over the measured photosites (``mask == 0``) of a linear ``mosaic``: the grey-world neutral
+    estimate, used to balance the demosaic of a file that states no white balance (ones where a
+    colour's mean is not positive)."""
+    m = np.asarray(mosaic, dtype=np.float64)
+    idx = cfa_channel_index(m.shape, pattern)
+    ok = np.ones(m.shape, bool) if mask is None else (np.asarray(mask) == 0)
+    means = np.array([float(np.mean(m[(idx == c) & ok])) if np.any((idx == c) & ok) else 0.0 for c in range(3)])
+    if not np.all(np.isfinite(means)) or np.any(means <= 0):
         return np.ones(3)
+    return means[1] / means
+
+
+def white_balances(frame: RawFrame, output_space: str, wb=None, wb_patch=None, mosaic: np.ndarray | None = None,
+                   pattern: str = "RGGB", mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(demosaic_wb, output_wb)``: the multipliers (R, G, B) the mosaic is balanced with before
+    the demosaic, and those the output keeps (module docstring, "one path").
+
+    The balance is ``wb`` if given, else the neutral region ``wb_patch`` of the merged
+    ``mosaic``, else the file's as-shot multipliers (AsShotNeutral, else LibRaw's camera
+    multipliers). ``output_wb`` is that balance in ``linear_srgb`` and ``xyz`` (ones when the
+    file states none, the matrix then taking camera RGB as it is) and ones in ``camera_rgb``.
+    ``demosaic_wb`` is that balance in every space; for a file that states none
+    (``frame.extra["as_shot_wb_missing"]``, :func:`derender.io.raw.read_raw`) it is the grey-world
+    estimate of the merged ``mosaic`` (:func:`grey_world_wb`)."""
+    def checked(m) -> np.ndarray:
+        m = np.asarray(m, dtype=np.float64).reshape(-1)
+        if m.size != 3 or not np.all(np.isfinite(m)) or np.any(m <= 0):
+            raise InputError(f"white-balance multipliers must be 3 positive numbers (R, G, B), got {m.tolist()}")
+        return m
+
+    missing = bool((frame.extra or {}).get("as_shot_wb_missing")) and wb is None and wb_patch is None
     if wb_patch is not None:
-        return wb_from_patch(interleave(x, mask.shape), pattern, wb_patch, mask)
-    mult = np.asarray(frame.as_shot_wb if wb is None else wb, dtype=np.float64).reshape(-1)
-    if mult.size != 3 or not np.all(np.isfinite(mult)) or np.any(mult <= 0):
-        raise InputError(f"white-balance multipliers must be 3 positive numbers (R, G, B), got {mult.tolist()}")
-    return mult
+        balance = wb_from_patch(mosaic, pattern, wb_patch, mask)
+    else:
+        balance = checked(frame.as_shot_wb if wb is None else wb)
+    output_wb = np.ones(3) if output_space == "camera_rgb" else balance
+    demosaic_wb = grey_world_wb(mosaic, pattern, mask) if missing and mosaic is not None else balance
+    return demosaic_wb, output_wb
 
 
 #: Arrays above this many bytes are allocated in transparent huge pages where the kernel
@@ -442,10 +486,13 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
     estimates from the frames themselves (:func:`derender.raw.noise.estimate_noise`); give both
     to use known values. A single frame takes its DNG ``NoiseProfile`` when it has one, else
-    the green-pair estimate, an upper bound where the scene has texture. White balance (``linear_srgb``, ``xyz``): ``wb`` multipliers (R, G, B),
-    default the as-shot ones of the middle frame of the time-sorted stack, or ``wb_patch``
-    ``(x, y, w, h)``, a neutral region of the merged mosaic; it is applied on the mosaic before
-    demosaicing, as :func:`derender.raw.groundtruth.raw_ground_truth` does. ``censored=False``
+    the green-pair estimate, an upper bound where the scene has texture. White balance: ``wb``
+    multipliers (R, G, B), default the as-shot ones of the middle frame of the time-sorted
+    stack, or ``wb_patch`` ``(x, y, w, h)``, a neutral region of the merged mosaic; it is
+    applied on the mosaic before demosaicing in every output space, as
+    :func:`derender.raw.groundtruth.raw_ground_truth` does, and divided out again after the
+    demosaic in ``camera_rgb`` (:func:`white_balances`; a file without one: a grey-world
+    estimate for the demosaic). ``censored=False``
     drops saturated samples instead (for comparison). ``info["noise"]`` holds the noise model
     used. The ``variance`` is that of ``radiance`` before negative values are clipped to 0.
 
@@ -454,11 +501,12 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     frames : RawFrame or sequence of RawFrame
         The bracket (:func:`derender.io.raw.read_raw_stack`), with exposure times.
     output_space : str
-        ``"linear_srgb"``, ``"camera_rgb"`` (no white balance, no matrix) or ``"xyz"``.
+        ``"linear_srgb"``, ``"camera_rgb"`` (no matrix; the white balance divided out after the
+        demosaic) or ``"xyz"``.
     gain, read_noise : float, optional
         The noise model (DN per electron; DN), both or neither.
     wb : sequence of 3 floats, optional
-        White-balance multipliers (R, G, B).
+        White-balance multipliers (R, G, B) (in ``camera_rgb``: the demosaic's balance only).
     wb_patch : (x, y, w, h), optional
         A neutral region of the merged mosaic that sets the white balance.
     demosaic : str
@@ -490,7 +538,9 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     HDRResult
         ``radiance`` (H, W, 3) float32 in ``output_space`` (relative units), finite and
         non-negative; ``variance`` (H, W, 3) float32 when asked for; ``mask``; ``info``
-        with ``noise``, the white balance and the matrices used.
+        with ``noise``, the white balance of the demosaic (``wb_multipliers``), the one the
+        output keeps (``output_wb_multipliers``) and the matrix after the demosaic
+        (``output_matrix``).
 
     Raises
     ------
@@ -563,13 +613,17 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
                                    valid=valid_stack, variance_factor=factor_stack)
     del mosaics
     ref = frames[len(frames) // 2]
-    mat = output_matrix(ref, output_space, xyz_to_camera)
-    mult = _multipliers(ref, output_space, wb, wb_patch, x, pattern, mmask)
+    colour = output_matrix(ref, output_space, xyz_to_camera)
+    mosaic = interleave(x, mmask.shape) if (wb_patch is not None or (ref.extra or {}).get("as_shot_wb_missing")) \
+        else None
+    mult, out_wb = white_balances(ref, output_space, wb, wb_patch, mosaic, pattern, mmask)
+    del mosaic
+    mat = colour @ np.diag(out_wb / mult)            # the balance divided out (camera_rgb), or kept
     out, var_out = demosaic_compiled(x, var if variance else None, mmask.shape, pattern, mult, mat, demosaic,
                                      clip_negative)
     info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": demosaic,
             "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
             "units": "white level per second", "white_minus_black_dn": float(np.median(span)),
             "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
-            "output_matrix": mat.tolist()}
+            "output_wb_multipliers": out_wb.tolist(), "output_matrix": mat.tolist()}
     return HDRResult(radiance=out, mask=spread_mask(mmask, MASK_RADIUS[demosaic]), variance=var_out, info=info)
