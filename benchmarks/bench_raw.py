@@ -30,7 +30,7 @@ merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
 
     PYTHONPATH=src python benchmarks/bench_raw.py [--size 384x256] [--speed-size 3000x2000]
     PYTHONPATH=src python benchmarks/bench_raw.py --speed-only --speed-exposures 9 --speed-tile 6016x4000
-    PYTHONPATH=src python benchmarks/bench_raw.py --coverage-only
+    PYTHONPATH=src python benchmarks/bench_raw.py --coverage-only [--coverage-demosaic menon2007|ahd]
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-candidates
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-speed 6016x4000 [--with-colour-demosaicing]
     PYTHONPATH=src python benchmarks/bench_raw.py --stages --speed-exposures 9 --speed-tile 6016x4000 [--stages-folder DIR]
@@ -130,7 +130,7 @@ def accuracy(size, exposures, seed=3):
     return rows
 
 
-def coverage(size, exposures, seed=3):
+def coverage(size, exposures, seed=3, demosaic="malvar2004"):
     """Coverage of derender's sigma (estimated noise, camera RGB) on the mosaic (merged photosite
     against the true one, before the demosaic), against the demosaiced truth and against the
     scene (demosaicing error included), for every case of :data:`CASES`."""
@@ -142,14 +142,14 @@ def coverage(size, exposures, seed=3):
     from derender.raw.noise import estimate_noise_frames
     from derender.raw.optimal import compiled_frames, interleave, merge_compiled, raw_merge
 
-    print(f"## Coverage of sigma: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}\n")
+    print(f"## Coverage of sigma: {exposures} exposures, {size[0]}x{size[1]}, seed {seed}, demosaic {demosaic}\n")
     print("| camera | scene | mosaic 95 % | mosaic 50 % | demosaiced truth 95 % | 50 % | scene 95 % | 50 % |")
     print("|---|---|---|---|---|---|---|---|")
     for cam_name, bits, kind in CASES:
         b = simulate_bracket(load_camera(cam_name).with_bits(bits), kind=kind, size=size, exposures=exposures,
                              seed=seed, style="simple", pipeline="fixed")
         frames = bracket_raw_frames(b)
-        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False)
+        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False, demosaic=demosaic)
         ordered, times = sorted_raw_frames(frames)
         mosaics, black, white = compiled_frames(ordered)
         noise = estimate_noise_frames(mosaics, black, white, times)
@@ -443,6 +443,8 @@ def main() -> None:
     ap.add_argument("--speed-only", action="store_true")
     ap.add_argument("--no-hdrutils-speed", action="store_true")
     ap.add_argument("--coverage-only", action="store_true")
+    ap.add_argument("--coverage-demosaic", default="malvar2004", choices=("malvar2004", "menon2007", "ahd"),
+                    help="the demosaic of --coverage-only")
     ap.add_argument("--demosaic-candidates", action="store_true")
     ap.add_argument("--white-balanced", action="store_true",
                     help="--demosaic-candidates on the mosaics white-balanced first (as-shot), undone after")
@@ -470,7 +472,7 @@ def main() -> None:
         _print_stages(args)
         return
     if args.coverage_only:
-        coverage((w, h), args.exposures)
+        coverage((w, h), args.exposures, demosaic=args.coverage_demosaic)
         return
     if args.speed_only:
         _print_speed(args)
