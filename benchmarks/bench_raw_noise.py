@@ -15,6 +15,15 @@ no fit: the units are exact; the still bracket also against the demosaiced true 
 merge's error alone). No parameter of the noise fit was tuned on these brackets.
 
     PYTHONPATH=src python benchmarks/bench_raw_noise.py [--seeds 0,1,2,3,4] [--cameras nikon-d5100,sigma-sd-merrill]
+
+``--coverage``: the coverage of the default variance (``variance_terms="total"``: noise and the
+demosaic's interpolation error, :mod:`derender.raw.interpolation`) against the scene, and of
+the noise-only variance against the demosaiced true mosaic and against the scene, on still
+brackets (``style="simple"``, fixed pipeline, 256x192, 5 exposures) of both cameras and three
+scenes, per demosaic. The interpolation weights were fitted on nikon-d5100 ``outdoor`` and
+``indoor`` at seed 3 (``tuning`` rows); every other row is held out.
+
+    PYTHONPATH=src python benchmarks/bench_raw_noise.py --coverage [--seeds 3,4] [--demosaics malvar2004]
 """
 
 from __future__ import annotations
@@ -65,6 +74,41 @@ def noise_rows(cameras, seeds, settings=("still", "tripod", "handheld")):
     return rows
 
 
+def coverage_rows(cameras, seeds, demosaics, space="camera_rgb", scenes=("outdoor", "indoor", "night")):
+    """The ``--coverage`` table's rows (module docstring)."""
+    from derender.camera import simulate_bracket
+    from derender.camera.spectral import load_camera
+    from derender.evaluation.raw_merge import bracket_raw_frames, demosaiced_truth, raw_scores
+    from derender.raw.optimal import raw_merge
+
+    n = 0
+    for cam_name in cameras:
+        for kind in scenes:
+            for seed in seeds:
+                b = simulate_bracket(load_camera(cam_name), kind=kind, size=(256, 192), exposures=5, seed=seed,
+                                     style="simple", pipeline="fixed")
+                truth = b.camera_rgb_per_s if space == "camera_rgb" else b.truth_linear_srgb
+                frames = bracket_raw_frames(b)
+                for dm in demosaics:
+                    tot = raw_merge(frames, output_space=space, demosaic=dm, clip_negative=False)
+                    noi = raw_merge(frames, output_space=space, demosaic=dm, clip_negative=False,
+                                    variance_terms="noise")
+                    st = raw_scores(tot.radiance, truth, tot.mask, tot.variance)
+                    sn = raw_scores(noi.radiance, truth, noi.mask, noi.variance)
+                    sd = raw_scores(noi.radiance, demosaiced_truth(b, noi.info), noi.mask, noi.variance)
+                    tag = "tuning" if (cam_name, kind, seed) in TUNING else "held out"
+                    print(f"| {cam_name} | {kind} | {seed} | {dm} | {tag} | **{st['coverage95']:.3f}** "
+                          f"| **{st['coverage50']:.3f}** | {sn['coverage95']:.3f} | {sn['coverage50']:.3f} "
+                          f"| {sd['coverage95']:.3f} | {sd['coverage50']:.3f} "
+                          f"| {100 * tot.info['variance_sources']['interpolation']:.0f} % |", flush=True)
+                    n += 1
+    return n
+
+
+#: The brackets the interpolation weights were fitted on (camera, scene, seed).
+TUNING = {("nikon-d5100", "outdoor", 3), ("nikon-d5100", "indoor", 3)}
+
+
 def _line(r) -> str:
     extra = (f" | {r['median_mosaic']:.3f} | {r['p90_mosaic']:.3f} | {r['dark_mosaic']:.3f}"
              if "median_mosaic" in r else " | - | - | -")
@@ -77,7 +121,19 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1,2,3,4")
     ap.add_argument("--cameras", default="nikon-d5100,sigma-sd-merrill")
     ap.add_argument("--settings", default="still,tripod,handheld")
+    ap.add_argument("--coverage", action="store_true", help="coverage of the variance against the scene")
+    ap.add_argument("--demosaics", default="malvar2004,menon2007,ahd")
+    ap.add_argument("--space", default="camera_rgb")
     args = ap.parse_args()
+    if args.coverage:
+        print(f"## Coverage ({args.space}): total variance vs scene, noise-only vs scene, noise-only vs demosaiced "
+              "truth\n")
+        print("| camera | scene | seed | demosaic | split | total vs scene 95 % | 50 % | noise-only vs scene 95 % "
+              "| 50 % | noise-only vs demosaiced truth 95 % | 50 % | interpolation's median share |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        coverage_rows(args.cameras.split(","), [int(s) for s in args.seeds.split(",")], args.demosaics.split(","),
+                      args.space)
+        return
     print("| camera | seed | setting | gain / true | read noise / true | median / oracle | p90 / oracle "
           "| darkest decade / oracle | median / oracle (mosaic truth) | p90 / oracle (mosaic truth) "
           "| darkest / oracle (mosaic truth) |")
