@@ -21,7 +21,8 @@ part), after one scale factor fitted per result (the project's trimmed fit,
 p90 relative error, darkest decade and brightest unclipped decade
 (:func:`derender.evaluation.raw_merge.raw_scores`), against (a) the demosaiced true mosaic
 (the merge's error alone) and (b) the scene's camera RGB (demosaicing error included); and
-for derender the coverage of its variance (against (a)).
+for derender the coverage of its noise-only variance (``variance_terms="noise"``, against (a); the
+default variance, with the interpolation term, against the scene: ``bench_raw_noise.py --coverage``).
 
 Speed: LibRaw decoding the frames (``rawpy.imread`` + the mosaic copy) against ``derender
 merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
@@ -105,9 +106,9 @@ def accuracy(size, exposures, seed=3):
             frames = read_raw_stack(files)
             g, rn = true_noise(b.camera)
             results = {
-                "raw": raw_merge(frames, output_space="camera_rgb", clip_negative=False),
+                "raw": raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance_terms="noise"),
                 "raw-oracle": raw_merge(frames, output_space="camera_rgb", gain=g, read_noise=rn,
-                                        clip_negative=False),
+                                        clip_negative=False, variance_terms="noise"),
                 "paper1": raw_to_camera_rgb(frames, clip_negative=False),
             }
             hu = _hdrutils(files, b.times)
@@ -144,7 +145,7 @@ def coverage(size, exposures, seed=3):
         b = simulate_bracket(load_camera(cam_name).with_bits(bits), kind=kind, size=size, exposures=exposures,
                              seed=seed, style="simple", pipeline="fixed")
         frames = bracket_raw_frames(b)
-        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False)
+        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance_terms="noise")
         ordered, times = sorted_raw_frames(frames)
         mosaics, black, white = compiled_frames(ordered)
         noise = estimate_noise_frames(mosaics, black, white, times)
