@@ -3,8 +3,8 @@
 The merge's noise variance (:mod:`derender.raw.optimal`) is exact for the demosaiced *true*
 mosaic, but a user compares the output with the scene, and two of every pixel's three colours
 are interpolated from its neighbours: where the scene has texture that guess is wrong by more
-than the noise (against the scene the noise-only sigma's 95 % interval covers 0.57-0.69 of
-the pixel-channels on the simulator's brackets, docs/results-raw.md). No statistic of one
+than the noise (against the scene the noise-only sigma's 95 % interval covers 0.55-0.64 of
+the pixel-channels with Malvar's demosaic on the simulator's brackets, docs/results-raw.md). No statistic of one
 merged mosaic gives that error without a model of the scene, but demosaics that interpolate
 differently disagree where interpolation is hard, and by about as much as they err there.
 The term added to the variance of output ``o`` (demosaic ``m``) at every pixel and channel is
@@ -26,9 +26,10 @@ The weights were fitted on tuning brackets only -- nikon-d5100, ``outdoor`` and 
 scenes, seed 3, 256x192, 5 exposures, camera RGB -- by a grid search minimising the sum of
 ``|coverage95 - 0.95| + |coverage50 - 0.50|`` against the scene; the held-out brackets (the
 ``night`` scene, the sigma-sd-merrill camera, other seeds) are reported in
-docs/results-raw.md. This is an empirical calibration, not an exact variance: it holds on the
-simulator's scenes and optics, and a real lens (softer than the simulator's) would make it
-conservative.
+docs/results-raw.md. This is an empirical calibration, not an exact variance: it is measured
+on the simulator's scenes and optics only (on the one real DNG, whose lens is softer, the
+term is 17 % of a pixel's variance in median, against about 70 % on the simulator's scenes;
+no truth there says whether it holds).
 """
 
 from __future__ import annotations
