@@ -23,7 +23,8 @@ the demosaiced true mosaic, through each merge's own demosaic path (the merge's 
 derender demosaics the white-balanced mosaic and divides the balance out,
 :func:`derender.evaluation.raw_merge.demosaiced_truth`; paper 1's and HDRutils' Malvar see the
 mosaic as it is) and (b) the scene's camera RGB (demosaicing error included); and
-for derender the coverage of its variance (against (a)).
+for derender the coverage of its noise-only variance (``variance_terms="noise"``, against (a); the
+default variance, with the interpolation term, against the scene: ``bench_raw_noise.py --coverage``).
 
 Speed: LibRaw decoding the frames (``rawpy.imread`` + the mosaic copy) against ``derender
 merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
@@ -107,9 +108,9 @@ def accuracy(size, exposures, seed=3):
             frames = read_raw_stack(files)
             g, rn = true_noise(b.camera)
             results = {
-                "raw": raw_merge(frames, output_space="camera_rgb", clip_negative=False),
+                "raw": raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance_terms="noise"),
                 "raw-oracle": raw_merge(frames, output_space="camera_rgb", gain=g, read_noise=rn,
-                                        clip_negative=False),
+                                        clip_negative=False, variance_terms="noise"),
                 "paper1": raw_to_camera_rgb(frames, clip_negative=False),
             }
             hu = _hdrutils(files, b.times)
@@ -149,7 +150,8 @@ def coverage(size, exposures, seed=3, demosaic="malvar2004"):
         b = simulate_bracket(load_camera(cam_name).with_bits(bits), kind=kind, size=size, exposures=exposures,
                              seed=seed, style="simple", pipeline="fixed")
         frames = bracket_raw_frames(b)
-        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False, demosaic=demosaic)
+        res = raw_merge(frames, output_space="camera_rgb", clip_negative=False, demosaic=demosaic,
+                        variance_terms="noise")
         ordered, times = sorted_raw_frames(frames)
         mosaics, black, white = compiled_frames(ordered)
         noise = estimate_noise_frames(mosaics, black, white, times)

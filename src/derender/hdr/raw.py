@@ -84,6 +84,12 @@ class RawOptions:
         (:data:`derender.raw.mosaic.DEMOSAIC_METHODS`; docs/results-raw.md).
     variance : bool
         Also give the per-pixel variance (``estimator="optimal"``).
+    variance_terms : {"total", "noise"}
+        What the variance holds (:data:`derender.raw.interpolation.VARIANCE_TERMS`):
+        ``"total"`` (the default; the noise plus the demosaic's interpolation error estimated
+        from the mosaic, :mod:`derender.raw.interpolation`: the sigma that holds against the
+        scene) or ``"noise"`` (the merge's noise only, exact against the demosaiced true
+        mosaic). A bracket resampled at sub-photosite shifts (``--align``) gives the noise only.
     """
 
     estimator: str = "optimal"
@@ -92,9 +98,11 @@ class RawOptions:
     read_noise: float | None = None
     demosaic: str = "malvar2004"
     variance: bool = False
+    variance_terms: str = "total"
 
     def __post_init__(self) -> None:
         """Every value checked when the record is made, before any file is read."""
+        from derender.raw.interpolation import VARIANCE_TERMS
         from derender.raw.mosaic import demosaic_name
         from derender.raw.optimal import OUTPUT_SPACES
 
@@ -102,6 +110,8 @@ class RawOptions:
             raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
         if self.output_space not in OUTPUT_SPACES:
             raise InputError(f"output_space must be one of {', '.join(OUTPUT_SPACES)}, got {self.output_space!r}")
+        if self.variance_terms not in VARIANCE_TERMS:
+            raise InputError(f"variance_terms must be one of {', '.join(VARIANCE_TERMS)}, got {self.variance_terms!r}")
         if self.estimator == "paper1" and self.variance:
             raise InputError("estimator paper1 (eq. 11) gives no variance; drop --variance or use estimator optimal")
         if self.estimator == "paper1" and (self.gain is not None or self.read_noise is not None):
@@ -160,7 +170,8 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], options: RawOptions | Mappi
                                     output_space=o.output_space, variance=o.variance)
         else:
             res = raw_merge(frames, output_space=o.output_space, gain=o.gain, read_noise=o.read_noise,
-                            demosaic=o.demosaic, variance=o.variance, valid=valid, **extra)
+                            demosaic=o.demosaic, variance=o.variance, valid=valid,
+                            variance_terms=o.variance_terms, **extra)
         if motion_info is not None:
             res.info["raw_motion"] = {k: v for k, v in motion_info.items() if k not in ("noise", "kept")}
             res.info["raw_motion"]["variance_factor"] = np.asarray(motion_info["variance_factor"]).tolist()

@@ -73,6 +73,7 @@ from derender.raw.mosaic import (
     spread_mask,
     wb_from_patch,
 )
+from derender.raw.interpolation import VARIANCE_TERMS
 from derender.raw.noise import NoiseModel, estimate_noise, estimate_noise_frames
 
 __all__ = [
@@ -475,12 +476,29 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
     return out, var_out
 
 
+def _with_interpolation(x, out, var_out, shape, pattern, mult, mat, demosaic, clip_negative):
+    """``var_out`` plus the interpolation term (:func:`derender.raw.interpolation.interpolation_variance`,
+    the other demosaics of the same planes) and each term's median share of a pixel's variance."""
+    from derender.raw.interpolation import INTERPOLATION_ESTIMATES, interpolation_variance
+
+    others = {name: demosaic_compiled(x, None, shape, pattern, mult, mat, name, clip_negative)[0]
+              for name, _ in INTERPOLATION_ESTIMATES[demosaic]}
+    extra = interpolation_variance(out, others, demosaic)
+    total = var_out + extra
+    e, t = extra[::4].astype(np.float64), total[::4].astype(np.float64)      # every 4th row: ample
+    ok = t > 0
+    if not ok.any():
+        return total, {"noise": 0.0, "interpolation": 0.0}
+    return total, {"noise": float(np.median((t[ok] - e[ok]) / t[ok])), "interpolation": float(np.median(e[ok] / t[ok]))}
+
+
 def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "linear_srgb",
               gain: float | None = None, read_noise: float | None = None, wb: Sequence[float] | None = None,
               wb_patch: tuple[int, int, int, int] | None = None, demosaic: str = "malvar2004",
               variance: bool = True, clip_negative: bool = True, censored: bool = True,
               xyz_to_camera: np.ndarray | None = None, valid: Sequence[np.ndarray] | None = None,
-              noise: NoiseModel | None = None, variance_factor: Sequence[np.ndarray] | None = None) -> HDRResult:
+              noise: NoiseModel | None = None, variance_factor: Sequence[np.ndarray] | None = None,
+              variance_terms: str = "total") -> HDRResult:
     """Noise-optimal merge of RAW frames: censored Poisson-Gaussian ML on the mosaic, demosaiced once.
 
     ``gain`` (DN per electron) and ``read_noise`` (DN, read noise and quantisation) default to
@@ -532,6 +550,11 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
         Per frame (in the order given) and CFA phase, the factor on the noise model's
         variance of its samples (a resampled frame's ``sum w^2``,
         :func:`derender.raw.register.resample_mosaic`; None: 1).
+    variance_terms : {"total", "noise"}
+        ``"total"`` (default): the merge's noise plus the demosaic's interpolation error
+        estimated from the mosaic (:func:`derender.raw.interpolation.interpolation_variance`),
+        the variance that holds against the scene; ``"noise"``: the noise only (exact against
+        the demosaiced true mosaic, faster).
 
     Returns
     -------
@@ -591,6 +614,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     if (gain is None) != (read_noise is None):
         raise InputError("give both gain and read_noise, or neither (then they are estimated from the frames)")
     demosaic = demosaic_name(demosaic)
+    if variance_terms not in VARIANCE_TERMS:
+        raise InputError(f"variance_terms must be one of {', '.join(VARIANCE_TERMS)}, got {variance_terms!r}")
     mosaics, black, white = compiled_frames(frames)
     profile = frames[0].extra.get("noise_profile") if frames[0].extra else None
     if noise is not None:
@@ -621,9 +646,16 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
     mat = colour @ np.diag(out_wb / mult)            # the balance divided out (camera_rgb), or kept
     out, var_out = demosaic_compiled(x, var if variance else None, mmask.shape, pattern, mult, mat, demosaic,
                                      clip_negative)
+    shares = None
+    if variance and variance_terms == "total":
+        var_out, shares = _with_interpolation(x, out, var_out, mmask.shape, pattern, mult, mat, demosaic, clip_negative)
     info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": demosaic,
             "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
             "units": "white level per second", "white_minus_black_dn": float(np.median(span)),
             "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
             "output_wb_multipliers": out_wb.tolist(), "output_matrix": mat.tolist()}
+    if variance:
+        info["variance_terms"] = variance_terms
+    if shares is not None:
+        info["variance_sources"] = shares
     return HDRResult(radiance=out, mask=spread_mask(mmask, MASK_RADIUS[demosaic]), variance=var_out, info=info)
