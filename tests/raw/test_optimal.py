@@ -119,7 +119,8 @@ def test_one_balanced_path_in_every_output_space(method):
                          pipeline="fixed")
     frames = bracket_raw_frames(b)
     g, rn = true_noise(b.camera)
-    cam = raw_merge(frames, gain=g, read_noise=rn, output_space="camera_rgb", clip_negative=False, demosaic=method)
+    cam = raw_merge(frames, gain=g, read_noise=rn, output_space="camera_rgb", clip_negative=False, demosaic=method,
+                    variance_terms="noise")
     lin = raw_merge(frames, gain=g, read_noise=rn, clip_negative=False, demosaic=method)
     wb = np.asarray(b.wb_true, np.float64)
     assert cam.info["wb_multipliers"] == lin.info["wb_multipliers"] == wb.tolist()
@@ -162,7 +163,8 @@ def test_a_file_without_white_balance_demosaics_with_a_grey_world_estimate(tmp_p
         f.as_shot_wb = np.ones(3)
         f.extra = {"as_shot_wb_missing": True}
     g, rn = true_noise(b.camera)
-    cam = raw_merge(frames, gain=g, read_noise=rn, output_space="camera_rgb", clip_negative=False)
+    cam = raw_merge(frames, gain=g, read_noise=rn, output_space="camera_rgb", clip_negative=False,
+                    variance_terms="noise")
     lin = raw_merge(frames, gain=g, read_noise=rn, clip_negative=False)
     grey = grey_world_wb(mosaic_signal(b.camera_rgb_per_s), "RGGB")
     np.testing.assert_allclose(cam.info["wb_multipliers"], grey, rtol=0.01)
