@@ -50,7 +50,7 @@ def test_radiance_unchanged_and_variance_finite(paper_bracket, method):
 def test_coverage_on_tuning_bracket(paper_bracket, method, lo95, lo50, hi50):
     """Known answer: the simulator's exact radiance. Measured on this bracket (paper, seed 0):
     debevec 0.959 / 0.576 (0.951 / 0.561 before the curve terms were measured on the bracket, 0.965 /
-    0.609 before the robust term), robertson 0.919 / 0.580 (0.926 / 0.587), stabilized 0.942 / 0.743
+    0.609 before the robust term), robertson 0.919 / 0.580 (0.919 / 0.582), stabilized 0.942 / 0.743
     (0.938 / 0.735) (95 % / 50 % coverage of the measured pixels after the trimmed 3x3 map); a
     variance off by a factor 4 leaves the bands."""
     from derender.evaluation.uncertainty import coverage_table
@@ -112,12 +112,12 @@ def test_curve_terms_are_measured_on_the_bracket(paper_bracket, method):
         assert given.info["variance_inflate"] == pytest.approx(a)
 
 
-@pytest.mark.parametrize("family,seed,method,lo95", [("dslr-lut", 0, "debevec", 0.75), ("phone-local", 0, "robertson", 0.71)])
+@pytest.mark.parametrize("family,seed,method,lo95", [("dslr-lut", 0, "debevec", 0.74), ("phone-local", 0, "robertson", 0.73)])
 def test_held_out_coverage_with_the_measured_shared_term(family, seed, method, lo95):
-    """Held out (not tuned on): the brackets whose curves the samples pin worst (spread 0.036-0.042
-    against 0.026-0.029 on the tuning families) get a larger shared term than the prior. 95 %
-    coverage of the measured pixels, measured: dslr-lut debevec 0.726 -> NEW1, phone-local
-    robertson 0.689 -> NEW2 (prior 0.07 -> the bracket's spread)."""
+    """Held out (not tuned on): brackets whose curves the samples pin worse than the tuning
+    brackets' (spread 0.036 debevec, 0.044 robertson, against 0.026-0.029 / 0.026-0.038) get larger
+    curve terms than the priors. 95 % coverage of the measured pixels, measured: dslr-lut debevec
+    0.726 -> 0.754, phone-local robertson 0.689 -> 0.766 (the priors fail these bounds)."""
     from derender.camera import simulate_bracket
     from derender.evaluation.uncertainty import coverage_table
 

@@ -20,7 +20,10 @@ weighted mean ``u = sum w_j u_j / sum w_j``. Its variance, per pixel and channel
   heteroscedasticity-consistent, "sandwich", variance of a weighted mean: each frame's own
   deviation is its error, weighted as the frame is weighted; :data:`INFLATE_ROBUST`);
 * **shared model error** (the response curve's shape, the colour matrices: the same in every
-  frame, so it does not average out with their number): ``SHARED^2 r^2`` (relative);
+  frame, so it does not average out with their number): ``SHARED^2 r^2`` (relative); measured
+  on the bracket when the method fits its curves there (:func:`measured_shared`: ``SHARED`` is
+  :data:`SHARED_BOOTSTRAP` times the bootstrap spread of the bracket's curve over resampled
+  calibration samples, and ``INFLATE`` scales with that spread squared);
 * **edges** (errors every frame shares at a pixel because of where it lies: demosaicing, JPEG's
   chroma subsampling and sharpening move an edge by a fraction of a pixel): ``EDGE^2`` times
   the variance of the merged radiance over the pixel's 3x3 neighbourhood, per channel (within
@@ -115,10 +118,11 @@ METHOD_CONSTANTS: dict[str, tuple[float, float, float, float, float, float]] = {
 #: of :data:`METHOD_CONSTANTS`; and the noise factor ``INFLATE`` (which, above 1, stands for per-code
 #: curve errors of the noise model's shape) is scaled by ``(s / CURVE_SD_TUNING)^2``, at least 1.
 #: Chosen on the tuning families only (``paper``, ``camera`` x seeds 0-2, where ``s`` is
-#: 0.026-0.029, so both give back about the priors there) by the objective of
-#: :data:`METHOD_CONSTANTS` (debevec, robertson) and, for the stabilised merge, its line "95 %
-#: coverage >= 0.90 on each tuning family" (docs/uncertainty.md, "What the bracket can measure").
-SHARED_BOOTSTRAP: dict[str, float] = {"debevec": 3.0, "robertson": 3.0, "stabilized": 3.5}
+#: 0.026-0.029 with Debevec's grid samples, 0.026-0.038 with Robertson's clusters, so both give
+#: back about the priors there) by the objective of :data:`METHOD_CONSTANTS` (debevec, robertson)
+#: and, for the stabilised merge, its line "95 % coverage >= 0.90 on each tuning family"
+#: (docs/uncertainty.md, "What the bracket can measure").
+SHARED_BOOTSTRAP: dict[str, float] = {"debevec": 3.0, "robertson": 2.0, "stabilized": 3.5}
 
 #: The bootstrap curve spread of the tuning brackets (mean over ``paper``, ``camera`` x seeds 0-2,
 #: 192x128, 7 exposures, nikon-d5100: 0.0261-0.0294), the spread at which :data:`METHOD_CONSTANTS`'
