@@ -419,6 +419,10 @@ def _merge_summary(result: HDRResult, images: list, method: str, output: Path, s
     if with_variance and sources:
         typer.echo("variance by source (median share of a pixel's): "
                    + ", ".join(f"{k} {100 * v:.0f} %" for k, v in sources.items()))
+        spread = result.info.get("variance_curve_sd")
+        if spread is not None:
+            typer.echo(f"curve spread over resampled calibration samples {spread:.3f} (ln): shared term "
+                       f"{result.info['variance_shared']:.3f}, noise x {result.info['variance_inflate']:.3g}")
     noise = result.info.get("noise") if result.info.get("engine_path") == "raw" else None
     if noise:
         how = {"pairs": "estimated from the frame pairs", "green-pairs": "estimated from one frame's green pairs "

@@ -22,7 +22,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "kernels": ["MERGE_TILE", "stabilized_merge_rows", "mtb_band_counts", "table_merge_rows", "gaussian_band", "gaussian_moments_band", "log_tables_rows", "mark_colours", "normal_cdf", "table_mu"],
     "merge_parts": ["add_frame_to_tile", "add_frame_to_tile_var", "add_table_observation", "fallback_frame", "stabilized_observation"],
     "gaussian_kernels": ["NBINS", "gaussian_variance_band", "model_sd_rows"],
-    "variance": ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares", "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "INFLATE_ROBUST", "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"],
+    "variance": ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "SHARED_BOOTSTRAP", "CURVE_SD_TUNING", "measured_shared", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares", "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "INFLATE_ROBUST", "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"],
     "variance_kernels": ["table_merge_var_rows", "stabilized_merge_var_rows", "variance_finish_rows"],
     "overlap": ["OVERLAP_ROWS", "RING_SLOTS", "RowsDone", "OutputRing", "merge_writing", "run_bands"],
     "weights": ["F32_MAX", "weight_hat", "weight_trapezoid", "weight_gaussian", "WEIGHTS", "get_weight", "FLOOR_SHARE", "FLOOR_MIN_COUNT", "FLOOR_MIN_CODE", "FLOOR_MAX_CODE", "FLOOR_PILE", "black_codes", "floor_weights"],

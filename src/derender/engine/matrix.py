@@ -150,6 +150,10 @@ def merge_matrix_frames(frames: np.ndarray, plan: MatrixPlan, times: np.ndarray,
         from derender.engine.variance import source_shares
 
         info["variance_sources"] = source_shares(parts)
+        info["variance_shared"] = float(vm.shared)
+        info["variance_inflate"] = float(vm.inflate)
+        if vm.curve_sd is not None:
+            info["variance_curve_sd"] = float(vm.curve_sd)
     return res
 
 

@@ -128,6 +128,10 @@ def table_kernel_merge(frames: np.ndarray, plan: TablePlan, order: list[int], th
 
         info["kernel"] = "table_merge_var_rows"
         info["variance_sources"] = source_shares(parts)
+        info["variance_shared"] = float(vm.shared)
+        info["variance_inflate"] = float(vm.inflate)
+        if vm.curve_sd is not None:
+            info["variance_curve_sd"] = float(vm.curve_sd)
     return res
 
 

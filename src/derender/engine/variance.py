@@ -20,7 +20,10 @@ weighted mean ``u = sum w_j u_j / sum w_j``. Its variance, per pixel and channel
   heteroscedasticity-consistent, "sandwich", variance of a weighted mean: each frame's own
   deviation is its error, weighted as the frame is weighted; :data:`INFLATE_ROBUST`);
 * **shared model error** (the response curve's shape, the colour matrices: the same in every
-  frame, so it does not average out with their number): ``SHARED^2 r^2`` (relative);
+  frame, so it does not average out with their number): ``SHARED^2 r^2`` (relative); measured
+  on the bracket when the method fits its curves there (:func:`measured_shared`: ``SHARED`` is
+  :data:`SHARED_BOOTSTRAP` times the bootstrap spread of the bracket's curve over resampled
+  calibration samples, and ``INFLATE`` scales with that spread squared);
 * **edges** (errors every frame shares at a pixel because of where it lies: demosaicing, JPEG's
   chroma subsampling and sharpening move an edge by a fraction of a pixel): ``EDGE^2`` times
   the variance of the merged radiance over the pixel's 3x3 neighbourhood, per channel (within
@@ -58,7 +61,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares",
+__all__ = ["VarianceModel", "add_edge_term", "EDGE", "METHOD_CONSTANTS", "method_constants", "SHARED_BOOTSTRAP",
+           "CURVE_SD_TUNING", "measured_shared", "variance_tables", "matrix_variance_tables", "SOURCES", "source_shares",
            "SHOT", "READ", "SHARED", "scale_relative_variance", "INFLATE", "INFLATE_DIS", "INFLATE_SYS", "INFLATE_ROBUST",
            "CENSORED", "R_FLOOR", "SOURCE_STRIDE", "VAR_CAP"]
 
@@ -107,6 +111,36 @@ METHOD_CONSTANTS: dict[str, tuple[float, float, float, float, float, float]] = {
 }
 
 
+#: The curve terms measured on the bracket (issue 36), for the methods listed, when the method fits
+#: its curves on the bracket: the ``shared`` term's relative sd is this factor times the bracket's
+#: bootstrap curve spread ``s`` (:func:`derender.response.debevec1997.bracket_curve_sd`: the sd of
+#: the Debevec curve over refits on resampled calibration samples), instead of the prior ``SHARED``
+#: of :data:`METHOD_CONSTANTS`; and the noise factor ``INFLATE`` (which, above 1, stands for per-code
+#: curve errors of the noise model's shape) is scaled by ``(s / CURVE_SD_TUNING)^2``, at least 1.
+#: Chosen on the tuning families only (``paper``, ``camera`` x seeds 0-2, where ``s`` is
+#: 0.026-0.029 with Debevec's grid samples, 0.026-0.038 with Robertson's clusters, so both give
+#: back about the priors there) by the objective of :data:`METHOD_CONSTANTS` (debevec, robertson)
+#: and, for the stabilised merge, its line "95 % coverage >= 0.90 on each tuning family"
+#: (docs/uncertainty.md, "What the bracket can measure").
+SHARED_BOOTSTRAP: dict[str, float] = {"debevec": 3.0, "robertson": 2.0, "stabilized": 3.5}
+
+#: The bootstrap curve spread of the tuning brackets (mean over ``paper``, ``camera`` x seeds 0-2,
+#: 192x128, 7 exposures, nikon-d5100: 0.0261-0.0294), the spread at which :data:`METHOD_CONSTANTS`'
+#: ``INFLATE`` applies as chosen.
+CURVE_SD_TUNING = 0.0274
+
+
+def measured_shared(model: "VarianceModel", method: str, spread: float) -> "VarianceModel":
+    """``model`` with its curve terms measured on the bracket's curve ``spread`` (for the methods
+    of :data:`SHARED_BOOTSTRAP`; others unchanged): ``shared = SHARED_BOOTSTRAP[method] spread``,
+    ``inflate = max(1, inflate (spread / CURVE_SD_TUNING)^2)``; ``curve_sd = spread``."""
+    if method in SHARED_BOOTSTRAP and np.isfinite(spread) and spread >= 0:
+        model.shared = float(SHARED_BOOTSTRAP[method] * spread)
+        model.inflate = float(max(INFLATE, model.inflate * (spread / CURVE_SD_TUNING) ** 2))
+        model.curve_sd = float(spread)
+    return model
+
+
 def method_constants(method: str | None) -> dict:
     """The :class:`VarianceModel` constants of ``method`` (:data:`METHOD_CONSTANTS`)."""
     a, b, s, e, c, d = METHOD_CONSTANTS.get(method or "", (INFLATE, INFLATE_DIS, SHARED, EDGE, INFLATE_SYS,
@@ -120,7 +154,9 @@ class VarianceModel:
 
     ``noise``, ``quant`` (N, 256, 3) float32: the variance of ``u_j(z)`` from sensor noise and
     quantisation, in the plan's value domain (log domain: relative variance; linear: the
-    square of the value tables' units, before any matrix); the constants as the module's."""
+    square of the value tables' units, before any matrix); the constants as the module's
+    (``shared`` measured on the bracket by :func:`measured_shared`, ``curve_sd`` then the spread
+    it was measured from)."""
 
     noise: np.ndarray
     quant: np.ndarray
@@ -132,6 +168,9 @@ class VarianceModel:
     inflate_robust: float = INFLATE_ROBUST
     censored: float = CENSORED
     r_floor: float = R_FLOOR
+    #: The bracket's bootstrap curve spread the ``shared`` term was measured from
+    #: (:func:`measured_shared`), or None (the method's prior).
+    curve_sd: float | None = None
 
     def constants(self) -> np.ndarray:
         """``[inflate, inflate_dis, shared^2, censored, r_floor, inflate_sys, inflate_robust]`` float64, as the

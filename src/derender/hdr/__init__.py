@@ -7,7 +7,7 @@ from derender.core.lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "batch": ["stack_files", "merge_one_stack", "merge_batch"],
-    "classic": ["DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson", "debevec_stack", "robertson_stack"],
+    "classic": ["bracket_variance", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod", "merge_debevec", "merge_robertson", "debevec_stack", "robertson_stack"],
     "files": ["merge_files"],
     "probabilistic": ["CODE_NOISE", "product_of_gaussians", "as_model", "merge_probabilistic", "ProbabilisticOptions", "probabilistic_engine", "probabilistic_stack", "saturation_mask", "finite_outputs", "check_options", "ProbabilisticMethod", "log_product_moments"],
     "lognormal": ["MAX_LOG", "MAX_V", "truncnorm_moments", "truncate_below", "truncate_below_log"],

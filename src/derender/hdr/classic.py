@@ -65,7 +65,7 @@ from derender.response.curves import (
 #: gammas and gains dominate: docs/luminance.md).
 MERGE_LAMBDA = 60.0
 
-__all__ = ["MERGE_LAMBDA", "white_weights", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod",
+__all__ = ["MERGE_LAMBDA", "white_weights", "bracket_variance", "DebevecOptions", "RobertsonOptions", "DebevecMethod", "RobertsonMethod",
            "merge_debevec", "merge_robertson", "debevec_stack", "robertson_stack"]
 
 
@@ -224,11 +224,35 @@ class DebevecMethod(MethodDefaults):
         return TablePlan(values=values, weights=weights,
                          channel_weights=self.channel_weights,
                          domain=self.domain, block_rows=self.block_rows,
-                         variance=variance_tables(values, self.domain, "debevec") if self.variance else None)
+                         variance=self._variance(values, self.domain, access) if self.variance else None)
+
+    def _variance(self, values, domain: str, access: FrameAccess):
+        """The plan's :class:`~derender.engine.variance.VarianceModel`; its ``shared`` term from the
+        bracket's curve spread when the curves were fitted here (:func:`bracket_variance`)."""
+        return bracket_variance(variance_tables(values, domain, "debevec"), "debevec", self.curves is None,
+                                access.samples, access.times, access.histograms, self.seed)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "debevec", "curves": self.fitted, "black_codes": self.black,
                             "weight": self.weight if isinstance(self.weight, str) else "custom"})
+
+
+def bracket_variance(model, method: str, fitted: bool, samples, times, hists_fn, seed: int):
+    """``model`` (:class:`~derender.engine.variance.VarianceModel`) with its ``shared`` term measured
+    on the bracket when ``fitted`` (the method fitted its curves on this bracket): from its grid
+    samples ``samples`` (N, 9 M, 3) (the codes at
+    :func:`~derender.response.curves.cluster_positions` or Robertson's clusters; ``times``,
+    ``hists_fn()`` its code histograms), :func:`~derender.engine.variance.measured_shared` of
+    :func:`~derender.response.debevec1997.bracket_curve_sd` (Debevec's merge's calibration,
+    ``seed``); with given curves (a profile, ``curves=``) the bracket says nothing about their
+    shape and the priors stay."""
+    from derender.engine.variance import measured_shared
+    from derender.response.debevec1997 import bracket_curve_sd
+
+    if not fitted or samples is None:
+        return model
+    spread = bracket_curve_sd(samples, times, hists_fn, lam=MERGE_LAMBDA, tie=DEFAULT_TIE, seed=seed)
+    return measured_shared(model, method, spread)
 
 
 def white_weights(weights: np.ndarray, curves) -> np.ndarray:
@@ -279,7 +303,9 @@ class RobertsonMethod(MethodDefaults):
         self.black = black_codes(access.samples, access.times)
         return TablePlan(values=values, weights=floor_weights(robertson_weight_table(curves, self.weight), self.black),
                          channel_weights=ROBERTSON_CHANNEL_WEIGHTS, domain="linear",
-                         variance=variance_tables(values, "linear", "robertson") if self.variance else None)
+                         variance=bracket_variance(variance_tables(values, "linear", "robertson"), "robertson",
+                                                   self.curves is None, access.samples, access.times,
+                                                   access.histograms, self.seed) if self.variance else None)
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
         result.info.update({"method": "robertson", "curves": self.fitted, "black_codes": self.black,

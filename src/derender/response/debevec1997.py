@@ -55,10 +55,14 @@ from derender.response.curves import (
     make_monotonic,
     sample_pixels,
     solve_tied,
+    uniform_samples,
 )
 
 __all__ = [
     "calibrate_debevec_from_samples",
+    "bootstrap_curve_sd",
+    "bracket_curve_sd",
+    "BOOTSTRAP_REPLICATES",
     "solve_debevec",
     "solve_debevec_tied",
     "debevec_system",
@@ -96,6 +100,59 @@ def calibrate_debevec_from_samples(samples: np.ndarray, times: np.ndarray, hists
     return _calibrate(samples, times, lambda: histogram_samples(hists_fn(), n_samples), lam=lam,
                       n_samples=n_samples, sampling=sampling, seed=seed, weights="hat", n_levels=N_CODES,
                       monotonic=True, balance=balance, tie=tie, censor=censor)
+
+
+#: Refits of :func:`bootstrap_curve_sd` (each one Debevec solve on resampled samples).
+BOOTSTRAP_REPLICATES = 8
+
+
+def bootstrap_curve_sd(pool: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray], *, n: int,
+                       replicates: int = BOOTSTRAP_REPLICATES, seed: int = 0, **calibrate) -> float:
+    """How tightly the bracket's own samples pin the shape of the curve (a bootstrap over the
+    calibration samples): the median, over the channels and the codes some sample shows with
+    weight (``0 < z < 255``), of the standard deviation of ``g(z)`` (ln, so a relative sd of the
+    radiance) over ``replicates`` refits of :func:`calibrate_debevec_from_samples`
+    (``**calibrate``: its keywords), each on ``n`` samples drawn with replacement from ``pool``
+    (N, M, 3), every usable grid sample of the bracket (``numpy.random.default_rng(seed)``: the
+    same answer on every machine). Each refit's curve is taken relative to its mean over the
+    codes shown (``g`` is known up to a constant per channel: a scale of the radiance).
+
+    Many frames close in exposure (Debevec's Memorial: 16 at 1 EV) pin the curve to ~0.01; a
+    7-frame bracket whose rendering changes between frames leaves 0.03-0.06 (the simulator's
+    families; docs/uncertainty.md)."""
+    z = np.asarray(pool)
+    m = z.shape[1]
+    rng = np.random.default_rng(int(seed))
+    shown = np.zeros((N_CODES, 3), dtype=bool)
+    for c in range(3):
+        zc = z[:, :, c].ravel().astype(np.int64)
+        shown[np.unique(zc[(zc > 0) & (zc < N_CODES - 1)]), c] = True
+    if m < 2 or not shown.any():
+        return 0.0
+    gs = []
+    for _ in range(int(replicates)):
+        idx = np.sort(rng.integers(0, m, size=int(n)))
+        g = np.asarray(calibrate_debevec_from_samples(z[:, idx], times, hists_fn, **calibrate).log_inverse,
+                       dtype=np.float64)
+        for c in range(3):
+            if shown[:, c].any():
+                g[:, c] -= g[shown[:, c], c].mean()
+        gs.append(g)
+    sd = np.std(np.asarray(gs), axis=0)
+    return float(np.median(sd[shown]))
+
+
+def bracket_curve_sd(cluster_codes: np.ndarray, times: np.ndarray, hists_fn: Callable[[], np.ndarray], *,
+                     lam: float, tie: float, seed: int = 0, replicates: int = BOOTSTRAP_REPLICATES) -> float:
+    """:func:`bootstrap_curve_sd` of a bracket: the pool is every usable grid sample of
+    ``cluster_codes`` (N, 9 M, 3), the codes at :func:`~derender.response.curves.cluster_positions`
+    (or Robertson's clusters; :func:`~derender.response.curves.uniform_samples` with no limit),
+    each refit the merge's own calibration on :data:`~derender.response.curves.DEFAULT_SAMPLES`
+    of them (grid, channels balanced, bound-aware top, ``lam``, ``tie``). One number per
+    bracket, whichever method merges it (:mod:`derender.engine.variance`, the ``shared`` term)."""
+    pool = uniform_samples(cluster_codes, np.iinfo(np.int32).max)
+    return bootstrap_curve_sd(pool, times, hists_fn, n=DEFAULT_SAMPLES, replicates=replicates, seed=seed, lam=lam,
+                              n_samples=DEFAULT_SAMPLES, sampling="grid", balance=True, tie=tie, censor=True)
 
 
 def censored_observations(codes: np.ndarray, log_times: np.ndarray, n_levels: int = N_CODES) -> np.ndarray:

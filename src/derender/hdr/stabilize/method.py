@@ -206,9 +206,16 @@ class StabilizedMethod(MethodDefaults):
         self.align_s = t1 - t0
         plan = stabilized_plan(stab, opts.weight, opts.noise_weighting, shifts=shifts)
         if self.variance:
-            from derender.engine.variance import matrix_variance_tables
+            from derender.engine.variance import SHARED_BOOTSTRAP, matrix_variance_tables
 
             plan.variance = matrix_variance_tables(plan.values, self.name)
+            if self.name in SHARED_BOOTSTRAP:      # the shared term measured on the bracket's grid samples
+                from derender.hdr.classic import bracket_variance
+                from derender.response.curves import cluster_positions
+
+                cy, cx = cluster_positions(h, w, DEFAULT_SAMPLES, seed)
+                clusters = np.stack([view.code_pixels(j, cy, cx) for j in range(n)]).astype(np.int32)
+                plan.variance = bracket_variance(plan.variance, self.name, True, clusters, t, access.histograms, seed)
         return plan
 
     def finish(self, result: HDRResult, access: FrameAccess) -> None:
