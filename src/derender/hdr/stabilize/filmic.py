@@ -243,10 +243,14 @@ CURVE_TIE_CODES: tuple[int, int] | None = None
 #: channels' curves ``g_c - g_c'`` get ``kappa^2`` times the smoothness term each curve gets, on their
 #: second derivative in ``ln z`` (so a constant, the white balance, and a multiple of ``ln z``, a
 #: different exponent per channel, cost nothing). 0 (the default): independent channel curves, each
-#: anchored at ``g(128) = 0``. Why (issue 36 item 5): on a bracket of few frames far apart (pingpong: 3
-#: frames, 2 stops) the data link codes an exposure ratio apart and leave each curve's shape between them
-#: to the smoothness term; the independent curves ripple each in their own way, so equal codes give
-#: R/G 0.90-1.20 across the codes (``--deghost``; 0.74-1.75 without). With ``kappa = 1``: 0.98-1.06
+#: anchored at ``g(128) = 0``. Why (issue 36 item 5): samples that do not follow the exposure (a thing
+#: that moves, residual misregistration of a handheld bracket), and codes where a channel has no data
+#: (there its curve is the smoothness term's extrapolation), bend each independent curve in its own way
+#: (a synthetic bracket with one tone curve for every channel, ``tests/hdr/test_curve_shape_tie.py``:
+#: swing of ``ln R/G`` over the codes with data 0.04-0.20 still, 0.20-0.26 with an unmasked moving
+#: patch; 0.21-0.35 over codes 16-239 also with 9 frames 1 stop apart; a smaller ``lambda`` makes it
+#: larger). So on pingpong (3 frames, 2 stops, a person moving) equal codes give R/G 0.90-1.20 across
+#: the codes (``--deghost``; 0.74-1.75 without, the person in every frame). With ``kappa = 1``: 0.98-1.06
 #: (0.95-1.02); the reference frame's neutral blocks (``reference_fidelity``, stabilized ``--deghost``)
 #: ``neutral_p95`` 0.222 -> 0.135, ``neutral_strict_p95`` 0.113 -> 0.042 (debevec 0.025); the iPhone's
 #: ``--deghost`` chroma p99 0.108 -> 0.069; Memorial, Frobisher, sculpture garden within 0.08 of before.
