@@ -35,7 +35,8 @@ from derender.core.colorimetry import luminance
 
 __all__ = ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps", "STILL_BRACKETS", "FLAG_METHODS",
            "shared_data_root", "bracket_inputs", "deghost_pair", "flag_invariance", "method_agreement",
-           "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES"]
+           "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES",
+           "NEUTRAL_RATIO"]
 
 #: Side of the square tiles (pixels) whose per-channel medians are compared.
 BLOCK = 16
@@ -235,6 +236,15 @@ FIDELITY_FLAT = 12
 #: A reference block is neutral when its median codes are within this many codes of each other.
 NEUTRAL_CODES = 3
 
+#: ... and *strictly* neutral (``neutral_strict_p95`` of :func:`reference_fidelity`) when they are also
+#: within this log ratio of each other: a 5 % tint in linear light is ``ln(1.05) / 2.2 = 0.022`` in
+#: code at a rendering gamma near 2.2. Three codes at codes 20-42 are a 7-15 % code ratio, a 15-33 %
+#: tint: on the ping-pong bracket the reference's 16x16 blocks of the player's hair at codes 23-42
+#: (B two or three codes above G, the +2 EV frame six to eight codes above G at codes 95-130) pass
+#: :data:`NEUTRAL_CODES`, and every frame alone, through Debevec's curve, scores ``neutral_p95``
+#: 0.109-0.116 on them (the merge 0.120).
+NEUTRAL_RATIO = 0.02
+
 
 def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block: int = BLOCK) -> dict:
     """How faithfully a merge shows its reference frame (``--deghost``: the scene at the reference's
@@ -245,10 +255,13 @@ def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block:
       :data:`NEUTRAL_CODES`), the p95 of ``max(|ln(R/G) - m_rg|, |ln(B/G) - m_bg|)`` of the merge,
       ``m`` the medians over those blocks (a method's map is linear in its own rendering, known up
       to a factor per channel): 0.05 is a 5 % tint;
+    * ``neutral_strict_p95``: the same over the neutral blocks whose median codes are also within
+      :data:`NEUTRAL_RATIO` in log of each other (a reference whose codes say a tint of more than
+      about 5 % is not asked to give a neutral merge);
     * ``curve_p95``: after one monotone curve per channel (isotonic regression of the reference's
       block codes on the merge's log block values), the p95 of ``|code - curve|`` (codes).
 
-    Also the block counts (``blocks``, ``neutral_blocks``)."""
+    Also the block counts (``blocks``, ``neutral_blocks``, ``neutral_strict_blocks``)."""
     from sklearn.isotonic import IsotonicRegression
 
     rad = block_medians(radiance, block)
@@ -259,7 +272,8 @@ def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block:
     spread = np.quantile(tiles, 0.9, axis=2) - np.quantile(tiles, 0.1, axis=2)
     ok = (np.all((med >= FIDELITY_LOW) & (med <= FIDELITY_HIGH), axis=-1) & np.all(spread <= FIDELITY_FLAT, axis=-1)
           & np.all(rad > 0, axis=-1) & np.all(np.isfinite(rad), axis=-1))
-    out = {"blocks": int(ok.sum()), "neutral_blocks": 0, "neutral_p95": float("nan"), "curve_p95": float("nan")}
+    out = {"blocks": int(ok.sum()), "neutral_blocks": 0, "neutral_p95": float("nan"), "curve_p95": float("nan"),
+           "neutral_strict_blocks": 0, "neutral_strict_p95": float("nan")}
     if ok.sum() < 16:
         return out
     lr = np.log(rad[ok])
@@ -269,10 +283,12 @@ def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block:
         resid.append(np.abs(med[ok][:, c] - iso.predict(lr[:, c])))
     out["curve_p95"] = float(np.quantile(np.concatenate(resid), 0.95))
     neutral = ok & (np.ptp(med, axis=-1) <= NEUTRAL_CODES)
-    out["neutral_blocks"] = int(neutral.sum())
-    if neutral.sum() >= 8:
-        ln = np.log(rad[neutral])
-        rg, bg = ln[:, 0] - ln[:, 1], ln[:, 2] - ln[:, 1]
-        dev = np.maximum(np.abs(rg - np.median(rg)), np.abs(bg - np.median(bg)))
-        out["neutral_p95"] = float(np.quantile(dev, 0.95))
+    strict = neutral & (np.ptp(np.log(np.maximum(med, 1.0)), axis=-1) <= NEUTRAL_RATIO)
+    for key, sel in (("neutral", neutral), ("neutral_strict", strict)):
+        out[f"{key}_blocks"] = int(sel.sum())
+        if sel.sum() >= 8:
+            ln = np.log(rad[sel])
+            rg, bg = ln[:, 0] - ln[:, 1], ln[:, 2] - ln[:, 1]
+            dev = np.maximum(np.abs(rg - np.median(rg)), np.abs(bg - np.median(bg)))
+            out[f"{key}_p95"] = float(np.quantile(dev, 0.95))
     return out

@@ -81,7 +81,7 @@ from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import relative_exponents
 
 __all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
-           "CURVE_TIE_CODES",
+           "CURVE_TIE_CODES", "CURVE_SHAPE_TIE",
            "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
            "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"]
 
@@ -239,6 +239,65 @@ def _debevec_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, ro
 CURVE_TIE_CODES: tuple[int, int] | None = None
 
 
+#: Weight ``kappa`` of the curve model's shape tie (:func:`_shape_penalty`): the differences between the
+#: channels' curves ``g_c - g_c'`` get ``kappa^2`` times the smoothness term each curve gets, on their
+#: second derivative in ``ln z`` (so a constant, the white balance, and a multiple of ``ln z``, a
+#: different exponent per channel, cost nothing). 0 (the default): independent channel curves, each
+#: anchored at ``g(128) = 0``. Why (issue 36 item 5): samples that do not follow the exposure (a thing
+#: that moves, residual misregistration of a handheld bracket), and codes where a channel has no data
+#: (there its curve is the smoothness term's extrapolation), bend each independent curve in its own way
+#: (a synthetic bracket with one tone curve for every channel, ``tests/hdr/test_curve_shape_tie.py``:
+#: swing of ``ln R/G`` over the codes with data 0.04-0.20 still, 0.20-0.26 with an unmasked moving
+#: patch; 0.21-0.35 over codes 16-239 also with 9 frames 1 stop apart; a smaller ``lambda`` makes it
+#: larger). So on pingpong (3 frames, 2 stops, a person moving) equal codes give R/G 0.90-1.20 across
+#: the codes (``--deghost``; 0.74-1.75 without, the person in every frame). With ``kappa = 1``: 0.98-1.06
+#: (0.95-1.02); the reference frame's neutral blocks (``reference_fidelity``, stabilized ``--deghost``)
+#: ``neutral_p95`` 0.222 -> 0.135, ``neutral_strict_p95`` 0.113 -> 0.042 (debevec 0.025); the iPhone's
+#: ``--deghost`` chroma p99 0.108 -> 0.069; Memorial, Frobisher, sculpture garden within 0.08 of before.
+#: Not the default because it costs on the tuning family ``camera`` (``benchmarks/families_measure.py
+#: --methods stabilized``, outdoor + indoor x seeds 0-1, PSNR L, kappa 0 / 0.03 / 1): ``camera`` 43.53 /
+#: 43.03 / 43.39 (outdoor -0.9 .. -1.3 dB, indoor +0.3 .. +1.2), held out ``dslr-lut`` 43.95 / 44.52 /
+#: 44.22, ``phone-local`` 43.85 / 43.84 / 44.10, ``drift`` 44.08 / 44.33 / 44.35; the demo's bracket
+#: (camera, auto, 480x320, 9 frames, seed 0) 49.24 / 49.43 / 47.52 (kappa 0.1: 47.79, 0.3: 47.22). The
+#: auto pipeline's per-frame tone changes (gamma times gain) are what the untied curves absorb, as with
+#: :data:`CURVE_TIE` (``docs/paper1.md``, neutral axis).
+CURVE_SHAPE_TIE = 0.0
+
+
+def _shape_penalty(n: int, lam: float, kappa: float) -> np.ndarray:
+    """(n, n) ``P = sum_z (kappa lam w(z))^2 r_z r_z'`` with ``r_z . f`` the second derivative of ``f``
+    in ``u = ln z`` at code ``z`` divided by ``z^2`` (three-point, non-uniform spacing: to leading
+    order ``f(z+1) - 2 f(z) + f(z-1) + (f(z+1) - f(z-1)) / (2 z)``), ``w`` the hat weight, codes
+    2 .. n-2. Applied to the differences between channels (``(3 I - J) kron P``), it lets them be a
+    constant plus a multiple of ``ln z`` and penalises any other shape as strongly as ``kappa^2``
+    times the curves' own smoothness (:func:`~derender.response.debevec1997.debevec_system`)."""
+    z = np.arange(2, n - 1, dtype=np.float64)
+    u = np.log(np.arange(1, n, dtype=np.float64))           # u[k] = ln(k + 1)
+    um, u0, up = u[z.astype(int) - 2], u[z.astype(int) - 1], u[z.astype(int)]
+    h1, h2 = u0 - um, up - u0
+    rows = np.zeros((z.size, n))
+    k = z.astype(int)
+    scale = 2.0 / (h1 + h2) / z ** 2
+    rows[np.arange(z.size), k - 1] = scale / h1
+    rows[np.arange(z.size), k] = -scale * (1.0 / h1 + 1.0 / h2)
+    rows[np.arange(z.size), k + 1] = scale / h2
+    w = np.minimum(z, n - 1 - z) * float(kappa) * float(lam)
+    rw = rows * w[:, None]
+    return rw.T @ rw
+
+
+def _solve_penalised(blocks: list, rhs: list, pen: np.ndarray) -> np.ndarray:
+    """``blockdiag(A_c) + (3 I - J) kron pen`` solved directly (768, k): the three channels with the
+    penalty ``sum_{c < c'} (g_c - g_c')' pen (g_c - g_c')`` on their differences."""
+    from scipy.linalg import solve
+
+    n = blocks[0].shape[0]
+    big = np.kron(3.0 * np.eye(3) - np.ones((3, 3)), pen)
+    for c in range(3):
+        big[c * n:(c + 1) * n, c * n:(c + 1) * n] += np.asarray(blocks[c], dtype=np.float64)
+    return solve(big, np.concatenate([np.asarray(r, dtype=np.float64) for r in rhs], axis=0), assume_a="sym")
+
+
 def _solve_tied_codes(blocks: list, rhs: list, tie: float, codes: tuple[int, int]) -> np.ndarray:
     """The tied system of :func:`derender.response.curves.solve_tied` with the tie acting on the
     first differences between codes ``codes[0]`` and ``codes[1]`` only: the (768, 768) matrix
@@ -258,7 +317,7 @@ def _solve_tied_codes(blocks: list, rhs: list, tie: float, codes: tuple[int, int
 
 
 def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, rounds: int,
-                                 tie: float) -> tuple:
+                                 tie: float, shape_tie: float = 0.0) -> tuple:
     """:func:`_debevec_with_exposures` for the three channels at once, their curves tied
     (:func:`derender.response.curves.solve_tied`, weight ``tie``): ``codes`` (N, P, 3).
     The tied system is still linear in the per-channel log exposures, so one solve serves
@@ -279,7 +338,9 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
         w2s.append(w2)
         dinvs.append(dinv)
     # (768, 3N): the three curves stacked by channel = gm @ (b_R, b_G, b_B)
-    if CURVE_TIE_CODES is None:
+    if shape_tie > 0:
+        gm = _solve_penalised(blocks, rhs, _shape_penalty(256, lam, shape_tie))
+    elif CURVE_TIE_CODES is None:
         gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
     else:
         gm = _solve_tied_codes(blocks, rhs, tie, CURVE_TIE_CODES)
@@ -347,7 +408,8 @@ def _misfit(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offsets: np.nda
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, *, seed: int = 0,
                       high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS,
                       exposure_rounds: int | None = None, tie: float | None = None, valid_at: Any = None,
-                      exponent_rounds: int | None = None, exponents: Any = None) -> Any:
+                      exponent_rounds: int | None = None, exponents: Any = None,
+                      shape_tie: float | None = None) -> Any:
     """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
     :data:`CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
     pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
@@ -362,6 +424,9 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     out +-0.2). The shoulder is what linearises a highlight that only the shortest exposure
     sees unclipped. The rendered channel that does clip is (nearly) always at white: the
     colour matrix has negative off-diagonals, so a saturated raw channel renders above 1.
+
+    ``shape_tie`` (default :data:`CURVE_SHAPE_TIE`): weight of the tie on the channels' shapes
+    (:func:`_shape_penalty`; ``params["shape_tie"]``).
 
     ``exposure_rounds`` (default :data:`CURVE_EXPOSURE_ROUNDS`): per-frame, per-channel
     log-exposure offsets re-estimated with the curve (:func:`_debevec_with_exposures`; in
@@ -391,7 +456,8 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     rounds = CURVE_EXPOSURE_ROUNDS if exposure_rounds is None else int(exposure_rounds)
     e_rounds = CURVE_EXPONENT_ROUNDS if exponent_rounds is None else int(exponent_rounds)
     tie = CURVE_TIE if tie is None else float(tie)
-    curve = _CurveFit(codes, log_t, lam, tie)
+    shape = CURVE_SHAPE_TIE if shape_tie is None else float(shape_tie)
+    curve = _CurveFit(codes, log_t, lam, tie, shape)
     rho = np.ones(n)
     curve.fit(rounds, rho)
     misfit_plain = curve.misfit().tolist()
@@ -418,7 +484,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
               "weights": "hat", "clip": float(high), "clip_radius": int(radius),
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
-              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie,
+              "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie, "shape_tie": shape,
               "exponent_rounds": e_rounds, "rho": rho.tolist(), "rho_rejected": exp_rejected,
               "toe": fe.EXPONENT_TOE,
               "rho_history": history, "misfit_plain": misfit_plain, "misfit": curve.misfit().tolist()}
@@ -453,8 +519,8 @@ class _CurveFit:
     """Debevec's curves ``g`` (256, 3) and per-frame exposure offsets (N, 3) of fixed samples, refitted
     in place for given exponents ``rho`` (the codes warped to ``255 (Z / 255) ** rho_j``)."""
 
-    def __init__(self, codes: np.ndarray, log_t: np.ndarray, lam: float, tie: float):
-        self.codes, self.log_t, self.lam, self.tie = codes, log_t, lam, tie
+    def __init__(self, codes: np.ndarray, log_t: np.ndarray, lam: float, tie: float, shape_tie: float = 0.0):
+        self.codes, self.log_t, self.lam, self.tie, self.shape_tie = codes, log_t, lam, tie, shape_tie
         self.g = np.empty((256, 3))
         self.offsets = np.zeros((codes.shape[0], 3))
         self.fitted = codes          # the (warped) codes of the last fit
@@ -465,8 +531,9 @@ class _CurveFit:
         zc = codes if np.all(rho == 1.0) else np.where(
             codes > 0, np.clip(np.rint(fe.warp_codes(codes, rho)), 0, 255), 0).astype(np.int32)
         self.fitted = zc
-        if self.tie > 0:
-            self.g[:], self.offsets[:] = _debevec_tied_with_exposures(zc, self.log_t, self.lam, rounds, self.tie)
+        if self.tie > 0 or self.shape_tie > 0:
+            self.g[:], self.offsets[:] = _debevec_tied_with_exposures(zc, self.log_t, self.lam, rounds, self.tie,
+                                                                      self.shape_tie)
             return
         for c in range(3):
             self.g[:, c], self.offsets[:, c] = _debevec_with_exposures(zc[:, :, c], self.log_t, self.lam, rounds)
