@@ -70,6 +70,9 @@ __all__ = [
     "FLOW_SIGMA",
     "FLOW_PRIOR",
     "FLOW_MIN_PX",
+    "FLOW_GATE_PX",
+    "FLOW_MIN_PEAK",
+    "FLOW_MAX_PX",
 ]
 
 
@@ -231,12 +234,16 @@ FLOW_PRIOR = 0.05
 #: (exact codes: a tripod bracket is left as it was).
 FLOW_MIN_PX = 0.5
 
-#: ... and when the residual is measured independently of the flow: at least 2 % (and 3) of the
-#: 32-pixel tiles (working resolution) whose phase correlation peaks at :data:`FLOW_MIN_PEAK` or
-#: more are displaced by more than this many full-resolution pixels
-#: (:func:`block_displacements`: a few hundredths of a pixel apart on the frames a translation
-#: registers, where DIS's flow still wanders by 1-2 px at its p99).
+#: ... and when the residual is measured independently of the flow: one of the 32-pixel tiles
+#: (working resolution) whose phase correlation peaks at :data:`FLOW_MIN_PEAK` or more is
+#: displaced by more than this many full-resolution pixels (:func:`block_displacements`: a few
+#: hundredths of a pixel apart on the frames a translation registers, where DIS's flow still
+#: wanders by 1-2 px at its p99).
 FLOW_GATE_PX = 1.0
+
+#: Trusted flow is at most this many full-resolution pixels (the residual after a registration
+#: is small; larger flows are DIS's mistakes, e.g. on a periodic facade or a flickering screen).
+FLOW_MAX_PX = 16.0
 
 #: Tiles whose phase correlation peak is below this take no part in that decision.
 FLOW_MIN_PEAK = 0.3
@@ -318,10 +325,10 @@ def residual_flow(grey_ref: np.ndarray, grey_j: np.ndarray) -> tuple[np.ndarray 
     Frame ``j``'s uint8 grey codes are brought to the reference's tone scale
     (:func:`exposure_lut`) and both are reduced to at most :data:`FLOW_SIDE` pixels on the long
     side. The residual is first measured on 32-pixel tiles (:func:`block_displacements`); unless
-    enough of them are off (:data:`FLOW_GATE_PX`) the frame keeps its registration. Then OpenCV's DIS optical flow (Kroeger et al. 2016, preset ``MEDIUM``) is computed both
+    one of them is off (:data:`FLOW_GATE_PX`) the frame keeps its registration. Then OpenCV's DIS optical flow (Kroeger et al. 2016, preset ``MEDIUM``) is computed both
     ways. The flow is trusted where both frames' codes are within :data:`FLOW_CODES`, the
-    reference has structure (:data:`FLOW_MIN_GRADIENT`) and the two flows agree
-    (:data:`FLOW_CONSISTENCY`); elsewhere (sky, clipped or dark regions, occlusions) it is
+    reference has structure (:data:`FLOW_MIN_GRADIENT`), the two flows agree
+    (:data:`FLOW_CONSISTENCY`) and the flow is small (:data:`FLOW_MAX_PX`); elsewhere (sky, clipped or dark regions, occlusions) it is
     filled from the trusted flow around and pulled to zero where none is near
     (:data:`FLOW_SIGMA`, :data:`FLOW_PRIOR`). Deterministic (DIS on fixed inputs).
 
@@ -345,7 +352,7 @@ def residual_flow(grey_ref: np.ndarray, grey_j: np.ndarray) -> tuple[np.ndarray 
     tiles = tiles[tiles[:, 4] >= FLOW_MIN_PEAK]
     off = int(np.count_nonzero(np.hypot(tiles[:, 2], tiles[:, 3]) * s > FLOW_GATE_PX))
     details: dict = {"tiles": int(len(tiles)), "tiles_off": off}
-    if off < max(3, 0.02 * len(tiles)):
+    if off == 0:
         return None, details
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     fwd = dis.calc(a, b, None)
@@ -355,7 +362,8 @@ def residual_flow(grey_ref: np.ndarray, grey_j: np.ndarray) -> tuple[np.ndarray 
     back = cv2.remap(bwd, xs + fwd[..., 0], ys + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     trust = (both
              & (_gradient(a.astype(np.float32)) >= FLOW_MIN_GRADIENT)
-             & (np.hypot(*np.moveaxis(fwd + back, -1, 0)) <= FLOW_CONSISTENCY))
+             & (np.hypot(*np.moveaxis(fwd + back, -1, 0)) <= FLOW_CONSISTENCY)
+             & (np.hypot(fwd[..., 0], fwd[..., 1]) * s <= FLOW_MAX_PX))
     wgt = trust.astype(np.float32)
     num = cv2.GaussianBlur(fwd * wgt[..., None], (0, 0), FLOW_SIGMA)
     den = cv2.GaussianBlur(wgt, (0, 0), FLOW_SIGMA)

@@ -12,8 +12,10 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
    warped in place (8-bit codes): ``"translation"`` by Ward's median threshold bitmaps
    (:mod:`derender.engine.motion.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
    features and a seeded RANSAC (:func:`derender.engine.motion.align.estimate_homography`,
-   bilinear on the codes). Pixels a frame does not cover after warping are left out of that
-   frame (``valid``).
+   bilinear on the codes), ``"flow"`` by Ward's shifts and then each frame's dense residual
+   flow (:func:`derender.engine.motion.align.residual_flow`, bilinear on the codes where a
+   residual is measured; handheld brackets with parallax). Pixels a frame does not cover after
+   warping are left out of that frame (``valid``).
 3. **Ghost removal** (:mod:`derender.engine.motion.deghost`): per pixel and frame, the frame's
    radiance against the reference's under the method's own noise model, pooled over a window,
    cleaned into regions; inconsistent frames get no weight there. The method is then
@@ -65,7 +67,8 @@ class MotionOptions:
         The reference frame: an index among the images *as given* (0-based; the CLI counts
         from 1), or ``"auto"`` / None for paper 1's rule.
     align : str or None
-        ``"none"``, ``"translation"`` (Ward's MTB) or ``"homography"`` (features); None: the
+        ``"none"``, ``"translation"`` (Ward's MTB), ``"homography"`` (features) or ``"flow"``
+        (Ward's MTB, then a dense residual flow per frame); None: the
         method's own default (:attr:`derender.engine.plans.MethodDefaults.own_align`:
         ``"translation"`` for paper 1's methods, which register their frames themselves,
         ``"none"`` for the others).
