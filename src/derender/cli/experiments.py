@@ -200,7 +200,7 @@ def exp_ghosts(
     objects: int = typer.Option(3, "--objects", help="Moving objects."),
     shake: Optional[int] = typer.Option(None, "--shake", help="Camera shake in pixels (default 2 % of the width)."),
     deghost: bool = typer.Option(False, "--deghost", help="Merge with ghost removal."),
-    align: Optional[str] = typer.Option(None, "--align", help="none, translation or homography (default: each "
+    align: Optional[str] = typer.Option(None, "--align", help="none, translation, homography or flow (default: each "
                                         "method's own)."),
     output: Optional[Path] = typer.Option(None, "--json", help="Also write the rows as JSON."),
 ) -> None:

@@ -167,7 +167,8 @@ def merge_cmd(
                                             "given, from 1) or 'auto' (fewest clipped pixels). The result shows the "
                                             "scene at that frame's instant, on its pixel grid."),
     align: Optional[str] = typer.Option(None, "--align", help="Register the frames to the reference: none, "
-                                        "translation (Ward's MTB) or homography (features). Default: translation "
+                                        "translation (Ward's MTB), homography (features) or flow (MTB, then a dense "
+                                        "residual flow per frame: handheld, with parallax). Default: translation "
                                         "for the stabilised methods, none for the others."),
     deghost: bool = typer.Option(False, "--deghost", help="Leave out, per pixel, the frames that disagree with the "
                                  "reference under the method's noise model (moving people, leaves, cars)."),

@@ -31,7 +31,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "motion.run": ["MotionOptions", "resolve_reference", "align_frames", "refine_shifts", "bitmap_agreement", "check_one_scene", "run_motion", "REFINE_PIXELS", "REFINE_REACH", "MIN_BITMAP_AGREEMENT", "SCENE_CHECK_PIXELS"],
     "motion.reference_frame": ["REF_LOW", "REF_HIGH", "REF_PIXELS", "check_images", "exposure_fractions", "select_reference", "reasonable_references"],
     "motion.ward2003": ["to_grey8", "grey8_codes", "median_threshold_bitmaps", "common_percentiles", "common_percentiles_hist", "MTB_PIXELS", "mtb_shift"],
-    "motion.align": ["ALIGNMENTS", "Alignment", "shift_into", "shift_valid", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms"],
+    "motion.align": ["ALIGNMENTS", "Alignment", "shift_into", "shift_valid", "shift_image", "estimate_homography", "warp_image", "align_images", "transforms_to_shifts", "chain_transforms", "exposure_lut", "block_displacements", "residual_flow", "flow_warp", "FLOW_SIDE", "FLOW_CODES", "FLOW_MIN_GRADIENT", "FLOW_CONSISTENCY", "FLOW_SIGMA", "FLOW_PRIOR", "FLOW_MIN_PX", "FLOW_GATE_PX", "FLOW_MIN_PEAK", "FLOW_MAX_PX"],
     "motion.deghost": ["GHOST_THRESHOLD", "GHOST_WINDOW", "GHOST_DILATE", "CODE_SIGMA", "DETECT_PIXELS", "STAT_PIXELS", "MAX_REJECTED", "REFIT_MIN_REJECTED", "Z2_CAP", "EDGE_SHIFT", "AGREEMENT_MIN_PIXELS", "frame_estimates", "FrameAgreement", "ConsistencyTest", "upsample_mask", "map_frames", "detect_ghosts", "merge_valid"],
     "motion.intensity_mapping": ["MIN_PIXELS", "SIGMA_FLOOR", "MappingTables", "mapping_tables", "mapping_z2"],
     "motion.ghost_kernels": ["upsample_into"],

@@ -114,7 +114,7 @@ def compare_maps(a: np.ndarray, b: np.ndarray, block: int = BLOCK) -> MapChange:
 #: given, the reference frame (from 1, as the CLI counts) and the alignment. Memorial and
 #: Frobisher are on a tripod; the iPhone bracket is handheld (only the monitor's flicker moves).
 STILL_BRACKETS: dict[str, dict] = {
-    "iphone": {"folder": "iphone6-bracket", "reference": 3, "align": "translation"},
+    "iphone": {"folder": "iphone6-bracket", "reference": 3, "align": "flow"},
     "memorial": {"folder": "debevec-memorial", "times_file": "memorial.hdr_image_list.txt",
                  "times_file_inverse": True, "reference": 8, "align": "none"},
     "frobisher": {"folder": "colour-hdri-frobisher", "reference": 2, "align": "none"},

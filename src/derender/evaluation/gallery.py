@@ -41,7 +41,7 @@ THUMB_WIDTH = 240
 #: and the crop ``(top, left, height, width)`` of the (oriented) map shown, None for all of it.
 GALLERY: dict[str, dict] = {
     "iphone": {**STILL_BRACKETS["iphone"], "crop": (2300, 300, 800, 800),
-               "note": "handheld; the monitor flickers (PWM bands in the short frames)"},
+               "note": "handheld (--align flow: the skyline and the room shift apart); the monitor flickers (PWM bands in the short frames)"},
     "memorial": {**STILL_BRACKETS["memorial"], "crop": None, "note": "tripod, one film"},
     "frobisher": {**STILL_BRACKETS["frobisher"], "crop": None, "note": "tripod"},
     "pingpong": {"folder": "motion-pingpong", "reference": 2, "align": "translation", "crop": (0, 480, 1080, 960),

@@ -12,8 +12,10 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
    warped in place (8-bit codes): ``"translation"`` by Ward's median threshold bitmaps
    (:mod:`derender.engine.motion.ward2003`, integer shifts, exact codes), ``"homography"`` by ORB
    features and a seeded RANSAC (:func:`derender.engine.motion.align.estimate_homography`,
-   bilinear on the codes). Pixels a frame does not cover after warping are left out of that
-   frame (``valid``).
+   bilinear on the codes), ``"flow"`` by Ward's shifts and then each frame's dense residual
+   flow (:func:`derender.engine.motion.align.residual_flow`, bilinear on the codes where a
+   residual is measured; handheld brackets with parallax). Pixels a frame does not cover after
+   warping are left out of that frame (``valid``).
 3. **Ghost removal** (:mod:`derender.engine.motion.deghost`): per pixel and frame, the frame's
    radiance against the reference's under the method's own noise model, pooled over a window,
    cleaned into regions; inconsistent frames get no weight there. The method is then
@@ -65,7 +67,8 @@ class MotionOptions:
         The reference frame: an index among the images *as given* (0-based; the CLI counts
         from 1), or ``"auto"`` / None for paper 1's rule.
     align : str or None
-        ``"none"``, ``"translation"`` (Ward's MTB) or ``"homography"`` (features); None: the
+        ``"none"``, ``"translation"`` (Ward's MTB), ``"homography"`` (features) or ``"flow"``
+        (Ward's MTB, then a dense residual flow per frame); None: the
         method's own default (:attr:`derender.engine.plans.MethodDefaults.own_align`:
         ``"translation"`` for paper 1's methods, which register their frames themselves,
         ``"none"`` for the others).
@@ -170,7 +173,7 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
         grey = np.empty((n, h, w), dtype=np.uint8)
         for j in range(n):
             grey8_codes(frames[j], out=grey[j])
-    method = align
+    method = "translation" if align == "flow" else align
     transforms, pinfo = chain_transforms(list(grey), method, ref, seed=seed, threads=threads)
     pairs = pinfo.get("pairs", [])
     if align == "homography" and pairs and all("fallback" in p for p in pairs):
@@ -179,7 +182,7 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
                          f"({reasons[0]}); use --align translation or none")
     info["pairs"] = pairs
     valid = None
-    if align == "translation":
+    if align in ("translation", "flow"):
         shifts = transforms_to_shifts(transforms)
         info["shifts"] = shifts.tolist()
         moved = [j for j in range(n) if shifts[j, 0] or shifts[j, 1]]
@@ -190,6 +193,11 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
                 tmp[...] = frames[j]
                 shift_into(frames[j], tmp, int(shifts[j, 0]), int(shifts[j, 1]))
                 valid[j] = shift_valid(h, w, int(shifts[j, 0]), int(shifts[j, 1]))
+                if align == "flow":
+                    gtmp = grey[j].copy()
+                    shift_into(grey[j], gtmp, int(shifts[j, 0]), int(shifts[j, 1]))
+        if align == "flow":
+            valid = _flow_residuals(frames, grey, ref, valid, info)
         return valid, info
     import cv2
 
@@ -207,6 +215,34 @@ def align_frames(frames: np.ndarray, grey: np.ndarray | None, ref: int, align: s
                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         valid[j] = cover
     return valid, info
+
+
+def _flow_residuals(frames: np.ndarray, grey: np.ndarray, ref: int, valid: np.ndarray | None,
+                    info: dict[str, Any]) -> np.ndarray | None:
+    """``--align flow`` after the translations: each frame, from the reference outwards, is
+    warped **in place** by its residual flow against its neighbour nearer the reference (already
+    registered; :func:`derender.engine.motion.align.residual_flow`), its grey plane and ``valid``
+    with it. Returns ``valid``; ``info["flow"]`` holds each frame's flow summary."""
+    from derender.engine.motion.align import flow_warp, residual_flow
+
+    n, h, w = frames.shape[:3]
+    info["flow"] = {}
+    order = list(range(ref - 1, -1, -1)) + list(range(ref + 1, n))
+    for j in order:
+        a = j + 1 if j < ref else j - 1
+        flow, details = residual_flow(grey[a], grey[j])
+        details["warped"] = flow is not None
+        info["flow"][j] = details
+        if flow is None:
+            continue
+        _, inside = flow_warp(frames[j], flow, out=frames[j])
+        flow_warp(grey[j], flow, out=grey[j])
+        if valid is None:
+            valid = np.ones((n, h, w), dtype=np.uint8)
+        # the frame's own validity (after the translation) follows its pixels, nearest
+        vj, _ = flow_warp(valid[j] * np.uint8(255), flow)
+        valid[j] = (vj == 255) & inside
+    return valid
 
 
 #: The consistency check of the alignment scores each candidate shift on at most about
