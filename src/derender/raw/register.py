@@ -58,6 +58,8 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from derender.raw.register_kernels import PAD, box_image, colour_variance, filter_phase, separable_taps, window_sums
+
 __all__ = [
     "SNAP",
     "keys_weights",
@@ -165,16 +167,18 @@ def _resampling_kernels(pattern: str, sy: float, sx: float) -> tuple:
 
 #: Photosites mirrored beyond each edge (as the demosaic reflects, ``scipy.ndimage`` mode
 #: ``reflect``), so that an unshifted frame's colours exist up to its border.
-_PAD = 2
+_PAD = PAD
 
 
-def _apply(d: np.ndarray, sat: np.ndarray, kernel: tuple, a: int, b: int, shape: tuple[int, int], shift):
-    """One phase's filter (:func:`_resampling_kernels`) on ``d`` (padded by :data:`_PAD`) for the
-    output photosites ``p = (2i + a, 2k + b)`` of a ``shape`` frame whose support lies inside
-    and whose point ``p + shift`` lies inside the frame: ``(values, saturated taps, taps, (i0, i1, k0, k1))``."""
+def _apply(m: np.ndarray, black: np.ndarray, white: float, kernel: tuple, a: int, b: int, shift):
+    """One phase's filter (:func:`_resampling_kernels`) on the mosaic ``m`` (values above
+    ``black`` (2, 2), mirrored by :data:`_PAD` beyond its edges) for the output photosites
+    ``p = (2i + a, 2k + b)`` whose support lies inside the padded frame and whose point
+    ``p + shift`` lies inside the frame: ``(values, saturated taps, taps, (i0, i1, k0, k1))``
+    (:func:`derender.raw.register_kernels.filter_phase`)."""
     ker, oy, ox = kernel
-    h, w = shape
-    hp, wp = d.shape
+    h, w = m.shape
+    hp, wp = h + 2 * _PAD, w + 2 * _PAD
     oy, ox = oy + _PAD, ox + _PAD
     ny, nx = (h - a + 1) // 2, (w - b + 1) // 2
     kh, kw = ker.shape
@@ -185,31 +189,18 @@ def _apply(d: np.ndarray, sat: np.ndarray, kernel: tuple, a: int, b: int, shape:
     k1 = min(nx, (wp - kw - b - ox) // 2 + 1, math.floor((w - 1 - b - sx) / 2) + 1)
     if i1 <= i0 or k1 <= k0:
         return None
-    vals = np.zeros((i1 - i0, k1 - k0))
-    nsat = np.zeros((i1 - i0, k1 - k0))
-    taps = 0
-    for u in range(kh):
-        for v in range(kw):
-            c = ker[u, v]
-            if c == 0.0:
-                continue
-            taps += 1
-            r0, c0 = 2 * i0 + a + oy + u, 2 * k0 + b + ox + v
-            sl = (slice(r0, r0 + 2 * (i1 - i0) - 1, 2), slice(c0, c0 + 2 * (k1 - k0) - 1, 2))
-            vals += c * d[sl]
-            nsat += sat[sl]
-    return vals, nsat, taps, (i0, i1, k0, k1)
+    vals = np.empty((i1 - i0, k1 - k0))
+    nsat = np.empty((i1 - i0, k1 - k0))
+    filter_phase(m, black, float(white), np.ascontiguousarray(ker, np.float64), 2 * i0 + a + oy,
+                 2 * k0 + b + ox, vals, nsat)
+    return vals, nsat, int(np.count_nonzero(ker)), (i0, i1, k0, k1)
 
 
-def _prepare(mosaic: np.ndarray, black, white: float):
-    m = np.asarray(mosaic)
-    h, w = m.shape
-    black = np.broadcast_to(np.asarray(black, np.float64).reshape(-1)[0], (2, 2)) \
-        if np.asarray(black).size == 1 else np.asarray(black, np.float64).reshape(2, 2)
-    bl = np.tile(black, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    d = np.pad(np.asarray(m, np.float64) - bl, _PAD, mode="symmetric")
-    sat = np.pad(np.asarray(m >= white, np.float64), _PAD, mode="symmetric")
-    return m, black, d, sat
+def _prepare(mosaic: np.ndarray, black):
+    m = np.ascontiguousarray(mosaic)
+    black = np.broadcast_to(np.asarray(black, np.float64).reshape(-1)[0], (2, 2)).copy() \
+        if np.asarray(black).size == 1 else np.ascontiguousarray(np.asarray(black, np.float64).reshape(2, 2))
+    return m, black
 
 
 def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
@@ -219,7 +210,7 @@ def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     ``(codes, valid, factor)`` -- (H, W) float64 codes (the target phase's black level plus the
     resampled value above black; the white level where the support is saturated everywhere),
     (H, W) bool where the sample takes part, and the (2, 2) variance factor per phase."""
-    m, black, d, sat = _prepare(mosaic, black, white)
+    m, black = _prepare(mosaic, black)
     p = pattern.upper()
     lut = {"R": 0, "G": 1, "B": 2}
     kernels, factors = _resampling_kernels(p, float(shift[0]), float(shift[1]))
@@ -230,7 +221,7 @@ def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
         for b in range(2):
             c = lut[p[2 * a + b]]
             factor[a, b] = factors[c, a, b]
-            got = _apply(d, sat, kernels[a][b][c], a, b, m.shape, shift)
+            got = _apply(m, black, white, kernels[a][b][c], a, b, shift)
             if got is None:
                 continue
             vals, nsat, taps, (i0, i1, k0, k1) = got
@@ -248,7 +239,7 @@ def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     (module docstring, merging in colour): ``(values, state, factor)`` -- (C, H, W) float64 DN
     above black, (C, H, W) uint8 state (0: takes no part, 1: a measurement, 2: censored, its
     support saturated everywhere) and the (3, 2, 2) variance factor per colour and output phase."""
-    m, black, d, sat = _prepare(mosaic, black, white)
+    m, black = _prepare(mosaic, black)
     kernels, factors = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]))
     h, w = m.shape
     values = np.zeros((len(channels), h, w))
@@ -256,7 +247,7 @@ def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     for a in range(2):
         for b in range(2):
             for k, c in enumerate(channels):
-                got = _apply(d, sat, kernels[a][b][c], a, b, m.shape, shift)
+                got = _apply(m, black, white, kernels[a][b][c], a, b, shift)
                 if got is None:
                     continue
                 vals, nsat, taps, (i0, i1, k0, k1) = got
@@ -396,14 +387,9 @@ def _convolve(plane: np.ndarray, off: tuple[int, int], wy: np.ndarray, wx: np.nd
     k1 = min(shape[1], ws - (ox + tx[-1] - 1))
     if i1 <= i0 or k1 <= k0:
         return np.zeros((0, 0)), (slice(0, 0), slice(0, 0))
-    rows = np.zeros((i1 - i0, plane.shape[1]))
-    for m in ty:
-        r = i0 + oy + m - 1
-        rows += wy[m] * plane[r:r + (i1 - i0)]
-    out = np.zeros((i1 - i0, k1 - k0))
-    for n in tx:
-        c = k0 + ox + n - 1
-        out += wx[n] * rows[:, c:c + (k1 - k0)]
+    out = np.empty((i1 - i0, k1 - k0))
+    separable_taps(np.ascontiguousarray(plane, np.float64), int(oy), int(ox), np.asarray(wy, np.float64),
+                   np.asarray(wx, np.float64), int(i0), int(k0), out)
     return out, (slice(i0, i1), slice(k0, k1))
 
 
@@ -413,17 +399,13 @@ def _box_image(mosaic: np.ndarray, e: float, black: np.ndarray, white: float, sc
     phase's ``scale``: ``(y, ok)``, (H - 1, W - 1), every window one photosite of each phase
     (so no CFA pattern is left in it), ``ok`` where its four photosites are unsaturated, below
     85 % of the level, and the window sum above 10 read-noise sigma."""
-    m = np.asarray(mosaic, np.float64)
+    m = np.ascontiguousarray(mosaic)
     h, w = m.shape
-    bl = np.tile(black, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    sc = np.tile(scale, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    d = m - bl
-    bad = (m >= white) | (d >= 0.85 * (white - bl))
-    q = d / (e * sc)
-    y = q[:-1, :-1] + q[1:, :-1] + q[:-1, 1:] + q[1:, 1:]
-    dsum = d[:-1, :-1] + d[1:, :-1] + d[:-1, 1:] + d[1:, 1:]
-    nbad = bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:]
-    return y, ~nbad & (dsum > 10.0 * read_sd)
+    y = np.empty((h - 1, w - 1))
+    ok = np.empty((h - 1, w - 1), np.bool_)
+    box_image(m, float(e), np.ascontiguousarray(black, np.float64).reshape(2, 2), float(white),
+              np.ascontiguousarray(scale, np.float64).reshape(2, 2), float(read_sd), y, ok)
+    return y, ok
 
 
 @njit(cache=True, nogil=True)
@@ -611,13 +593,11 @@ def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndar
     shifts): ``(box, saturated, inside, (wy, wx))`` -- (H, W) float64, (H, W) bool (a saturated
     photosite in the support), (H, W) bool (the support inside the frame) and Keys' weights
     per axis (rows, columns)."""
-    v = np.asarray(values, np.float64)
+    v = np.ascontiguousarray(values, np.float64)
     h, w = v.shape
-    sc = np.tile(scale, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    q = np.pad(v / sc, ((0, 1), (0, 1)), mode="edge")
-    st = np.pad(np.asarray(saturated, np.float64), ((0, 1), (0, 1)), mode="edge")
-    box = q[:-1, :-1] + q[1:, :-1] + q[:-1, 1:] + q[1:, 1:]
-    sbox = st[:-1, :-1] + st[1:, :-1] + st[:-1, 1:] + st[1:, 1:]
+    box, sbox = np.empty((h, w)), np.empty((h, w))
+    window_sums(v, np.ascontiguousarray(saturated, np.bool_), np.ascontiguousarray(scale, np.float64).reshape(2, 2),
+                box, sbox)
     iy, ix = math.floor(float(shift[0])), math.floor(float(shift[1]))
     wy, wx = keys_weights(float(shift[0]) - iy), keys_weights(float(shift[1]) - ix)
     out = np.zeros((h, w))
@@ -675,11 +655,11 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
         # Var[o] = sum_cc' F_oc F_oc' rho_cc' sigma_c sigma_c', rho of the photosite's phase
         sd = np.sqrt(np.maximum(var.astype(np.float64), 0.0))
         var_out = np.empty((h, w, 3), np.float32)
+        q = np.empty((2, 2, 3, 3, 3))
         for a in range(2):
             for b in range(2):
-                q = np.einsum("oc,cd,od->ocd", full, rho[a, b], full)
-                s_ab = sd[a::2, b::2]
-                var_out[a::2, b::2] = np.einsum("ocd,yxc,yxd->yxo", q, s_ab, s_ab)
+                q[a, b] = np.einsum("oc,cd,od->ocd", full, rho[a, b], full)
+        colour_variance(sd, q, var_out)
     out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
     if clip_negative:
         out = np.maximum(out, 0.0)
