@@ -1,7 +1,8 @@
 """The compiled loops of RAW registration and ghost removal (derender.raw.register_kernels) against the
 NumPy formulas they replaced (written out here as they were in derender.raw.register and
-derender.hdr.raw before the loops were compiled), on small random mosaics with saturated photosites:
-equal within 1e-12 relative (the same sums in the same order; the brief allowed 1e-6)."""
+derender.hdr.raw before the loops were compiled; the resampling filter's border since then mirrors
+each CFA phase on its own), on small random mosaics with saturated photosites: equal within 1e-12
+relative (the same sums in the same order)."""
 
 import math
 
@@ -9,7 +10,8 @@ import numpy as np
 import pytest
 
 from derender.raw.register import keys_weights, resample_mosaic, resample_rgb, shifted_box
-from derender.raw.register_kernels import PAD, box_image, filter_phase, ghost_z2, separable_taps, window_sums
+from derender.raw.register_kernels import (PAD, box_image, filter_phase, ghost_z2, mirror_cfa, separable_taps,
+                                          window_sums)
 
 TOL = 1e-12
 
@@ -28,12 +30,38 @@ def _mosaic(shape=(21, 18), seed=0, white=4000):
     return m, black, float(white)
 
 
+def _pad_cfa(a):
+    """``a`` padded by PAD, each CFA phase's samples mirrored on their own (numpy.pad symmetric)."""
+    h, w = a.shape
+    out = np.empty((h + 2 * PAD, w + 2 * PAD), a.dtype)
+    for p in range(2):
+        for q in range(2):
+            plane = np.pad(a[p::2, q::2], 1, mode="symmetric")       # one sample each side = 2 photosites
+            # the padded plane's sample i sits at photosite 2 (i - 1) + p, i.e. padded row 2 i + p
+            rows, cols = np.arange(plane.shape[0]) * 2 + p, np.arange(plane.shape[1]) * 2 + q
+            keep_r, keep_c = rows < h + 2 * PAD, cols < w + 2 * PAD
+            out[np.ix_(rows[keep_r], cols[keep_c])] = plane[np.ix_(keep_r, keep_c)]
+    return out
+
+
+@pytest.mark.parametrize("shape", [(21, 18), (20, 17)])
+def test_mirror_cfa_keeps_the_colour(shape):
+    h, w = shape
+    idx = np.arange(h).reshape(-1, 1) * 1000 + np.arange(w).reshape(1, -1)
+    padded = _pad_cfa(idx)
+    for y in range(-PAD, h + PAD):
+        for x in range(-PAD, w + PAD):
+            ry, rx = mirror_cfa(y, h), mirror_cfa(x, w)
+            assert padded[y + PAD, x + PAD] == ry * 1000 + rx
+            assert (ry - y) % 2 == 0 and (rx - x) % 2 == 0 and 0 <= ry < h and 0 <= rx < w
+
+
 def test_filter_phase_is_the_padded_numpy_filter():
     m, black, white = _mosaic()
     h, w = m.shape
     bl = np.tile(black, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    d = np.pad(m.astype(np.float64) - bl, PAD, mode="symmetric")
-    sat = np.pad((m >= white).astype(np.float64), PAD, mode="symmetric")
+    d = _pad_cfa(m.astype(np.float64) - bl)
+    sat = _pad_cfa((m >= white).astype(np.float64))
     ker = np.random.default_rng(1).normal(size=(6, 5))
     ker[2, 3] = 0.0
     r0, c0, ni, nk = 1, 0, 10, 9

@@ -26,8 +26,12 @@ each frame against its neighbour towards the reference and chains the shifts, as
 **Resampling** (:func:`resample_rgb`): frame ``j``'s colour ``c`` at ``p + s`` is Malvar, He &
 Cutler's (2004) demosaic of frame ``j`` for colour ``c`` at the 4 x 4 photosites around ``p + s``,
 weighted by Keys: one linear filter ``C`` of about 8 x 8 photosites per output CFA phase and
-colour (constant over the frame, since ``s`` is), borders mirrored as the demosaic does. At a
-whole shift it is the demosaic of frame ``j`` at ``p + s`` exactly. Its noise variance is
+colour (constant over the frame, since ``s`` is), borders mirrored within each CFA phase
+(:func:`derender.raw.register_kernels.mirror_cfa`: a mirrored photosite keeps its colour; the
+mosaic's own mirror, as the demosaic has it, put a border row's other colours in, and a frame's
+border rows shifted into the reference's frame carried that error: 11-13x the still twin's on
+seed 0's two last rows). Away from the border, at a whole shift it is the demosaic of frame ``j``
+at ``p + s`` exactly. Its noise variance is
 ``sum_q C[q]^2 Var[d(q)]``: :func:`variance_factors` gives it over the variance of a photosite of
 colour ``c``, each photosite's variance taken proportional to its colour's level (shot noise),
 and the merge multiplies the noise model by it per frame, phase and colour
@@ -73,6 +77,9 @@ __all__ = [
     "variance_factors",
     "phase_scale",
     "shifted_box",
+    "colour_ghosts",
+    "COLOUR_GHOST_ERROR",
+    "COLOUR_GHOST_SIGMA",
 ]
 
 #: A shift component within this many photosites of a whole number is taken as whole.
@@ -165,8 +172,8 @@ def _resampling_kernels(pattern: str, sy: float, sx: float) -> tuple:
     return out, factor
 
 
-#: Photosites mirrored beyond each edge (as the demosaic reflects, ``scipy.ndimage`` mode
-#: ``reflect``), so that an unshifted frame's colours exist up to its border.
+#: Photosites mirrored beyond each edge (within each CFA phase,
+#: :func:`derender.raw.register_kernels.mirror_cfa`), so that a frame's colours exist up to its border.
 _PAD = PAD
 
 
@@ -279,13 +286,16 @@ def variance_factors(pattern: str, shift, colour_level: np.ndarray) -> np.ndarra
 
 
 def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
-                  noise, pattern: str, *, valid: np.ndarray | None = None,
-                  censored: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  noise, pattern: str, *, valid: np.ndarray | None = None, censored: bool = True,
+                  untested: np.ndarray | None = None, reference: int | None = None,
+                  threshold: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The censored ML merge (:func:`derender.raw.optimal.merge_compiled`) done per colour on
     the frames' colours at the reference's photosites (:func:`resample_rgb`, each frame at its
     ``shift``; module docstring, merging in colour). ``mosaics`` (N, H, W) exposure-sorted,
     ``black`` (N, 2, 2), ``white`` (N,), ``exposures`` (N,), ``valid`` (N, H, W) where each
-    frame may take part (ghost removal; None: everywhere). Returns camera RGB (H, W, 3) in
+    frame may take part (ghost removal; None: everywhere); ``untested`` (N, H, W) where ghost
+    removal could not test a frame (:func:`colour_ghosts`: tested here colour by colour against
+    frame ``reference``'s, ``threshold`` on the 5x5 mean of ``z^2``). Returns camera RGB (H, W, 3) in
     units of the white level per second, its variance (H, W, 3), the (H, W) mask (bright where
     a colour has every frame saturated) and the colours' correlation per CFA phase (2, 2, 3, 3),
     the frames' :func:`colour_correlation` averaged (the merge's weights are not followed)."""
@@ -321,18 +331,28 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
     for c in range(3):
         codes, ok, factors, loose = [], np.empty((n, h, w), bool), np.empty((n, 2, 2)), []
         measured = np.empty((n, h, w), bool)
+        states = []
         for j in range(n):
             vals, state, f = resample_rgb(mosaics[j], shifts[j], black[j], white[j], pattern, (c,))
             vals, state = vals[0], state[0]
             vals[state == 2] = ceil[j]                          # censored: at the level
             codes.append(np.ascontiguousarray(vals))
+            states.append(state)
             ok[j] = state != 0
             if valid is not None:
                 ok[j] &= np.asarray(valid[j], bool)
-            measured[j] = ok[j] & (state == 1)
             factors[j] = weighted[j][c]
             if tuple(shifts[j]) == (0.0, 0.0):
                 loose.append((j, state == 0))
+        if untested is not None and reference is not None:
+            r = int(reference)
+            for j in range(n):
+                if j != r and np.any(untested[j]):
+                    ok[j] &= ~colour_ghosts(codes[j], states[j], codes[r], states[r], (exposures[j], exposures[r]),
+                                            (g_f[j], g_f[r]), (s2_f[j], s2_f[r]), (factors[j], factors[r]),
+                                            (ceil[j], ceil[r]), np.asarray(untested[j], bool), threshold)
+        for j in range(n):
+            measured[j] = ok[j] & (states[j] == 1)
         # an unshifted frame's colour whose support is partly saturated (biased low) stands in
         # only where no other frame measures the colour at all (ghost removal kept the reference
         # alone, or the others kept are censored: censored samples alone bound it from below only)
@@ -344,6 +364,55 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
         v_out[..., c] = interleave(var, (h, w))
         mask = np.maximum(mask, m)
     return x_out, v_out, mask, rho
+
+
+#: Relative error of a resampled colour (its demosaic's, at the shifted photosite) allowed for in
+#: :func:`colour_ghosts` (as the ghost test beside saturation, :func:`derender.hdr.raw.merge_raw`).
+COLOUR_GHOST_ERROR = 0.1
+
+#: A censored colour is inconsistent in :func:`colour_ghosts` where the other frame puts the
+#: value more than this many sigma below its level (as the ghost test on the mosaic).
+COLOUR_GHOST_SIGMA = 3.0
+
+
+def colour_ghosts(values: np.ndarray, state: np.ndarray, ref_values: np.ndarray, ref_state: np.ndarray,
+                  exposures: tuple, gain: tuple, read_variance: tuple, factors: tuple, ceiling: tuple,
+                  where: np.ndarray, threshold: float) -> np.ndarray:
+    """Ghost removal colour by colour where the test on window sums could not decide (``where``,
+    (H, W): beside a frame's own saturation, the 2x2 windows hold a saturated photosite and the
+    frame's resampled colour of the reference's photosite is partly saturated). ``values`` and
+    ``state`` a frame's resampled colour (DN above black, censored at ``ceiling``; :func:`resample_rgb`'s
+    state), ``ref_*`` the reference's same colour; the pairs ``(frame, reference)``: exposures,
+    gain, read variance, variance factors (2, 2) per CFA phase and ceilings. Where both are
+    measured, ``z^2 = (v / e - v_r / e_r)^2 / (V f / e^2 + V_r f_r / e_r^2 + (0.1 x_r)^2)``
+    (``V = g x_r e + sigma^2``, ``x_r`` the reference's value per unit exposure, the resampling's
+    error allowed for as :data:`COLOUR_GHOST_ERROR`); a censored sample is inconsistent where the
+    other puts the value :data:`COLOUR_GHOST_SIGMA` sigma below its level. Returns (H, W) bool:
+    where the frame's colour is to be left out -- within ``where``, the 5x5 mean of ``z^2`` over
+    the photosites tested there above ``threshold``, or not testable (either colour takes no part)."""
+    from scipy.ndimage import uniform_filter
+
+    e, e_r = float(exposures[0]), float(exposures[1])
+    h, w = values.shape
+    f = np.tile(np.asarray(factors[0], np.float64), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    f_r = np.tile(np.asarray(factors[1], np.float64), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    x_r = np.maximum(ref_values / e_r, 0.0)
+    x = np.maximum(values / e, 0.0)
+    v = gain[0] * x_r * e + read_variance[0]
+    v_r = gain[1] * x_r * e_r + read_variance[1]
+    z2 = (values / e - ref_values / e_r) ** 2 / (v * f / e ** 2 + v_r * f_r / e_r ** 2 + (COLOUR_GHOST_ERROR * x_r) ** 2)
+    big = 4.0 * float(threshold)
+    below = x_r * e < ceiling[0] - COLOUR_GHOST_SIGMA * np.sqrt(v)
+    below_r = x * e_r < ceiling[1] - COLOUR_GHOST_SIGMA * np.sqrt(gain[1] * x * e_r + read_variance[1])
+    z2 = np.where((state == 2) & (ref_state == 2), 0.0, z2)
+    z2 = np.where((state == 2) & (ref_state == 1), np.where(below, big, 0.0), z2)
+    z2 = np.where((state == 1) & (ref_state == 2), np.where(below_r, big, 0.0), z2)
+    tested = where & (state != 0) & (ref_state != 0)
+    t = tested.astype(np.float64)
+    num = uniform_filter(np.where(tested, z2, 0.0), size=5, mode="nearest")
+    den = uniform_filter(t, size=5, mode="nearest")
+    mean = np.where(den > 0, num / np.maximum(den, 1e-30), np.inf)
+    return where & (~tested | (mean > float(threshold)))
 
 
 def colour_correlation(pattern: str, shift) -> np.ndarray:
@@ -612,7 +681,8 @@ def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndar
 
 
 def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = "linear_srgb", wb=None,
-                      variance: bool = True, clip_negative: bool = True, censored: bool = True):
+                      variance: bool = True, clip_negative: bool = True, censored: bool = True,
+                      untested=None, reference: int | None = None, threshold: float = 4.0):
     """:func:`derender.raw.optimal.raw_merge` for frames at ``shifts`` (per frame as given,
     (dy, dx) photosites: the reference's content at ``p`` sits at ``p + s`` in the frame):
     every frame's colours at the reference's photosites merged per colour
@@ -620,7 +690,9 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     middle frame of the time-sorted stack) and the output matrix; the variance through them with
     the colours' correlation per CFA phase (:func:`colour_correlation`). ``noise`` the
     :class:`~derender.raw.noise.NoiseModel`; ``valid`` per frame as given, where it may take
-    part (ghost removal). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``."""
+    part (ghost removal); ``untested`` per frame as given, where ghost removal could not test it,
+    to be tested colour by colour against frame ``reference`` (as given) with ``threshold``
+    (:func:`colour_ghosts`). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``."""
     from derender.core.errors import InputError
     from derender.core.types import HDRResult
     from derender.raw.mosaic import MASK_RADIUS, sorted_raw_frames, spread_mask
@@ -634,11 +706,14 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     order = [index[id(f)] for f in frames]
     shift_arr = np.array([[float(shifts[j][0]), float(shifts[j][1])] for j in order])
     valid_stack = None if valid is None else np.stack([np.asarray(valid[j], bool) for j in order])
+    untested_stack = None if untested is None else np.stack([np.asarray(untested[j], bool) for j in order])
+    ref_sorted = None if reference is None else order.index(int(reference))
     pattern = frames[0].cfa_pattern.upper()
     _, black, white = compiled_frames(frames)
     mosaics = [np.asarray(f.mosaic) for f in frames]
     rgb, var, mmask, rho = merge_shifted(mosaics, shift_arr, black, white, times, noise, pattern, valid=valid_stack,
-                                         censored=censored)
+                                         censored=censored, untested=untested_stack, reference=ref_sorted,
+                                         threshold=threshold)
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space)
     if output_space == "camera_rgb":
