@@ -431,7 +431,8 @@ def motion(seeds) -> None:
 def motion_speed(size, exposures=7, seed=0, repeats=2, folder=None) -> None:
     """``--motion-speed WxH``: ``--align translation --deghost`` on a handheld RAW bracket
     (``MotionSpec(objects=3, shake=4)``, outdoor, the ``paper`` family, nikon-d5100) stage by
-    stage, best of ``repeats`` after one untimed run (numba's compilation): registration
+    stage, best of ``repeats`` after one untimed run (numba's compilation), wall and CPU time
+    (the process's, threads included: steadier on a shared machine): registration
     (:func:`derender.hdr.raw.raw_motion` without ghost removal), registration + ghost removal,
     the merge in colour (:func:`derender.raw.register.raw_merge_shifted`), the whole
     :func:`derender.hdr.raw.merge_raw`, and the same merge without motion options. The frames are
@@ -463,10 +464,10 @@ def motion_speed(size, exposures=7, seed=0, repeats=2, folder=None) -> None:
         fn()
         times = []
         for _ in range(repeats):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             fn()
-            times.append(time.perf_counter() - t0)
-        return min(times)
+            times.append((time.perf_counter() - t0, time.process_time() - c0))
+        return min(t for t, _ in times), min(c for _, c in times)
 
     rows = [("registration (raw_motion, no ghost removal)", best(lambda: raw_motion(frames, mo_align))),
             ("registration + ghost removal (raw_motion)", best(lambda: raw_motion(frames, mo))),
@@ -475,10 +476,10 @@ def motion_speed(size, exposures=7, seed=0, repeats=2, folder=None) -> None:
             ("merge_raw --align translation --deghost", best(lambda: merge_raw(frames, motion=mo))),
             ("merge_raw, no motion options", best(lambda: merge_raw(frames)))]
     print(f"## --align translation --deghost, {exposures} frames of {w}x{h}, seed {seed}, shifts {info['shifts']}\n")
-    print("| stage | s (best of %d) |" % repeats)
-    print("|---|---|")
-    for name, t in rows:
-        print(f"| {name} | {t:.2f} |")
+    print("| stage | wall s (best of %d) | CPU s (best of %d) |" % (repeats, repeats))
+    print("|---|---|---|")
+    for name, (t, c) in rows:
+        print(f"| {name} | {t:.2f} | {c:.2f} |")
 
 
 def main() -> None:

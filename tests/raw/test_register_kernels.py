@@ -10,8 +10,15 @@ import numpy as np
 import pytest
 
 from derender.raw.register import keys_weights, resample_mosaic, resample_rgb, shifted_box
-from derender.raw.register_kernels import (PAD, box_image, filter_phase, ghost_z2, mirror_cfa, separable_taps,
-                                          window_sums)
+from derender.raw.register_kernels import (
+    PAD,
+    box_image,
+    filter_phase,
+    ghost_z2,
+    mirror_cfa,
+    separable_taps,
+    window_sums,
+)
 
 TOL = 1e-12
 

@@ -25,8 +25,10 @@ value), its mean over a 5x5 window against the engine's threshold
 when the other frame puts the value more than 3 sigma below its saturation level; for a
 resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``); beside
 saturation a frame longer than the reference is tested per photosite with 10 % of the value
-allowed for the resampling's error, and a photosite whose resampled sample is left untested
-(its support partly saturated) is left out. ``--spot``,
+allowed for the resampling's error, and where a photosite's resampled sample is left untested
+(its support partly saturated) a longer frame is tested colour by colour in the merge
+(:func:`derender.raw.register.colour_ghosts`) and a shorter one is left out; the per-photosite
+``z`` and the window sums are compiled (:mod:`derender.raw.register_kernels`). ``--spot``,
 ``--vignetting``, ``--profile`` (its photometric factor and vignetting), ``--view``/``.hdr``
 output, ``--preview``, ``--mask`` and ``--report`` act on the merged map as for any method.
 """
@@ -500,7 +502,10 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     a window holds one photosite of each colour whatever its phase, so no colour is interpolated
     across (a resampled sample of another colour carries the demosaic's error, which the noise
     model does not describe and which rejected 40-50 % of the static photosites of a handheld
-    bracket). Returns the fraction rejected per frame; ``kept[j]`` loses the rejected photosites."""
+    bracket). ``shifted`` is ``(frames as read, shifts, untested)``: ``untested[j]`` gets the
+    photosites of a frame longer than the reference that neither test could decide, for the
+    merge's test colour by colour (:func:`derender.raw.register.colour_ghosts`). Returns the
+    fraction rejected per frame; ``kept[j]`` loses the rejected photosites."""
     from scipy.ndimage import uniform_filter
 
     from derender.engine.motion.deghost import GHOST_THRESHOLD
