@@ -392,6 +392,17 @@ def colour_ghosts(values: np.ndarray, state: np.ndarray, ref_values: np.ndarray,
     the photosites tested there above ``threshold``, or not testable (either colour takes no part)."""
     from scipy.ndimage import uniform_filter
 
+    where = np.asarray(where, bool)
+    out = np.zeros(where.shape, bool)
+    rows, cols = np.flatnonzero(where.any(axis=1)), np.flatnonzero(where.any(axis=0))
+    if rows.size == 0:
+        return out
+    # the 5x5 means of the photosites in ``where`` read only photosites within 2 of them: the
+    # bounding box grown by 2 (a crop of even offset, so the CFA phases stay) gives the same result
+    y0, x0 = max(0, int(rows[0]) - 2) & ~1, max(0, int(cols[0]) - 2) & ~1
+    y1, x1 = min(where.shape[0], int(rows[-1]) + 3), min(where.shape[1], int(cols[-1]) + 3)
+    box = (slice(y0, y1), slice(x0, x1))
+    values, state, ref_values, ref_state, where = values[box], state[box], ref_values[box], ref_state[box], where[box]
     e, e_r = float(exposures[0]), float(exposures[1])
     h, w = values.shape
     f = np.tile(np.asarray(factors[0], np.float64), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
@@ -412,7 +423,8 @@ def colour_ghosts(values: np.ndarray, state: np.ndarray, ref_values: np.ndarray,
     num = uniform_filter(np.where(tested, z2, 0.0), size=5, mode="nearest")
     den = uniform_filter(t, size=5, mode="nearest")
     mean = np.where(den > 0, num / np.maximum(den, 1e-30), np.inf)
-    return where & (~tested | (mean > float(threshold)))
+    out[box] = where & (~tested | (mean > float(threshold)))
+    return out
 
 
 def colour_correlation(pattern: str, shift) -> np.ndarray:
