@@ -36,6 +36,7 @@ merge --method raw`` in process (read + merge + variance), at ``--speed-size``.
     PYTHONPATH=src python benchmarks/bench_raw.py --demosaic-speed 6016x4000 [--with-colour-demosaicing]
     PYTHONPATH=src python benchmarks/bench_raw.py --stages --speed-exposures 9 --speed-tile 6016x4000 [--stages-folder DIR]
     PYTHONPATH=src python benchmarks/bench_raw.py --motion [--motion-seeds 0,1,2]
+    PYTHONPATH=src python benchmarks/bench_raw.py --motion-speed 1536x1024 [--motion-speed-folder DIR]
 
 ``--demosaic-candidates``: colour_demosaicing's Malvar 2004, bilinear and Menon 2007 (with and
 without its refining step) and derender's AHD (:mod:`derender.raw.ahd`) on the noise-free true mosaic and on derender's merged mosaic of
@@ -47,6 +48,7 @@ every case, against the scene (one scale fitted): median / darkest / brightest d
 family, ``MotionSpec(objects=3, shake=4)``), ``--align translation --deghost`` at the truth's
 reference on the tripod and handheld brackets, each zone's median error (3x3 fit) over the still
 twin's, and the shifts found against the simulator's.
+``--motion-speed``: the same options on a handheld bracket of that size, stage by stage (:func:`motion_speed`).
 """
 
 from __future__ import annotations
@@ -433,6 +435,60 @@ def motion(seeds) -> None:
                   f"| {m['object'] / z['object']:.3f} | {err:.2f} | {dt:.2f} |", flush=True)
 
 
+def motion_speed(size, exposures=7, seed=0, repeats=2, folder=None) -> None:
+    """``--motion-speed WxH``: ``--align translation --deghost`` on a handheld RAW bracket
+    (``MotionSpec(objects=3, shake=4)``, outdoor, the ``paper`` family, nikon-d5100) stage by
+    stage, best of ``repeats`` after one untimed run (numba's compilation), wall and CPU time
+    (the process's, threads included: steadier on a shared machine): registration
+    (:func:`derender.hdr.raw.raw_motion` without ghost removal), registration + ghost removal,
+    the merge in colour (:func:`derender.raw.register.raw_merge_shifted`), the whole
+    :func:`derender.hdr.raw.merge_raw`, and the same merge without motion options. The frames are
+    kept in ``folder`` (a pickle) to run the same bracket on two checkouts."""
+    import pickle
+
+    from derender.camera import simulate_bracket
+    from derender.camera.motion import MotionSpec
+    from derender.engine.motion.run import MotionOptions
+    from derender.evaluation.raw_merge import bracket_raw_frames
+    from derender.hdr.raw import merge_raw, raw_motion
+    from derender.raw.register import raw_merge_shifted
+
+    w, h = size
+    path = Path(folder) / f"motion_{w}x{h}_{exposures}_{seed}.pkl" if folder else None
+    if path is not None and path.exists():
+        frames, ref = pickle.loads(path.read_bytes())
+    else:
+        b = simulate_bracket("nikon-d5100", motion=MotionSpec(objects=3, shake=4), kind="outdoor", size=(w, h),
+                             exposures=exposures, seed=seed, family="paper")
+        frames, ref = bracket_raw_frames(b), b.params["motion"]["reference"]
+        if path is not None:
+            path.write_bytes(pickle.dumps((frames, ref)))
+    mo = MotionOptions(reference=ref, align="translation", deghost=True)
+    mo_align = MotionOptions(reference=ref, align="translation", deghost=False)
+    info = raw_motion(frames, mo)[2]
+
+    def best(fn):
+        fn()
+        times = []
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            times.append((time.perf_counter() - t0, time.process_time() - c0))
+        return min(t for t, _ in times), min(c for _, c in times)
+
+    rows = [("registration (raw_motion, no ghost removal)", best(lambda: raw_motion(frames, mo_align))),
+            ("registration + ghost removal (raw_motion)", best(lambda: raw_motion(frames, mo))),
+            ("merge in colour (raw_merge_shifted)",
+             best(lambda: raw_merge_shifted(frames, info["shifts"], info["noise"], valid=info["kept"]))),
+            ("merge_raw --align translation --deghost", best(lambda: merge_raw(frames, motion=mo))),
+            ("merge_raw, no motion options", best(lambda: merge_raw(frames)))]
+    print(f"## --align translation --deghost, {exposures} frames of {w}x{h}, seed {seed}, shifts {info['shifts']}\n")
+    print("| stage | wall s (best of %d) | CPU s (best of %d) |" % (repeats, repeats))
+    print("|---|---|---|")
+    for name, (t, c) in rows:
+        print(f"| {name} | {t:.2f} | {c:.2f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", default="384x256")
@@ -458,9 +514,14 @@ def main() -> None:
     ap.add_argument("--stages-folder", default=None, help="keep the speed bracket's DNG files in this folder")
     ap.add_argument("--motion", action="store_true", help="issue 38's motion line (module docstring)")
     ap.add_argument("--motion-seeds", default="0,1,2")
+    ap.add_argument("--motion-speed", default=None, help="WxH: --align --deghost on a handheld bracket, stage by stage")
+    ap.add_argument("--motion-speed-folder", default=None, help="keep that bracket's frames in this folder")
     args = ap.parse_args()
     if args.motion:
         motion([int(v) for v in args.motion_seeds.split(",")])
+        return
+    if args.motion_speed:
+        motion_speed(tuple(int(v) for v in args.motion_speed.split("x")), folder=args.motion_speed_folder)
         return
     w, h = (int(v) for v in args.size.split("x"))
     if args.demosaic_candidates:

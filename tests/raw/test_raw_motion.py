@@ -121,3 +121,21 @@ def test_noise_fit_is_the_sensors_when_things_move(camera):
         n = merge_raw(bracket_raw_frames(b), motion=mo).info["noise"]
         assert abs(n["gain_dn_per_electron"] / g - 1) < tol_g, n
         assert abs(n["read_noise_dn"] / rn - 1) < tol_r, n
+
+
+def test_alignment_leaves_a_tripod_bracket_bit_for_bit():
+    """A tripod bracket (moving discs, no shake): `--align translation` finds no shift, so the merge
+    with it is bit for bit the merge without it, with and without ghost removal (radiance, variance,
+    mask and ghost map); the registration's compiled loops and the resampling never run on it."""
+    b = simulate_bracket("nikon-d5100", kind="outdoor", size=(96, 64), exposures=5, seed=0, family="paper",
+                         motion=MotionSpec(objects=3, shake=4).tripod())
+    frames = bracket_raw_frames(b)
+    ref = b.params["motion"]["reference"]
+    opts = {"output_space": "camera_rgb", "variance": True}
+    for deghost in (False, True):
+        a = merge_raw(frames, opts, motion=MotionOptions(reference=ref, align="translation", deghost=deghost))
+        n = merge_raw(frames, opts, motion=MotionOptions(reference=ref, deghost=deghost))
+        assert a.info["raw_motion"]["shifts"] == [(0, 0)] * len(frames) and not a.info["raw_motion"]["resampled"]
+        assert np.array_equal(a.radiance, n.radiance) and np.array_equal(a.variance, n.variance)
+        assert np.array_equal(a.mask, n.mask) and np.array_equal(a.ghosts, n.ghosts)
+    assert np.any(a.ghosts)                                          # ghost removal did act

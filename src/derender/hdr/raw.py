@@ -25,8 +25,10 @@ value), its mean over a 5x5 window against the engine's threshold
 when the other frame puts the value more than 3 sigma below its saturation level; for a
 resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``); beside
 saturation a frame longer than the reference is tested per photosite with 10 % of the value
-allowed for the resampling's error, and a photosite whose resampled sample is left untested
-(its support partly saturated) is left out. ``--spot``,
+allowed for the resampling's error, and where a photosite's resampled sample is left untested
+(its support partly saturated) a longer frame is tested colour by colour in the merge
+(:func:`derender.raw.register.colour_ghosts`) and a shorter one is left out; the per-photosite
+``z`` and the window sums are compiled (:mod:`derender.raw.register_kernels`). ``--spot``,
 ``--vignetting``, ``--profile`` (its photometric factor and vignetting), ``--view``/``.hdr``
 output, ``--preview``, ``--mask`` and ``--report`` act on the merged map as for any method.
 """
@@ -167,13 +169,15 @@ def merge_raw(frames: RawFrame | Sequence[RawFrame], options: RawOptions | Mappi
 
             frames, valid = original, motion_info["kept"]
             res = raw_merge_shifted(frames, motion_info["shifts"], motion_info["noise"], valid=valid,
-                                    output_space=o.output_space, variance=o.variance)
+                                    output_space=o.output_space, variance=o.variance,
+                                    untested=motion_info["untested"], reference=motion_info["reference"],
+                                    threshold=float(motion.ghost_threshold or _ghost_threshold()))
         else:
             res = raw_merge(frames, output_space=o.output_space, gain=o.gain, read_noise=o.read_noise,
                             demosaic=o.demosaic, variance=o.variance, valid=valid,
                             variance_terms=o.variance_terms, **extra)
         if motion_info is not None:
-            res.info["raw_motion"] = {k: v for k, v in motion_info.items() if k not in ("noise", "kept")}
+            res.info["raw_motion"] = {k: v for k, v in motion_info.items() if k not in ("noise", "kept", "untested")}
             res.info["raw_motion"]["variance_factor"] = np.asarray(motion_info["variance_factor"]).tolist()
             res.info.update(_summary_fields(motion_info, motion, frames))
             res.ghosts = np.sum([~v for v in valid], axis=0, dtype=np.uint8)   # frames left out per photosite
@@ -191,6 +195,12 @@ _CENSOR_SIGMA = 3.0
 #: in the per-photosite ghost test beside saturation (ghost removal on resampled RAW frames;
 #: measured on the simulator's ``paper`` family).
 _RESAMPLE_ERROR = 0.1
+
+
+def _ghost_threshold() -> float:
+    from derender.engine.motion.deghost import GHOST_THRESHOLD
+
+    return float(GHOST_THRESHOLD)
 
 
 def _grey8(frame: RawFrame) -> np.ndarray:
@@ -247,15 +257,17 @@ def raw_motion(frames: Sequence[RawFrame], motion: MotionOptions, gain: float | 
                     for a, b in shifts)
     rejected = [0.0] * n
     kept = [np.ones(np.asarray(f.mosaic).shape, bool) for f in frames]
+    untested = None
     if motion.deghost and n > 1:
         if noise is None:
             noise = _bracket_noise(frames, times, (gain, read_noise))
+        untested = [np.zeros(np.asarray(f.mosaic).shape, bool) for f in frames] if resampled else None
         rejected = _reject_ghosts(frames, times, ref, valid, threshold=motion.ghost_threshold, noise=noise,
                                   factors=factors, kept=kept,
-                                  shifted=(given_frames, shifts) if resampled else None)
+                                  shifted=(given_frames, shifts, untested) if resampled else None)
     info = {"reference": ref, "align": align, "shifts": shifts, "deghost": bool(motion.deghost),
             "rejected": rejected, "variance_factor": factors, "noise": noise, "pairs": pairs,
-            "resampled": resampled, "kept": kept}
+            "resampled": resampled, "kept": kept, "untested": untested}
     return frames, valid, info
 
 
@@ -476,11 +488,17 @@ _WINDOW_VAR4 = np.array([1.0, 4.0, 4.0, 1.0]) / 9.0
 _WINDOW_PAIR3 = np.array([1.0, 2.0, 2.0, 1.0]) / 3.0
 
 
-def _separable(v: np.ndarray, taps: np.ndarray) -> np.ndarray:
-    """``v`` correlated with ``taps`` along both axes (edges repeated)."""
-    from scipy.ndimage import correlate1d
+def _separable(v: np.ndarray, taps: np.ndarray, taps_x: np.ndarray | None = None) -> np.ndarray:
+    """``v`` correlated with ``taps`` along the rows and ``taps_x`` (else ``taps``) along the columns,
+    edges repeated (``scipy.ndimage.correlate1d``'s ``nearest``, compiled:
+    :func:`derender.raw.register_kernels.correlate_nearest`)."""
+    from derender.raw.register_kernels import correlate_nearest
 
-    return correlate1d(correlate1d(v, taps, axis=0, mode="nearest"), taps, axis=1, mode="nearest")
+    out = np.empty(np.shape(v))
+    tx = taps if taps_x is None else taps_x
+    correlate_nearest(np.ascontiguousarray(v, np.float64), np.ascontiguousarray(taps, np.float64),
+                      np.ascontiguousarray(tx, np.float64), out)
+    return out
 
 
 def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: list[np.ndarray], *,
@@ -495,10 +513,14 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     a window holds one photosite of each colour whatever its phase, so no colour is interpolated
     across (a resampled sample of another colour carries the demosaic's error, which the noise
     model does not describe and which rejected 40-50 % of the static photosites of a handheld
-    bracket). Returns the fraction rejected per frame; ``kept[j]`` loses the rejected photosites."""
+    bracket). ``shifted`` is ``(frames as read, shifts, untested)``: ``untested[j]`` gets the
+    photosites of a frame longer than the reference that neither test could decide, for the
+    merge's test colour by colour (:func:`derender.raw.register.colour_ghosts`). Returns the
+    fraction rejected per frame; ``kept[j]`` loses the rejected photosites."""
     from scipy.ndimage import uniform_filter
 
     from derender.engine.motion.deghost import GHOST_THRESHOLD
+    from derender.raw.register_kernels import ghost_z2
 
     g, s2 = _per_frame_noise(noise, times)
     h, w = np.asarray(frames[0].mosaic).shape
@@ -511,36 +533,39 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     d_r = np.asarray(frames[ref].mosaic, np.float64) - planes[ref]
     sat_r = np.asarray(frames[ref].mosaic) >= whites[ref]
     x_r = np.maximum(d_r / times[ref], 0.0)
-    v_r = (g[ref] * x_r * times[ref] + s2[ref]) * plane(factors[ref])
-    c_r = whites[ref] - planes[ref]
     thr = float(threshold or GHOST_THRESHOLD)
     rejected = [0.0] * len(frames)
     if shifted is not None:
-        from scipy.ndimage import correlate1d
-
         from derender.raw.register import phase_scale, shifted_box
 
-        originals, shift_values = shifted
+        originals, shift_values, untested = shifted
         scale = phase_scale(originals[ref].mosaic, _black22(originals[ref]), whites[ref], times[ref])
         sc2 = plane(scale) ** 2
         smooth = _separable
         mean3, var4, pair3 = _WINDOW_MEAN3, _WINDOW_VAR4, _WINDOW_PAIR3
         vq_r = (g[ref] * x_r * times[ref] + s2[ref]) / times[ref] ** 2 / sc2
         box_r, bsat_r = shifted_box(d_r / times[ref], sat_r, (0, 0), scale)[:2]
+        var_r = smooth(vq_r, var4)
+    mos_r = np.ascontiguousarray(frames[ref].mosaic)
+    everywhere = np.empty((0, 0), np.bool_)
     for j in range(len(frames)):
         if j == ref:
             continue
-        d_j = np.asarray(frames[j].mosaic, np.float64) - planes[j]
-        sat_j = np.asarray(frames[j].mosaic) >= whites[j]
-        v_j = g[j] * x_r * times[j] + s2[j]
-        z2 = (d_j / times[j] - d_r / times[ref]) ** 2 / (v_j * plane(factors[j]) / times[j] ** 2 + v_r / times[ref] ** 2)
-        # a censored sample: inconsistent only where the other frame is clearly below its level
-        below_j = x_r * times[j] < whites[j] - planes[j] - _CENSOR_SIGMA * np.sqrt(v_j)
-        x_j = np.maximum(d_j / times[j], 0.0)
-        below_r = x_j * times[ref] < c_r - _CENSOR_SIGMA * np.sqrt(g[ref] * x_j * times[ref] + s2[ref])
-        z2 = np.where(sat_j & sat_r, 0.0, z2)
-        z2 = np.where(sat_j & ~sat_r, np.where(below_j, 4.0 * thr, 0.0), z2)
-        z2 = np.where(~sat_j & sat_r, np.where(below_r, 4.0 * thr, 0.0), z2)
+        # z^2 per photosite (derender.raw.register_kernels.ghost_z2): a censored sample is
+        # inconsistent only where the other frame is clearly below its level; on a resampled
+        # bracket, for a frame longer than the reference where its resampled sample is measured
+        # (support unsaturated: ``valid``), with the resampled colour's error allowed for
+        # (``_RESAMPLE_ERROR``; a ghost beside the long frame's saturation went untested), else
+        # (neither sample saturated) 0: the window test below decides. Testing the shorter
+        # frames so too made the object zone worse (docs/results-raw.md, measured).
+        tested = (np.ascontiguousarray(valid[j] & (times[j] > times[ref])) if shifted is not None
+                  else everywhere)
+        z2 = np.empty((h, w))
+        ghost_z2(np.ascontiguousarray(frames[j].mosaic), mos_r, _black22(frames[j]), _black22(frames[ref]),
+                 whites[j], whites[ref], float(times[j]), float(times[ref]), float(g[j]), float(s2[j]),
+                 float(g[ref]), float(s2[ref]), np.ascontiguousarray(factors[j], np.float64),
+                 np.ascontiguousarray(factors[ref], np.float64), _CENSOR_SIGMA, 4.0 * thr,
+                 _RESAMPLE_ERROR if shifted is not None else 0.0, tested, z2)
         if shifted is not None:
             o = originals[j]
             d_o = np.asarray(o.mosaic, np.float64) - planes[j]
@@ -549,24 +574,24 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             vq_j = (g[j] * x_r * times[j] + s2[j]) / times[j] ** 2 / sc2
             # frame j's photosites enter through the window, the 3x3 mean and Keys' weights
             ky, kx = np.convolve(pair3, wy[wy != 0]) ** 2, np.convolve(pair3, wx[wx != 0]) ** 2
-            var_j = correlate1d(correlate1d(vq_j, ky, axis=0, mode="nearest"), kx, axis=1, mode="nearest")
-            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + smooth(vq_r, var4))
+            var_j = smooth(vq_j, ky, kx)
+            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + var_r)
             use = inside & (smooth((bsat_j | bsat_r).astype(np.float64), mean3) == 0.0)
-            # near saturation (a window holds a saturated photosite) the censored samples' rule,
-            # and for a frame longer than the reference, where its resampled sample is measured
-            # (support unsaturated: ``valid``), the per-photosite z with the resampled colour's
-            # error allowed for (``_RESAMPLE_ERROR``; a ghost beside the long frame's saturation
-            # went untested). Testing the shorter frames so too made the object zone worse
-            # (docs/results-raw.md, measured).
-            z2e = (d_j / times[j] - d_r / times[ref]) ** 2 / (
-                v_j * plane(factors[j]) / times[j] ** 2 + v_r / times[ref] ** 2 + (_RESAMPLE_ERROR * x_r) ** 2)
-            tested = valid[j] & (times[j] > times[ref])
-            z2 = np.where(use, zb, np.where(sat_j | sat_r, z2, np.where(tested, z2e, 0.0)))
+            # near saturation (a window holds a saturated photosite) the censored samples' rule
+            # and the per-photosite test above
+            z2 = np.where(use, zb, z2)
         bad = uniform_filter(z2, size=5, mode="nearest") > thr
         if shifted is not None:
             # untested (near saturation, the resampled sample's support partly saturated): the
-            # merge would take this frame's colours there unchecked; left out
-            bad |= ~use & ~valid[j]
+            # merge would take this frame's colours there unchecked. A frame longer than the
+            # reference is tested there colour by colour by the merge
+            # (derender.raw.register.colour_ghosts: leaving its colours out beside its own
+            # saturation cost the static zone 1.22 -> 1.18 on seed 0, measured); a shorter one is
+            # left out
+            if times[j] > times[ref]:
+                untested[j] = ~use & ~valid[j] & ~bad
+            else:
+                bad |= ~use & ~valid[j]
         valid[j] &= ~bad
         kept[j] &= ~bad
         rejected[j] = float(np.mean(bad))

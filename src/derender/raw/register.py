@@ -26,8 +26,12 @@ each frame against its neighbour towards the reference and chains the shifts, as
 **Resampling** (:func:`resample_rgb`): frame ``j``'s colour ``c`` at ``p + s`` is Malvar, He &
 Cutler's (2004) demosaic of frame ``j`` for colour ``c`` at the 4 x 4 photosites around ``p + s``,
 weighted by Keys: one linear filter ``C`` of about 8 x 8 photosites per output CFA phase and
-colour (constant over the frame, since ``s`` is), borders mirrored as the demosaic does. At a
-whole shift it is the demosaic of frame ``j`` at ``p + s`` exactly. Its noise variance is
+colour (constant over the frame, since ``s`` is), borders mirrored within each CFA phase
+(:func:`derender.raw.register_kernels.mirror_cfa`: a mirrored photosite keeps its colour; the
+mosaic's own mirror, as the demosaic has it, put a border row's other colours in, and a frame's
+border rows shifted into the reference's frame carried that error: 11-13x the still twin's on
+seed 0's two last rows). Away from the border, at a whole shift it is the demosaic of frame ``j``
+at ``p + s`` exactly. Its noise variance is
 ``sum_q C[q]^2 Var[d(q)]``: :func:`variance_factors` gives it over the variance of a photosite of
 colour ``c``, each photosite's variance taken proportional to its colour's level (shot noise),
 and the merge multiplies the noise model by it per frame, phase and colour
@@ -58,6 +62,8 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from derender.raw.register_kernels import PAD, box_image, colour_variance, filter_phase, separable_taps, window_sums
+
 __all__ = [
     "SNAP",
     "keys_weights",
@@ -71,6 +77,9 @@ __all__ = [
     "variance_factors",
     "phase_scale",
     "shifted_box",
+    "colour_ghosts",
+    "COLOUR_GHOST_ERROR",
+    "COLOUR_GHOST_SIGMA",
 ]
 
 #: A shift component within this many photosites of a whole number is taken as whole.
@@ -163,18 +172,20 @@ def _resampling_kernels(pattern: str, sy: float, sx: float) -> tuple:
     return out, factor
 
 
-#: Photosites mirrored beyond each edge (as the demosaic reflects, ``scipy.ndimage`` mode
-#: ``reflect``), so that an unshifted frame's colours exist up to its border.
-_PAD = 2
+#: Photosites mirrored beyond each edge (within each CFA phase,
+#: :func:`derender.raw.register_kernels.mirror_cfa`), so that a frame's colours exist up to its border.
+_PAD = PAD
 
 
-def _apply(d: np.ndarray, sat: np.ndarray, kernel: tuple, a: int, b: int, shape: tuple[int, int], shift):
-    """One phase's filter (:func:`_resampling_kernels`) on ``d`` (padded by :data:`_PAD`) for the
-    output photosites ``p = (2i + a, 2k + b)`` of a ``shape`` frame whose support lies inside
-    and whose point ``p + shift`` lies inside the frame: ``(values, saturated taps, taps, (i0, i1, k0, k1))``."""
+def _apply(m: np.ndarray, black: np.ndarray, white: float, kernel: tuple, a: int, b: int, shift):
+    """One phase's filter (:func:`_resampling_kernels`) on the mosaic ``m`` (values above
+    ``black`` (2, 2), mirrored by :data:`_PAD` beyond its edges) for the output photosites
+    ``p = (2i + a, 2k + b)`` whose support lies inside the padded frame and whose point
+    ``p + shift`` lies inside the frame: ``(values, saturated taps, taps, (i0, i1, k0, k1))``
+    (:func:`derender.raw.register_kernels.filter_phase`)."""
     ker, oy, ox = kernel
-    h, w = shape
-    hp, wp = d.shape
+    h, w = m.shape
+    hp, wp = h + 2 * _PAD, w + 2 * _PAD
     oy, ox = oy + _PAD, ox + _PAD
     ny, nx = (h - a + 1) // 2, (w - b + 1) // 2
     kh, kw = ker.shape
@@ -185,31 +196,18 @@ def _apply(d: np.ndarray, sat: np.ndarray, kernel: tuple, a: int, b: int, shape:
     k1 = min(nx, (wp - kw - b - ox) // 2 + 1, math.floor((w - 1 - b - sx) / 2) + 1)
     if i1 <= i0 or k1 <= k0:
         return None
-    vals = np.zeros((i1 - i0, k1 - k0))
-    nsat = np.zeros((i1 - i0, k1 - k0))
-    taps = 0
-    for u in range(kh):
-        for v in range(kw):
-            c = ker[u, v]
-            if c == 0.0:
-                continue
-            taps += 1
-            r0, c0 = 2 * i0 + a + oy + u, 2 * k0 + b + ox + v
-            sl = (slice(r0, r0 + 2 * (i1 - i0) - 1, 2), slice(c0, c0 + 2 * (k1 - k0) - 1, 2))
-            vals += c * d[sl]
-            nsat += sat[sl]
-    return vals, nsat, taps, (i0, i1, k0, k1)
+    vals = np.empty((i1 - i0, k1 - k0))
+    nsat = np.empty((i1 - i0, k1 - k0))
+    filter_phase(m, black, float(white), np.ascontiguousarray(ker, np.float64), 2 * i0 + a + oy,
+                 2 * k0 + b + ox, vals, nsat)
+    return vals, nsat, int(np.count_nonzero(ker)), (i0, i1, k0, k1)
 
 
-def _prepare(mosaic: np.ndarray, black, white: float):
-    m = np.asarray(mosaic)
-    h, w = m.shape
-    black = np.broadcast_to(np.asarray(black, np.float64).reshape(-1)[0], (2, 2)) \
-        if np.asarray(black).size == 1 else np.asarray(black, np.float64).reshape(2, 2)
-    bl = np.tile(black, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    d = np.pad(np.asarray(m, np.float64) - bl, _PAD, mode="symmetric")
-    sat = np.pad(np.asarray(m >= white, np.float64), _PAD, mode="symmetric")
-    return m, black, d, sat
+def _prepare(mosaic: np.ndarray, black):
+    m = np.ascontiguousarray(mosaic)
+    black = np.broadcast_to(np.asarray(black, np.float64).reshape(-1)[0], (2, 2)).copy() \
+        if np.asarray(black).size == 1 else np.ascontiguousarray(np.asarray(black, np.float64).reshape(2, 2))
+    return m, black
 
 
 def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
@@ -219,7 +217,7 @@ def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     ``(codes, valid, factor)`` -- (H, W) float64 codes (the target phase's black level plus the
     resampled value above black; the white level where the support is saturated everywhere),
     (H, W) bool where the sample takes part, and the (2, 2) variance factor per phase."""
-    m, black, d, sat = _prepare(mosaic, black, white)
+    m, black = _prepare(mosaic, black)
     p = pattern.upper()
     lut = {"R": 0, "G": 1, "B": 2}
     kernels, factors = _resampling_kernels(p, float(shift[0]), float(shift[1]))
@@ -230,7 +228,7 @@ def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
         for b in range(2):
             c = lut[p[2 * a + b]]
             factor[a, b] = factors[c, a, b]
-            got = _apply(d, sat, kernels[a][b][c], a, b, m.shape, shift)
+            got = _apply(m, black, white, kernels[a][b][c], a, b, shift)
             if got is None:
                 continue
             vals, nsat, taps, (i0, i1, k0, k1) = got
@@ -248,7 +246,7 @@ def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     (module docstring, merging in colour): ``(values, state, factor)`` -- (C, H, W) float64 DN
     above black, (C, H, W) uint8 state (0: takes no part, 1: a measurement, 2: censored, its
     support saturated everywhere) and the (3, 2, 2) variance factor per colour and output phase."""
-    m, black, d, sat = _prepare(mosaic, black, white)
+    m, black = _prepare(mosaic, black)
     kernels, factors = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]))
     h, w = m.shape
     values = np.zeros((len(channels), h, w))
@@ -256,7 +254,7 @@ def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     for a in range(2):
         for b in range(2):
             for k, c in enumerate(channels):
-                got = _apply(d, sat, kernels[a][b][c], a, b, m.shape, shift)
+                got = _apply(m, black, white, kernels[a][b][c], a, b, shift)
                 if got is None:
                     continue
                 vals, nsat, taps, (i0, i1, k0, k1) = got
@@ -288,13 +286,16 @@ def variance_factors(pattern: str, shift, colour_level: np.ndarray) -> np.ndarra
 
 
 def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
-                  noise, pattern: str, *, valid: np.ndarray | None = None,
-                  censored: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  noise, pattern: str, *, valid: np.ndarray | None = None, censored: bool = True,
+                  untested: np.ndarray | None = None, reference: int | None = None,
+                  threshold: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The censored ML merge (:func:`derender.raw.optimal.merge_compiled`) done per colour on
     the frames' colours at the reference's photosites (:func:`resample_rgb`, each frame at its
     ``shift``; module docstring, merging in colour). ``mosaics`` (N, H, W) exposure-sorted,
     ``black`` (N, 2, 2), ``white`` (N,), ``exposures`` (N,), ``valid`` (N, H, W) where each
-    frame may take part (ghost removal; None: everywhere). Returns camera RGB (H, W, 3) in
+    frame may take part (ghost removal; None: everywhere); ``untested`` (N, H, W) where ghost
+    removal could not test a frame (:func:`colour_ghosts`: tested here colour by colour against
+    frame ``reference``'s, ``threshold`` on the 5x5 mean of ``z^2``). Returns camera RGB (H, W, 3) in
     units of the white level per second, its variance (H, W, 3), the (H, W) mask (bright where
     a colour has every frame saturated) and the colours' correlation per CFA phase (2, 2, 3, 3),
     the frames' :func:`colour_correlation` averaged (the merge's weights are not followed)."""
@@ -330,18 +331,28 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
     for c in range(3):
         codes, ok, factors, loose = [], np.empty((n, h, w), bool), np.empty((n, 2, 2)), []
         measured = np.empty((n, h, w), bool)
+        states = []
         for j in range(n):
             vals, state, f = resample_rgb(mosaics[j], shifts[j], black[j], white[j], pattern, (c,))
             vals, state = vals[0], state[0]
             vals[state == 2] = ceil[j]                          # censored: at the level
             codes.append(np.ascontiguousarray(vals))
+            states.append(state)
             ok[j] = state != 0
             if valid is not None:
                 ok[j] &= np.asarray(valid[j], bool)
-            measured[j] = ok[j] & (state == 1)
             factors[j] = weighted[j][c]
             if tuple(shifts[j]) == (0.0, 0.0):
                 loose.append((j, state == 0))
+        if untested is not None and reference is not None:
+            r = int(reference)
+            for j in range(n):
+                if j != r and np.any(untested[j]):
+                    ok[j] &= ~colour_ghosts(codes[j], states[j], codes[r], states[r], (exposures[j], exposures[r]),
+                                            (g_f[j], g_f[r]), (s2_f[j], s2_f[r]), (factors[j], factors[r]),
+                                            (ceil[j], ceil[r]), np.asarray(untested[j], bool), threshold)
+        for j in range(n):
+            measured[j] = ok[j] & (states[j] == 1)
         # an unshifted frame's colour whose support is partly saturated (biased low) stands in
         # only where no other frame measures the colour at all (ghost removal kept the reference
         # alone, or the others kept are censored: censored samples alone bound it from below only)
@@ -353,6 +364,67 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
         v_out[..., c] = interleave(var, (h, w))
         mask = np.maximum(mask, m)
     return x_out, v_out, mask, rho
+
+
+#: Relative error of a resampled colour (its demosaic's, at the shifted photosite) allowed for in
+#: :func:`colour_ghosts` (as the ghost test beside saturation, :func:`derender.hdr.raw.merge_raw`).
+COLOUR_GHOST_ERROR = 0.1
+
+#: A censored colour is inconsistent in :func:`colour_ghosts` where the other frame puts the
+#: value more than this many sigma below its level (as the ghost test on the mosaic).
+COLOUR_GHOST_SIGMA = 3.0
+
+
+def colour_ghosts(values: np.ndarray, state: np.ndarray, ref_values: np.ndarray, ref_state: np.ndarray,
+                  exposures: tuple, gain: tuple, read_variance: tuple, factors: tuple, ceiling: tuple,
+                  where: np.ndarray, threshold: float) -> np.ndarray:
+    """Ghost removal colour by colour where the test on window sums could not decide (``where``,
+    (H, W): beside a frame's own saturation, the 2x2 windows hold a saturated photosite and the
+    frame's resampled colour of the reference's photosite is partly saturated). ``values`` and
+    ``state`` a frame's resampled colour (DN above black, censored at ``ceiling``; :func:`resample_rgb`'s
+    state), ``ref_*`` the reference's same colour; the pairs ``(frame, reference)``: exposures,
+    gain, read variance, variance factors (2, 2) per CFA phase and ceilings. Where both are
+    measured, ``z^2 = (v / e - v_r / e_r)^2 / (V f / e^2 + V_r f_r / e_r^2 + (0.1 x_r)^2)``
+    (``V = g x_r e + sigma^2``, ``x_r`` the reference's value per unit exposure, the resampling's
+    error allowed for as :data:`COLOUR_GHOST_ERROR`); a censored sample is inconsistent where the
+    other puts the value :data:`COLOUR_GHOST_SIGMA` sigma below its level. Returns (H, W) bool:
+    where the frame's colour is to be left out -- within ``where``, the 5x5 mean of ``z^2`` over
+    the photosites tested there above ``threshold``, or not testable (either colour takes no part)."""
+    from scipy.ndimage import uniform_filter
+
+    where = np.asarray(where, bool)
+    out = np.zeros(where.shape, bool)
+    rows, cols = np.flatnonzero(where.any(axis=1)), np.flatnonzero(where.any(axis=0))
+    if rows.size == 0:
+        return out
+    # the 5x5 means of the photosites in ``where`` read only photosites within 2 of them: the
+    # bounding box grown by 2 (a crop of even offset, so the CFA phases stay) gives the same result
+    y0, x0 = max(0, int(rows[0]) - 2) & ~1, max(0, int(cols[0]) - 2) & ~1
+    y1, x1 = min(where.shape[0], int(rows[-1]) + 3), min(where.shape[1], int(cols[-1]) + 3)
+    box = (slice(y0, y1), slice(x0, x1))
+    values, state, ref_values, ref_state, where = values[box], state[box], ref_values[box], ref_state[box], where[box]
+    e, e_r = float(exposures[0]), float(exposures[1])
+    h, w = values.shape
+    f = np.tile(np.asarray(factors[0], np.float64), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    f_r = np.tile(np.asarray(factors[1], np.float64), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    x_r = np.maximum(ref_values / e_r, 0.0)
+    x = np.maximum(values / e, 0.0)
+    v = gain[0] * x_r * e + read_variance[0]
+    v_r = gain[1] * x_r * e_r + read_variance[1]
+    z2 = (values / e - ref_values / e_r) ** 2 / (v * f / e ** 2 + v_r * f_r / e_r ** 2 + (COLOUR_GHOST_ERROR * x_r) ** 2)
+    big = 4.0 * float(threshold)
+    below = x_r * e < ceiling[0] - COLOUR_GHOST_SIGMA * np.sqrt(v)
+    below_r = x * e_r < ceiling[1] - COLOUR_GHOST_SIGMA * np.sqrt(gain[1] * x * e_r + read_variance[1])
+    z2 = np.where((state == 2) & (ref_state == 2), 0.0, z2)
+    z2 = np.where((state == 2) & (ref_state == 1), np.where(below, big, 0.0), z2)
+    z2 = np.where((state == 1) & (ref_state == 2), np.where(below_r, big, 0.0), z2)
+    tested = where & (state != 0) & (ref_state != 0)
+    t = tested.astype(np.float64)
+    num = uniform_filter(np.where(tested, z2, 0.0), size=5, mode="nearest")
+    den = uniform_filter(t, size=5, mode="nearest")
+    mean = np.where(den > 0, num / np.maximum(den, 1e-30), np.inf)
+    out[box] = where & (~tested | (mean > float(threshold)))
+    return out
 
 
 def colour_correlation(pattern: str, shift) -> np.ndarray:
@@ -396,14 +468,9 @@ def _convolve(plane: np.ndarray, off: tuple[int, int], wy: np.ndarray, wx: np.nd
     k1 = min(shape[1], ws - (ox + tx[-1] - 1))
     if i1 <= i0 or k1 <= k0:
         return np.zeros((0, 0)), (slice(0, 0), slice(0, 0))
-    rows = np.zeros((i1 - i0, plane.shape[1]))
-    for m in ty:
-        r = i0 + oy + m - 1
-        rows += wy[m] * plane[r:r + (i1 - i0)]
-    out = np.zeros((i1 - i0, k1 - k0))
-    for n in tx:
-        c = k0 + ox + n - 1
-        out += wx[n] * rows[:, c:c + (k1 - k0)]
+    out = np.empty((i1 - i0, k1 - k0))
+    separable_taps(np.ascontiguousarray(plane, np.float64), int(oy), int(ox), np.asarray(wy, np.float64),
+                   np.asarray(wx, np.float64), int(i0), int(k0), out)
     return out, (slice(i0, i1), slice(k0, k1))
 
 
@@ -413,17 +480,13 @@ def _box_image(mosaic: np.ndarray, e: float, black: np.ndarray, white: float, sc
     phase's ``scale``: ``(y, ok)``, (H - 1, W - 1), every window one photosite of each phase
     (so no CFA pattern is left in it), ``ok`` where its four photosites are unsaturated, below
     85 % of the level, and the window sum above 10 read-noise sigma."""
-    m = np.asarray(mosaic, np.float64)
+    m = np.ascontiguousarray(mosaic)
     h, w = m.shape
-    bl = np.tile(black, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    sc = np.tile(scale, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    d = m - bl
-    bad = (m >= white) | (d >= 0.85 * (white - bl))
-    q = d / (e * sc)
-    y = q[:-1, :-1] + q[1:, :-1] + q[:-1, 1:] + q[1:, 1:]
-    dsum = d[:-1, :-1] + d[1:, :-1] + d[:-1, 1:] + d[1:, 1:]
-    nbad = bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:]
-    return y, ~nbad & (dsum > 10.0 * read_sd)
+    y = np.empty((h - 1, w - 1))
+    ok = np.empty((h - 1, w - 1), np.bool_)
+    box_image(m, float(e), np.ascontiguousarray(black, np.float64).reshape(2, 2), float(white),
+              np.ascontiguousarray(scale, np.float64).reshape(2, 2), float(read_sd), y, ok)
+    return y, ok
 
 
 @njit(cache=True, nogil=True)
@@ -611,13 +674,11 @@ def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndar
     shifts): ``(box, saturated, inside, (wy, wx))`` -- (H, W) float64, (H, W) bool (a saturated
     photosite in the support), (H, W) bool (the support inside the frame) and Keys' weights
     per axis (rows, columns)."""
-    v = np.asarray(values, np.float64)
+    v = np.ascontiguousarray(values, np.float64)
     h, w = v.shape
-    sc = np.tile(scale, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
-    q = np.pad(v / sc, ((0, 1), (0, 1)), mode="edge")
-    st = np.pad(np.asarray(saturated, np.float64), ((0, 1), (0, 1)), mode="edge")
-    box = q[:-1, :-1] + q[1:, :-1] + q[:-1, 1:] + q[1:, 1:]
-    sbox = st[:-1, :-1] + st[1:, :-1] + st[:-1, 1:] + st[1:, 1:]
+    box, sbox = np.empty((h, w)), np.empty((h, w))
+    window_sums(v, np.ascontiguousarray(saturated, np.bool_), np.ascontiguousarray(scale, np.float64).reshape(2, 2),
+                box, sbox)
     iy, ix = math.floor(float(shift[0])), math.floor(float(shift[1]))
     wy, wx = keys_weights(float(shift[0]) - iy), keys_weights(float(shift[1]) - ix)
     out = np.zeros((h, w))
@@ -632,7 +693,8 @@ def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndar
 
 
 def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = "linear_srgb", wb=None,
-                      variance: bool = True, clip_negative: bool = True, censored: bool = True):
+                      variance: bool = True, clip_negative: bool = True, censored: bool = True,
+                      untested=None, reference: int | None = None, threshold: float = 4.0):
     """:func:`derender.raw.optimal.raw_merge` for frames at ``shifts`` (per frame as given,
     (dy, dx) photosites: the reference's content at ``p`` sits at ``p + s`` in the frame):
     every frame's colours at the reference's photosites merged per colour
@@ -640,7 +702,9 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     middle frame of the time-sorted stack) and the output matrix; the variance through them with
     the colours' correlation per CFA phase (:func:`colour_correlation`). ``noise`` the
     :class:`~derender.raw.noise.NoiseModel`; ``valid`` per frame as given, where it may take
-    part (ghost removal). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``."""
+    part (ghost removal); ``untested`` per frame as given, where ghost removal could not test it,
+    to be tested colour by colour against frame ``reference`` (as given) with ``threshold``
+    (:func:`colour_ghosts`). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``."""
     from derender.core.errors import InputError
     from derender.core.types import HDRResult
     from derender.raw.mosaic import MASK_RADIUS, sorted_raw_frames, spread_mask
@@ -654,11 +718,14 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     order = [index[id(f)] for f in frames]
     shift_arr = np.array([[float(shifts[j][0]), float(shifts[j][1])] for j in order])
     valid_stack = None if valid is None else np.stack([np.asarray(valid[j], bool) for j in order])
+    untested_stack = None if untested is None else np.stack([np.asarray(untested[j], bool) for j in order])
+    ref_sorted = None if reference is None else order.index(int(reference))
     pattern = frames[0].cfa_pattern.upper()
     _, black, white = compiled_frames(frames)
     mosaics = [np.asarray(f.mosaic) for f in frames]
     rgb, var, mmask, rho = merge_shifted(mosaics, shift_arr, black, white, times, noise, pattern, valid=valid_stack,
-                                         censored=censored)
+                                         censored=censored, untested=untested_stack, reference=ref_sorted,
+                                         threshold=threshold)
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space)
     if output_space == "camera_rgb":
@@ -675,11 +742,11 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
         # Var[o] = sum_cc' F_oc F_oc' rho_cc' sigma_c sigma_c', rho of the photosite's phase
         sd = np.sqrt(np.maximum(var.astype(np.float64), 0.0))
         var_out = np.empty((h, w, 3), np.float32)
+        q = np.empty((2, 2, 3, 3, 3))
         for a in range(2):
             for b in range(2):
-                q = np.einsum("oc,cd,od->ocd", full, rho[a, b], full)
-                s_ab = sd[a::2, b::2]
-                var_out[a::2, b::2] = np.einsum("ocd,yxc,yxd->yxo", q, s_ab, s_ab)
+                q[a, b] = np.einsum("oc,cd,od->ocd", full, rho[a, b], full)
+        colour_variance(sd, q, var_out)
     out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
     if clip_negative:
         out = np.maximum(out, 0.0)
