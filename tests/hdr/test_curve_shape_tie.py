@@ -79,3 +79,21 @@ def test_shape_tie_leaves_a_constant_and_a_log_code_multiple_free():
     scale = float(ripple @ pen @ ripple)
     assert scale > 0
     assert abs(float(free @ pen @ free)) <= 1e-7 * scale
+
+
+def test_the_merge_takes_the_shape_tie_as_an_option():
+    """``-O shape_tie=K`` of the stabilised merges reaches the curve (the merge's info says which
+    weight it used) and changes the merge only through it; a negative weight is refused."""
+    import derender as dr
+    from derender.core.errors import InputError
+
+    frames, times = _bracket(0, True, h=120, w=160)
+    stack = dr.Stack(frames.astype(np.float32) / 255, times)
+    plain = dr.merge(stack, "stabilized", {"response": "curve"})
+    tied = dr.merge(stack, "stabilized", {"response": "curve", "shape_tie": 1.0})
+    assert plain.info["shape_tie"] == 0.0 and tied.info["shape_tie"] == 1.0
+    assert not np.array_equal(plain.radiance, tied.radiance)
+    g = tied.radiance[..., 1] > 0
+    assert np.all(np.isfinite(tied.radiance)) and tied.radiance.min() >= 0 and g.any()
+    with pytest.raises(InputError):
+        dr.merge(stack, "stabilized", {"response": "curve", "shape_tie": -1.0})

@@ -589,7 +589,7 @@ def _fit_exponents(curve: _CurveFit, rounds: int, e_rounds: int, history: list) 
 def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: float, high: float, floor: float,
                  *, max_gap: int = 2, prior_sd: float = 0.1, min_blocks: int = 12, rounds: int = 0,
                  seed: int = 0, calibrate: Any = None, exposure_rounds: int | None = None,
-                 exponent_rounds: int | None = None) -> tuple[list, dict]:
+                 exponent_rounds: int | None = None, shape_tie: float | None = None) -> tuple[list, dict]:
     """Response model ``L_j = G(J_j ** rho_j)``: one response table ``G`` per channel common to
     the bracket (Debevec & Malik 1997, on the exponent-warped codes) and a relative
     exponent ``rho_j`` (geometric mean 1) per image from the pairwise 3x3-linearity
@@ -607,7 +607,8 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
     samples its frames). ``exposure_rounds``: per-frame exposure offsets re-estimated with
     ``G`` (:func:`unclipped_debevec`; default :data:`CURVE_EXPOSURE_ROUNDS`). ``exponent_rounds``:
     the ``rho_j`` searched inside that fit instead (:mod:`.frame_exponents`; default
-    :data:`CURVE_EXPONENT_ROUNDS`), used when ``rounds=0``.
+    :data:`CURVE_EXPONENT_ROUNDS`), used when ``rounds=0``. ``shape_tie``: the tie on the
+    channels' shapes (:func:`unclipped_debevec`; default :data:`CURVE_SHAPE_TIE`).
     """
     from derender.response.curves import to_codes
     from derender.response.debevec1997 import calibrate_debevec
@@ -627,7 +628,7 @@ def curve_model(blocks: Blocks, images: np.ndarray, times: np.ndarray, low: floa
         if np.all(r == 1.0):
             cur = unclipped_debevec(lambda j, ys, xs: to_codes(np.asarray(images[j])[ys, xs], 256), n,
                                     images.shape[1:3], times, seed=seed, exposure_rounds=exposure_rounds,
-                                    exponent_rounds=exponent_rounds)
+                                    exponent_rounds=exponent_rounds, shape_tie=shape_tie)
             if cur is not None:
                 fitted["rho"] = cur.params.get("rho")
                 fitted["toe"] = cur.params.get("toe")

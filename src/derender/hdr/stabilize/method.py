@@ -31,7 +31,7 @@ from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference,
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
 from derender.hdr.stabilize.filmic import (
-    CURVE_TIE,
+    CURVE_SHAPE_TIE, CURVE_TIE,
     SCREEN_TREND,
     curve_model,
     gamma_trend,
@@ -181,7 +181,7 @@ class StabilizedMethod(MethodDefaults):
         def calibrate():
             cur = unclipped_debevec(view.code_pixels, n, (h, w), t, seed=seed,
                                     exposure_rounds=opts.exposure_rounds, exponent_rounds=opts.exponent_rounds,
-                                    valid_at=None if access.valid is None else valid_view.pixels)
+                                    shape_tie=opts.shape_tie, valid_at=None if access.valid is None else valid_view.pixels)
             if cur is not None:
                 return cur
             ys, xs = grid_positions(h, w, DEFAULT_SAMPLES, seed)
@@ -201,7 +201,7 @@ class StabilizedMethod(MethodDefaults):
                                  use_times=opts.use_times, path=opts.path, block=opts.block,
                                  max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=seed,
                                  calibrate=calibrate, exposure_rounds=opts.exposure_rounds,
-                                 exponent_rounds=opts.exponent_rounds)
+                                 exponent_rounds=opts.exponent_rounds, shape_tie=opts.shape_tie)
         self.stab = stab
         self.align_s = t1 - t0
         plan = stabilized_plan(stab, opts.weight, opts.noise_weighting, shifts=shifts)
@@ -280,7 +280,7 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "trans
               path: str = "auto", block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW,
               high: float = FIT_HIGH, floor: float = FIT_FLOOR, ransac_iter: int = 100,
               seed: int = 0, exposure_rounds: int | None = None,
-              exponent_rounds: int | None = None) -> Stabilization:
+              exponent_rounds: int | None = None, shape_tie: float | None = None) -> Stabilization:
     """Paper 1, Algorithm 1 steps 1-3 (reference, registration, per-image linearisation and
     H_j), or the reference-free joint fit (``mode="joint"``).
 
@@ -316,6 +316,9 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "trans
         Curve model: rounds of per-frame relative exponents (the camera's per-frame display gamma)
         searched with the common curve (:mod:`~derender.hdr.stabilize.frame_exponents`; default
         :data:`~derender.hdr.stabilize.filmic.CURVE_EXPONENT_ROUNDS`).
+    shape_tie : float, optional
+        Curve model: weight of the tie on the channels' curve shapes (equal codes stay near
+        neutral; default :data:`~derender.hdr.stabilize.filmic.CURVE_SHAPE_TIE`, off).
 
     Returns
     -------
@@ -346,7 +349,7 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "trans
     stab = stabilize_aligned(al, stack.times, mode=mode, response=response, gammas=gammas, use_times=use_times,
                              path=path, block=block, max_blocks=max_blocks, low=low, high=high, floor=floor,
                              ransac_iter=ransac_iter, seed=seed, exposure_rounds=exposure_rounds,
-                             exponent_rounds=exponent_rounds)
+                             exponent_rounds=exponent_rounds, shape_tie=shape_tie)
     stab.info["timings"] = {"align_s": t1 - t0, **stab.info["timings"]}
     stab.info["hidden_saturation"] = {"fraction": hidden_frac, "masked": hidden is not None}
     return stab
@@ -364,7 +367,7 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
                       block: int = 2, max_blocks: int = 20000, low: float = FIT_LOW, high: float = FIT_HIGH,
                       floor: float = FIT_FLOOR, ransac_iter: int = 100, seed: int = 0,
                       calibrate: Any = None, exposure_rounds: int | None = None,
-                      exponent_rounds: int | None = None) -> Stabilization:
+                      exponent_rounds: int | None = None, shape_tie: float | None = None) -> Stabilization:
     """:func:`stabilize` after registration: linearisations and matrices of the aligned bracket ``al``.
 
     ``al`` is an :class:`derender.engine.motion.align.Alignment`, or a lazy equivalent with ``images``
@@ -405,12 +408,14 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
             info["response"] = "power"
         if response == "curve" or (response == "auto" and (screened or not power_law_plausible(ge.gammas, times))):
             cc, cinfo = curve_model(blocks, al.images, times, low, high, floor, seed=seed, calibrate=calibrate,
-                                    exposure_rounds=exposure_rounds, exponent_rounds=exponent_rounds)
+                                    exposure_rounds=exposure_rounds, exponent_rounds=exponent_rounds,
+                                    shape_tie=shape_tie)
             if ge is not None:
                 cinfo["rejected_power_gammas"] = ge.gammas.tolist()
             ge = GammaEstimate(gammas=np.array([c.effective_gamma for c in cc]), method="curve", info=cinfo)
             curves = cc
             info["response"] = "curve"
+            info["shape_tie"] = CURVE_SHAPE_TIE if shape_tie is None else float(shape_tie)
     t2 = time.perf_counter()
     if mode == "reference":
         info["colour_model"] = {}
@@ -540,6 +545,8 @@ def stabilization_info(stab: Stabilization) -> dict:
         info["grey_balance"] = stab.info["grey_balance"]
     if "gamma_level" in stab.info:
         info["gamma_level"] = stab.info["gamma_level"]
+    if "shape_tie" in stab.info:
+        info["shape_tie"] = stab.info["shape_tie"]
     if "colour_model" in stab.info:
         info["colour_model"] = stab.info["colour_model"]
     if al.shifts is not None:
@@ -561,6 +568,9 @@ class StabilizedOptions:
         As :func:`stabilize`.
     exponent_rounds : int, optional
         As :func:`stabilize` (per-frame exponents of the curve model; off by default).
+    shape_tie : float, optional
+        As :func:`stabilize` (the curve model's tie on the channels' shapes; off by default:
+        ``-O shape_tie=1`` keeps equal codes neutral on pingpong, docs/paper1.md).
     weight : str
         The merge's weight (paper 1: ``"trapezoid"``).
     noise_weighting : bool
@@ -582,6 +592,7 @@ class StabilizedOptions:
     seed: int = 0
     exposure_rounds: int | None = None
     exponent_rounds: int | None = None
+    shape_tie: float | None = None
     variance: bool = False
 
     def __post_init__(self) -> None:
@@ -595,6 +606,8 @@ class StabilizedOptions:
             check_at_least(name, getattr(self, name), 0)
         if self.gammas is not None and not all(float(g) > 0 for g in self.gammas):
             raise InputError(f"gammas must be positive numbers, got {list(self.gammas)}")
+        if self.shape_tie is not None and not (np.isfinite(float(self.shape_tie)) and float(self.shape_tie) >= 0):
+            raise InputError(f"shape_tie must be a number >= 0, got {self.shape_tie}")
 
 
 def stabilized_engine(options: StabilizedOptions) -> StabilizedMethod:
@@ -617,7 +630,8 @@ def _stabilized_stack(name: str, stack: Stack, opts: StabilizedOptions) -> HDRRe
     stab = stabilize(stack, mode="joint" if name == "stabilized-joint" else "reference", response=opts.response,
                      gammas=opts.gammas, use_times=opts.use_times, path=opts.path, block=opts.block,
                      max_blocks=opts.max_blocks, ransac_iter=opts.ransac_iter, seed=opts.seed,
-                     exposure_rounds=opts.exposure_rounds, exponent_rounds=opts.exponent_rounds)
+                     exposure_rounds=opts.exposure_rounds, exponent_rounds=opts.exponent_rounds,
+                     shape_tie=opts.shape_tie)
     t1 = time.perf_counter()
     res = stabilized_merge(stab, weight=opts.weight, noise_weighting=opts.noise_weighting)
     res.info.update({"method": name, "timings": dict(stab.info["timings"], merge_s=time.perf_counter() - t1,
