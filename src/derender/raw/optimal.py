@@ -64,6 +64,7 @@ import numpy as np
 from derender.core.colorimetry import XYZ_TO_LINEAR_SRGB, camera_to_xyz_matrix
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
+from derender.raw.interpolation import VARIANCE_TERMS
 from derender.raw.mosaic import (
     MASK_RADIUS,
     cfa_channel_index,
@@ -73,7 +74,6 @@ from derender.raw.mosaic import (
     spread_mask,
     wb_from_patch,
 )
-from derender.raw.interpolation import VARIANCE_TERMS
 from derender.raw.noise import NoiseModel, estimate_noise, estimate_noise_frames
 
 __all__ = [

@@ -31,7 +31,8 @@ from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference,
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
 from derender.hdr.stabilize.filmic import (
-    CURVE_SHAPE_TIE, CURVE_TIE,
+    CURVE_SHAPE_TIE,
+    CURVE_TIE,
     SCREEN_TREND,
     curve_model,
     gamma_trend,
