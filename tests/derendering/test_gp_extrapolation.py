@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import derender.derendering.local_gp as local_gp
+import derender.derendering.heteroscedastic_gp as heteroscedastic_gp
 from derender.derendering.local_gp import LocalGPModel
 from derender.evaluation.derendering_metrics import relative_rmse
 
@@ -72,7 +72,7 @@ def test_errors_do_not_swing_with_the_first_search_subsample(session, gp, monkey
         if n is None:
             model = gp                                        # the default, 250
         else:
-            monkeypatch.setattr(local_gp, "_FIRST_POINTS", n)
+            monkeypatch.setattr(heteroscedastic_gp, "_FIRST_POINTS", n)
             model = LocalGPModel(seed=0).fit(session[0], session[1])
         figs.append([relative_rmse(model.predict(jt, point=p)[0], x) for p in ("mean", "map")])
     figs = np.array(figs)

@@ -9,7 +9,8 @@ import pytest
 from synthetic_pairs import GP_TEST_SETTINGS, make_pairs
 
 from derender.derendering.base import fit_model, load_model
-from derender.derendering.local_gp import LocalGPModel, _clip_bits, _gp_nll, _sq_dists
+from derender.derendering.heteroscedastic_gp import _gp_nll, _sq_dists
+from derender.derendering.local_gp import LocalGPModel, _clip_bits
 from derender.evaluation.derendering_metrics import interval_coverage
 
 pytest_plugins = ["synthetic_pairs"]   # fixtures data, gp, poly, rbf
@@ -142,7 +143,7 @@ def test_threaded_per_channel_fit_equals_serial_reference_fit(data):
     reference per-cluster fit (``_fit_local_gp``: the three channels in turn, no threads)."""
     from threadpoolctl import threadpool_limits
 
-    from derender.derendering.local_gp import _fit_local_gp
+    from derender.derendering.heteroscedastic_gp import _fit_local_gp
 
     j, r = data[0][:1200], data[1][:1200]
     kw = dict(n_train=800, n_clusters=6, max_cluster_points=200, opt_points=200, table_size=12)
@@ -168,7 +169,7 @@ def test_exact_prediction_equals_textbook_gp_formula(data, gp):
     R&W eqs. 2.25-2.26 written with an explicit inverse: mean k*^T (K + S)^-1 z and variance
     min(sf^2 - k*^T (K + S)^-1 k*, 1) + sn^2 r(y*) (latent variance capped at the standardised
     cluster target's variance), un-standardised and capped at the training variance."""
-    from derender.derendering.local_gp import _noise_gp_weights, _se_kernel
+    from derender.derendering.heteroscedastic_gp import noise_gp_weights, se_kernel
 
     cols = data[2][:6000]                      # >= 4096 colours: the threaded path
     mu, s2 = gp.predict_log(cols, exact=True)
@@ -181,15 +182,15 @@ def test_exact_prediction_equals_textbook_gp_formula(data, gp):
         for ch in range(3):
             th, tn = gp.theta[c, ch], gp.theta_noise[c, ch]
             l = gp.log_noise[gp.offsets[c]:gp.offsets[c + 1], ch]
-            beta = _noise_gp_weights(X, tn, l)
-            r = np.exp(tn[5] + _se_kernel(X, X, tn[:3], tn[3]) @ beta)
-            K = _se_kernel(X, X, th[:3], th[3]) + np.diag(np.exp(2 * th[4]) * r + 1e-8 * np.exp(2 * th[3]))
+            beta = noise_gp_weights(X, tn, l)
+            r = np.exp(tn[5] + se_kernel(X, X, tn[:3], tn[3]) @ beta)
+            K = se_kernel(X, X, th[:3], th[3]) + np.diag(np.exp(2 * th[4]) * r + 1e-8 * np.exp(2 * th[3]))
             z = (gp.T[gp.offsets[c]:gp.offsets[c + 1], ch] - gp.t_mean[c, ch]) / gp.t_std[c, ch]
             Ki = np.linalg.inv(K)
-            Ks = _se_kernel(Y[sel], X, th[:3], th[3])
+            Ks = se_kernel(Y[sel], X, th[:3], th[3])
             m = Ks @ Ki @ z
             lat = np.clip(np.exp(2 * th[3]) - np.einsum("ij,jk,ik->i", Ks, Ki, Ks), 0.0, 1.0)
-            g = np.clip(tn[5] + _se_kernel(Y[sel], X, tn[:3], tn[3]) @ beta, tn[6], tn[7])
+            g = np.clip(tn[5] + se_kernel(Y[sel], X, tn[:3], tn[3]) @ beta, tn[6], tn[7])
             v = np.minimum((lat + np.exp(2 * th[4]) * np.exp(g)) * gp.t_std[c, ch] ** 2, cap[ch])
             np.testing.assert_allclose(mu[sel, ch], m * gp.t_std[c, ch] + gp.t_mean[c, ch], rtol=1e-6, atol=1e-6)
             np.testing.assert_allclose(s2[sel, ch], v, rtol=1e-5, atol=1e-7)

@@ -24,6 +24,22 @@ iphone6-bracket           stabilized  0.9944                0.9964
 flat, so the buildings' double edges weigh little in the fraction; look at a preview). The
 structural errors ghost removal takes away lie inside its ghost mask (dilated by 4 px): 70-83 %
 of them.
+
+How much the fraction gains depends on how much of the picture moves, so the test scores
+ghost removal where it acts: of the aligned merge's structure errors inside the dilated ghost
+mask, the share ``--deghost`` removes (measured at a126d0f, debevec / stabilized):
+
+========================  =================  ===============  ====================================
+bracket                   dilated mask       whole-image gain  errors removed inside the mask
+========================  =================  ===============  ====================================
+motion-pingpong           35 %               0.023 / 0.037     90 % / 91 %
+motion-sculpture-garden   17 %               0.0037 / 0.0052   62 % / 63 %
+iphone6-bracket           7.8 %              0.00084 / 0.0013  21 % / 31 %
+========================  =================  ===============  ====================================
+
+The iPhone scene is still but for the monitor's flicker and the handheld frames' parallax, so
+its mask is small and its whole-image gain tiny; inside the mask it removes a fifth of the
+errors. Outside the mask the errors change by -50 % to +1.0 % (the consensus tone).
 """
 
 from __future__ import annotations
@@ -54,9 +70,14 @@ def _disagreement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-#: The least gain in structure agreement ``--deghost`` must bring over alignment alone (about
-#: half of what was measured: 0.022-0.036, 0.004-0.007 and 0.0014-0.002).
-MARGIN = {"motion-pingpong": 0.01, "motion-sculpture-garden": 0.002, "iphone6-bracket": 0.0007}
+#: The least share of the aligned merge's structure errors inside the dilated ghost mask that
+#: ``--deghost`` must remove: half the least measured (21 %, iphone6-bracket with debevec; module
+#: docstring). A share of the errors where ghost removal acts, it does not depend on how much
+#: of the picture moves, as the whole-image gain does (0.00084 to 0.037).
+MIN_REMOVED_IN_MASK = 0.1
+#: How much ghost removal may add to the structure errors outside its dilated mask, where it
+#: changes only the consensus tone (measured: at most +1.0 %, iphone6-bracket with stabilized).
+MAX_ADDED_OUTSIDE = 0.05
 
 
 def _bracket(name: str):
@@ -75,6 +96,23 @@ def _bracket(name: str):
     return files, [times[f.name] for f in files], 2
 
 
+#: Merges a later test asks for again, kept until then (the handheld test's aligned pingpong
+#: merge is the deghost test's plain one): ``(name, method) -> HDRResult``, popped on reuse.
+_KEPT: dict = {}
+
+
+def _aligned(name: str, method: str, files, times, ref: int):
+    """``merge_files`` aligned to frame ``ref`` without ghost removal (the one made by an
+    earlier test when it was kept for this one)."""
+    key = (name, method)
+    if key in _KEPT:
+        return _KEPT.pop(key)
+    res = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref))
+    if key == ("motion-pingpong", "debevec"):   # test_handheld_pingpong_is_registered's merge
+        _KEPT[key] = res
+    return res
+
+
 @pytest.mark.parametrize("name", ["motion-pingpong", "motion-sculpture-garden", "iphone6-bracket"])
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])
 def test_deghost_shows_the_reference_instant(name, method):
@@ -82,16 +120,22 @@ def test_deghost_shows_the_reference_instant(name, method):
 
     files, times, ref = _bracket(name)
     ref_grey = grey8_codes(read_codes(files[ref]))
-    plain = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref))
+    plain = _aligned(name, method, files, times, ref)
     clean = merge_files(files, times, method=method, motion=MotionOptions(align="translation", reference=ref,
                                                                           deghost=True))
     a_plain = bitmap_agreement(_grey(plain.radiance), ref_grey)
     a_clean = bitmap_agreement(_grey(clean.radiance), ref_grey)
-    assert a_clean >= 0.99 and a_clean > a_plain + MARGIN[name], (a_plain, a_clean)
-    # what ghost removal fixed lies inside the ghost mask it reports
-    fixed = _disagreement(_grey(plain.radiance), ref_grey) & ~_disagreement(_grey(clean.radiance), ref_grey)
+    assert a_clean >= 0.99 and a_clean > a_plain, (a_plain, a_clean)
+    # what ghost removal fixed lies inside the ghost mask it reports, and it fixes a share of
+    # the errors there without adding errors elsewhere
+    wrong_plain = _disagreement(_grey(plain.radiance), ref_grey)
+    wrong_clean = _disagreement(_grey(clean.radiance), ref_grey)
+    fixed = wrong_plain & ~wrong_clean
     mask = cv2.dilate((clean.ghosts > 0).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
     assert fixed.sum() > 1000 and mask[fixed].mean() > 0.6
+    removed = 1 - wrong_clean[mask].sum() / wrong_plain[mask].sum()
+    added = wrong_clean[~mask].sum() / wrong_plain[~mask].sum() - 1
+    assert removed >= MIN_REMOVED_IN_MASK and added <= MAX_ADDED_OUTSIDE, (removed, added)
     assert 0.02 < (clean.ghosts > 0).mean() < 0.4
     assert clean.info["reference_input"] == ref and clean.info["alignment"]["align"] == "translation"
     assert np.all(np.isfinite(clean.radiance)) and clean.radiance.min() >= 0
@@ -101,7 +145,7 @@ def test_handheld_pingpong_is_registered():
     """The handheld frames are 30-55 px apart (the data's README): the alignment finds shifts of
     that size, and the merge without it is the worst of the three."""
     files, times, ref = _bracket("motion-pingpong")
-    res = merge_files(files, times, method="debevec", motion=MotionOptions(align="translation", reference=ref))
+    res = _aligned("motion-pingpong", "debevec", files, times, ref)
     shifts = np.abs(np.array(res.info["alignment"]["shifts"]))
     assert 25 <= shifts.max() <= 70
     ref_grey = grey8_codes(read_codes(files[ref]))

@@ -2,9 +2,11 @@
 
 Every user mistake raises :class:`~derender.core.errors.DerenderError`; :func:`main` prints
 it as one line ``error: ...`` on stderr and exits with code 2 (click usage errors too).
-The commands live with their stage: :mod:`derender.cli.hdr` (simulate, merge, evaluate,
-ground truth, benchmark, demo), :mod:`derender.cli.evaluation` (evaluate, diagnose), :mod:`derender.cli.derendering` (chart pairs, calibrate,
-derender, stereo), :mod:`derender.cli.photometry` (illuminance) and :mod:`derender.cli.experiments`
+The commands live with their stage: :mod:`derender.cli.hdr` (simulate, merge, methods,
+ground truth, benchmark, demo; what ``merge`` does around the library call is in
+:mod:`derender.cli.merge`), :mod:`derender.cli.evaluation` (evaluate, score, diagnose),
+:mod:`derender.cli.derendering` (chart pairs, calibrate, derender, stereo),
+:mod:`derender.cli.photometry` (illuminance) and :mod:`derender.cli.experiments`
 (``derender experiment ...``).
 """
 
@@ -16,9 +18,15 @@ import sys
 
 import typer
 
-from derender.cli import derendering, evaluation, experiments, hdr, photometry, profiles  # noqa: F401  (they register their commands)
 from derender.cli.app import app, click_exception_types, command, fast_exit_gc
 from derender.core.errors import DerenderError, Interrupted, interrupt_handler
+
+# isort: split
+# The modules register their commands; ``derender --help`` lists them in this order.
+from derender.cli import derendering, hdr  # noqa: F401
+
+# isort: split
+from derender.cli import evaluation, experiments, photometry, profiles  # noqa: F401
 
 __all__ = ["app", "main", "console_main"]
 

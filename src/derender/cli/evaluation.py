@@ -19,7 +19,7 @@ from derender.cli.app import (
     read_mask_codes,
     read_stack_from_cli,
 )
-from derender.cli.hdr import motion_options
+from derender.cli.merge import motion_options
 from derender.core.errors import InputError
 
 

@@ -208,7 +208,7 @@ def exp_ghosts(
     error per zone (static / swept / object, and the object pixels the reference frame sees
     unclipped) against the still twin's (the same objects, frozen at the reference instant),
     with or without ``--deghost``."""
-    from derender.cli.hdr import flag_record
+    from derender.cli.merge import flag_record
     from derender.engine.motion.run import MotionOptions
     from derender.evaluation.experiments import format_table
     from derender.evaluation.ghosts import ghost_comparison, summarise_ghosts

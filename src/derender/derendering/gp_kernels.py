@@ -1,6 +1,6 @@
 """Compiled (numba) negative log marginal likelihood of the local GP's ARD-SE kernel.
 
-:func:`gp_nll` is :func:`derender.derendering.local_gp._gp_nll` (R&W eqs. 2.30, 5.8/5.9) with the
+:func:`gp_nll` is ``_gp_nll`` of :mod:`derender.derendering.heteroscedastic_gp` (R&W eqs. 2.30, 5.8/5.9) with the
 element-wise work fused: one pass builds the kernel matrix straight from the inputs (no per-dimension
 squared-distance matrices), LAPACK factorises it in place (Fortran order, no copies), and one pass over
 the lower triangle of ``(K + S)^-1`` accumulates the five gradient terms (no symmetrised inverse,

@@ -22,7 +22,7 @@ Score, per candidate, pooled over the held-out folds (paper 2 Table 1, the measu
   over all held-out pairs, and over those outside the sRGB gamut when the pairs say so;
   with ``truth_floor`` > 0 only over held-out pairs whose true colour has
   ``||x|| >= truth_floor * raw_white`` (``raw_white`` the typical raw value of bright
-  colours, :func:`~derender.derendering.base.estimate_raw_white`). ``derender calibrate``
+  colours, :func:`~derender.derendering.log_space.estimate_raw_white`). ``derender calibrate``
   sets it to :data:`IMAGE_TRUTH_FLOOR` for ``--raw/--jpeg`` pairs, whose truth is one noisy
   RAW pixel: there dark pixels whose RAW is sensor noise around 0 made the relative RMSE
   4e5 (a simulated 5-frame bracket) and the choice a draw of that noise; chart pairs (averaged
@@ -282,7 +282,8 @@ def select_model(jpeg, raw, *, groups=None, out_of_gamut=None, methods: Sequence
     white (0: every pair); ``options`` extra keywords per method; ``progress(done, total,
     label)`` after each fit. Deterministic for a given ``seed``.
     """
-    from derender.derendering.base import check_pairs, estimate_raw_white
+    from derender.derendering.base import check_pairs
+    from derender.derendering.log_space import estimate_raw_white
 
     jf, rf = check_pairs(jpeg, raw)
     codes = np.rint(jf).astype(np.uint8)

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from derender.core.errors import InputError, ModelFileError
-from derender.derendering.base import DerenderModel, estimate_raw_white, srgb_decode64
+from derender.derendering.base import DerenderModel
+from derender.derendering.log_space import estimate_raw_white, srgb_decode64
 
 __all__ = [
     "PolynomialModel",

@@ -1,7 +1,7 @@
 """The radial-basis-function baseline of Lin et al. (paper 2, Sec. 4.1, ref. [18]): method ``"rbf"``.
 
 Regression from the rendered colour ``y = code / 255`` to the log raw colour
-``t = log(max(raw, 0) + eps)`` (the target of :mod:`derender.derendering.base`): a
+``t = log(max(raw, 0) + eps)`` (the target of :mod:`derender.derendering.log_space`): a
 smoothing thin-plate spline with a linear tail,
 ``t(y) = sum_i w_i phi(||y - y_i||) + c_0 + c^T y`` with ``phi(r) = r^2 log r``, solving
 ``[K + smoothing I, P; P^T, 0] [w; c] = [T; 0]`` with ``K_ij = phi(||y_i - y_j||)`` and
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from derender.core.errors import InputError, ModelFileError
-from derender.derendering.base import (
-    DerenderModel,
+from derender.derendering.base import DerenderModel
+from derender.derendering.log_space import (
     LatentTable,
     log_training_targets,
     lognormal_moments,

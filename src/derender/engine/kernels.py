@@ -489,7 +489,7 @@ def gaussian_moments_band(frames, valid, lut, table, log_scales, y0, y1, censor,
 
 @njit(inline="always")
 def table_mu(tab, lut_lo, lut_w, c0, c1, c2, ch):  # pragma: no cover - compiled
-    """Channel ``ch`` of :meth:`derender.derendering.base.LatentTable.at_codes` at one colour
+    """Channel ``ch`` of :meth:`derender.derendering.log_space.LatentTable.at_codes` at one colour
     (float32 linear interpolation along R of the G/B-interpolated table, as float64)."""
     j = np.int64(lut_lo[c0]) * 65536 + np.int64(c1) * 256 + np.int64(c2)
     v0 = tab[j, ch]
@@ -513,7 +513,7 @@ def log_tables_rows(colours, s0, s1, tab_mu, tab_lv, lut_lo, lut_w, eps, floor, 
     """Columns ``s0:s1`` of the probabilistic merge's per-colour planes (9, M) ``[lg; p; low]``
     (:func:`derender.hdr.probabilistic._log_tables` with :func:`~derender.hdr.probabilistic._log_slope`)
     for (M, 3) uint8 ``colours``, read from a GP's interpolation table (``tab_mu``, ``tab_lv``:
-    the float32 G/B tables of :class:`~derender.derendering.base.LatentTable`, ``lut_lo`` /
+    the float32 G/B tables of :class:`~derender.derendering.log_space.LatentTable`, ``lut_lo`` /
     ``lut_w`` (float32) its R nodes and weights): the same operations, colour by colour, in
     float64 after the float32 interpolation. With ``colour_major`` ``planes`` is instead the
     (M, 8) table of :func:`gaussian_moments_band`: ``[lg (3), p, low (3), 0]`` per colour, ``p``

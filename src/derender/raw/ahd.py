@@ -61,6 +61,7 @@ import numpy as np
 from numba import njit, prange
 
 from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
+from derender.raw.kernels import mirror_index as _mirror
 
 __all__ = ["LAB_MATRIX", "LAB_KNEE", "AHD_RADIUS", "ahd_greens", "ahd_homogeneity", "ahd_rows", "lab_scale",
            "ahd_demosaic", "ahd_planes"]
@@ -77,20 +78,6 @@ AHD_RADIUS = 3
 
 #: Rows per band of :func:`ahd_homogeneity` (its CIELab rows are kept for one band at a time).
 _BAND = 32
-
-
-@njit(cache=True, nogil=True)
-def _mirror(i, n):  # pragma: no cover - compiled
-    """scipy.ndimage's ``mirror`` border (``c b | a b c | b a``, period 2n - 2): keeps the CFA phase."""
-    if 0 <= i < n:                               # inside: no division
-        return i
-    if n == 1:
-        return 0
-    m = 2 * n - 2
-    i = i % m
-    if i >= n:
-        i = m - i
-    return i
 
 
 @njit(cache=True, nogil=True)

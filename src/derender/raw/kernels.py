@@ -35,8 +35,8 @@ import threading
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["KERNEL_LOCK", "inverse_mills", "finite_value", "grid_samples", "merge_rows", "demosaic_rows",
-           "wls_normal"]
+__all__ = ["KERNEL_LOCK", "inverse_mills", "mirror_index", "finite_value", "grid_samples", "merge_rows",
+           "demosaic_rows", "wls_normal"]
 
 #: Serialises launches of this module's parallel kernels.
 KERNEL_LOCK = threading.Lock()
@@ -66,6 +66,22 @@ def _reflect(i, n):  # pragma: no cover - compiled
     if i >= n:
         i = m - 1 - i
     return i
+
+
+@njit(inline="always")
+def mirror_index(i, n):  # pragma: no cover - compiled
+    """scipy.ndimage's ``mirror`` border (``c b | a b c | b a``, period 2n - 2): keeps the CFA phase.
+
+    An int64 whatever the integer ``i``: a ``prange`` index is typed uint64 in numba's parfor
+    lowering, and returning it unconverted beside the int64 of the border branch unified to a
+    float64 index (``Unsupported array index type float64`` in
+    :func:`derender.raw.menon.menon_table_rows`). No division inside the image."""
+    j = np.int64(i)
+    if j < 0 or j >= n:
+        m = max(2 * n - 2, 1)                    # n = 1: every index is 0
+        j = j % m                                # Python's sign: 0 <= j < m
+        j = min(j, m - j)                        # the second half of a period runs back
+    return j
 
 
 @njit(inline="always")

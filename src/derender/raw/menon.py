@@ -42,6 +42,7 @@ import numpy as np
 from numba import njit, prange
 
 from derender.raw.kernels import KERNEL_LOCK, finite_value
+from derender.raw.kernels import mirror_index as _mirror
 
 __all__ = ["CLASSIFIER", "MARGIN_SD", "RADIUS", "menon_directions", "menon_rows", "weight_table",
            "menon_table_rows", "menon_demosaic"]
@@ -62,18 +63,6 @@ MARGIN_SD = 6.0
 
 #: An output combines photosites at most this far away (rows and columns): the filters' half-width.
 RADIUS = 4
-
-
-@njit(inline="always")
-def _mirror(i, n):  # pragma: no cover - compiled
-    """scipy.ndimage's ``mirror`` border (``c b | a b c | b a``, period 2n - 2): keeps the CFA phase."""
-    if n == 1:
-        return 0
-    m = 2 * n - 2
-    i = i % m
-    if i >= n:
-        i = m - i
-    return i
 
 
 @njit(inline="always")
