@@ -476,7 +476,7 @@ def _menon_compiled(x, var, shape, pattern, multipliers, matrix, clip_negative):
     return out, var_out
 
 
-def _with_interpolation(x, out, var_out, shape, pattern, mult, mat, demosaic, clip_negative):
+def _with_interpolation(x, out, var_out, shape, pattern, *, mult, mat, demosaic, clip_negative):
     """``var_out`` plus the interpolation term (:func:`derender.raw.interpolation.interpolation_variance`,
     the other demosaics of the same planes) and each term's median share of a pixel's variance."""
     from derender.raw.interpolation import INTERPOLATION_ESTIMATES, interpolation_variance
@@ -648,7 +648,8 @@ def raw_merge(frames: RawFrame | Sequence[RawFrame], *, output_space: str = "lin
                                      clip_negative)
     shares = None
     if variance and variance_terms == "total":
-        var_out, shares = _with_interpolation(x, out, var_out, mmask.shape, pattern, mult, mat, demosaic, clip_negative)
+        var_out, shares = _with_interpolation(x, out, var_out, mmask.shape, pattern, mult=mult, mat=mat,
+                                              demosaic=demosaic, clip_negative=clip_negative)
     info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": demosaic,
             "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
             "units": "white level per second", "white_minus_black_dn": float(np.median(span)),

@@ -348,9 +348,11 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
             r = int(reference)
             for j in range(n):
                 if j != r and np.any(untested[j]):
-                    ok[j] &= ~colour_ghosts(codes[j], states[j], codes[r], states[r], (exposures[j], exposures[r]),
-                                            (g_f[j], g_f[r]), (s2_f[j], s2_f[r]), (factors[j], factors[r]),
-                                            (ceil[j], ceil[r]), np.asarray(untested[j], bool), threshold)
+                    ok[j] &= ~colour_ghosts(codes[j], states[j], codes[r], states[r],
+                                            exposures=(exposures[j], exposures[r]), gain=(g_f[j], g_f[r]),
+                                            read_variance=(s2_f[j], s2_f[r]), factors=(factors[j], factors[r]),
+                                            ceiling=(ceil[j], ceil[r]), where=np.asarray(untested[j], bool),
+                                            threshold=threshold)
         for j in range(n):
             measured[j] = ok[j] & (states[j] == 1)
         # an unshifted frame's colour whose support is partly saturated (biased low) stands in
@@ -375,7 +377,7 @@ COLOUR_GHOST_ERROR = 0.1
 COLOUR_GHOST_SIGMA = 3.0
 
 
-def colour_ghosts(values: np.ndarray, state: np.ndarray, ref_values: np.ndarray, ref_state: np.ndarray,
+def colour_ghosts(values: np.ndarray, state: np.ndarray, ref_values: np.ndarray, ref_state: np.ndarray, *,
                   exposures: tuple, gain: tuple, read_variance: tuple, factors: tuple, ceiling: tuple,
                   where: np.ndarray, threshold: float) -> np.ndarray:
     """Ghost removal colour by colour where the test on window sums could not decide (``where``,
