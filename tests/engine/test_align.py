@@ -154,6 +154,28 @@ def test_flow_alignment_registers_both_depths_of_a_parallax_bracket(parallax_bra
         assert np.isfinite(flow.images[j]).all()
 
 
+def test_a_kept_residual_flow_is_the_computed_one(parallax_bracket):
+    """The process keeps residual flows by the frames' bytes (:data:`FLOW_CACHE_BYTES`): asked
+    again, :func:`residual_flow` gives exactly what :func:`flow_from_greys` computes, as a new
+    array each time (writing into one does not change the next), and a different pair is not
+    confused with it."""
+    from derender.engine.motion import align as al
+
+    far = np.array([[3, -2], [2, 3], [0, 0], [-3, 2], [1, -3]])
+    frames = _parallax_cut(parallax_bracket[2:7], far)
+    a, b = to_grey8(frames[2]), to_grey8(frames[1])
+    exact, details = al.flow_from_greys(a, b)
+    assert exact is not None
+    first, d1 = al.residual_flow(a, b)
+    first[:] = 99.0
+    again, d2 = al.residual_flow(a, b)
+    np.testing.assert_array_equal(again, exact)
+    assert d1 == d2 == details
+    other, _ = al.residual_flow(a, to_grey8(frames[3]))
+    other_exact, _ = al.flow_from_greys(a, to_grey8(frames[3]))
+    np.testing.assert_array_equal(other, other_exact)
+
+
 def test_flow_alignment_keeps_a_tripod_bracket_exact(wide_bracket):
     """Nothing moved: no frame's residual flow reaches FLOW_MIN_PX, the frames stay as they were."""
     al = align_images(wide_bracket, "flow", reference=4)
