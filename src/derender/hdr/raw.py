@@ -27,7 +27,7 @@ resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``); b
 saturation a frame longer than the reference is tested per photosite with 10 % of the value
 allowed for the resampling's error, and where a photosite's resampled sample is left untested
 (its support partly saturated) a longer frame is tested colour by colour in the merge
-(:func:`derender.raw.register.colour_ghosts`) and a shorter one is left out; the per-photosite
+(:func:`derender.raw.colour_ghost_test.colour_ghosts`) and a shorter one is left out; the per-photosite
 ``z`` and the window sums are compiled (:mod:`derender.raw.register_kernels`). ``--spot``,
 ``--vignetting``, ``--profile`` (its photometric factor and vignetting), ``--view``/``.hdr``
 output, ``--preview``, ``--mask`` and ``--report`` act on the merged map as for any method.
@@ -515,7 +515,7 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     model does not describe and which rejected 40-50 % of the static photosites of a handheld
     bracket). ``shifted`` is ``(frames as read, shifts, untested)``: ``untested[j]`` gets the
     photosites of a frame longer than the reference that neither test could decide, for the
-    merge's test colour by colour (:func:`derender.raw.register.colour_ghosts`). Returns the
+    merge's test colour by colour (:func:`derender.raw.colour_ghost_test.colour_ghosts`). Returns the
     fraction rejected per frame; ``kept[j]`` loses the rejected photosites."""
     from scipy.ndimage import uniform_filter
 
@@ -585,7 +585,7 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             # untested (near saturation, the resampled sample's support partly saturated): the
             # merge would take this frame's colours there unchecked. A frame longer than the
             # reference is tested there colour by colour by the merge
-            # (derender.raw.register.colour_ghosts: leaving its colours out beside its own
+            # (derender.raw.colour_ghost_test.colour_ghosts: leaving its colours out beside its own
             # saturation cost the static zone 1.22 -> 1.18 on seed 0, measured); a shorter one is
             # left out
             if times[j] > times[ref]:

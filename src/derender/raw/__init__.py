@@ -4,7 +4,8 @@ paper 1's binary-weight merge (Sec. 4.2, Alg. 2), white balance, demosaicing, gr
 Modules: :mod:`derender.raw.ahd`, :mod:`derender.raw.groundtruth`, :mod:`derender.raw.menon`,
 :mod:`derender.raw.interpolation` (the demosaic's interpolation error in the variance),
 :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`, :mod:`derender.raw.optimal`,
-:mod:`derender.raw.register` (sub-photosite registration).
+:mod:`derender.raw.register` (sub-photosite registration), :mod:`derender.raw.colour_ghost_test` (its
+ghost test colour by colour beside saturation).
 """
 
 from derender.core.lazy import attach
