@@ -89,3 +89,23 @@ def test_iphone_sky_debevec_model_fails_where_the_stabilised_model_holds():
         ref_miss[method] = float(rt.median[2])
     assert spread["debevec"] > 0.5 and spread["stabilized"] < 0.25, spread
     assert ref_miss["debevec"] > 10, ref_miss
+
+
+def test_consistency_experiment_prints_and_writes_the_one_rendering_test(tmp_path, capsys):
+    """``derender experiment consistency`` reports the test per bracket, in its table and its JSON,
+    with the same figures as :func:`bracket_one_rendering`."""
+    import json
+
+    from helpers import run_cli
+
+    require_shared("colour-hdri-frobisher")
+    out = tmp_path / "c.json"
+    code, text, _ = run_cli(["experiment", "consistency", "--brackets", "frobisher", "--methods", "debevec",
+                             "--json", out], capsys)
+    assert code == 0
+    assert "one rendering" in text and "| frobisher | True |" in text
+    rows = json.loads(out.read_text())
+    assert [r["method"] for r in rows["flag_invariance"]] == ["debevec"]
+    (one,) = rows["one_rendering"]
+    assert one["bracket"] == "frobisher" and one["one_rendering"] is True
+    assert one == {"bracket": "frobisher", **json.loads(json.dumps(bracket_one_rendering("frobisher").row()))}
