@@ -32,7 +32,7 @@ Measured (``tests/evaluation/test_rendering_change.py``):
   ``fixed`` pipeline 0-2 of 2114-2647 tests violate (largest 7-10 codes), the ``auto`` pipeline
   379-488 of 1923-2654 (largest 49-86 codes);
 * real, no truth (``derender experiment consistency``): the iPhone 6 bracket (handheld, registered
-  by translation) 136 of 2103 tests, largest 45 codes (red, code 135: frames 2 -> 3, EXIF ratio
+  by translation) 131 of 2044 tests, largest 45 codes (red, code 135: frames 2 -> 3, EXIF ratio
   2.05, give 143; frames 7 -> 8, ratio 2.00, give 188); Debevec's Memorial (film) 0 of 37 (largest
   0.5 codes), Frobisher 0 of 2 (0.5 codes).
 
