@@ -339,9 +339,13 @@ def exp_consistency(
 ) -> None:
     """Checks without truth on still real brackets: every method with against without ``--deghost``
     (same reference and alignment): block chroma and luminance change (median, p95, p99) and the
-    fraction of the other frames' pixels ghost removal left out."""
+    fraction of the other frames' pixels ghost removal left out. Then, per bracket, whether its
+    frames can share one rendering (:func:`derender.evaluation.rendering_change.one_rendering`:
+    where they cannot, the one-curve methods' model does not hold). ``--json`` writes
+    ``{"flag_invariance": [...], "one_rendering": [...]}``."""
     from derender.evaluation.consistency import STILL_BRACKETS, flag_invariance
     from derender.evaluation.experiments import format_table
+    from derender.evaluation.rendering_change import bracket_one_rendering
     from derender.io.files import OutputTransaction
 
     names = [b.strip() for b in brackets.split(",") if b.strip()]
@@ -351,12 +355,21 @@ def exp_consistency(
     ms = [m.strip() for m in methods.split(",") if m.strip()]
     with OutputTransaction() as tx:
         json_tmp = tx.add(output, "--json", (".json",))
-        rows = []
+        rows, one = [], []
         for b in names:
             rows += flag_invariance(b, methods=ms, root=data, progress=lambda msg: console().print(msg))
+            one.append({"bracket": b, **bracket_one_rendering(b, root=data).row()})
         if json_tmp is not None:
-            json_tmp.write_text(json.dumps(rows, indent=2, default=float) + "\n")
+            json_tmp.write_text(json.dumps({"flag_invariance": rows, "one_rendering": one}, indent=2, default=float)
+                                + "\n")
     typer.echo(format_table(rows, [("bracket", "bracket", ""), ("method", "method", ""),
                                    ("rejected", "left out", ".3f"), ("chroma_median", "chroma median", ".3f"),
                                    ("chroma_p95", "chroma p95", ".3f"), ("chroma_p99", "chroma p99", ".3f"),
                                    ("luminance_p95", "lum p95", ".3f"), ("luminance_p99", "lum p99", ".3f")]))
+    for r in one:
+        r["where"] = (f"{r['channel']} {r['code']}: {r['pair_q']} -> {r['imf_q']:.0f} (ratio {r['ratio_q']:.2f}), "
+                      f"{r['pair_p']} -> {r['imf_p']:.0f} (ratio {r['ratio_p']:.2f})") if r["pair_p"] else ""
+    typer.echo("\none rendering (intensity mappings must grow with the exposure ratio):")
+    typer.echo(format_table(one, [("bracket", "bracket", ""), ("one_rendering", "one rendering", ""),
+                                  ("tests", "tests", "d"), ("fraction", "violating", ".3f"),
+                                  ("violation", "largest (codes)", ".1f"), ("where", "where", "")]))

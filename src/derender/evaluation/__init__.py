@@ -11,6 +11,7 @@ against the simulator's exact truth), :mod:`derender.evaluation.raw_jpeg` (a RAW
 scored against the RAW merge, paper 1's protocol for one's own camera), :mod:`derender.evaluation.consistency` (checks without truth on real brackets:
 a still scene with and without ``--deghost``, methods against each other, fidelity to the reference),
 :mod:`derender.evaluation.roundtrip` (a merge rendered back through its method's model),
+:mod:`derender.evaluation.rendering_change` (can a bracket's frames share one rendering: a test on their codes),
 :mod:`derender.evaluation.gallery` (the real brackets' gallery of the documentation).
 """
 
@@ -33,6 +34,10 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "linearity": ["DECADES", "LINEARITY_METHODS", "FISHEYE_VIEW", "linearity_scores", "linearity_experiment", "fisheye_maps", "render_chart_model", "format_decades"],
     "consistency": ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps", "STILL_BRACKETS", "FLAG_METHODS", "shared_data_root", "bracket_inputs", "deghost_pair", "flag_invariance", "method_agreement", "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES", "NEUTRAL_RATIO"],
     "gallery": ["GALLERY", "THUMB_WIDTH", "build_gallery", "source_key"],
+    "rendering_change": ["IMF_CODES", "IMF_HALF_WIDTH", "IMF_MIN_BLOCKS", "IMF_LOW", "IMF_HIGH", "VIOLATION_CODES",
+                         "VIOLATION_FRACTION", "RATIO_TOLERANCE", "MAX_RATIO", "OneRendering", "block_codes",
+                         "intensity_mappings", "one_rendering", "frame_predictions", "DECIMATE_ABOVE",
+                         "bracket_one_rendering"],
     "roundtrip": ["FAIL_CODES", "REGIONS", "RoundTrip", "round_trip", "inverse_tables", "bracket_round_trip"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })
