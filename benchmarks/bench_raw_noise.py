@@ -31,6 +31,11 @@ into linear sRGB, by Monte Carlo over noise seeds (:func:`correlation_rows`).
 
     PYTHONPATH=src python benchmarks/bench_raw_noise.py --correlation [--draws 24] [--demosaics malvar2004]
 
+``--interpolation-correlation``: the same question for the interpolation term of the variance
+(:func:`interpolation_correlation_rows`), at seed 3.
+
+    PYTHONPATH=src python benchmarks/bench_raw_noise.py --interpolation-correlation [--demosaics malvar2004]
+
 (``xyz``: the scene's truth is its linear sRGB through ``LINEAR_SRGB_TO_XYZ``, D65.)
 """
 
@@ -175,6 +180,76 @@ def correlation_rows(cameras, demosaics, draws=24, kind="outdoor", seed=3):
                 print(line, flush=True)
 
 
+def interpolation_correlation_rows(cameras, demosaics, specs=(("outdoor", 3), ("indoor", 3), ("night", 3))):
+    """``--interpolation-correlation``: the channels' correlation of the demosaic's interpolation
+    error, and how the interpolation term of the variance is carried into linear sRGB and XYZ.
+    Per bracket (256x192, 5 exposures, noise estimated) and demosaic: over the measured pixels,
+    the correlation between the white-balanced camera-RGB channels of the true error (merge
+    minus scene) and of the disagreements the term is made of
+    (:func:`derender.raw.interpolation.interpolation_variance`); then the coverage against the
+    scene in linear sRGB and XYZ of the noise variance plus the term carried by the output
+    matrix ``F`` four ways: ``per pixel`` (the default: each disagreement through ``F``, then
+    squared, i.e. its own per-pixel correlation), ``independent`` (``sum_c F_oc^2 s_c^2`` with
+    ``s_c^2 = sum_a k_a e_a,c^2`` in balanced camera RGB), ``rho`` (``sum_cd F_oc F_od rho_cd
+    s_c s_d``, ``rho`` the true error's correlation of that bracket) and ``rho = 1``."""
+    from derender.camera import simulate_bracket
+    from derender.camera.spectral import load_camera
+    from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
+    from derender.evaluation.raw_merge import bracket_raw_frames
+    from derender.raw.interpolation import INTERPOLATION_ESTIMATES
+    from derender.raw.optimal import raw_merge
+
+    z50, z95 = 0.6744897501960817, 1.959963984540054
+    sl = (slice(3, -3), slice(3, -3))
+
+    def cover(v, e):
+        z = np.abs(e) / np.sqrt(np.maximum(v, 1e-300))
+        return f"{np.mean(z <= z95):.3f} / {np.mean(z <= z50):.3f}"
+
+    def corr(e):
+        c = e.T @ e / len(e)
+        d = np.sqrt(np.diag(c))
+        r = c / np.outer(d, d)
+        return r, f"{r[0, 1]:.2f} / {r[0, 2]:.2f} / {r[1, 2]:.2f}"
+
+    for cam_name in cameras:
+        for kind, seed in specs:
+            b = simulate_bracket(load_camera(cam_name), kind=kind, size=(256, 192), exposures=5, seed=seed,
+                                 style="simple", pipeline="fixed")
+            frames = bracket_raw_frames(b)
+            tag = "tuning" if (cam_name, kind, seed) in TUNING else "held out"
+            for dm in demosaics:
+                rc = raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance_terms="noise",
+                               demosaic=dm)
+                w = np.asarray(rc.info["wb_multipliers"])
+                ok = rc.mask[sl] == 0
+                bal = rc.radiance[sl].astype(np.float64) * w
+                rho, rho_text = corr((bal - b.camera_rgb_per_s[sl] * w)[ok])
+                s2 = np.zeros(bal.shape)
+                dis = []
+                for a, k in INTERPOLATION_ESTIMATES[dm]:
+                    oa = raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance=False,
+                                   demosaic=a).radiance[sl].astype(np.float64) * w
+                    s2 += k * (bal - oa) ** 2
+                    dis.append((bal - oa)[ok])
+                _, dis_text = corr(np.concatenate(dis))
+                s = np.sqrt(s2[ok])
+                cells = []
+                for space in ("linear_srgb", "xyz"):
+                    r = raw_merge(frames, output_space=space, clip_negative=False, demosaic=dm)
+                    rn = raw_merge(frames, output_space=space, clip_negative=False, demosaic=dm, variance_terms="noise")
+                    f = np.asarray(r.info["output_matrix"])
+                    truth = b.truth_linear_srgb[sl] if space == "linear_srgb" else \
+                        b.truth_linear_srgb[sl] @ np.asarray(LINEAR_SRGB_TO_XYZ).T
+                    err = (r.radiance[sl] - truth)[ok]
+                    vn = rn.variance[sl][ok].astype(np.float64)
+                    cells.append(cover(r.variance[sl][ok], err))
+                    for model in (np.eye(3), rho, np.ones((3, 3))):
+                        cells.append(cover(vn + np.einsum("oi,oj,ij,ni,nj->no", f, f, model, s, s), err))
+                print(f"| {cam_name} | {kind} | {seed} | {tag} | {dm} | {rho_text} | {dis_text} | "
+                      + " | ".join(cells) + " |", flush=True)
+
+
 #: The brackets the interpolation weights were fitted on (camera, scene, seed).
 TUNING = {("nikon-d5100", "outdoor", 3), ("nikon-d5100", "indoor", 3)}
 
@@ -197,7 +272,16 @@ def main() -> None:
     ap.add_argument("--total-only", action="store_true", help="--coverage: the default variance's columns only")
     ap.add_argument("--correlation", action="store_true", help="the channels' correlation, Monte Carlo over noise")
     ap.add_argument("--draws", type=int, default=24)
+    ap.add_argument("--interpolation-correlation", action="store_true",
+                    help="the interpolation error's channel correlation and its propagation to sRGB / XYZ")
     args = ap.parse_args()
+    if args.interpolation_correlation:
+        print("| camera | scene | seed | split | demosaic | true error's channel correlation (0,1) / (0,2) / (1,2) "
+              "| disagreements' | linear sRGB 95 % / 50 %: per pixel (default) | independent | rho | rho = 1 "
+              "| XYZ: per pixel (default) | independent | rho | rho = 1 |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        interpolation_correlation_rows(args.cameras.split(","), args.demosaics.split(","))
+        return
     if args.correlation:
         print("| camera | demosaic | space | channel correlation (0,1) / (0,2) / (1,2), median | draws' variance / "
               "merge's variance, median per channel | independent-channel propagation / draws' variance |")
