@@ -122,9 +122,10 @@ def accuracy(size, exposures, seed=3):
             for name, res in list(results.items()) + ([("hdrutils", None)] if hu is not None else []):
                 rad = hu if res is None else res.radiance.astype(np.float64)
                 var = None if res is None else res.variance
-                # each merge against its own demosaic of the true mosaic: derender's demosaics the
-                # white-balanced mosaic (the balance divided out after), paper 1's and HDRutils' do not
-                own = demo_truth if name in ("paper1", "hdrutils") else demosaiced_truth(b, res.info)
+                # each merge against its own demosaic of the true mosaic: derender's and paper 1's
+                # (raw_to_camera_rgb) demosaic the white-balanced mosaic (the balance divided out
+                # after), HDRutils' does not
+                own = demo_truth if name == "hdrutils" else demosaiced_truth(b, res.info)
                 a = _scaled_scores(rad, own, mask, var)
                 s = _scaled_scores(rad, scene_truth, mask)
                 rows.append({"camera": f"{cam_name} {bits}-bit", "scene": kind, "method": name, "demosaiced": a,

@@ -24,6 +24,19 @@ scenes, per demosaic. The interpolation weights were fitted on nikon-d5100 ``out
 ``indoor`` at seed 3 (``tuning`` rows); every other row is held out.
 
     PYTHONPATH=src python benchmarks/bench_raw_noise.py --coverage [--seeds 3,4] [--demosaics malvar2004]
+        [--space camera_rgb,linear_srgb,xyz] [--total-only]
+
+``--correlation``: the channels' correlation at a pixel and whether the variance carries it
+into linear sRGB, by Monte Carlo over noise seeds (:func:`correlation_rows`).
+
+    PYTHONPATH=src python benchmarks/bench_raw_noise.py --correlation [--draws 24] [--demosaics malvar2004]
+
+``--interpolation-correlation``: the same question for the interpolation term of the variance
+(:func:`interpolation_correlation_rows`), at seed 3.
+
+    PYTHONPATH=src python benchmarks/bench_raw_noise.py --interpolation-correlation [--demosaics malvar2004]
+
+(``xyz``: the scene's truth is its linear sRGB through ``LINEAR_SRGB_TO_XYZ``, D65.)
 """
 
 from __future__ import annotations
@@ -74,10 +87,13 @@ def noise_rows(cameras, seeds, settings=("still", "tripod", "handheld")):
     return rows
 
 
-def coverage_rows(cameras, seeds, demosaics, space="camera_rgb", scenes=("outdoor", "indoor", "night")):
-    """The ``--coverage`` table's rows (module docstring)."""
+def coverage_rows(cameras, seeds, demosaics, space="camera_rgb", scenes=("outdoor", "indoor", "night"),
+                  total_only=False):
+    """The ``--coverage`` table's rows (module docstring); ``space`` one output space or several,
+    comma-separated (each bracket simulated once); ``total_only`` skips the noise-only columns."""
     from derender.camera import simulate_bracket
     from derender.camera.spectral import load_camera
+    from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
     from derender.evaluation.raw_merge import bracket_raw_frames, demosaiced_truth, raw_scores
     from derender.raw.optimal import raw_merge
 
@@ -87,22 +103,151 @@ def coverage_rows(cameras, seeds, demosaics, space="camera_rgb", scenes=("outdoo
             for seed in seeds:
                 b = simulate_bracket(load_camera(cam_name), kind=kind, size=(256, 192), exposures=5, seed=seed,
                                      style="simple", pipeline="fixed")
-                truth = b.camera_rgb_per_s if space == "camera_rgb" else b.truth_linear_srgb
                 frames = bracket_raw_frames(b)
-                for dm in demosaics:
-                    tot = raw_merge(frames, output_space=space, demosaic=dm, clip_negative=False)
-                    noi = raw_merge(frames, output_space=space, demosaic=dm, clip_negative=False,
-                                    variance_terms="noise")
-                    st = raw_scores(tot.radiance, truth, tot.mask, tot.variance)
-                    sn = raw_scores(noi.radiance, truth, noi.mask, noi.variance)
-                    sd = raw_scores(noi.radiance, demosaiced_truth(b, noi.info), noi.mask, noi.variance)
-                    tag = "tuning" if (cam_name, kind, seed) in TUNING else "held out"
-                    print(f"| {cam_name} | {kind} | {seed} | {dm} | {tag} | **{st['coverage95']:.3f}** "
-                          f"| **{st['coverage50']:.3f}** | {sn['coverage95']:.3f} | {sn['coverage50']:.3f} "
-                          f"| {sd['coverage95']:.3f} | {sd['coverage50']:.3f} "
-                          f"| {100 * tot.info['variance_sources']['interpolation']:.0f} % |", flush=True)
-                    n += 1
+                for sp in space.split(","):
+                    truth = {"camera_rgb": b.camera_rgb_per_s, "linear_srgb": b.truth_linear_srgb,
+                             "xyz": b.truth_linear_srgb @ np.asarray(LINEAR_SRGB_TO_XYZ).T}[sp]
+                    for dm in demosaics:
+                        tot = raw_merge(frames, output_space=sp, demosaic=dm, clip_negative=False)
+                        st = raw_scores(tot.radiance, truth, tot.mask, tot.variance)
+                        tag = "tuning" if (cam_name, kind, seed) in TUNING else "held out"
+                        cols = ""
+                        if not total_only:
+                            noi = raw_merge(frames, output_space=sp, demosaic=dm, clip_negative=False,
+                                            variance_terms="noise")
+                            sn = raw_scores(noi.radiance, truth, noi.mask, noi.variance)
+                            sd = raw_scores(noi.radiance, demosaiced_truth(b, noi.info), noi.mask, noi.variance)
+                            cols = (f" {sn['coverage95']:.3f} | {sn['coverage50']:.3f} "
+                                    f"| {sd['coverage95']:.3f} | {sd['coverage50']:.3f} |")
+                        print(f"| {cam_name} | {kind} | {seed} | {sp} | {dm} | {tag} | **{st['coverage95']:.3f}** "
+                              f"| **{st['coverage50']:.3f}** |{cols} "
+                              f"{100 * tot.info['variance_sources']['interpolation']:.0f} % |", flush=True)
+                        n += 1
     return n
+
+
+def correlation_rows(cameras, demosaics, draws=24, kind="outdoor", seed=3):
+    """``--correlation``: is the noise variance carried into linear sRGB with the channels'
+    correlation? Per camera and demosaic, ``draws`` noise realisations of one still bracket
+    (the simulator's scene and true mosaic, :func:`derender.camera.sensor.expose_mosaic` with
+    seeds ``[seed, k, j]``) merged with the true noise in camera RGB and linear sRGB
+    (``variance_terms="noise"``). Printed: the median over pixels of the per-pixel channel
+    correlation; the median ratio of the draws' variance to the merge's variance (``draws - 1``
+    degrees of freedom: 0.971 for 24 draws when exact); and the median ratio of the variance a
+    propagation as if the camera channels were independent (``sum_c F_oc^2 Var[cam_c]``,
+    ``F = M diag(w)`` from the camera-RGB output) would give, to the draws' variance."""
+    from derender.camera import simulate_bracket
+    from derender.camera.sensor import expose_mosaic, mosaic_signal
+    from derender.camera.spectral import load_camera
+    from derender.evaluation.raw_merge import bracket_raw_frames, true_noise
+    from derender.raw.optimal import raw_merge
+
+    for cam_name in cameras:
+        cam = load_camera(cam_name)
+        b = simulate_bracket(cam, kind=kind, size=(256, 192), exposures=5, seed=seed, style="simple",
+                             pipeline="fixed")
+        g, rn = true_noise(cam)
+        frames = bracket_raw_frames(b)
+        sig = mosaic_signal(b.camera_rgb_per_s)
+        for dm in demosaics:
+            outs = {"camera_rgb": [], "linear_srgb": []}
+            var, info = {}, {}
+            for k in range(draws):
+                for j, f in enumerate(frames):
+                    f.mosaic = expose_mosaic(sig, cam, float(f.exposure_time), np.random.default_rng([seed, k, j]))
+                for sp in outs:
+                    r = raw_merge(frames, output_space=sp, gain=g, read_noise=rn, demosaic=dm, clip_negative=False,
+                                  variance_terms="noise")
+                    outs[sp].append(r.radiance[4:-4, 4:-4].astype(np.float64))
+                    if k == 0:
+                        var[sp], info[sp], ok = r.variance[4:-4, 4:-4].astype(np.float64), r.info, r.mask[4:-4, 4:-4] == 0
+            for sp, stack in outs.items():
+                a = np.stack(stack)
+                d = a - a.mean(0)
+                cov = np.einsum("khwi,khwj->hwij", d, d) / (draws - 1)
+                v = np.einsum("hwii->hwi", cov)
+                sd = np.sqrt(np.maximum(v, 1e-300))
+                corr = [float(np.median((cov[..., i, j] / (sd[..., i] * sd[..., j]))[ok])) for i, j in ((0, 1), (0, 2), (1, 2))]
+                ratio = np.median((v / var[sp])[ok], axis=0)
+                line = (f"| {cam_name} | {dm} | {sp} | {corr[0]:.2f} / {corr[1]:.2f} / {corr[2]:.2f} "
+                        f"| {' / '.join(f'{x:.3f}' for x in ratio)} |")
+                if sp == "linear_srgb":
+                    f_ = np.asarray(info[sp]["output_matrix"]) @ np.diag(info[sp]["wb_multipliers"])
+                    indep = np.einsum("oc,hwc->hwo", f_ ** 2, var["camera_rgb"])
+                    line += f" {' / '.join(f'{x:.2f}' for x in np.median((indep / v)[ok], axis=0))} |"
+                else:
+                    line += " - |"
+                print(line, flush=True)
+
+
+def interpolation_correlation_rows(cameras, demosaics, specs=(("outdoor", 3), ("indoor", 3), ("night", 3))):
+    """``--interpolation-correlation``: the channels' correlation of the demosaic's interpolation
+    error, and how the interpolation term of the variance is carried into linear sRGB and XYZ.
+    Per bracket (256x192, 5 exposures, noise estimated) and demosaic: over the measured pixels,
+    the correlation between the white-balanced camera-RGB channels of the true error (merge
+    minus scene) and of the disagreements the term is made of
+    (:func:`derender.raw.interpolation.interpolation_variance`); then the coverage against the
+    scene in linear sRGB and XYZ of the noise variance plus the term carried by the output
+    matrix ``F`` four ways: ``per pixel`` (the default: each disagreement through ``F``, then
+    squared, i.e. its own per-pixel correlation), ``independent`` (``sum_c F_oc^2 s_c^2`` with
+    ``s_c^2 = sum_a k_a e_a,c^2`` in balanced camera RGB), ``rho`` (``sum_cd F_oc F_od rho_cd
+    s_c s_d``, ``rho`` the true error's correlation of that bracket) and ``rho = 1``."""
+    from derender.camera import simulate_bracket
+    from derender.camera.spectral import load_camera
+    from derender.core.colorimetry import LINEAR_SRGB_TO_XYZ
+    from derender.evaluation.raw_merge import bracket_raw_frames
+    from derender.raw.interpolation import INTERPOLATION_ESTIMATES
+    from derender.raw.optimal import raw_merge
+
+    z50, z95 = 0.6744897501960817, 1.959963984540054
+    sl = (slice(3, -3), slice(3, -3))
+
+    def cover(v, e):
+        z = np.abs(e) / np.sqrt(np.maximum(v, 1e-300))
+        return f"{np.mean(z <= z95):.3f} / {np.mean(z <= z50):.3f}"
+
+    def corr(e):
+        c = e.T @ e / len(e)
+        d = np.sqrt(np.diag(c))
+        r = c / np.outer(d, d)
+        return r, f"{r[0, 1]:.2f} / {r[0, 2]:.2f} / {r[1, 2]:.2f}"
+
+    for cam_name in cameras:
+        for kind, seed in specs:
+            b = simulate_bracket(load_camera(cam_name), kind=kind, size=(256, 192), exposures=5, seed=seed,
+                                 style="simple", pipeline="fixed")
+            frames = bracket_raw_frames(b)
+            tag = "tuning" if (cam_name, kind, seed) in TUNING else "held out"
+            for dm in demosaics:
+                rc = raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance_terms="noise",
+                               demosaic=dm)
+                w = np.asarray(rc.info["wb_multipliers"])
+                ok = rc.mask[sl] == 0
+                bal = rc.radiance[sl].astype(np.float64) * w
+                rho, rho_text = corr((bal - b.camera_rgb_per_s[sl] * w)[ok])
+                s2 = np.zeros(bal.shape)
+                dis = []
+                for a, k in INTERPOLATION_ESTIMATES[dm]:
+                    oa = raw_merge(frames, output_space="camera_rgb", clip_negative=False, variance=False,
+                                   demosaic=a).radiance[sl].astype(np.float64) * w
+                    s2 += k * (bal - oa) ** 2
+                    dis.append((bal - oa)[ok])
+                _, dis_text = corr(np.concatenate(dis))
+                s = np.sqrt(s2[ok])
+                cells = []
+                for space in ("linear_srgb", "xyz"):
+                    r = raw_merge(frames, output_space=space, clip_negative=False, demosaic=dm)
+                    rn = raw_merge(frames, output_space=space, clip_negative=False, demosaic=dm, variance_terms="noise")
+                    f = np.asarray(r.info["output_matrix"])
+                    truth = b.truth_linear_srgb[sl] if space == "linear_srgb" else \
+                        b.truth_linear_srgb[sl] @ np.asarray(LINEAR_SRGB_TO_XYZ).T
+                    err = (r.radiance[sl] - truth)[ok]
+                    vn = rn.variance[sl][ok].astype(np.float64)
+                    cells.append(cover(r.variance[sl][ok], err))
+                    for model in (np.eye(3), rho, np.ones((3, 3))):
+                        cells.append(cover(vn + np.einsum("oi,oj,ij,ni,nj->no", f, f, model, s, s), err))
+                print(f"| {cam_name} | {kind} | {seed} | {tag} | {dm} | {rho_text} | {dis_text} | "
+                      + " | ".join(cells) + " |", flush=True)
 
 
 #: The brackets the interpolation weights were fitted on (camera, scene, seed).
@@ -123,16 +268,36 @@ def main() -> None:
     ap.add_argument("--settings", default="still,tripod,handheld")
     ap.add_argument("--coverage", action="store_true", help="coverage of the variance against the scene")
     ap.add_argument("--demosaics", default="malvar2004,menon2007,ahd")
-    ap.add_argument("--space", default="camera_rgb")
+    ap.add_argument("--space", default="camera_rgb", help="output space(s), comma-separated")
+    ap.add_argument("--total-only", action="store_true", help="--coverage: the default variance's columns only")
+    ap.add_argument("--correlation", action="store_true", help="the channels' correlation, Monte Carlo over noise")
+    ap.add_argument("--draws", type=int, default=24)
+    ap.add_argument("--interpolation-correlation", action="store_true",
+                    help="the interpolation error's channel correlation and its propagation to sRGB / XYZ")
     args = ap.parse_args()
+    if args.interpolation_correlation:
+        print("| camera | scene | seed | split | demosaic | true error's channel correlation (0,1) / (0,2) / (1,2) "
+              "| disagreements' | linear sRGB 95 % / 50 %: per pixel (default) | independent | rho | rho = 1 "
+              "| XYZ: per pixel (default) | independent | rho | rho = 1 |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        interpolation_correlation_rows(args.cameras.split(","), args.demosaics.split(","))
+        return
+    if args.correlation:
+        print("| camera | demosaic | space | channel correlation (0,1) / (0,2) / (1,2), median | draws' variance / "
+              "merge's variance, median per channel | independent-channel propagation / draws' variance |")
+        print("|---|---|---|---|---|---|")
+        correlation_rows(args.cameras.split(","), args.demosaics.split(","), args.draws)
+        return
     if args.coverage:
         print(f"## Coverage ({args.space}): total variance vs scene, noise-only vs scene, noise-only vs demosaiced "
               "truth\n")
-        print("| camera | scene | seed | demosaic | split | total vs scene 95 % | 50 % | noise-only vs scene 95 % "
-              "| 50 % | noise-only vs demosaiced truth 95 % | 50 % | interpolation's median share |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        noise_cols = "" if args.total_only else (" noise-only vs scene 95 % | 50 % | noise-only vs demosaiced "
+                                                 "truth 95 % | 50 % |")
+        print(f"| camera | scene | seed | space | demosaic | split | total vs scene 95 % | 50 % |{noise_cols} "
+              "interpolation's median share |")
+        print("|---|---|---|---|---|---|---|---|" + ("" if args.total_only else "---|---|---|---|") + "---|")
         coverage_rows(args.cameras.split(","), [int(s) for s in args.seeds.split(",")], args.demosaics.split(","),
-                      args.space)
+                      args.space, total_only=args.total_only)
         return
     print("| camera | seed | setting | gain / true | read noise / true | median / oracle | p90 / oracle "
           "| darkest decade / oracle | median / oracle (mosaic truth) | p90 / oracle (mosaic truth) "

@@ -95,12 +95,21 @@ def _run(cmd, cwd: Path, **kw) -> None:
         raise RuntimeError(f"{Path(str(cmd[0])).name} exit {p.returncode}: {' | '.join(tail)}")
 
 
+#: Per work folder, the noise model derender estimated on the noisy files: the noise-free twin
+#: (:func:`run_case`'s second run) has no noise to estimate, so it is merged with that one.
+_NOISE_BY_FOLDER: dict = {}
+
+
 def run_derender(files, times, work: Path, args):
     from derender.hdr.raw import merge_raw
     from derender.io.raw import read_raw_stack
 
-    res = merge_raw(read_raw_stack(files, times=times), {"output_space": args.derender_space,
-                                                         "demosaic": args.demosaic})
+    opts = {"output_space": args.derender_space, "demosaic": args.demosaic}
+    known = _NOISE_BY_FOLDER.get(str(work))
+    if known is not None:
+        opts.update(gain=known["gain_dn_per_electron"], read_noise=known["read_noise_dn"])
+    res = merge_raw(read_raw_stack(files, times=times), opts)
+    _NOISE_BY_FOLDER.setdefault(str(work), res.info["noise"])
     return res.radiance.astype(np.float64), res.mask
 
 

@@ -15,7 +15,7 @@ from derender.core.colorimetry import (
 from derender.core.errors import InputError
 from derender.core.types import HDRResult, RawFrame
 from derender.raw.groundtruth import raw_ground_truth, raw_to_camera_rgb
-from derender.raw.mosaic import demosaic_bayer, merge_raw_mosaics, wb_from_patch
+from derender.raw.mosaic import demosaic_bayer, merge_raw_mosaics, wb_from_patch, white_balance_mosaic
 
 # A plausible XYZ -> camera matrix (DNG ColorMatrix semantics, un-normalised): Canon-like.
 XYZ_TO_CAMERA = np.array([[0.6461, -0.1164, -0.0857],
@@ -227,11 +227,16 @@ def test_saturated_and_dark_regions_are_masked_and_finite():
 
 
 def test_raw_to_camera_rgb_is_demosaiced_merge():
+    """Camera RGB on the one path of every RAW output: the merged mosaic balanced with the
+    as-shot multipliers, demosaiced, the balance divided out again."""
     scene = _smooth_scene()
     frames, _ = _simulate_frames(scene, [1 / 64, 1 / 16])
     res = raw_to_camera_rgb(frames, clip_negative=False)
     hdr, _ = merge_raw_mosaics(frames)
-    np.testing.assert_array_equal(res.radiance, demosaic_bayer(hdr, "RGGB"))
+    wb = np.asarray(frames[1].as_shot_wb, np.float64)
+    assert np.ptp(wb) > 0.1 and res.info["wb_multipliers"] == wb.tolist()
+    ref = demosaic_bayer(white_balance_mosaic(hdr, "RGGB", wb), "RGGB") / wb.astype(np.float32)
+    np.testing.assert_allclose(res.radiance, ref, rtol=1e-6, atol=0)
     cam = (scene @ LINEAR_SRGB_TO_XYZ.T) @ XYZ_TO_CAMERA.T  # raw camera RGB per unit exposure
     inner = (slice(2, -2), slice(2, -2))
     assert _psnr(res.radiance[inner], cam[inner]) > 40.0

@@ -50,8 +50,14 @@ __all__ = [
 # --------------------------------------------------------------------------- public pipelines
 def raw_to_camera_rgb(frames: RawFrame | Sequence[RawFrame], demosaic: str = "malvar2004",
                       low: float = LOW, high: float = HIGH, clip_negative: bool = True) -> HDRResult:
-    """Merged (eq. 11) and demosaiced *camera RGB*: no white balance, no colour matrix.
+    """Merged (eq. 11) and demosaiced *camera RGB*: no colour matrix, the white balance divided out.
 
+    The one path of every RAW output (:mod:`derender.raw.optimal`): the merged mosaic is
+    white-balanced with the file's as-shot multipliers ``w`` (the middle frame of the
+    time-sorted stack; a grey-world estimate for a file that states none,
+    :func:`derender.raw.optimal.white_balances`), demosaiced, and divided by ``w`` again:
+    ``diag(1 / w) D(W x)``, camera RGB as the sensor saw it, demosaiced as dcraw does (the
+    demosaics' colour-difference terms assume that a neutral surface gives equal channels).
     ``radiance`` is (H, W, 3) float32 linear camera RGB (relative units); ``mask`` as in
     :func:`merge_raw_mosaics`, spread over the 5x5 demosaicing support (bright wins).
     Negative values (demosaic overshoot, noise below black) are set to 0 unless
@@ -72,7 +78,8 @@ def raw_to_camera_rgb(frames: RawFrame | Sequence[RawFrame], demosaic: str = "ma
     -------
     HDRResult
         ``radiance`` (H, W, 3) float32 linear camera RGB: normalised sensor signal per
-        second; ``mask``; ``info`` with ``colour_space="camera_rgb"`` and the times.
+        second; ``mask``; ``info`` with ``colour_space="camera_rgb"``, the times, the
+        demosaic's balance ``wb_multipliers`` and ``output_matrix`` ``diag(1 / w)``.
 
     Raises
     ------
@@ -102,12 +109,17 @@ def raw_to_camera_rgb(frames: RawFrame | Sequence[RawFrame], demosaic: str = "ma
     >>> print(result.radiance[16, 16].round(2), round(signal[16, 16] / 0.04, 2))
     [26.05 26.05 26.05] 26.05
     """
+    from derender.raw.optimal import white_balances
+
     frames, times = sorted_raw_frames(frames)
     hdr, mmask = merge_raw_mosaics(frames, low, high)
     pattern = frames[0].cfa_pattern.upper()
-    rgb = finite_float32(demosaic_bayer(hdr, pattern, demosaic), clip_negative)
+    mult, _ = white_balances(frames[len(frames) // 2], "camera_rgb", mosaic=hdr, pattern=pattern, mask=mmask)
+    rgb = demosaic_bayer(white_balance_mosaic(hdr, pattern, mult), pattern, demosaic) / mult.astype(np.float32)
+    rgb = finite_float32(rgb, clip_negative)
     info = {"colour_space": "camera_rgb", "exposure_times": times.tolist(), "demosaic": demosaic,
-            "low": low, "high": high, "cfa_pattern": pattern, "mosaic_mask": mmask}
+            "low": low, "high": high, "cfa_pattern": pattern, "mosaic_mask": mmask,
+            "wb_multipliers": mult.tolist(), "output_matrix": np.diag(1.0 / mult).tolist()}
     return HDRResult(radiance=rgb, mask=spread_mask(mmask, MASK_RADIUS[demosaic_name(demosaic)]), info=info)
 
 

@@ -643,11 +643,15 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     :class:`~derender.raw.noise.NoiseModel`; ``valid`` per frame as given, where it may take
     part (ghost removal); ``untested`` per frame as given, where ghost removal could not test it,
     to be tested colour by colour against frame ``reference`` (as given) with ``threshold``
-    (:func:`colour_ghosts`). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``."""
+    (:func:`colour_ghosts`). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``,
+    its ``info`` in the same terms: the resampling's Malvar demosaic sees the mosaic
+    *unbalanced* (``wb_multipliers`` ones: not yet on raw_merge's white-balanced path), the
+    balance the output keeps ``output_wb_multipliers`` (:func:`derender.raw.optimal.white_balances`)
+    and ``output_matrix`` the matrix after the colours (the balance in it)."""
     from derender.core.errors import InputError
     from derender.core.types import HDRResult
     from derender.raw.mosaic import MASK_RADIUS, sorted_raw_frames, spread_mask
-    from derender.raw.optimal import compiled_frames, output_matrix
+    from derender.raw.optimal import compiled_frames, output_matrix, white_balances
 
     given = list(frames)
     if len(shifts) != len(given) or (valid is not None and len(valid) != len(given)):
@@ -667,12 +671,10 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
                                          threshold=threshold)
     ref = frames[len(frames) // 2]
     mat = output_matrix(ref, output_space)
-    if output_space == "camera_rgb":
-        mult = np.ones(3)
-    else:
-        mult = np.asarray(ref.as_shot_wb if wb is None else wb, dtype=np.float64).reshape(-1)
-        if mult.size != 3 or not np.all(np.isfinite(mult)) or np.any(mult <= 0):
-            raise InputError(f"white-balance multipliers must be 3 positive numbers (R, G, B), got {mult.tolist()}")
+    # the balance the output keeps, as raw_merge's (white_balances: ones in camera_rgb and for a
+    # file that states none); the resampling's demosaic saw the mosaic unbalanced, so nothing is
+    # divided out
+    _, mult = white_balances(ref, output_space, wb)
     full = mat * mult[None, :]
     h, w = mmask.shape
     out = (rgb.reshape(-1, 3).astype(np.float64) @ full.T).reshape(h, w, 3)
@@ -693,7 +695,8 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": "malvar2004",
             "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
             "units": "white level per second", "white_minus_black_dn": float(span[int(np.argmax(white))]),
-            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": mult.tolist(),
-            "output_matrix": mat.tolist(), "merged": "per colour, frames resampled at the reference's photosites"}
+            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": [1.0, 1.0, 1.0],
+            "output_wb_multipliers": mult.tolist(), "output_matrix": full.tolist(),
+            "merged": "per colour, frames resampled at the reference's photosites"}
     return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
                      mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
