@@ -16,8 +16,10 @@ against its neighbour towards the reference and chained (:mod:`derender.raw.regi
 every shift is whole and even the frames are shifted (the CFA phase kept) and merged on the
 mosaic; otherwise every frame's colours are resampled at the reference's photosites and merged
 per colour (:func:`derender.raw.register.merge_shifted`), with the noise model fitted on the
-smooth photosites of the resampled frames (``_flat_photosites``: elsewhere their
-differences hold the resampling's error). Ghost removal by the Poisson-Gaussian noise model
+frame pairs whose relative shift is whole and even (:func:`derender.raw.noise.estimate_noise_shifted`:
+no resampling, no residual misregistration), else on the smooth photosites of the frames
+rounded to even shifts (``_flat_photosites``: elsewhere their differences hold the
+misregistration's error). Ghost removal by the Poisson-Gaussian noise model
 between each frame and the reference: per photosite ``z = (d_j / e_j - d_r / e_r) /
 sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at the reference's
 value), its mean over a 5x5 window against the engine's threshold
@@ -414,7 +416,8 @@ def _flat_photosites(frame: RawFrame, noise) -> np.ndarray:
 
 
 def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref: int, given: tuple):
-    """The noise model of a shifted bracket: the frames moved by their shifts rounded to even
+    """The noise model of a shifted bracket: on the frame pairs whose relative shift is whole and
+    even (``_exact_pair_noise``) when there are any; else the frames moved by their shifts rounded to even
     photosites (exact samples, the CFA phase kept), the fit (:func:`derender.raw.noise.estimate_noise_frames`)
     on the photosites where the reference has no texture above its noise (there a residual shift of
     a photosite changes nothing), found with the reference's own green-pair estimate (an upper
@@ -426,6 +429,9 @@ def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref:
 
     if given[0] is not None and given[1] is not None:
         return NoiseModel(float(given[0]), float(given[1]) ** 2, "given")
+    exact = _exact_pair_noise(frames, shifts, times)
+    if exact is not None:
+        return exact
     moved = list(frames)
     for j, s in enumerate(shifts):
         dy, dx = _even(s)
@@ -439,6 +445,21 @@ def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref:
         except InputError:
             break
     return noise
+
+
+def _exact_pair_noise(frames: list[RawFrame], shifts: list, times: np.ndarray):
+    """:func:`derender.raw.noise.estimate_noise_shifted` on the frames in exposure order (the
+    pairs whose relative shift is whole and even), or None (no such pair, ISO varies)."""
+    from derender.raw.noise import estimate_noise_shifted
+    from derender.raw.optimal import compiled_frames
+    from derender.raw.register import SNAP
+
+    if len({(f.extra or {}).get("iso") for f in frames}) > 1:
+        return None
+    order = np.argsort(times, kind="stable")
+    mosaics, black, white = compiled_frames([frames[i] for i in order])
+    return estimate_noise_shifted(mosaics, black, white, times[order],
+                                  np.array([shifts[i] for i in order], np.float64), SNAP)
 
 
 def _black22(frame: RawFrame) -> np.ndarray:

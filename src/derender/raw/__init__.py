@@ -13,7 +13,7 @@ from derender.core.lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "groundtruth": ["raw_to_camera_rgb", "raw_ground_truth"],
     "interpolation": ["INTERPOLATION_ESTIMATES", "VARIANCE_TERMS", "interpolation_variance"],
-    "noise": ["NoiseModel", "estimate_noise", "estimate_noise_pairs", "estimate_noise_single"],
+    "noise": ["NoiseModel", "estimate_noise", "estimate_noise_pairs", "estimate_noise_single", "estimate_noise_shifted"],
     "optimal": ["OUTPUT_SPACES", "mosaic_observations", "merge_mosaic_optimal", "demosaic_variance", "output_matrix", "raw_merge"],
     "mosaic": ["LOW", "HIGH", "DEMOSAIC_METHODS", "DEMOSAIC_ALIASES", "MASK_RADIUS", "demosaic_name", "sorted_raw_frames", "cfa_channel_index", "merge_raw_mosaics", "white_balance_mosaic", "wb_from_patch", "demosaic_bayer", "spread_mask", "finite_float32"],
 })
