@@ -25,7 +25,10 @@ sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at t
 value), its mean over a 5x5 window against the engine's threshold
 (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`); a censored sample is inconsistent
 when the other frame puts the value more than 3 sigma below its saturation level; for a
-resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``); beside
+resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``; at a shift
+not whole and even the windows see the scene through other colour filters, and the
+reference's own change across that offset, :func:`derender.raw.register.phase_offset_difference`,
+is allowed for in the variance); beside
 saturation a frame longer than the reference is tested per photosite with 10 % of the value
 allowed for the resampling's error, and where a photosite's resampled sample is left untested
 (its support partly saturated) a longer frame is tested colour by colour in the merge
@@ -557,7 +560,7 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     thr = float(threshold or GHOST_THRESHOLD)
     rejected = [0.0] * len(frames)
     if shifted is not None:
-        from derender.raw.register import phase_scale, shifted_box
+        from derender.raw.register import phase_offset_difference, phase_scale, shifted_box
 
         originals, shift_values, untested = shifted
         scale = phase_scale(originals[ref].mosaic, _black22(originals[ref]), whites[ref], times[ref])
@@ -596,7 +599,10 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             # frame j's photosites enter through the window, the 3x3 mean and Keys' weights
             ky, kx = np.convolve(pair3, wy[wy != 0]) ** 2, np.convolve(pair3, wx[wx != 0]) ** 2
             var_j = smooth(vq_j, ky, kx)
-            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + var_r)
+            # the windows' colours differ at a shift not whole and even: the scene's change over
+            # that offset allowed for (derender.raw.register.phase_offset_difference)
+            texture = smooth(phase_offset_difference(box_r, shift_values[j]), mean3) ** 2
+            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + var_r + texture)
             use = inside & (smooth((bsat_j | bsat_r).astype(np.float64), mean3) == 0.0)
             # near saturation (a window holds a saturated photosite) the censored samples' rule
             # and the per-photosite test above
