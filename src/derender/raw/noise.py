@@ -441,8 +441,8 @@ def estimate_noise_shifted(mosaics, black: np.ndarray, white: np.ndarray, exposu
     pair's own pooled estimate ``(d_j + d_k) / (e_j + e_k)``. A pair is read whole when it has
     at most ``max(2^15, 2^18 / pairs)`` photosites, else in evenly spaced strips of
     :data:`_SAMPLE_ROWS` rows up to that many (the fit's cost then does not grow with the frame:
-    0.45-0.51 s at 1536x1024, measured). Returns None when no pair is exact or too few samples remain (the
-    caller falls back)."""
+    0.45-0.51 s at 1536x1024, measured). Returns None when no pair is exact or too few samples
+    remain (the caller falls back)."""
     from scipy.ndimage import uniform_filter
 
     e = np.asarray(exposures, np.float64)
