@@ -16,14 +16,19 @@ against its neighbour towards the reference and chained (:mod:`derender.raw.regi
 every shift is whole and even the frames are shifted (the CFA phase kept) and merged on the
 mosaic; otherwise every frame's colours are resampled at the reference's photosites and merged
 per colour (:func:`derender.raw.register.merge_shifted`), with the noise model fitted on the
-smooth photosites of the resampled frames (``_flat_photosites``: elsewhere their
-differences hold the resampling's error). Ghost removal by the Poisson-Gaussian noise model
+frame pairs whose relative shift is whole and even (:func:`derender.raw.noise.estimate_noise_shifted`:
+no resampling, no residual misregistration), else on the smooth photosites of the frames
+rounded to even shifts (``_flat_photosites``: elsewhere their differences hold the
+misregistration's error). Ghost removal by the Poisson-Gaussian noise model
 between each frame and the reference: per photosite ``z = (d_j / e_j - d_r / e_r) /
 sqrt(v_j / e_j^2 + v_r / e_r^2)`` (``v`` eq. 1 of :mod:`derender.raw.noise` at the reference's
 value), its mean over a 5x5 window against the engine's threshold
 (:data:`derender.engine.motion.deghost.GHOST_THRESHOLD`); a censored sample is inconsistent
 when the other frame puts the value more than 3 sigma below its saturation level; for a
-resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``); beside
+resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``; at a shift
+not whole and even the windows see the scene through other colour filters, and the
+reference's own change across that offset, :func:`derender.raw.register.phase_offset_difference`,
+is allowed for in the variance); beside
 saturation a frame longer than the reference is tested per photosite with 10 % of the value
 allowed for the resampling's error, and where a photosite's resampled sample is left untested
 (its support partly saturated) a longer frame is tested colour by colour in the merge
@@ -414,7 +419,8 @@ def _flat_photosites(frame: RawFrame, noise) -> np.ndarray:
 
 
 def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref: int, given: tuple):
-    """The noise model of a shifted bracket: the frames moved by their shifts rounded to even
+    """The noise model of a shifted bracket: on the frame pairs whose relative shift is whole and
+    even (``_exact_pair_noise``) when there are any; else the frames moved by their shifts rounded to even
     photosites (exact samples, the CFA phase kept), the fit (:func:`derender.raw.noise.estimate_noise_frames`)
     on the photosites where the reference has no texture above its noise (there a residual shift of
     a photosite changes nothing), found with the reference's own green-pair estimate (an upper
@@ -426,6 +432,9 @@ def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref:
 
     if given[0] is not None and given[1] is not None:
         return NoiseModel(float(given[0]), float(given[1]) ** 2, "given")
+    exact = _exact_pair_noise(frames, shifts, times)
+    if exact is not None:
+        return exact
     moved = list(frames)
     for j, s in enumerate(shifts):
         dy, dx = _even(s)
@@ -439,6 +448,21 @@ def _shifted_noise(frames: list[RawFrame], shifts: list, times: np.ndarray, ref:
         except InputError:
             break
     return noise
+
+
+def _exact_pair_noise(frames: list[RawFrame], shifts: list, times: np.ndarray):
+    """:func:`derender.raw.noise.estimate_noise_shifted` on the frames in exposure order (the
+    pairs whose relative shift is whole and even), or None (no such pair, ISO varies)."""
+    from derender.raw.noise import estimate_noise_shifted
+    from derender.raw.optimal import compiled_frames
+    from derender.raw.register import SNAP
+
+    if len({(f.extra or {}).get("iso") for f in frames}) > 1:
+        return None
+    order = np.argsort(times, kind="stable")
+    mosaics, black, white = compiled_frames([frames[i] for i in order])
+    return estimate_noise_shifted(mosaics, black, white, times[order],
+                                  np.array([shifts[i] for i in order], np.float64), SNAP)
 
 
 def _black22(frame: RawFrame) -> np.ndarray:
@@ -536,7 +560,7 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     thr = float(threshold or GHOST_THRESHOLD)
     rejected = [0.0] * len(frames)
     if shifted is not None:
-        from derender.raw.register import phase_scale, shifted_box
+        from derender.raw.register import phase_offset_difference, phase_scale, shifted_box
 
         originals, shift_values, untested = shifted
         scale = phase_scale(originals[ref].mosaic, _black22(originals[ref]), whites[ref], times[ref])
@@ -575,7 +599,10 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             # frame j's photosites enter through the window, the 3x3 mean and Keys' weights
             ky, kx = np.convolve(pair3, wy[wy != 0]) ** 2, np.convolve(pair3, wx[wx != 0]) ** 2
             var_j = smooth(vq_j, ky, kx)
-            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + var_r)
+            # the windows' colours differ at a shift not whole and even: the scene's change over
+            # that offset allowed for (derender.raw.register.phase_offset_difference)
+            texture = smooth(phase_offset_difference(box_r, shift_values[j]), mean3) ** 2
+            zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + var_r + texture)
             use = inside & (smooth((bsat_j | bsat_r).astype(np.float64), mean3) == 0.0)
             # near saturation (a window holds a saturated photosite) the censored samples' rule
             # and the per-photosite test above

@@ -78,6 +78,7 @@ __all__ = [
     "variance_factors",
     "phase_scale",
     "shifted_box",
+    "phase_offset_difference",
 ]
 
 #: A shift component within this many photosites of a whole number is taken as whole.
@@ -700,3 +701,26 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
             "merged": "per colour, frames resampled at the reference's photosites"}
     return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
                      mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
+
+
+def phase_offset_difference(box: np.ndarray, shift) -> np.ndarray:
+    """The reference's 2x2-window sums' change across the part of ``shift`` that is not whole
+    and even (``delta = s - 2 round(s / 2)`` per axis, in [-1, 1]), to first order:
+    ``|delta_y| (box[p + sign(delta_y) e_y] - box[p]) + |delta_x| (box[p + sign(delta_x) e_x] - box[p])``
+    (edges repeated). A frame's window at ``p + s`` covers the reference window's scene points
+    through other colour filters when ``s`` is not whole and even (each point's colour moves
+    with the CFA phase), so where the scene has texture the two windows' sums differ by about
+    the scene's change over that offset even where nothing moves; the ghost test on window sums
+    (:func:`derender.hdr.raw.raw_motion`) allows for it, squared after the test's 3x3 mean, in
+    its variance (without it, 19-24 % of the static zone of the frames next to the reference
+    was rejected on a handheld bracket, measured, docs/results-raw.md)."""
+    b = np.asarray(box, np.float64)
+    out = np.zeros(b.shape)
+    for axis, v in enumerate((float(shift[0]), float(shift[1]))):
+        delta = v - 2.0 * round(v / 2.0)
+        step = int(np.sign(delta))
+        if step == 0 or abs(delta) <= SNAP:
+            continue
+        idx = np.clip(np.arange(b.shape[axis]) + step, 0, b.shape[axis] - 1)
+        out += abs(delta) * (np.take(b, idx, axis=axis) - b)
+    return out
