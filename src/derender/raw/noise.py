@@ -421,6 +421,18 @@ def _exact_pairs(shifts: np.ndarray, tolerance: float) -> list:
     return out
 
 
+def _strip_starts(hh: int, ww: int, budget: int) -> tuple[list, int]:
+    """The first rows of the strips that :func:`estimate_noise_shifted` reads from an ``hh x ww``
+    overlap, and the strips' height: the whole overlap in strips of :data:`_STRIP_ROWS` when it
+    has at most ``budget`` photosites, else evenly spaced strips of :data:`_SAMPLE_ROWS` rows
+    (every photosite of a strip read) up to about ``budget`` photosites."""
+    if hh * ww <= budget:
+        return list(range(0, hh, _STRIP_ROWS)), _STRIP_ROWS
+    rows = _SAMPLE_ROWS
+    n = max(1, min(hh // rows, -(-budget // (rows * ww))))
+    return sorted({int(v) for v in np.linspace(0, hh - rows, n)}), rows
+
+
 def estimate_noise_shifted(mosaics, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
                            shifts: np.ndarray, tolerance: float = 0.1) -> NoiseModel | None:
     """Eq. (2) on a shaken bracket, fitted only on the frame pairs that need no resampling.
@@ -482,13 +494,7 @@ def estimate_noise_shifted(mosaics, black: np.ndarray, white: np.ndarray, exposu
                 continue
             a_, b_ = 1.0 / e[j] + 1.0 / e[k], 1.0 / e[j] ** 2 + 1.0 / e[k] ** 2
             rr, xx = [], []
-            if hh * ww <= budget:
-                starts = range(0, hh, _STRIP_ROWS)
-                rows = _STRIP_ROWS
-            else:                                    # evenly spaced strips of rows, every photosite
-                rows = _SAMPLE_ROWS
-                n = max(1, min(hh // rows, -(-budget // (rows * ww))))
-                starts = sorted({int(v) for v in np.linspace(0, hh - rows, n)})
+            starts, rows = _strip_starts(hh, ww, budget)
             for a in starts:
                 b = min(hh, a + rows)
                 lo, hi = max(0, a - half), min(hh, b + half)   # the window's halo
