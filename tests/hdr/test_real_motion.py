@@ -136,7 +136,10 @@ def test_deghost_shows_the_reference_instant(name, method):
     removed = 1 - wrong_clean[mask].sum() / wrong_plain[mask].sum()
     added = wrong_clean[~mask].sum() / wrong_plain[~mask].sum() - 1
     assert removed >= MIN_REMOVED_IN_MASK and added <= MAX_ADDED_OUTSIDE, (removed, added)
-    assert 0.02 < (clean.ghosts > 0).mean() < 0.4
+    # the ghost map covers the moving things, not the frame: on the ping-pong bracket the player's
+    # smooth inside counts since the rejected regions grow over it (compensation.grow_by_motion):
+    # debevec 0.28 -> 0.42, stabilized 0.28 -> 0.36 of the frame
+    assert 0.02 < (clean.ghosts > 0).mean() < 0.45
     assert clean.info["reference_input"] == ref and clean.info["alignment"]["align"] == "translation"
     assert np.all(np.isfinite(clean.radiance)) and clean.radiance.min() >= 0
 

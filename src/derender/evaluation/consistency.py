@@ -35,7 +35,7 @@ from derender.core.colorimetry import luminance
 
 __all__ = ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps", "STILL_BRACKETS", "FLAG_METHODS",
            "shared_data_root", "bracket_inputs", "deghost_pair", "flag_invariance", "method_agreement",
-           "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES",
+           "reference_fidelity", "reference_steps", "STEP_REACH", "STEP_HARD", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES",
            "NEUTRAL_RATIO"]
 
 #: Side of the square tiles (pixels) whose per-channel medians are compared.
@@ -292,3 +292,60 @@ def reference_fidelity(radiance: np.ndarray, reference_codes: np.ndarray, block:
             dev = np.maximum(np.abs(rg - np.median(rg)), np.abs(bg - np.median(bg)))
             out[f"{key}_p95"] = float(np.quantile(dev, 0.95))
     return out
+
+
+#: :func:`reference_steps` compares values this many pixels apart on either side of a pixel ...
+STEP_REACH = 3
+
+#: ... and counts a step as hard above this log change (10 %) where the reference is flat.
+STEP_HARD = 0.1
+
+
+def reference_steps(radiance: np.ndarray, reference_codes: np.ndarray, where: np.ndarray | None = None) -> dict:
+    """Steps in a ``--deghost`` merge that its reference frame does not show: the hard-edged
+    patches and second outlines of a badly masked moving thing (issue 36).
+
+    ``r = ln L - f(Y)``: the merge's log luminance (mean of the channels) less one monotone
+    curve ``f`` (isotonic regression) of the reference's mean code ``Y``, on pixels whose ``Y``
+    is 12-240 and no channel above 240. ``r`` and ``ln Y`` are smoothed (Gaussian, sigma 2,
+    normalised over those pixels); the step at a pixel is the larger of
+    ``|r(x + k) - r(x - k)|`` and ``|r(y + k) - r(y - k)|`` (``k`` = :data:`STEP_REACH`), scored
+    where the reference's own ``ln Y`` step is at most 0.05 (flat in the reference) and ``where``
+    ((H, W) bool, e.g. a box around a moving person; None: everywhere). Returns
+    ``pixels`` scored, ``step_p99`` and ``hard`` (the fraction above :data:`STEP_HARD`)."""
+    import cv2
+    from sklearn.isotonic import IsotonicRegression
+
+    codes = np.asarray(reference_codes)
+    lum = np.asarray(radiance, dtype=np.float64).mean(axis=-1)
+    y = codes.astype(np.float64).mean(axis=-1)
+    ok = (y >= 12) & np.all(codes <= 240, axis=-1) & (lum > 0) & np.isfinite(lum)
+    out = {"pixels": 0, "step_p99": float("nan"), "hard": float("nan")}
+    if ok.sum() < 1000:
+        return out
+    ll = np.log(np.where(ok, lum, 1.0))
+    sel = np.flatnonzero(ok.ravel())[::17]
+    iso = IsotonicRegression(out_of_bounds="clip").fit(y.ravel()[sel], ll.ravel()[sel])
+    r = np.where(ok, ll - iso.predict(y.ravel()).reshape(y.shape), 0.0).astype(np.float32)
+    wgt = ok.astype(np.float32)
+    den = np.maximum(cv2.GaussianBlur(wgt, (0, 0), 2.0), 1e-6)
+    rs = cv2.GaussianBlur(r * wgt, (0, 0), 2.0) / den
+    ys = cv2.GaussianBlur(np.log(np.maximum(y, 1.0)).astype(np.float32) * wgt, (0, 0), 2.0) / den
+    k = STEP_REACH
+
+    def step(a: np.ndarray) -> np.ndarray:
+        s = np.zeros_like(a)
+        s[:, k:-k] = np.abs(a[:, 2 * k:] - a[:, :-2 * k])
+        s[k:-k] = np.maximum(s[k:-k], np.abs(a[2 * k:] - a[:-2 * k]))
+        return s
+
+    inner = cv2.erode(ok.astype(np.uint8), np.ones((2 * k + 1, 2 * k + 1), np.uint8)) > 0
+    inner[:k] = inner[-k:] = False
+    inner[:, :k] = inner[:, -k:] = False
+    use = inner & (step(ys) <= 0.05)
+    if where is not None:
+        use &= np.asarray(where, dtype=bool)
+    v = step(rs)[use]
+    if v.size < 100:
+        return out
+    return {"pixels": int(v.size), "step_p99": float(np.quantile(v, 0.99)), "hard": float(np.mean(v > STEP_HARD))}

@@ -12,10 +12,19 @@ The object is still in the other frames, elsewhere. Per frame ``j`` with rejecte
    one then look alike (the exposure normalisation of Kalantari & Ramamoorthi 2017);
 2. dense optical flow from the reference to frame j (OpenCV's DIS, Kroeger et al. 2016) on the
    detection grid, brought to full resolution;
-3. frame j's codes sampled through the flow (nearest code: the colours stay ones the frame
+3. the rejected regions **grow over the moving thing's smooth inside**
+   (:func:`grow_by_motion`): the test compares codes in a small window, so a smooth surface
+   that moved (a face's skin, a shirt) agrees with itself shifted and passes, while its edges
+   and features are rejected; the merge then switched, blob by blob, between the frames'
+   differently placed and differently exposed views of it: hard-edged patches and a second
+   outline inside the moving head (measured on the ping-pong bracket, issue 36). Cells near
+   the large rejected regions whose reliable flow departs from the background's own motion by
+   more than :data:`MOTION_PX`, in regions that touch them, are rejected too; where the warped
+   view passes (next step) it fills them, else the reference alone gives them;
+4. frame j's codes sampled through the flow (nearest code: the colours stay ones the frame
    has, as paper 2's per-colour tables need), tested against the reference with the same
    test and the same offset and spread as frame j itself (:class:`~derender.engine.motion.deghost.ConsistencyTest`);
-4. where the warped frame agrees and the frame had been rejected, its warped codes replace its
+5. where the warped frame agrees and the frame had been rejected, its warped codes replace its
    own and it takes part again. "Agrees" is the detection's own rule: outside the warped
    frame's rejected regions *dilated* as the detection dilates them (without the dilation a
    flow of about a pixel gave back the margins the detection had added around a moving
@@ -33,12 +42,36 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FLOW_CHECK", "FLOW_PIXELS", "compensate_frames"]
+__all__ = ["FLOW_CHECK", "FLOW_PIXELS", "MOTION_PX", "MOTION_REACH", "MOTION_MIN_REGION", "MOTION_BACKGROUND_PX", "MOTION_MIN_SHARE", "compensate_frames", "grow_by_motion"]
 
 #: Largest forward-backward disagreement of the flow (pixels of the grid it is computed on)
 #: where a compensated pixel is used.
 FLOW_CHECK = 1.0
 
+
+#: A detection-grid cell near a moving thing whose flow departs from the background's by more
+#: than this (full-resolution pixels) is taken as part of it (:func:`grow_by_motion`).
+MOTION_PX = 2.0
+
+#: The flow is used to grow the rejected regions only when it moves the background (the
+#: accepted cells away from them) by at most this (median, full-resolution pixels): the frames
+#: are registered already, so a flow that moves their background further is failing, not
+#: measuring motion (measured: the iPhone's still bracket, flow-aligned, its frames 4, 7 and 8
+#: 14-52 px; the ping-pong bracket 4.3 / 6.1 px with ``--align translation``, its parallax,
+#: 0.6 / 1.0 px with ``--align flow``).
+MOTION_BACKGROUND_PX = 8.0
+
+#: ... and only those of whose usable cells at least this fraction move against the
+#: background (measured: the ping-pong player's regions 0.83-1.0, the still iPhone's skyline
+#: regions 0.18 and 0.27).
+MOTION_MIN_SHARE = 0.5
+
+#: Only rejected regions (8-connected) of at least this fraction of the grid grow: a moving
+#: thing, not the specks a misregistered edge leaves.
+MOTION_MIN_REGION = 0.002
+
+#: The moving things' motion (grid pixels) is taken as at most this (:func:`grow_by_motion`).
+MOTION_REACH = 64
 
 #: The flow is computed on at most about this many pixels (every k-th row and column of the
 #: detection grid), then brought to full resolution: measured 0.68 -> 0.2 s per 5 frames of
@@ -61,12 +94,14 @@ def _observed_range(mu: np.ndarray, cens: np.ndarray) -> tuple[float, float] | N
 
 
 def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.ndarray | None,
-                      offsets: dict, threads: int | None = None) -> dict[str, Any]:
+                      offsets: dict, threads: int | None = None, grown: dict | None = None) -> dict[str, Any]:
     """Fill the ``rejected`` pixels of every frame from its flow-compensated view (module
     docstring), **in place**: ``frames[j]`` takes the warped codes and ``rejected[j]`` turns
     False where they pass ``test`` (a :class:`~derender.engine.motion.deghost.ConsistencyTest` of the
     reference). ``offsets[j]``: frame j's :class:`~derender.engine.motion.deghost.FrameAgreement` of the
-    detection. Returns the filled fraction per frame."""
+    detection. Before the fill, each frame's rejected regions grow over the moving thing's
+    smooth inside (:func:`grow_by_motion`; ``grown``, a dict: frame -> its grown grid cells).
+    Returns the filled and grown fractions per frame."""
     from derender.engine.motion.deghost import frame_estimates, map_frames
 
     n, h, w = frames.shape[:3]
@@ -96,16 +131,88 @@ def compensate_frames(frames: np.ndarray, test, rejected: np.ndarray, valid: np.
         b8 = _grey8(mu_j, cens_j, lo, hi)
         fwd, reliable = _checked_flow(a8, b8, (hs, ws))
         iy, ix, ok = _flow_samples(fwd, reliable, step, (h, w), None if valid is None else valid[j])
+        grow = grow_by_motion(rejected[j], fwd, reliable, test)
+        if grow is not None and grown is not None:
+            grown[j] = grow
         q, _, _ = test.statistic(frames[j][iy, ix], j, ok, agreement, on_grid=True)
         use_g = test.sub(rejected[j]) & ~test.regions_grid(q, dilate=True) & (ok != 0)
         if not use_g.any():
-            return {"frame": j, "filled": 0.0}
+            return {"frame": j, "filled": 0.0, "grown": 0.0 if grow is None else float(grow.mean())}
         filled = _fill_from_flow(frames[j], rejected[j], use_g, fwd, step)
-        return {"frame": j, "filled": float(filled) / (h * w)}
+        return {"frame": j, "filled": float(filled) / (h * w),
+                "grown": 0.0 if grow is None else float(grow.mean())}
 
     others = [j for j in range(n) if j != ref]
     out["frames"] = [r for r in map_frames(one, others, threads) if r is not None]
     return out
+
+
+def grow_by_motion(rejected_j: np.ndarray, fwd: np.ndarray, reliable: np.ndarray, test) -> np.ndarray | None:
+    """Frame j's rejected pixels ``rejected_j`` (H, W) bool grown, **in place**, over the moving
+    thing's smooth inside (module docstring, step 3); returns the grown detection-grid cells
+    ((hs, ws) bool), or None.
+
+    On the detection grid, with ``fwd`` (hs, ws, 2) the flow from the reference to frame j (grid
+    pixels) and a cell *usable* where the flow is ``reliable`` and the reference observes every
+    channel:
+
+    * the moving things are the rejected regions (8-connected) of at least
+      :data:`MOTION_MIN_REGION` of the grid (not the specks a misregistered edge leaves); their
+      motion ``m`` is the p90 of ``|fwd|`` over their usable cells that move by more than
+      :data:`MOTION_PX` (none: nothing grows);
+    * the background's own residual motion ``b`` (a handheld bracket's parallax after a
+      translation) is the flow of the usable, accepted cells farther than ``3 m`` from them
+      (at most ``3`` :data:`MOTION_REACH`), smoothed (Gaussian, sigma ``max(8, 3 m)``) and so
+      brought under them;
+    * the cells within ``3 m`` of them whose usable flow departs from ``b`` by more than
+      :data:`MOTION_PX`, in connected regions that touch the regions of which at least
+      :data:`MOTION_MIN_SHARE` of the usable cells so depart, are rejected too.
+
+    A rejected region that does not move (flicker, a monitor's bands) grows nowhere; the
+    background's parallax moves with ``b`` and is left as it is; a flow that moves the
+    background by more than :data:`MOTION_BACKGROUND_PX` (median) is not used."""
+    import cv2
+
+    from derender.engine.motion.ghost_kernels import upsample_into
+
+    step = test.step
+    sub = test.sub(rejected_j)
+    _, blab, stats, _ = cv2.connectedComponentsWithStats(sub.astype(np.uint8), connectivity=8)
+    px = np.float32(step)
+    fx, fy = fwd[..., 0] * px, fwd[..., 1] * px                  # full-resolution pixels
+    usable = (reliable != 0) & np.all(test.cens_r == 0, axis=-1)
+    moving = usable & (np.hypot(fx, fy) > MOTION_PX)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= MOTION_MIN_REGION * sub.size)
+    bad = np.isin(blab, big[big > 0])
+    if not (moving & bad).any():
+        return None
+    m = int(np.clip(np.ceil(float(np.quantile(np.hypot(fx, fy)[moving & bad], 0.9)) / step), 1, MOTION_REACH))
+    wide = 3 * m
+    zone = cv2.dilate(bad.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * wide + 1, 2 * wide + 1))) != 0
+    bgw = (usable & ~zone & ~sub).astype(np.float32)
+    if bgw.sum() < 64 or float(np.median(np.hypot(fx, fy)[bgw > 0])) > MOTION_BACKGROUND_PX:
+        return None              # no background, or a flow that does not register it: no evidence
+    sigma = float(max(8, wide))
+    den = cv2.GaussianBlur(bgw, (0, 0), sigma)
+    far = den < 1e-3                   # no background near: the median background motion
+    bx = np.where(far, float(np.median(fx[bgw > 0])), cv2.GaussianBlur(fx * bgw, (0, 0), sigma) / np.maximum(den, 1e-3))
+    by = np.where(far, float(np.median(fy[bgw > 0])), cv2.GaussianBlur(fy * bgw, (0, 0), sigma) / np.maximum(den, 1e-3))
+    rel = usable & zone & (np.hypot(fx - bx, fy - by) > MOTION_PX)
+    ucount = np.bincount(blab[usable], minlength=len(stats))
+    rcount = np.bincount(blab[rel], minlength=len(stats))
+    moves = [c for c in big[big > 0] if ucount[c] and rcount[c] >= MOTION_MIN_SHARE * ucount[c]]
+    bad = np.isin(blab, moves)          # the rejected regions that move against the background
+    if not bad.any():
+        return None
+    _, lab = cv2.connectedComponents((rel | bad).astype(np.uint8), connectivity=8)
+    touch = np.unique(lab[bad])
+    grow = np.isin(lab, touch[touch > 0]) & rel & ~sub
+    if not grow.any():
+        return None
+    full = np.empty(rejected_j.shape, np.uint8)
+    upsample_into(grow.view(np.uint8), step, full)
+    np.logical_or(rejected_j, full.view(bool), out=rejected_j)
+    return grow
 
 
 def _checked_flow(a8: np.ndarray, b8: np.ndarray, grid_shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

@@ -477,8 +477,16 @@ class _GhostRemoval:
         # the frames whose own codes will not be merged at each pixel: the fill takes the rejections
         # back where a frame's warped view passes, but those pixels are not that frame's codes either
         self.before_fill = rejected.sum(axis=0, dtype=np.uint8)
+        grown: dict = {}
         info["compensation"] = compensate_frames(self.frames, test, rejected, valid, info["agreements"],
-                                                 threads=self.threads)
+                                                 threads=self.threads, grown=grown)
+        if grown:                          # the moving thing's inside, grown before the fill: left out too
+            from derender.engine.motion.ghost_kernels import upsample_into
+
+            plane = np.empty(rejected.shape[1:], np.uint8)
+            for g in grown.values():
+                upsample_into(g.view(np.uint8), test.step, plane)
+                self.before_fill += plane
 
     def run(self, plan, access, valid, ainfo: dict):
         """``(plan, access, valid, ghosts, rejected_anywhere, info)`` after ghost removal: the
