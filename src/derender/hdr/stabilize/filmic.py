@@ -62,6 +62,10 @@ dropped 8.9 -> 5.2 degrees (Frobisher 3.8 either way).
 after the tone curve; :mod:`.frame_exponents` searches a relative exponent ``rho_j`` per frame
 inside this alternation, the curve then fitted on the warped codes ``J_j ** rho_j`` (measured
 table there).
+**Code-stratified samples** (:data:`CURVE_BIN_MIN`, off by default): samples added to the code
+bins that the grid sees rarely; measured on the iPhone 6 bracket's sky (issue 36 item 6), they
+narrow the spread over grid seeds but do not make the sky's colour independent of size and
+alignment (docs/uncertainty.md).
 Cost: the fit is linear in the log exposures, so one factorisation serves every round
 (:func:`_debevec_affine`): measured 0.365 -> 0.405 s for the whole curve fit of 9 frames of
 6 MP (the samples are a fixed 1024-point grid, so the cost does not grow with the frame size).
@@ -82,7 +86,7 @@ from derender.hdr.stabilize.exponents import relative_exponents
 
 __all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
            "CURVE_TIE_CODES", "CURVE_SHAPE_TIE",
-           "CURVE_CLIP_RADIUS", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
+           "CURVE_CLIP_RADIUS", "CURVE_BIN_MIN", "CURVE_BIN_WIDTH", "CURVE_BIN_CODES", "CURVE_BIN_CANDIDATES", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
            "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"]
 
 
@@ -149,6 +153,28 @@ CURVE_CLIP = REF_HIGH
 
 #: Radius (px) of the neighbourhood that excludes a sample next to a clipped pixel (see CURVE_CLIP).
 CURVE_CLIP_RADIUS = 1
+
+
+#: Code-stratified samples of that fit (:func:`unclipped_debevec`): every code bin of
+#: :data:`CURVE_BIN_WIDTH` codes within :data:`CURVE_BIN_CODES` of every channel that the
+#: :data:`CURVE_SAMPLES` grid samples see fewer than this many times (kept frame observations) gets
+#: samples added from a denser grid (:data:`CURVE_BIN_CANDIDATES` times as many positions) whose codes
+#: fall in it, so that a part of a curve that only a small region of the scene shows (the iPhone's blue
+#: codes 170-200: a few dozen grid samples) is fitted on a number of samples that does not hang on
+#: where the grid lands (issue 36 item 6). 0 (the default): the grid alone. Measured on the iPhone 6
+#: bracket (docs/uncertainty.md, "Why the stabilised sky's blue moves"): 256 narrows the spread of the
+#: sky's B/G over grid seeds (half size 2.07-4.39 -> 3.00-3.40) but moves it bluer and leaves it
+#: 2.68-3.56 across sizes and alignments (1.69-2.94 without), so it stays off.
+CURVE_BIN_MIN = 0
+
+#: Width (codes) of the bins of :data:`CURVE_BIN_MIN`.
+CURVE_BIN_WIDTH = 8
+
+#: Codes ``(lo, hi)`` whose bins :data:`CURVE_BIN_MIN` fills.
+CURVE_BIN_CODES = (16, 239)
+
+#: Candidate positions for :data:`CURVE_BIN_MIN`: this many times :data:`CURVE_SAMPLES`.
+CURVE_BIN_CANDIDATES = 16
 
 
 #: Grid samples of that fit (the Schur-complement solver costs little per sample; lambda
@@ -481,7 +507,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
         # determine it (Memorial's film frames), so the times are taken as given
         rho = np.ones(n)
         curve.fit(0, rho)
-    params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "sampling": "grid", "seed": int(seed),
+    params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "n_used": int(codes.shape[1]), "bin_min": CURVE_BIN_MIN, "sampling": "grid", "seed": int(seed),
               "weights": "hat", "clip": float(high), "clip_radius": int(radius),
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
               "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie, "shape_tie": shape,
@@ -494,11 +520,27 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
 def _unclipped_samples(codes_at: Any, n: int, shape: tuple[int, int], *, seed: int, high: float, radius: int,
                        valid_at: Any) -> tuple[np.ndarray, np.ndarray]:
     """The :data:`CURVE_SAMPLES` grid samples' codes (N, P, 3) int32, 0 (hat weight 0) where the sample
-    has a clipped neighbour or its image does not take part, and that mask ``clipped`` (N, P)."""
+    has a clipped neighbour or its image does not take part, and that mask ``clipped`` (N, P); with
+    :data:`CURVE_BIN_MIN` > 0, followed by the samples added to the code bins the grid leaves sparse
+    (:func:`_sparse_bin_samples`)."""
     from derender.response.curves import grid_positions
 
     h, w = int(shape[0]), int(shape[1])
     ys, xs = grid_positions(h, w, CURVE_SAMPLES, seed)
+    codes, clipped = _codes_at_positions(codes_at, n, (h, w), ys, xs, high=high, radius=radius, valid_at=valid_at)
+    if CURVE_BIN_MIN > 0:
+        cy, cx = grid_positions(h, w, CURVE_SAMPLES * CURVE_BIN_CANDIDATES, seed + 1)
+        cc, ck = _codes_at_positions(codes_at, n, (h, w), cy, cx, high=high, radius=radius, valid_at=valid_at)
+        extra = _sparse_bin_samples(codes, cc)
+        codes = np.concatenate([codes, cc[:, extra]], axis=1)
+        clipped = np.concatenate([clipped, ck[:, extra]], axis=1)
+    return codes, clipped
+
+
+def _codes_at_positions(codes_at: Any, n: int, shape: tuple[int, int], ys: np.ndarray, xs: np.ndarray, *,
+                        high: float, radius: int, valid_at: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Codes (N, P, 3) int32 at the positions, 0 where clipped within ``radius`` or not valid, and that mask."""
+    h, w = int(shape[0]), int(shape[1])
     top = int(np.ceil(high * 255 - 1e-9))
     codes = np.stack([np.asarray(codes_at(j, ys, xs)) for j in range(n)]).astype(np.int32)   # (N, P, 3)
     clipped = np.zeros(codes.shape[:2], dtype=bool)
@@ -513,6 +555,40 @@ def _unclipped_samples(codes_at: Any, n: int, shape: tuple[int, int], *, seed: i
             clipped[j] |= ~np.asarray(valid_at(j, ys, xs), dtype=bool)
     codes[clipped] = 0                       # hat weight 0: the sample drops out of every channel
     return codes, clipped
+
+
+def _sparse_bin_samples(codes: np.ndarray, cand: np.ndarray) -> np.ndarray:
+    """Indices of candidate samples ``cand`` (N, C, 3) to add to ``codes`` (N, P, 3) (0: left out) so
+    that every code bin of :data:`CURVE_BIN_WIDTH` codes (within :data:`CURVE_BIN_CODES`) of every
+    channel holds at least :data:`CURVE_BIN_MIN` kept observations (frame, sample) where the
+    candidates allow; candidates taken in grid order, evenly spread over those that qualify."""
+    lo, hi = CURVE_BIN_CODES
+    width = CURVE_BIN_WIDTH
+    nb = 256 // width
+    chosen = np.zeros(cand.shape[1], dtype=bool)
+
+    def counts(z: np.ndarray) -> np.ndarray:          # (nb, 3) kept observations per bin
+        out = np.zeros((nb, 3), dtype=np.int64)
+        for c in range(3):
+            zc = z[..., c]
+            out[:, c] = np.bincount((zc[zc > 0] // width).ravel(), minlength=nb)[:nb]
+        return out
+
+    have = counts(codes)
+    cb = cand // width                                   # (N, C, 3)
+    for c in range(3):
+        for b in range(lo // width, (hi + 1) // width):
+            need = CURVE_BIN_MIN - int(have[b, c])
+            if need <= 0:
+                continue
+            hit = ((cb[..., c] == b) & (cand[..., c] > 0)).any(axis=0) & ~chosen
+            idx = np.flatnonzero(hit)
+            if idx.size == 0:
+                continue
+            take = idx[np.unique(np.linspace(0, idx.size - 1, min(need, idx.size)).round().astype(int))]
+            chosen[take] = True
+            have += counts(cand[:, take])
+    return np.flatnonzero(chosen)
 
 
 class _CurveFit:
