@@ -435,19 +435,22 @@ def flicker_bands(test: "ConsistencyTest", grid_j: np.ndarray, agreement: FrameA
     gain of a line is the median, over a strip that runs :data:`FLICKER_REACH` grid pixels (at
     least the region's own length) beyond both ends of the region *without the region's own
     lines*, of ``ln((c_r + 1) / (m(c_j) + 1))``: the reference's code against what frame j's
-    code predicts (and the other direction likewise). The region is flicker when, with these
-    gains, at least :data:`FLICKER_EXPLAINED` of its pixels pass the test (the same pooled
-    statistic and threshold). A region at least :data:`FLICKER_ELONGATION` times longer than wide
+    code predicts (and the other direction likewise). The region is flicker when the gains read
+    before and after it agree (within :data:`FLICKER_SIDES`: a band runs on at both ends) and,
+    with these gains, at least :data:`FLICKER_EXPLAINED` of its pixels pass the test (the same
+    pooled statistic and threshold). A region at least :data:`FLICKER_ELONGATION` times longer than wide
     (a whole band rejected) may also take its gains from the whole strip, its own lines
     included, or as one offset in codes per line of its own (the rule before issue 36's
     flicker work, which gave back Memorial's scanner bands).
 
     A moving thing is not explained so: its strip beyond it shows the still background, whose
-    gains are about zero, and no gain per line makes a changed texture agree. Measured
+    gains are about zero, and no gain per line makes a changed texture agree; a piece of an
+    object's path with the object beside it, along its motion, sees other gains on its two
+    sides. Measured
     (issue 36): the iPhone's monitor is given back (left out 0.83 % -> 0.18 % of the other
     frames' pixels; the green speckle on the monitor is gone); the ping-pong person and the
     sculpture garden's pedestrians stay left out (ping-pong 15.5 % -> 15.0 %, sculpture garden
-    4.94 % -> 4.91 %)."""
+    4.94 % -> 4.92 %)."""
     import cv2
 
     from derender.engine.motion.intensity_mapping import gradient2
