@@ -105,21 +105,18 @@ def test_mapping_z2_flags_a_ghost_and_not_a_clipped_frame():
     assert float(np.median(z2[~ghost])) < 1.0
 
 
-#: The issue's lines on the still real brackets are chroma p95 <= 0.03 and p99 <= 0.06,
-#: luminance p99 <= 0.06. Measured at this commit (``docs/gallery.md``): p95 <= 0.012 everywhere;
-#: on Memorial and Frobisher chroma p99 <= 0.034 and luminance p99 <= 0.021 (both lines, tested as
-#: written: Memorial's debevec read 0.067 before its merge gave no weight to the film base's codes,
-#: ``derender.engine.weights.black_codes``). The iPhone is handheld with parallax (the skyline and
-#: the room shift apart between exposures) and is merged with ``--align flow`` (each frame's
-#: residual flow after Ward's translation): chroma p99 / luminance p99 debevec 0.047 / 0.066,
-#: robertson 0.073 / 0.052, stabilized(-joint) 0.093 / 0.141 (with ``--align translation`` 0.076 /
-#: 0.170, 0.109 / 0.138, 0.108 / 0.216: the plain merge doubled the skyline's edges, which ghost
-#: removal showed as the reference's). Not the line yet; the handheld bounds below hold with a
-#: small margin.
+#: The issue's lines on the still real brackets: chroma p95 <= 0.03 and p99 <= 0.06, luminance
+#: p99 <= 0.06, tested as written on every still bracket and method. Measured at this commit
+#: (``docs/gallery.md``, ``docs/results-ghosts.md``): iPhone (handheld, ``--align flow``, the
+#: monitor flickers) chroma p95 / p99 / luminance p99 <= .000 / .003 / .001 for every method (before
+#: the flicker pieces were read against the band beyond them: up to .001 / .093 / .141); Memorial
+#: <= .000 / .026 / .013; Frobisher .000 / .000 / .000.
 P99_CHROMA_LINE = 0.06
-P99_LUMINANCE_TRIPOD = 0.06
-P99_CHROMA_HANDHELD = 0.10
-P99_LUMINANCE_HANDHELD = 0.16
+P99_LUMINANCE_LINE = 0.06
+
+#: Ghost removal leaves out at most this fraction of a still bracket's other frames' pixels
+#: (measured: iPhone 0.18 %, Memorial 0.11 %, Frobisher 0.07 %).
+MAX_REJECTED_STILL = 0.01
 
 
 @pytest.mark.shared_data
@@ -138,11 +135,10 @@ def test_the_gallery_still_brackets_do_not_change_with_deghost():
     assert {r["bracket"] for r in still} == {"iphone", "memorial", "frobisher"}
     assert len(still) == 12
     for row in still:
-        assert row["rejected"] < 0.03, row
+        assert row["rejected"] < MAX_REJECTED_STILL, row
         assert row["chroma_p95"] <= 0.03, row
-        handheld = row["bracket"] == "iphone"
-        assert row["chroma_p99"] <= (P99_CHROMA_HANDHELD if handheld else P99_CHROMA_LINE), row
-        assert row["luminance_p99"] <= (P99_LUMINANCE_HANDHELD if handheld else P99_LUMINANCE_TRIPOD), row
+        assert row["chroma_p99"] <= P99_CHROMA_LINE, row
+        assert row["luminance_p99"] <= P99_LUMINANCE_LINE, row
     for row in rows:                      # the motion brackets: ghost removal did something, and the map
         if not row["still"]:              # shows the reference: one monotone curve per channel within 3 codes
             assert row["rejected"] > 0.0, row
@@ -287,3 +283,47 @@ def test_pingpong_deghost_has_no_patches_on_the_moving_head(method):
     steps = reference_steps(res.radiance, ref, where=head)
     assert steps["pixels"] > 10_000 and steps["hard"] <= 0.075, steps
     assert reference_fidelity(res.radiance, ref)["curve_p95"] <= 3.0
+
+
+def test_dotted_flicker_pieces_are_given_back_and_a_small_moved_patch_is_not():
+    """A flat screen with sparse textured spots (the iPhone's monitor: the test rejects a band only
+    where it crosses texture, so a band is left out in short pieces, each about as long as wide).
+    The reference sees PWM bands (one gain per column, the screen's whole height); a textured
+    patch of the spots' size moved on the still textured ground beside the screen. The pieces are
+    flicker (their gains read on the band beyond them explain them); the patch is motion (its
+    strip shows the still ground)."""
+    from derender.engine.motion.deghost import detect_ghosts
+
+    rng = np.random.default_rng(11)
+    h, w = 256, 320
+    ground = np.clip(rng.normal(0.25, 0.08, (h, w, 3)), 0.02, 0.6)
+    ground = np.repeat(np.repeat(ground[::4, ::4], 4, 0), 4, 1)[:h, :w]     # still texture, 4 px cells
+    scene = ground.copy()
+    screen = (slice(16, 240), slice(16, 200))
+    scene[screen] = 0.2
+    spots = [(y, x) for y in range(40, 220, 36) for x in (40, 100, 160)]
+    for y, x in spots:                                                  # textured spots, 12x12
+        scene[y:y + 12, x:x + 12] = ground[y + 8:y + 20, x + 4:x + 16]
+    times = np.array([1.0, 2.0])
+
+    def render(x, t):
+        return np.clip(np.rint(255 * np.clip(x * t, 0, 1) ** (1 / 2.2) + rng.normal(0, 0.7, x.shape)), 0, 255).astype(np.uint8)
+
+    long_ = render(scene, 2.0)
+    ref_scene = scene.copy()
+    gain = np.ones(w)
+    for x0 in (34, 94, 154):                                            # bands through the spots' columns
+        gain[x0:x0 + 24] = 0.55
+    ref_scene[screen] *= gain[None, screen[1], None]
+    ref_scene[120:136, 250:266] = ground[40:56, 270:286]                 # a 16x16 textured patch moved in
+    ref = render(ref_scene, 1.0)
+    rejected, info = detect_ghosts(np.stack([ref, long_]), _table_plan(times), 0, None, threads=1)
+    assert rejected is not None
+    on_spots = np.zeros((h, w), bool)
+    for y, x in spots:
+        on_spots[y + 2:y + 10, x + 2:x + 10] = True
+    patch = np.zeros((h, w), bool)
+    patch[122:134, 252:264] = True
+    assert rejected[1][patch].mean() > 0.9
+    assert rejected[1][on_spots].mean() < 0.1
+    assert info["frames"][1]["flicker"] > 0
