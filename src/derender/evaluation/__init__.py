@@ -33,7 +33,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "linearity": ["DECADES", "LINEARITY_METHODS", "FISHEYE_VIEW", "linearity_scores", "linearity_experiment", "fisheye_maps", "render_chart_model", "format_decades"],
     "consistency": ["BLOCK", "DARK_QUANTILE", "MapChange", "block_medians", "compare_maps", "STILL_BRACKETS", "FLAG_METHODS", "shared_data_root", "bracket_inputs", "deghost_pair", "flag_invariance", "method_agreement", "reference_fidelity", "FIDELITY_LOW", "FIDELITY_HIGH", "FIDELITY_FLAT", "NEUTRAL_CODES", "NEUTRAL_RATIO"],
     "gallery": ["GALLERY", "THUMB_WIDTH", "build_gallery", "source_key"],
-    "roundtrip": ["FAIL_CODES", "REGIONS", "RoundTrip", "round_trip", "tolerant_residual", "inverse_tables",
-                  "bracket_round_trip"],
+    "roundtrip": ["FAIL_CODES", "REGIONS", "SHIFT_BLOCK", "SHIFT_STEP", "RoundTrip", "round_trip", "tolerant_residual",
+                  "box_means", "inverse_tables", "bracket_round_trip"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })
