@@ -62,6 +62,30 @@ def test_a_matrix_plan_inverts_its_matrices():
     assert np.all(rt.median <= 0.5) and np.all(rt.p95 <= 0.75)
 
 
+def test_a_tolerance_forgives_a_misregistration_not_a_wrong_map():
+    """A frame one pixel off (a handheld bracket's misregistration) fails the plain round trip
+    and passes with a 1 px tolerance (one shift per block); a map 30 % too bright on half the
+    image still fails with a 2 px tolerance and 5x5 means."""
+    radiance, times, lin, frames = _bracket(seed=2, h=64, w=64)
+    with np.errstate(divide="ignore"):
+        logv = np.log(lin)[None] - np.log(times)[:, None, None]
+    weights = np.ones((256, 3))
+    weights[[0, 255]] = 0.0
+    plan = TablePlan(values=logv.astype(np.float32), weights=weights, domain="log")
+    moved = frames.copy()
+    moved[2, :, 1:] = frames[2, :, :-1]                                  # frame 2 one pixel to the right
+    plain = round_trip(plan, moved, radiance)
+    assert plain.p95[2] > 4.0 and np.all(np.delete(plain.p95, 2) <= 0.75)
+    tol = round_trip(plan, moved, radiance, tolerance=1)
+    assert tol.tolerance == 1.0 and np.all(tol.p95 <= 0.75)             # only 8-bit rounding is left
+    wrong = radiance.copy()
+    wrong[:32] *= 1.3
+    bad = round_trip(plan, frames, wrong, tolerance=2, scale=5)
+    assert bad.scale == 5 and np.all(bad.p95[bad.pixels > 200] > 2.0)
+    good = round_trip(plan, frames, radiance, tolerance=2, scale=5)
+    assert np.all(good.p95 <= 0.75)
+
+
 @pytest.mark.shared_data
 @pytest.mark.parametrize("method", ["debevec", "stabilized"])
 def test_frobisher_renders_back_its_frames(method):

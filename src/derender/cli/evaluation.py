@@ -163,6 +163,12 @@ def diagnose(
                                  "frame was left out of are not scored)."),
     fail_map: Optional[Path] = typer.Option(None, "--fail-map", help="With --round-trip: a PNG of where the round trip "
                                             "fails (grey level: how many frames miss by more than 4 codes)."),
+    tolerance: float = typer.Option(0.0, "--tolerance", min=0.0, max=4.0, help="With --round-trip: registration tolerance in "
+                                  "pixels: each 32-px block of a frame first takes the shift (0.5 px steps, at most "
+                                  "this far) that fits the map best (a misregistered edge is not a model error; 0: none)."),
+    scale: int = typer.Option(1, "--scale", min=1, max=15, help="With --round-trip: compare SCALE x SCALE box means of "
+                              "the codes (in-camera sharpening, demosaicing and noise are not the forward model's; "
+                              "1: pixel by pixel)."),
 ) -> None:
     """Paper 1's Fig. 2: log(g(J_i)/dt_i) against merged log radiance; spread in stops (0 = constant response).
     With --round-trip METHOD: does the merge give back each frame's codes?"""
@@ -170,8 +176,8 @@ def diagnose(
     from derender.io.files import OutputTransaction
 
     check_choice("--align", align, ("none", "translation"))
-    if round_trip is None and (fail_map is not None or deghost or reference is not None):
-        raise InputError("--fail-map, --deghost and --reference need --round-trip METHOD")
+    if round_trip is None and (fail_map is not None or deghost or reference is not None or tolerance or scale > 1):
+        raise InputError("--fail-map, --deghost, --reference, --tolerance and --scale need --round-trip METHOD")
     if round_trip is not None:
         from derender.hdr.registry import method_spec
 
@@ -189,11 +195,11 @@ def diagnose(
         if round_trip is not None:
             _round_trip_report(images, round_trip, times=times, times_file=times_file, times_inverse=times_inverse,
                                reference=reference, align=align, deghost=deghost, map_path=(map_tmp, fail_map),
-                               inputs=inputs)
+                               inputs=inputs, tolerance=tolerance, scale=scale)
 
 
 def _round_trip_report(images, method, *, times, times_file, times_inverse, reference, align, deghost, map_path,
-                       inputs) -> None:
+                       inputs, tolerance=0, scale=1) -> None:
     """`diagnose --round-trip`: the per-frame and per-region table, and the failure map
     (``map_path``: the transaction's temporary and the user's name, or (None, None))."""
     from derender.evaluation.roundtrip import FAIL_CODES, REGIONS, bracket_round_trip
@@ -204,8 +210,11 @@ def _round_trip_report(images, method, *, times, times_file, times_inverse, refe
     motion = motion_options(reference, align, deghost, None, None, len(images))
     tlist = [float(x) for x in times.split(",")] if times else None
     rt, res, names = bracket_round_trip(images, method, times=tlist, times_file=times_file,
-                                        times_file_inverse=times_inverse, motion=motion)
-    typer.echo(f"round trip through {method}'s forward model (codes; the issue's line: median <= 1.5, p95 <= 4):")
+                                        times_file_inverse=times_inverse, motion=motion, tolerance=tolerance,
+                                        scale=scale)
+    tol = (f", registration tolerance {tolerance:g} px" if tolerance else "") + (f", {scale}x{scale} means" if scale > 1
+                                                                                else "")
+    typer.echo(f"round trip through {method}'s forward model (codes{tol}; the issue's line: median <= 1.5, p95 <= 4):")
     for row in rt.rows(names):
         typer.echo(f"  {row['frame']}: median {row['median']:.2f}  p95 {row['p95']:.2f}  ({row['pixels']} px, "
                    f"{100 * row['share']:.0f} % of the weight)")
