@@ -7,7 +7,6 @@ and the maps differ in colour, and no such note is given. Oracle: the two merges
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 import derender
 from derender.camera.bracket import simulate_bracket
