@@ -79,7 +79,7 @@ def test_shaken_bracket_merges_within_ten_percent_of_the_still_one(shaken):
     """Issue 38's motion line on a bracket shaken by half and odd photosites (no moving objects, the
     whole frame static): median error against the scene within 1.10x of the still bracket's
     (measured: 0.992 without ghost removal, 0.993 with it, 0.998 before the window test allowed for
-    the shift's odd part, derender.raw.register.phase_offset_difference; the 2x2-block MTB alone,
+    the shift's odd part, derender.raw.window_ghost_test.phase_offset_difference; the 2x2-block MTB alone,
     even shifts only: 1.41 and 1.38)."""
     rs, ts, rm, tm = shaken
     s = raw_scores(rs.radiance, ts, rs.mask)

@@ -63,7 +63,7 @@ import numpy as np
 from numba import njit
 
 from derender.raw.colour_ghost_test import colour_ghosts
-from derender.raw.register_kernels import PAD, box_image, colour_variance, filter_phase, separable_taps, window_sums
+from derender.raw.register_kernels import PAD, box_image, colour_variance, filter_phase
 
 __all__ = [
     "SNAP",
@@ -77,8 +77,6 @@ __all__ = [
     "colour_correlation",
     "variance_factors",
     "phase_scale",
-    "shifted_box",
-    "phase_offset_difference",
 ]
 
 #: A shift component within this many photosites of a whole number is taken as whole.
@@ -390,30 +388,6 @@ def colour_correlation(pattern: str, shift) -> np.ndarray:
     return out
 
 
-def _taps(w: np.ndarray) -> np.ndarray:
-    return np.flatnonzero(w != 0.0)
-
-
-def _convolve(plane: np.ndarray, off: tuple[int, int], wy: np.ndarray, wx: np.ndarray,
-              shape: tuple[int, int]) -> tuple[np.ndarray, tuple[slice, slice]]:
-    """``out[i, k] = sum_mn wy[m] wx[n] plane[i + oy + m - 1, k + ox + n - 1]`` over the output
-    samples whose taps (the non-zero weights) lie inside ``plane``: ``(values, (rows, cols))``,
-    the values on that sub-rectangle of an output of ``shape``."""
-    ty, tx = _taps(wy), _taps(wx)
-    oy, ox = off
-    hs, ws = plane.shape
-    i0 = max(0, -(oy + ty[0] - 1))
-    i1 = min(shape[0], hs - (oy + ty[-1] - 1))
-    k0 = max(0, -(ox + tx[0] - 1))
-    k1 = min(shape[1], ws - (ox + tx[-1] - 1))
-    if i1 <= i0 or k1 <= k0:
-        return np.zeros((0, 0)), (slice(0, 0), slice(0, 0))
-    out = np.empty((i1 - i0, k1 - k0))
-    separable_taps(np.ascontiguousarray(plane, np.float64), int(oy), int(ox), np.asarray(wy, np.float64),
-                   np.asarray(wx, np.float64), int(i0), int(k0), out)
-    return out, (slice(i0, i1), slice(k0, k1))
-
-
 def _box_image(mosaic: np.ndarray, e: float, black: np.ndarray, white: float, scale: np.ndarray,
                read_sd: float) -> tuple[np.ndarray, np.ndarray]:
     """The sliding 2x2 sum of the exposure-normalised mosaic, each photosite divided by its CFA
@@ -596,7 +570,7 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
 def phase_scale(mosaic: np.ndarray, black: np.ndarray, white: float, exposure: float) -> np.ndarray:
     """(2, 2): each CFA phase's median value above black per unit exposure over its unsaturated
     positive photosites, over their mean: weights that make a 2x2 window's sum treat the colours
-    alike (:func:`shifted_box`, :func:`refine_shift`)."""
+    alike (:func:`derender.raw.window_ghost_test.shifted_box`, :func:`refine_shift`)."""
     m = np.asarray(mosaic, np.float64)
     bl = np.asarray(black, np.float64).reshape(2, 2)
     scale = np.ones((2, 2))
@@ -606,30 +580,6 @@ def phase_scale(mosaic: np.ndarray, black: np.ndarray, white: float, exposure: f
             good = (m[a::2, b::2] < float(white)) & (d > 0)
             scale[a, b] = max(float(np.median(d[good])) / exposure, 1e-30) if good.any() else 1.0
     return scale / scale.mean()
-
-
-def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndarray) -> tuple:
-    """The sliding 2x2 sum of ``values / scale`` (per CFA phase; (H, W) per photosite) at the
-    reference's photosites ``p + shift`` (window ``[p + s, p + s + 1]``, Keys between whole
-    shifts): ``(box, saturated, inside, (wy, wx))`` -- (H, W) float64, (H, W) bool (a saturated
-    photosite in the support), (H, W) bool (the support inside the frame) and Keys' weights
-    per axis (rows, columns)."""
-    v = np.ascontiguousarray(values, np.float64)
-    h, w = v.shape
-    box, sbox = np.empty((h, w)), np.empty((h, w))
-    window_sums(v, np.ascontiguousarray(saturated, np.bool_), np.ascontiguousarray(scale, np.float64).reshape(2, 2),
-                box, sbox)
-    iy, ix = math.floor(float(shift[0])), math.floor(float(shift[1]))
-    wy, wx = keys_weights(float(shift[0]) - iy), keys_weights(float(shift[1]) - ix)
-    out = np.zeros((h, w))
-    sat = np.ones((h, w), bool)
-    inside = np.zeros((h, w), bool)
-    vals, (rs, cs) = _convolve(box, (iy, ix), wy, wx, (h, w))
-    out[rs, cs] = vals
-    ns, (rs2, cs2) = _convolve(sbox, (iy, ix), (wy != 0).astype(float), (wx != 0).astype(float), (h, w))
-    sat[rs2, cs2] = ns > 0.5
-    inside[rs, cs] = True
-    return out, sat, inside, (wy, wx)
 
 
 def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = "linear_srgb", wb=None,
@@ -701,26 +651,3 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
             "merged": "per colour, frames resampled at the reference's photosites"}
     return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
                      mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
-
-
-def phase_offset_difference(box: np.ndarray, shift) -> np.ndarray:
-    """The reference's 2x2-window sums' change across the part of ``shift`` that is not whole
-    and even (``delta = s - 2 round(s / 2)`` per axis, in [-1, 1]), to first order:
-    ``|delta_y| (box[p + sign(delta_y) e_y] - box[p]) + |delta_x| (box[p + sign(delta_x) e_x] - box[p])``
-    (edges repeated). A frame's window at ``p + s`` covers the reference window's scene points
-    through other colour filters when ``s`` is not whole and even (each point's colour moves
-    with the CFA phase), so where the scene has texture the two windows' sums differ by about
-    the scene's change over that offset even where nothing moves; the ghost test on window sums
-    (:func:`derender.hdr.raw.raw_motion`) allows for it, squared after the test's 3x3 mean, in
-    its variance (without it, 19-24 % of the static zone of the frames next to the reference
-    was rejected on a handheld bracket, measured, docs/results-raw.md)."""
-    b = np.asarray(box, np.float64)
-    out = np.zeros(b.shape)
-    for axis, v in enumerate((float(shift[0]), float(shift[1]))):
-        delta = v - 2.0 * round(v / 2.0)
-        step = int(np.sign(delta))
-        if step == 0 or abs(delta) <= SNAP:
-            continue
-        idx = np.clip(np.arange(b.shape[axis]) + step, 0, b.shape[axis] - 1)
-        out += abs(delta) * (np.take(b, idx, axis=axis) - b)
-    return out
