@@ -112,10 +112,10 @@ def measured_pixels(bracket: Any, reach: int = 2, sigmas: float = 3.0) -> np.nda
     :mod:`derender.camera.motion`): the pixels ``p`` that some frame ``j`` measures. Frame ``j``
     measures ``p`` when
 
-    * it is ghost-free there: ``j`` is the reference, or no object covers the ``(2 reach + 1)^2``
-      pixels around ``p`` (the demosaic's support; each disc grown by 1 px, as
-      :func:`derender.camera.motion.motion_zones`) in frame ``j`` nor in the reference, in scene
-      coordinates, and ``p`` lies inside frame ``j`` (``p - shift_j``);
+    * it is ghost-free there: ``j`` is the reference, or no object that moved between frame
+      ``j`` and the reference covers the ``(2 reach + 1)^2`` pixels around ``p`` (the demosaic's
+      support; each disc grown by 1 px, as :func:`derender.camera.motion.motion_zones`) in
+      either, in scene coordinates, and ``p`` lies inside frame ``j`` (``p - shift_j``);
     * it is unclipped there: every channel of the noise-free signal over that neighbourhood,
       ``X t_j`` (``X`` = ``bracket.camera_rgb_per_s``, the reference's view, which a
       ghost-free frame shares; 1 = white), is below white by ``sigmas`` times its
@@ -136,14 +136,17 @@ def measured_pixels(bracket: Any, reach: int = 2, sigmas: float = 3.0) -> np.nda
     cam = bracket.camera
     sd_read = float(cam.read_noise) / float(cam.white_level - cam.black_level)
 
-    def covered(j: int) -> np.ndarray:
+    def ghosts(j: int) -> np.ndarray:
+        """Where an object that moved between frame j and the reference is in either (grown)."""
         out = np.zeros((h, w), bool)
-        for c in paths[:, j]:                      # canvas centre; reference pixel p is canvas p + margin
-            out |= (yy + margin + 0.5 - c[0]) ** 2 + (xx + margin + 0.5 - c[1]) ** 2 <= r * r
+        for path in paths:                         # canvas centres; reference pixel p is canvas p + margin
+            if np.array_equal(path[j], path[ref]):
+                continue
+            for c in (path[j], path[ref]):
+                out |= (yy + margin + 0.5 - c[0]) ** 2 + (xx + margin + 0.5 - c[1]) ** 2 <= r * r
         return maximum_filter(out, size=size, mode="nearest")
 
     peak = maximum_filter(x.max(axis=-1), size=size, mode="nearest")
-    cover_ref = covered(ref)
     out = np.zeros((h, w), bool)
     for j, t in enumerate(np.asarray(bracket.times, dtype=np.float64)):
         level = peak * t
@@ -153,5 +156,5 @@ def measured_pixels(bracket: Any, reach: int = 2, sigmas: float = 3.0) -> np.nda
             continue
         dy, dx = shifts[j] - shifts[ref]
         inside = (yy - dy >= 0) & (yy - dy < h) & (xx - dx >= 0) & (xx - dx < w)
-        out |= unclipped & inside & ~covered(j) & ~cover_ref
+        out |= unclipped & inside & ~ghosts(j)
     return out
