@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from derender.raw.register import keys_weights, resample_mosaic, resample_rgb, shifted_box
+from derender.raw.register import keys_weights, resample_mosaic, resample_rgb
 from derender.raw.register_kernels import (
     PAD,
     box_image,
@@ -19,6 +19,7 @@ from derender.raw.register_kernels import (
     separable_taps,
     window_sums,
 )
+from derender.raw.window_ghost_test import shifted_box
 
 TOL = 1e-12
 

@@ -18,6 +18,12 @@ DN^2). Two truths are scored against:
 1st percentile) and in the **brightest unclipped decade** (within 10x below the 99th percentile of
 the measured pixels), and the coverage of the central 50 % and 95 % intervals of the
 variance, ``|r - g| <= z sigma`` per channel.
+
+On a moving bracket (``motion=``) :func:`measured_pixels` gives, from the simulator's truth,
+the reference's pixels that some frame measures: the reference, or a frame that sees there
+the same scene (no object over the pixel's neighbourhood in it nor in the reference), with
+every photosite of that neighbourhood unclipped. Elsewhere no merge has a measurement of the
+reference's scene, only bounds.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ __all__ = [
     "true_noise",
     "demosaiced_truth",
     "raw_scores",
+    "measured_pixels",
 ]
 
 
@@ -97,4 +104,57 @@ def raw_scores(radiance: np.ndarray, truth: np.ndarray, mask: np.ndarray | None 
         z = d[good] / np.sqrt(v[good])
         out["coverage50"] = float(np.mean(z <= 0.6744897501960817))
         out["coverage95"] = float(np.mean(z <= 1.959963984540054))
+    return out
+
+
+def measured_pixels(bracket: Any, reach: int = 2, sigmas: float = 3.0) -> np.ndarray:
+    """(H, W) bool, on the reference frame's grid of a moving bracket (``bracket.params["motion"]``,
+    :mod:`derender.camera.motion`): the pixels ``p`` that some frame ``j`` measures. Frame ``j``
+    measures ``p`` when
+
+    * it is ghost-free there: ``j`` is the reference, or no object that moved between frame
+      ``j`` and the reference covers the ``(2 reach + 1)^2`` pixels around ``p`` (the demosaic's
+      support; each disc grown by 1 px, as :func:`derender.camera.motion.motion_zones`) in
+      either, in scene coordinates, and ``p`` lies inside frame ``j`` (``p - shift_j``);
+    * it is unclipped there: every channel of the noise-free signal over that neighbourhood,
+      ``X t_j`` (``X`` = ``bracket.camera_rgb_per_s``, the reference's view, which a
+      ghost-free frame shares; 1 = white), is below white by ``sigmas`` times its
+      Poisson-Gaussian standard deviation.
+    """
+    from scipy.ndimage import maximum_filter
+
+    mo = bracket.params["motion"]
+    ref = int(mo["reference"])
+    margin = int(mo["canvas_margin"])
+    shifts = np.asarray(mo["shifts_dy_dx"], dtype=np.int64)
+    paths = np.asarray(mo["object_paths_yx"], dtype=np.float64).reshape(-1, len(shifts), 2)
+    r = float(mo["radius_px"]) + 1.0
+    x = np.asarray(bracket.camera_rgb_per_s, dtype=np.float64)
+    h, w = x.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    size = 2 * int(reach) + 1
+    cam = bracket.camera
+    sd_read = float(cam.read_noise) / float(cam.white_level - cam.black_level)
+
+    def ghosts(j: int) -> np.ndarray:
+        """Where an object that moved between frame j and the reference is in either (grown)."""
+        out = np.zeros((h, w), bool)
+        for path in paths:                         # canvas centres; reference pixel p is canvas p + margin
+            if np.array_equal(path[j], path[ref]):
+                continue
+            for c in (path[j], path[ref]):
+                out |= (yy + margin + 0.5 - c[0]) ** 2 + (xx + margin + 0.5 - c[1]) ** 2 <= r * r
+        return maximum_filter(out, size=size, mode="nearest")
+
+    peak = maximum_filter(x.max(axis=-1), size=size, mode="nearest")
+    out = np.zeros((h, w), bool)
+    for j, t in enumerate(np.asarray(bracket.times, dtype=np.float64)):
+        level = peak * t
+        unclipped = level + sigmas * np.sqrt(level / float(cam.full_well) + sd_read ** 2) < 1.0
+        if j == ref:
+            out |= unclipped
+            continue
+        dy, dx = shifts[j] - shifts[ref]
+        inside = (yy - dy >= 0) & (yy - dy < h) & (xx - dx >= 0) & (xx - dx < w)
+        out |= unclipped & inside & ~ghosts(j)
     return out

@@ -27,7 +27,7 @@ value), its mean over a 5x5 window against the engine's threshold
 when the other frame puts the value more than 3 sigma below its saturation level; for a
 resampled bracket ``z`` compares 2x2-window sums instead (``_reject_ghosts``; at a shift
 not whole and even the windows see the scene through other colour filters, and the
-reference's own change across that offset, :func:`derender.raw.register.phase_offset_difference`,
+reference's own change across that offset, :func:`derender.raw.window_ghost_test.phase_offset_difference`,
 is allowed for in the variance); beside
 saturation a frame longer than the reference is tested per photosite with 10 % of the value
 allowed for the resampling's error, and where a photosite's resampled sample is left untested
@@ -546,7 +546,7 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     5x5 window mean of ``z^2`` against the reference exceeds the threshold; a resampled frame's
     variance is its factor per CFA phase times the model's. With ``shifted`` (the frames as read
     and their shifts, a resampled bracket), ``z^2`` compares 2x2-window sums instead
-    (:func:`derender.raw.register.shifted_box`, each frame's window at ``p + s``; colours weighed
+    (:func:`derender.raw.window_ghost_test.shifted_box`, each frame's window at ``p + s``; colours weighed
     alike by :func:`derender.raw.register.phase_scale`), wherever neither window is saturated:
     a window holds one photosite of each colour whatever its phase, so no colour is interpolated
     across (a resampled sample of another colour carries the demosaic's error, which the noise
@@ -574,7 +574,8 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
     thr = float(threshold or GHOST_THRESHOLD)
     rejected = [0.0] * len(frames)
     if shifted is not None:
-        from derender.raw.register import phase_offset_difference, phase_scale, shifted_box
+        from derender.raw.register import phase_scale
+        from derender.raw.window_ghost_test import phase_offset_difference, shifted_box
 
         originals, shift_values, untested = shifted
         scale = phase_scale(originals[ref].mosaic, _black22(originals[ref]), whites[ref], times[ref])
@@ -614,7 +615,7 @@ def _reject_ghosts(frames: list[RawFrame], times: np.ndarray, ref: int, valid: l
             ky, kx = np.convolve(pair3, wy[wy != 0]) ** 2, np.convolve(pair3, wx[wx != 0]) ** 2
             var_j = smooth(vq_j, ky, kx)
             # the windows' colours differ at a shift not whole and even: the scene's change over
-            # that offset allowed for (derender.raw.register.phase_offset_difference)
+            # that offset allowed for (derender.raw.window_ghost_test.phase_offset_difference)
             texture = smooth(phase_offset_difference(box_r, shift_values[j]), mean3) ** 2
             zb = smooth(box_j - box_r, mean3) ** 2 / (var_j + var_r + texture)
             use = inside & (smooth((bsat_j | bsat_r).astype(np.float64), mean3) == 0.0)

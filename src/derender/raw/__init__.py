@@ -5,8 +5,9 @@ Modules: :mod:`derender.raw.ahd` (Hirakawa & Parks' demosaic with its variance),
 :mod:`derender.raw.groundtruth`, :mod:`derender.raw.menon` (Menon 2007's demosaic with its
 variance), :mod:`derender.raw.interpolation` (the demosaic's interpolation error in the
 variance), :mod:`derender.raw.mosaic`, :mod:`derender.raw.noise`, :mod:`derender.raw.optimal`,
-:mod:`derender.raw.register` (sub-photosite registration), :mod:`derender.raw.colour_ghost_test`
-(its ghost test colour by colour beside saturation), and the compiled loops the merge and the
+:mod:`derender.raw.register` (sub-photosite registration), :mod:`derender.raw.window_ghost_test`
+(its ghost test on 2x2-window sums), :mod:`derender.raw.colour_ghost_test` (and colour by colour
+beside saturation), and the compiled loops the merge and the
 demosaic run in, :mod:`derender.raw.kernels` and :mod:`derender.raw.register_kernels` (building
 blocks, not re-exported here).
 """
@@ -27,4 +28,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "mosaic": ["LOW", "HIGH", "DEMOSAIC_METHODS", "DEMOSAIC_ALIASES", "MASK_RADIUS", "demosaic_name", "sorted_raw_frames", "cfa_channel_index", "merge_raw_mosaics", "white_balance_mosaic", "wb_from_patch", "demosaic_bayer", "spread_mask", "finite_float32"],
     "register": ["refine_shift", "resample_rgb", "resample_mosaic", "raw_merge_shifted"],
     "register_kernels": [],
+    "window_ghost_test": [],
 })

@@ -24,8 +24,9 @@ stops apart with few common samples) is not taken. :func:`derender.hdr.raw.raw_m
 each frame against its neighbour towards the reference and chains the shifts, as the engine does.
 
 **Resampling** (:func:`resample_rgb`): frame ``j``'s colour ``c`` at ``p + s`` is Malvar, He &
-Cutler's (2004) demosaic of frame ``j`` for colour ``c`` at the 4 x 4 photosites around ``p + s``,
-weighted by Keys: one linear filter ``C`` of about 8 x 8 photosites per output CFA phase and
+Cutler's (2004) demosaic of frame ``j`` for colour ``c`` at the 4 x 4 photosites around ``p + s``
+(on the mosaic white-balanced as :func:`derender.raw.optimal.raw_merge`'s demosaic sees it, the
+colour unbalanced again: a tap of colour ``c'`` weighs ``w_c' / w_c``), weighted by Keys: one linear filter ``C`` of about 8 x 8 photosites per output CFA phase and
 colour (constant over the frame, since ``s`` is), borders mirrored within each CFA phase
 (:func:`derender.raw.register_kernels.mirror_cfa`: a mirrored photosite keeps its colour; the
 mosaic's own mirror, as the demosaic has it, put a border row's other colours in, and a frame's
@@ -63,7 +64,7 @@ import numpy as np
 from numba import njit
 
 from derender.raw.colour_ghost_test import colour_ghosts
-from derender.raw.register_kernels import PAD, box_image, colour_variance, filter_phase, separable_taps, window_sums
+from derender.raw.register_kernels import PAD, box_image, colour_variance, filter_phase
 
 __all__ = [
     "SNAP",
@@ -77,8 +78,6 @@ __all__ = [
     "colour_correlation",
     "variance_factors",
     "phase_scale",
-    "shifted_box",
-    "phase_offset_difference",
 ]
 
 #: A shift component within this many photosites of a whole number is taken as whole.
@@ -142,14 +141,17 @@ def snap_shift(shift) -> tuple[float, float]:
 
 
 @lru_cache(maxsize=64)
-def _resampling_kernels(pattern: str, sy: float, sx: float) -> tuple:
+def _resampling_kernels(pattern: str, sy: float, sx: float, wb: tuple = (1.0, 1.0, 1.0)) -> tuple:
     """Per output CFA phase ``(a, b)`` and colour ``c``: the linear filter ``C`` (correlation
     offsets ``(oy + u, ox + v)``) with ``out(p) = sum C[u, v] d(p + (oy + u, ox + v))``: Keys'
     weights over the 4 x 4 photosites around ``p + s`` of Malvar's estimate of colour ``c``
-    there. Returns ``kernels[a][b][c] = (C, oy, ox)`` and the factors ``sum C^2`` (3, 2, 2)."""
+    there, on the mosaic balanced by ``wb`` (R, G, B) and unbalanced again (each tap of colour
+    ``c'`` times ``wb[c'] / wb[c]``). Returns ``kernels[a][b][c] = (C, oy, ox)`` and the factors
+    ``sum C^2`` (3, 2, 2)."""
     from derender.raw.optimal import linear_demosaic_kernels
 
     ker = linear_demosaic_kernels(pattern)                 # (2, 2, 3, 5, 5)
+    lut = {"R": 0, "G": 1, "B": 2}
     iy, ix = math.floor(sy), math.floor(sx)
     wy, wx = keys_weights(sy - iy), keys_weights(sx - ix)
     out, factor = [[[None] * 3 for _ in range(2)] for _ in range(2)], np.ones((3, 2, 2))
@@ -166,7 +168,13 @@ def _resampling_kernels(pattern: str, sy: float, sx: float) -> tuple:
                         acc[ty:ty + 5, tx:tx + 5] += w * ker[(a + qy) & 1, (b + qx) & 1, c]
                 rows, cols = np.flatnonzero(np.any(acc != 0, axis=1)), np.flatnonzero(np.any(acc != 0, axis=0))
                 sub = acc[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
-                out[a][b][c] = (sub, iy - 3 + int(rows[0]), ix - 3 + int(cols[0]))
+                oy, ox = iy - 3 + int(rows[0]), ix - 3 + int(cols[0])
+                if tuple(wb) != (1.0, 1.0, 1.0):
+                    uy = (a + oy + np.arange(sub.shape[0])) & 1
+                    ux = (b + ox + np.arange(sub.shape[1])) & 1
+                    col = np.array([[lut[pattern[2 * i + k]] for k in ux] for i in uy])
+                    sub = sub * (np.asarray(wb, np.float64)[col] / float(wb[c]))
+                out[a][b][c] = (sub, oy, ox)
                 factor[c, a, b] = float(np.sum(sub ** 2))
     return out, factor
 
@@ -200,6 +208,14 @@ def _apply(m: np.ndarray, black: np.ndarray, white: float, kernel: tuple, a: int
     filter_phase(m, black, float(white), np.ascontiguousarray(ker, np.float64), 2 * i0 + a + oy,
                  2 * k0 + b + ox, vals, nsat)
     return vals, nsat, int(np.count_nonzero(ker)), (i0, i1, k0, k1)
+
+
+def _wb_key(wb) -> tuple:
+    """``wb`` (R, G, B, or None: ones) as the kernels' cache key, relative to green."""
+    if wb is None:
+        return (1.0, 1.0, 1.0)
+    m = np.asarray(wb, np.float64).reshape(3)
+    return tuple(float(v) for v in m / m[1])
 
 
 def _prepare(mosaic: np.ndarray, black):
@@ -240,13 +256,16 @@ def resample_mosaic(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
 
 
 def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
-                 pattern: str, channels: tuple[int, ...] = (0, 1, 2)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 pattern: str, channels: tuple[int, ...] = (0, 1, 2),
+                 wb=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frame ``j``'s colours ``channels`` (0, 1, 2: R, G, B) at the reference's photosites
     (module docstring, merging in colour): ``(values, state, factor)`` -- (C, H, W) float64 DN
     above black, (C, H, W) uint8 state (0: takes no part, 1: a measurement, 2: censored, its
-    support saturated everywhere) and the (3, 2, 2) variance factor per colour and output phase."""
+    support saturated everywhere) and the (3, 2, 2) variance factor per colour and output phase.
+    ``wb`` (R, G, B; None: ones): the balance Malvar's demosaic sees the mosaic in (as
+    :func:`derender.raw.optimal.raw_merge`'s); the values stay unbalanced."""
     m, black = _prepare(mosaic, black)
-    kernels, factors = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]))
+    kernels, factors = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]), _wb_key(wb))
     h, w = m.shape
     values = np.zeros((len(channels), h, w))
     state = np.zeros((len(channels), h, w), np.uint8)
@@ -263,14 +282,14 @@ def resample_rgb(mosaic: np.ndarray, shift, black: np.ndarray, white: float,
     return values, state, factors
 
 
-def variance_factors(pattern: str, shift, colour_level: np.ndarray) -> np.ndarray:
+def variance_factors(pattern: str, shift, colour_level: np.ndarray, wb=None) -> np.ndarray:
     """(3, 2, 2): per colour and output phase, the variance of a resampled colour (:func:`resample_rgb`)
     over the variance of a photosite of that colour, ``sum C[q]^2 V(q) / V_c``, each photosite's
     variance taken as its colour's ``colour_level`` (R, G, B: a typical variance, ``g L e +
-    sigma^2`` at the colour's typical level ``L`` in the frame)."""
+    sigma^2`` at the colour's typical level ``L`` in the frame); ``wb`` as :func:`resample_rgb`'s."""
     p = pattern.upper()
     lut = {"R": 0, "G": 1, "B": 2}
-    kernels, _ = _resampling_kernels(p, float(shift[0]), float(shift[1]))
+    kernels, _ = _resampling_kernels(p, float(shift[0]), float(shift[1]), _wb_key(wb))
     lv = np.asarray(colour_level, np.float64)
     out = np.ones((3, 2, 2))
     for a in range(2):
@@ -287,14 +306,15 @@ def variance_factors(pattern: str, shift, colour_level: np.ndarray) -> np.ndarra
 def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: np.ndarray, exposures: np.ndarray,
                   noise, pattern: str, *, valid: np.ndarray | None = None, censored: bool = True,
                   untested: np.ndarray | None = None, reference: int | None = None,
-                  threshold: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  threshold: float = 4.0, wb=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The censored ML merge (:func:`derender.raw.optimal.merge_compiled`) done per colour on
     the frames' colours at the reference's photosites (:func:`resample_rgb`, each frame at its
     ``shift``; module docstring, merging in colour). ``mosaics`` (N, H, W) exposure-sorted,
     ``black`` (N, 2, 2), ``white`` (N,), ``exposures`` (N,), ``valid`` (N, H, W) where each
     frame may take part (ghost removal; None: everywhere); ``untested`` (N, H, W) where ghost
     removal could not test a frame (:func:`colour_ghosts`: tested here colour by colour against
-    frame ``reference``'s, ``threshold`` on the 5x5 mean of ``z^2``). Returns camera RGB (H, W, 3) in
+    frame ``reference``'s, ``threshold`` on the 5x5 mean of ``z^2``); ``wb`` the balance the
+    resampling's demosaic sees the mosaic in (:func:`resample_rgb`). Returns camera RGB (H, W, 3) in
     units of the white level per second, its variance (H, W, 3), the (H, W) mask (bright where
     a colour has every frame saturated) and the colours' correlation per CFA phase (2, 2, 3, 3),
     the frames' :func:`colour_correlation` averaged (the merge's weights are not followed)."""
@@ -311,7 +331,7 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
     mask = np.zeros((h, w), np.uint8)
     rho = np.zeros((2, 2, 3, 3))
     for j in range(n):
-        rho += colour_correlation(pattern, shifts[j]) / n
+        rho += colour_correlation(pattern, shifts[j], wb) / n
     # each colour's typical level per unit exposure (median of the unshifted frame, else the
     # middle one), and in each frame its typical variance g L e + sigma^2 per colour
     k = next((j for j in range(n) if tuple(shifts[j]) == (0.0, 0.0)), n // 2)
@@ -325,14 +345,14 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
             parts[lut[pattern.upper()[2 * a + b]]].append(d[good] / float(exposures[k]))
     level = np.array([float(np.median(np.concatenate(q))) if sum(x.size for x in q) else 0.0 for q in parts])
     g_f, s2_f = noise.per_frame(n)
-    weighted = [variance_factors(pattern, shifts[j], g_f[j] * level * float(exposures[j]) + s2_f[j])
+    weighted = [variance_factors(pattern, shifts[j], g_f[j] * level * float(exposures[j]) + s2_f[j], wb)
                 for j in range(n)]
     for c in range(3):
         codes, ok, factors, loose = [], np.empty((n, h, w), bool), np.empty((n, 2, 2)), []
         measured = np.empty((n, h, w), bool)
         states = []
         for j in range(n):
-            vals, state, f = resample_rgb(mosaics[j], shifts[j], black[j], white[j], pattern, (c,))
+            vals, state, f = resample_rgb(mosaics[j], shifts[j], black[j], white[j], pattern, (c,), wb)
             vals, state = vals[0], state[0]
             vals[state == 2] = ceil[j]                          # censored: at the level
             codes.append(np.ascontiguousarray(vals))
@@ -367,11 +387,11 @@ def merge_shifted(mosaics: list, shifts: np.ndarray, black: np.ndarray, white: n
     return x_out, v_out, mask, rho
 
 
-def colour_correlation(pattern: str, shift) -> np.ndarray:
+def colour_correlation(pattern: str, shift, wb=None) -> np.ndarray:
     """(2, 2, 3, 3): per output CFA phase, the correlation of a frame's three resampled colours
-    (:func:`resample_rgb`) for photosites of equal variance: ``sum C_c C_c' / sqrt(sum C_c^2
-    sum C_c'^2)`` over the filters' common photosites."""
-    kernels, _ = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]))
+    (:func:`resample_rgb`, ``wb`` as its) for photosites of equal variance: ``sum C_c C_c' /
+    sqrt(sum C_c^2 sum C_c'^2)`` over the filters' common photosites."""
+    kernels, _ = _resampling_kernels(pattern.upper(), float(shift[0]), float(shift[1]), _wb_key(wb))
     out = np.ones((2, 2, 3, 3))
     for a in range(2):
         for b in range(2):
@@ -388,30 +408,6 @@ def colour_correlation(pattern: str, shift) -> np.ndarray:
             d = np.sqrt(np.diag(cov))
             out[a, b] = cov / np.outer(d, d)
     return out
-
-
-def _taps(w: np.ndarray) -> np.ndarray:
-    return np.flatnonzero(w != 0.0)
-
-
-def _convolve(plane: np.ndarray, off: tuple[int, int], wy: np.ndarray, wx: np.ndarray,
-              shape: tuple[int, int]) -> tuple[np.ndarray, tuple[slice, slice]]:
-    """``out[i, k] = sum_mn wy[m] wx[n] plane[i + oy + m - 1, k + ox + n - 1]`` over the output
-    samples whose taps (the non-zero weights) lie inside ``plane``: ``(values, (rows, cols))``,
-    the values on that sub-rectangle of an output of ``shape``."""
-    ty, tx = _taps(wy), _taps(wx)
-    oy, ox = off
-    hs, ws = plane.shape
-    i0 = max(0, -(oy + ty[0] - 1))
-    i1 = min(shape[0], hs - (oy + ty[-1] - 1))
-    k0 = max(0, -(ox + tx[0] - 1))
-    k1 = min(shape[1], ws - (ox + tx[-1] - 1))
-    if i1 <= i0 or k1 <= k0:
-        return np.zeros((0, 0)), (slice(0, 0), slice(0, 0))
-    out = np.empty((i1 - i0, k1 - k0))
-    separable_taps(np.ascontiguousarray(plane, np.float64), int(oy), int(ox), np.asarray(wy, np.float64),
-                   np.asarray(wx, np.float64), int(i0), int(k0), out)
-    return out, (slice(i0, i1), slice(k0, k1))
 
 
 def _box_image(mosaic: np.ndarray, e: float, black: np.ndarray, white: float, scale: np.ndarray,
@@ -596,7 +592,7 @@ def refine_shift(ref_mosaic: np.ndarray, mosaic: np.ndarray, start, exposures: t
 def phase_scale(mosaic: np.ndarray, black: np.ndarray, white: float, exposure: float) -> np.ndarray:
     """(2, 2): each CFA phase's median value above black per unit exposure over its unsaturated
     positive photosites, over their mean: weights that make a 2x2 window's sum treat the colours
-    alike (:func:`shifted_box`, :func:`refine_shift`)."""
+    alike (:func:`derender.raw.window_ghost_test.shifted_box`, :func:`refine_shift`)."""
     m = np.asarray(mosaic, np.float64)
     bl = np.asarray(black, np.float64).reshape(2, 2)
     scale = np.ones((2, 2))
@@ -606,30 +602,6 @@ def phase_scale(mosaic: np.ndarray, black: np.ndarray, white: float, exposure: f
             good = (m[a::2, b::2] < float(white)) & (d > 0)
             scale[a, b] = max(float(np.median(d[good])) / exposure, 1e-30) if good.any() else 1.0
     return scale / scale.mean()
-
-
-def shifted_box(values: np.ndarray, saturated: np.ndarray, shift, scale: np.ndarray) -> tuple:
-    """The sliding 2x2 sum of ``values / scale`` (per CFA phase; (H, W) per photosite) at the
-    reference's photosites ``p + shift`` (window ``[p + s, p + s + 1]``, Keys between whole
-    shifts): ``(box, saturated, inside, (wy, wx))`` -- (H, W) float64, (H, W) bool (a saturated
-    photosite in the support), (H, W) bool (the support inside the frame) and Keys' weights
-    per axis (rows, columns)."""
-    v = np.ascontiguousarray(values, np.float64)
-    h, w = v.shape
-    box, sbox = np.empty((h, w)), np.empty((h, w))
-    window_sums(v, np.ascontiguousarray(saturated, np.bool_), np.ascontiguousarray(scale, np.float64).reshape(2, 2),
-                box, sbox)
-    iy, ix = math.floor(float(shift[0])), math.floor(float(shift[1]))
-    wy, wx = keys_weights(float(shift[0]) - iy), keys_weights(float(shift[1]) - ix)
-    out = np.zeros((h, w))
-    sat = np.ones((h, w), bool)
-    inside = np.zeros((h, w), bool)
-    vals, (rs, cs) = _convolve(box, (iy, ix), wy, wx, (h, w))
-    out[rs, cs] = vals
-    ns, (rs2, cs2) = _convolve(sbox, (iy, ix), (wy != 0).astype(float), (wx != 0).astype(float), (h, w))
-    sat[rs2, cs2] = ns > 0.5
-    inside[rs, cs] = True
-    return out, sat, inside, (wy, wx)
 
 
 def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = "linear_srgb", wb=None,
@@ -645,10 +617,12 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     part (ghost removal); ``untested`` per frame as given, where ghost removal could not test it,
     to be tested colour by colour against frame ``reference`` (as given) with ``threshold``
     (:func:`colour_ghosts`). Returns an :class:`~derender.core.types.HDRResult` as ``raw_merge``,
-    its ``info`` in the same terms: the resampling's Malvar demosaic sees the mosaic
-    *unbalanced* (``wb_multipliers`` ones: not yet on raw_merge's white-balanced path), the
-    balance the output keeps ``output_wb_multipliers`` (:func:`derender.raw.optimal.white_balances`)
-    and ``output_matrix`` the matrix after the colours (the balance in it)."""
+    its ``info`` in the same terms: the resampling's Malvar demosaic sees the mosaic balanced
+    as raw_merge's does (``wb_multipliers``, :func:`derender.raw.optimal.white_balances`: Malvar's
+    colour-difference terms assume balanced colours; the reference frame's demosaic on its
+    unbalanced mosaic had a 5-13 % larger median error in every zone of handheld seeds 0, 4 and 7,
+    measured, docs/results-raw.md), the balance the output keeps ``output_wb_multipliers`` and
+    ``output_matrix`` the matrix after the demosaic of the balanced mosaic (raw_merge's)."""
     from derender.core.errors import InputError
     from derender.core.types import HDRResult
     from derender.raw.mosaic import MASK_RADIUS, sorted_raw_frames, spread_mask
@@ -667,15 +641,15 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     pattern = frames[0].cfa_pattern.upper()
     _, black, white = compiled_frames(frames)
     mosaics = [np.asarray(f.mosaic) for f in frames]
+    ref = frames[len(frames) // 2]
+    # the balance the resampling's demosaic sees the mosaic in and the one the output keeps, as
+    # raw_merge's (white_balances: the output's ones in camera_rgb and for a file that states
+    # none); the resampled colours stay unbalanced, so nothing is divided out
+    demosaic_wb, mult = white_balances(ref, output_space, wb, mosaic=np.asarray(ref.mosaic), pattern=pattern)
     rgb, var, mmask, rho = merge_shifted(mosaics, shift_arr, black, white, times, noise, pattern, valid=valid_stack,
                                          censored=censored, untested=untested_stack, reference=ref_sorted,
-                                         threshold=threshold)
-    ref = frames[len(frames) // 2]
+                                         threshold=threshold, wb=demosaic_wb)
     mat = output_matrix(ref, output_space)
-    # the balance the output keeps, as raw_merge's (white_balances: ones in camera_rgb and for a
-    # file that states none); the resampling's demosaic saw the mosaic unbalanced, so nothing is
-    # divided out
-    _, mult = white_balances(ref, output_space, wb)
     full = mat * mult[None, :]
     h, w = mmask.shape
     out = (rgb.reshape(-1, 3).astype(np.float64) @ full.T).reshape(h, w, 3)
@@ -696,31 +670,8 @@ def raw_merge_shifted(frames, shifts, noise, *, valid=None, output_space: str = 
     info = {"colour_space": output_space, "exposure_times": times.tolist(), "demosaic": "malvar2004",
             "cfa_pattern": pattern, "noise": noise.as_dict(), "censored": bool(censored),
             "units": "white level per second", "white_minus_black_dn": float(span[int(np.argmax(white))]),
-            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": [1.0, 1.0, 1.0],
-            "output_wb_multipliers": mult.tolist(), "output_matrix": full.tolist(),
+            "mosaic_mask": mmask, "n_frames": len(frames), "wb_multipliers": np.asarray(demosaic_wb).tolist(),
+            "output_wb_multipliers": mult.tolist(), "output_matrix": (full / np.asarray(demosaic_wb)[None, :]).tolist(),
             "merged": "per colour, frames resampled at the reference's photosites"}
     return HDRResult(radiance=np.ascontiguousarray(out, dtype=np.float32),
                      mask=spread_mask(mmask, MASK_RADIUS["malvar2004"]), variance=var_out, info=info)
-
-
-def phase_offset_difference(box: np.ndarray, shift) -> np.ndarray:
-    """The reference's 2x2-window sums' change across the part of ``shift`` that is not whole
-    and even (``delta = s - 2 round(s / 2)`` per axis, in [-1, 1]), to first order:
-    ``|delta_y| (box[p + sign(delta_y) e_y] - box[p]) + |delta_x| (box[p + sign(delta_x) e_x] - box[p])``
-    (edges repeated). A frame's window at ``p + s`` covers the reference window's scene points
-    through other colour filters when ``s`` is not whole and even (each point's colour moves
-    with the CFA phase), so where the scene has texture the two windows' sums differ by about
-    the scene's change over that offset even where nothing moves; the ghost test on window sums
-    (:func:`derender.hdr.raw.raw_motion`) allows for it, squared after the test's 3x3 mean, in
-    its variance (without it, 19-24 % of the static zone of the frames next to the reference
-    was rejected on a handheld bracket, measured, docs/results-raw.md)."""
-    b = np.asarray(box, np.float64)
-    out = np.zeros(b.shape)
-    for axis, v in enumerate((float(shift[0]), float(shift[1]))):
-        delta = v - 2.0 * round(v / 2.0)
-        step = int(np.sign(delta))
-        if step == 0 or abs(delta) <= SNAP:
-            continue
-        idx = np.clip(np.arange(b.shape[axis]) + step, 0, b.shape[axis] - 1)
-        out += abs(delta) * (np.take(b, idx, axis=axis) - b)
-    return out

@@ -13,7 +13,7 @@ threads, deterministic:
   read straight from the mosaic (``d`` the value above its phase's black, borders mirrored
   within each CFA phase by :func:`mirror_cfa`, :data:`PAD` photosites);
 * :func:`window_sums` -- the sliding 2x2 sums of ``v / scale`` (per CFA phase) and of the
-  saturation flags, the last row and column repeated (:func:`derender.raw.register.shifted_box`);
+  saturation flags, the last row and column repeated (:func:`derender.raw.window_ghost_test.shifted_box`);
 * :func:`separable_taps` -- ``out(i, k) = sum_n wx[n] sum_m wy[m] plane(i + oy + m - 1, k + ox + n - 1)``,
   rows first, over the taps whose weight is not zero (Keys' interpolation at a shift);
 * :func:`box_image` -- the registration's exposure-normalised 2x2-window sums and where they are
@@ -130,7 +130,7 @@ def window_sums(values, saturated, scale, box, sbox):  # pragma: no cover - comp
 def separable_taps(plane, oy, ox, wy, wx, i0, k0, out):  # pragma: no cover - compiled
     """``out[i - i0, k - k0] = sum_n wx[n] r(i, k + ox + n - 1)``, ``r(i, x) = sum_m wy[m]
     plane[i + oy + m - 1, x]``, the sums over the taps ``m``, ``n`` (0-3) whose weight is not
-    zero, in order (rows first, as :func:`derender.raw.register.shifted_box` did in NumPy)."""
+    zero, in order (rows first, as :func:`derender.raw.window_ghost_test.shifted_box` did in NumPy)."""
     ni, nk = out.shape
     w = plane.shape[1]
     buf = np.empty(w)
