@@ -196,7 +196,8 @@ def interpolation_correlation_rows(cameras, demosaics, specs=(("outdoor", 3), ("
     (:func:`derender.raw.interpolation.interpolation_variance`); then the coverage against the
     scene in linear sRGB and XYZ of the noise variance plus the term carried by the output
     matrix ``F`` four ways: ``per pixel`` (the default: each disagreement through ``F``, then
-    squared, i.e. its own per-pixel correlation), ``independent`` (``sum_c F_oc^2 s_c^2`` with
+    squared, i.e. its own per-pixel correlation; with the colour-texture term of eq. (2) since
+    it was added, which the three other columns leave out: they are eq. (1)'s disagreements only), ``independent`` (``sum_c F_oc^2 s_c^2`` with
     ``s_c^2 = sum_a k_a e_a,c^2`` in balanced camera RGB), ``rho`` (``sum_cd F_oc F_od rho_cd
     s_c s_d``, ``rho`` the true error's correlation of that bracket) and ``rho = 1``."""
     from derender.camera import simulate_bracket
