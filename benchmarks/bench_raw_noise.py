@@ -36,6 +36,13 @@ into linear sRGB, by Monte Carlo over noise seeds (:func:`correlation_rows`).
 
     PYTHONPATH=src python benchmarks/bench_raw_noise.py --interpolation-correlation [--demosaics malvar2004]
 
+``--colour-texture``: why eq. (1)'s weights fitted on one camera overstate the error on another
+(:func:`colour_texture_rows`): on the noise-free mosaic, the scale on eq. (1) that makes its 95 %
+and 50 % intervals cover, with the scene as it is and with its colour blurred under its
+luminance texture, per camera and scene, at seed 3.
+
+    PYTHONPATH=src python benchmarks/bench_raw_noise.py --colour-texture [--demosaics malvar2004]
+
 (``xyz``: the scene's truth is its linear sRGB through ``LINEAR_SRGB_TO_XYZ``, D65.)
 """
 
@@ -189,7 +196,8 @@ def interpolation_correlation_rows(cameras, demosaics, specs=(("outdoor", 3), ("
     (:func:`derender.raw.interpolation.interpolation_variance`); then the coverage against the
     scene in linear sRGB and XYZ of the noise variance plus the term carried by the output
     matrix ``F`` four ways: ``per pixel`` (the default: each disagreement through ``F``, then
-    squared, i.e. its own per-pixel correlation), ``independent`` (``sum_c F_oc^2 s_c^2`` with
+    squared, i.e. its own per-pixel correlation; with the colour-texture term of eq. (2) since
+    it was added, which the three other columns leave out: they are eq. (1)'s disagreements only), ``independent`` (``sum_c F_oc^2 s_c^2`` with
     ``s_c^2 = sum_a k_a e_a,c^2`` in balanced camera RGB), ``rho`` (``sum_cd F_oc F_od rho_cd
     s_c s_d``, ``rho`` the true error's correlation of that bracket) and ``rho = 1``."""
     from derender.camera import simulate_bracket
@@ -250,6 +258,57 @@ def interpolation_correlation_rows(cameras, demosaics, specs=(("outdoor", 3), ("
                       + " | ".join(cells) + " |", flush=True)
 
 
+def colour_texture_rows(cameras, demosaics, scenes=("outdoor", "indoor", "night"), seed=3, blur=3.0):
+    """``--colour-texture``: per camera, scene and demosaic, on the noise-free true mosaic
+    (white-balanced camera RGB, no noise, so only the interpolation error is left), the factor on
+    eq. (1) of :mod:`derender.raw.interpolation` (its disagreements and weights only) that makes
+    the 95 % and the 50 % interval cover exactly, over the interpolated pixel-channels; first
+    for the scene as it is, then for the scene with its colour (each channel minus the channels'
+    mean) blurred by a Gaussian of ``blur`` pixels and its luminance (the mean) unchanged. Also
+    the median, over pixels, of ``(|L(R - G)| + |L(B - G)|) / |L(mean)|`` (``L`` the 3x3
+    Laplacian) of the true balanced image: the scene's colour texture in camera RGB."""
+    from scipy.ndimage import gaussian_filter, laplace
+
+    from derender.camera import simulate_bracket
+    from derender.camera.sensor import mosaic_signal
+    from derender.camera.spectral import load_camera
+    from derender.raw.interpolation import INTERPOLATION_ESTIMATES
+    from derender.raw.mosaic import demosaic_bayer
+
+    z50, z95 = 0.6744897501960817, 1.959963984540054
+    sl = (slice(3, -3), slice(3, -3))
+
+    def scale(vi, e, z, target):
+        lo, hi = 0.01, 100.0
+        for _ in range(50):
+            m = np.sqrt(lo * hi)
+            lo, hi = (lo, m) if np.mean(np.abs(e) <= z * np.sqrt(m * vi)) > target else (m, hi)
+        return np.sqrt(lo * hi)
+
+    for cam_name in cameras:
+        for kind in scenes:
+            b = simulate_bracket(load_camera(cam_name), kind=kind, size=(256, 192), exposures=5, seed=seed,
+                                 style="simple", pipeline="fixed")
+            t = b.camera_rgb_per_s * np.asarray(b.wb_true)
+            lap = np.stack([laplace(t[..., c]) for c in range(3)], -1)[sl]
+            y = np.abs(lap.mean(-1))
+            colour = np.median((np.abs(lap[..., 0] - lap[..., 1]) + np.abs(lap[..., 2] - lap[..., 1]))
+                               / np.maximum(y, 1e-12))
+            mean = t.mean(-1, keepdims=True)
+            blurred = mean + np.stack([gaussian_filter((t - mean)[..., c], blur) for c in range(3)], -1)
+            for dm in demosaics:
+                cells = []
+                for img in (t, blurred):
+                    x = mosaic_signal(img)
+                    names = {dm} | {a for a, _ in INTERPOLATION_ESTIMATES[dm]}
+                    o = {m: demosaic_bayer(x, "RGGB", m).astype(np.float64)[sl] for m in names}
+                    vi = sum(k * (o[dm] - o[a]) ** 2 for a, k in INTERPOLATION_ESTIMATES[dm])
+                    e = o[dm] - img[sl]
+                    ok = vi > 0
+                    cells.append(f"{scale(vi[ok], e[ok], z95, 0.95):.2f} / {scale(vi[ok], e[ok], z50, 0.5):.2f}")
+                print(f"| {cam_name} | {kind} | {dm} | {colour:.2f} | {cells[0]} | {cells[1]} |", flush=True)
+
+
 #: The brackets the interpolation weights were fitted on (camera, scene, seed).
 TUNING = {("nikon-d5100", "outdoor", 3), ("nikon-d5100", "indoor", 3)}
 
@@ -274,7 +333,15 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=24)
     ap.add_argument("--interpolation-correlation", action="store_true",
                     help="the interpolation error's channel correlation and its propagation to sRGB / XYZ")
+    ap.add_argument("--colour-texture", action="store_true",
+                    help="eq. (1)'s scale to cover, noise-free, with the scene's colour texture and without")
     args = ap.parse_args()
+    if args.colour_texture:
+        print("| camera | scene | demosaic | colour / luminance texture (median) | eq. (1)'s scale to cover 95 % / 50 %: "
+              "scene | colour blurred |")
+        print("|---|---|---|---|---|---|")
+        colour_texture_rows(args.cameras.split(","), args.demosaics.split(","))
+        return
     if args.interpolation_correlation:
         print("| camera | scene | seed | split | demosaic | true error's channel correlation (0,1) / (0,2) / (1,2) "
               "| disagreements' | linear sRGB 95 % / 50 %: per pixel (default) | independent | rho | rho = 1 "

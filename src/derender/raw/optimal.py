@@ -483,7 +483,7 @@ def _with_interpolation(x, out, var_out, shape, pattern, *, mult, mat, demosaic,
 
     others = {name: demosaic_compiled(x, None, shape, pattern, mult, mat, name, clip_negative)[0]
               for name, _ in INTERPOLATION_ESTIMATES[demosaic]}
-    extra = interpolation_variance(out, others, demosaic)
+    extra = interpolation_variance(out, others, demosaic, mat, pattern)
     total = var_out + extra
     e, t = extra[::4].astype(np.float64), total[::4].astype(np.float64)      # every 4th row: ample
     ok = t > 0
