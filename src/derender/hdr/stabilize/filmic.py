@@ -229,38 +229,33 @@ def _debevec_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, ro
 CURVE_TIE_CODES: tuple[int, int] | None = None
 
 
-#: Weight ``kappa`` of the curve model's shape tie (:func:`_shape_penalty`): the differences between the
-#: channels' curves ``g_c - g_c'`` get ``kappa^2`` times the smoothness term each curve gets, on their
-#: second derivative in ``ln z`` (so a constant, the white balance, and a multiple of ``ln z``, a
-#: different exponent per channel, cost nothing). 0 (the default): independent channel curves, each
-#: anchored at ``g(128) = 0``. Why (issue 36 item 5): samples that do not follow the exposure (a thing
-#: that moves, residual misregistration of a handheld bracket), and codes where a channel has no data
-#: (there its curve is the smoothness term's extrapolation), bend each independent curve in its own way
-#: (a synthetic bracket with one tone curve for every channel, ``tests/hdr/test_curve_shape_tie.py``:
-#: swing of ``ln R/G`` over the codes with data 0.04-0.20 still, 0.20-0.26 with an unmasked moving
-#: patch; 0.21-0.35 over codes 16-239 also with 9 frames 1 stop apart; a smaller ``lambda`` makes it
-#: larger). So on pingpong (3 frames, 2 stops, a person moving) equal codes give R/G 0.90-1.20 across
-#: the codes (``--deghost``; 0.74-1.75 without, the person in every frame). With ``kappa = 1``: 0.98-1.06
-#: (0.95-1.02); the reference frame's neutral blocks (``reference_fidelity``, stabilized ``--deghost``)
-#: ``neutral_p95`` 0.222 -> 0.135, ``neutral_strict_p95`` 0.113 -> 0.042 (debevec 0.025); the iPhone's
-#: ``--deghost`` chroma p99 0.108 -> 0.069; Memorial, Frobisher, sculpture garden within 0.08 of before.
-#: Not the default because it costs on the tuning family ``camera`` (``benchmarks/families_measure.py
-#: --methods stabilized``, outdoor + indoor x seeds 0-1, PSNR L, kappa 0 / 0.03 / 1): ``camera`` 43.53 /
-#: 43.03 / 43.39 (outdoor -0.9 .. -1.3 dB, indoor +0.3 .. +1.2), held out ``dslr-lut`` 43.95 / 44.52 /
-#: 44.22, ``phone-local`` 43.85 / 43.84 / 44.10, ``drift`` 44.08 / 44.33 / 44.35; the demo's bracket
-#: (camera, auto, 480x320, 9 frames, seed 0) 49.24 / 49.43 / 47.52 (kappa 0.1: 47.79, 0.3: 47.22). The
-#: auto pipeline's per-frame tone changes (gamma times gain) are what the untied curves absorb, as with
-#: :data:`CURVE_TIE` (``docs/paper1.md``, neutral axis). Weighting the tie so that it gives way where the
-#: data are many does not remove that cost (trials, not kept; camera outdoor seeds 0 / 1, PSNR L, untied
-#: 44.00 / 43.28; pingpong ``neutral_strict_p95``, untied 0.113): times ``1 / (1 + (q / q0)^2)``, ``q`` the
-#: sparser channel's data density at the code relative to its mean, q0 0.3: 42.74 / 42.31, pingpong 0.041;
-#: q0 0.01 with kappa 3 (the tie only where a channel has almost no data): 42.81 / 41.93, 0.052; also times
-#: the pair's density contrast ``((q_hi - q_lo) / (q_hi + q_lo))^2`` (one channel sparse where the other is
-#: not), kappa 3, q0 0.3: 42.75 / 41.98, 0.048; only at codes where the samples are neutral (three codes
-#: within 8, weight ``m / (m + 16)``, m such observations within 8 codes), kappa 1: 42.69 / 42.36, 0.042.
-#: The outdoor scenes lose about 1 dB whichever codes the tie acts on. On the iPhone sky (issue 36 item 6)
-#: ``kappa = 1`` moves B/G from 1.69-2.95 to 2.72-4.10 over quarter / full size x translation / flow x seeds
-#: 0 / 1 (docs/uncertainty.md): no more stable.
+#: Weight ``kappa`` of the curve model's shape tie (:func:`_shape_penalty`, :func:`_solve_to_green`): green's
+#: curve is the one its own samples give, and red's and blue's differences from it ``g_c - g_G`` get
+#: ``kappa^2`` times the smoothness term each curve gets, on their second derivative in ``ln z`` (so a
+#: constant, the white balance, and a multiple of ``ln z``, a different exponent per channel, cost
+#: nothing). 0 (the default): independent channel curves, each anchored at ``g(128) = 0``. Why (issue 36
+#: item 5): samples that do not follow the exposure (a thing that moves, residual misregistration of a
+#: handheld bracket), and codes where a channel has no data (there its curve is the smoothness term's
+#: extrapolation), bend each independent curve in its own way (a synthetic bracket with one tone curve for
+#: every channel, ``tests/hdr/test_curve_shape_tie.py``: swing of ``ln R/G`` over the codes with data
+#: 0.04-0.20 still, 0.20-0.26 with an unmasked moving patch). So on pingpong (3 frames, 2 stops, a person
+#: moving) equal codes give R/G 0.90-1.20 across the codes (``--deghost``). Why green is held: a tie between
+#: all three channels (the first form, measured in the previous session) moves green too, i.e. the
+#: luminance (Rec. 709 weight 0.72), and cost the tuning family ``camera`` 43.53 -> 43.39 dB L (outdoor
+#: -0.9 .. -1.3 dB); weighting that symmetric tie to give way where the data are many did not help (trials,
+#: not kept, camera outdoor seeds 0 / 1, untied 44.00 / 43.28: weight ``1 / (1 + (q / 0.3)^2)``, ``q`` the
+#: sparser channel's relative data density at the code, 42.74 / 42.31; only where samples are neutral
+#: 42.69 / 42.36). Held to green (``benchmarks/families_measure.py --methods stabilized stabilized-joint``,
+#: outdoor + indoor x seeds 0-1, PSNR L / median relative error of 4x4 means, stabilized; kappa 0 / 1):
+#: tuning ``paper`` 44.64 / 0.077 unchanged (power law), ``camera`` 43.53 / 0.144 -> 43.47 / 0.144 (kappa
+#: 0.3: 43.50; per bracket +0.33 .. -0.29), stabilized-joint 42.73 -> 42.68; held out ``dslr-lut`` 43.95 /
+#: 0.141 -> 43.22 / 0.118 (kappa 0.3: 43.26 / 0.119; kappa 0.03 on outdoor seed 0 already 42.13 -> 41.83:
+#: the LUTs' per-channel shapes are real, and weighting by data density does not keep them),
+#: ``phone-local`` 43.85 / 0.214 -> 43.64 / 0.213, ``drift`` 44.08 -> 44.09. Pingpong (stabilized
+#: ``--deghost``, ``reference_fidelity``) ``neutral_strict_p95`` 0.113 -> 0.039 (kappa 0.3: 0.038; debevec
+#: 0.028). So it is an option (``-O shape_tie=1``), not the default: it meets the neutral line on
+#: pingpong at the price of the held-out ``dslr-lut`` family's luminance (-0.7 dB). On the iPhone sky (issue
+#: 36 item 6) it does not settle the sky's colour (docs/uncertainty.md).
 CURVE_SHAPE_TIE = 0.0
 
 
@@ -268,9 +263,10 @@ def _shape_penalty(n: int, lam: float, kappa: float) -> np.ndarray:
     """(n, n) ``P = sum_z (kappa lam w(z))^2 r_z r_z'`` with ``r_z . f`` the second derivative of ``f``
     in ``u = ln z`` at code ``z`` divided by ``z^2`` (three-point, non-uniform spacing: to leading
     order ``f(z+1) - 2 f(z) + f(z-1) + (f(z+1) - f(z-1)) / (2 z)``), ``w`` the hat weight, codes
-    2 .. n-2. Applied to the differences between channels (``(3 I - J) kron P``), it lets them be a
-    constant plus a multiple of ``ln z`` and penalises any other shape as strongly as ``kappa^2``
-    times the curves' own smoothness (:func:`~derender.response.debevec1997.debevec_system`)."""
+    2 .. n-2. Applied to the difference between a channel's curve and green's
+    (:func:`_solve_to_green`), it lets it be a constant plus a multiple of ``ln z`` and penalises any
+    other shape as strongly as ``kappa^2`` times the curves' own smoothness
+    (:func:`~derender.response.debevec1997.debevec_system`)."""
     z = np.arange(2, n - 1, dtype=np.float64)
     u = np.log(np.arange(1, n, dtype=np.float64))           # u[k] = ln(k + 1)
     um, u0, up = u[z.astype(int) - 2], u[z.astype(int) - 1], u[z.astype(int)]
@@ -286,16 +282,21 @@ def _shape_penalty(n: int, lam: float, kappa: float) -> np.ndarray:
     return rw.T @ rw
 
 
-def _solve_penalised(blocks: list, rhs: list, pen: np.ndarray) -> np.ndarray:
-    """``blockdiag(A_c) + (3 I - J) kron pen`` solved directly (768, k): the three channels with the
-    penalty ``sum_{c < c'} (g_c - g_c')' pen (g_c - g_c')`` on their differences."""
+def _solve_to_green(blocks: list, rhs: list, pen: np.ndarray) -> np.ndarray:
+    """The three curves (768, k) with green's as Debevec & Malik fit it alone (``A_G g_G = r_G``) and
+    red's and blue's tied to its shape: ``(A_c + pen) g_c = r_c + pen g_G``, the minimiser of channel
+    c's own system plus ``(g_c - g_G)' pen (g_c - g_G)`` with ``g_G`` held (:data:`CURVE_SHAPE_TIE`)."""
     from scipy.linalg import solve
 
-    n = blocks[0].shape[0]
-    big = np.kron(3.0 * np.eye(3) - np.ones((3, 3)), pen)
+    gg = solve(np.asarray(blocks[1], dtype=np.float64), np.asarray(rhs[1], dtype=np.float64), assume_a="sym")
+    out = []
     for c in range(3):
-        big[c * n:(c + 1) * n, c * n:(c + 1) * n] += np.asarray(blocks[c], dtype=np.float64)
-    return solve(big, np.concatenate([np.asarray(r, dtype=np.float64) for r in rhs], axis=0), assume_a="sym")
+        if c == 1:
+            out.append(gg)
+        else:
+            a = np.asarray(blocks[c], dtype=np.float64) + pen
+            out.append(solve(a, np.asarray(rhs[c], dtype=np.float64) + pen @ gg, assume_a="sym"))
+    return np.concatenate(out, axis=0)
 
 
 def _solve_tied_codes(blocks: list, rhs: list, tie: float, codes: tuple[int, int]) -> np.ndarray:
@@ -339,7 +340,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
         dinvs.append(dinv)
     # (768, 3N): the three curves stacked by channel = gm @ (b_R, b_G, b_B)
     if shape_tie > 0:
-        gm = _solve_penalised(blocks, rhs, _shape_penalty(256, lam, shape_tie))
+        gm = _solve_to_green(blocks, rhs, _shape_penalty(256, lam, shape_tie))
     elif CURVE_TIE_CODES is None:
         gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
     else:
@@ -425,7 +426,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     sees unclipped. The rendered channel that does clip is (nearly) always at white: the
     colour matrix has negative off-diagonals, so a saturated raw channel renders above 1.
 
-    ``shape_tie`` (default :data:`CURVE_SHAPE_TIE`): weight of the tie on the channels' shapes
+    ``shape_tie`` (default :data:`CURVE_SHAPE_TIE`): weight of the tie of red's and blue's shapes to green's
     (:func:`_shape_penalty`; ``params["shape_tie"]``).
 
     ``exposure_rounds`` (default :data:`CURVE_EXPOSURE_ROUNDS`): per-frame, per-channel

@@ -318,8 +318,8 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "trans
         searched with the common curve (:mod:`~derender.hdr.stabilize.frame_exponents`; default
         :data:`~derender.hdr.stabilize.filmic.CURVE_EXPONENT_ROUNDS`).
     shape_tie : float, optional
-        Curve model: weight of the tie on the channels' curve shapes (equal codes stay near
-        neutral; default :data:`~derender.hdr.stabilize.filmic.CURVE_SHAPE_TIE`, off).
+        Curve model: weight of the tie of red's and blue's curve shapes to green's (equal codes stay
+        near neutral; default :data:`~derender.hdr.stabilize.filmic.CURVE_SHAPE_TIE`, off).
 
     Returns
     -------
@@ -506,8 +506,8 @@ class StabilizedOptions:
     exponent_rounds : int, optional
         As :func:`stabilize` (per-frame exponents of the curve model; off by default).
     shape_tie : float, optional
-        As :func:`stabilize` (the curve model's tie on the channels' shapes; off by default:
-        ``-O shape_tie=1`` keeps equal codes neutral on pingpong, docs/paper1.md).
+        As :func:`stabilize` (the curve model's tie of red's and blue's shapes to green's; off by
+        default: ``-O shape_tie=1`` keeps equal codes neutral on pingpong, docs/paper1.md).
     weight : str
         The merge's weight (paper 1: ``"trapezoid"``).
     noise_weighting : bool
