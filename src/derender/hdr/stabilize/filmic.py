@@ -253,9 +253,16 @@ CURVE_TIE_CODES: tuple[int, int] | None = None
 #: the LUTs' per-channel shapes are real, and weighting by data density does not keep them),
 #: ``phone-local`` 43.85 / 0.214 -> 43.64 / 0.213, ``drift`` 44.08 -> 44.09. Pingpong (stabilized
 #: ``--deghost``, ``reference_fidelity``) ``neutral_strict_p95`` 0.113 -> 0.039 (kappa 0.3: 0.038; debevec
-#: 0.028). So it is an option (``-O shape_tie=1``), not the default: it meets the neutral line on
-#: pingpong at the price of the held-out ``dslr-lut`` family's luminance (-0.7 dB). On the iPhone sky (issue
-#: 36 item 6) it does not settle the sky's colour (docs/uncertainty.md).
+#: 0.028). It recolours still real brackets, though (``derender merge ... --method stabilized`` against
+#: ``-O shape_tie=1``, block chroma change median / p95, ``evaluation.consistency.compare_maps``; the
+#: previews looked at full size): Memorial (``--reference 8``, film) 1.13 / 1.30, orange all over (the
+#: symmetric form: p95 1.36, as orange); Frobisher 0.038 / 0.31, the window's blue sky turns yellow-white;
+#: the sculpture garden 0.032 / 0.15; the iPhone (``--reference 3``) 0.092 / 0.34, the pink buildings
+#: neutral; pingpong 0.047 / 0.13, the hill and the wall nearer grey. Film's dye layers, and the sky's
+#: highlights, have channel curves whose shapes do differ, and the tie takes that away. So it is an
+#: option, not the default: it meets the neutral line on pingpong at the price of the held-out
+#: ``dslr-lut`` family's luminance (-0.7 dB) and of Memorial's and Frobisher's colours. On the iPhone sky
+#: (issue 36 item 6) it does not settle the sky's colour (docs/uncertainty.md).
 CURVE_SHAPE_TIE = 0.0
 
 

@@ -507,7 +507,8 @@ class StabilizedOptions:
         As :func:`stabilize` (per-frame exponents of the curve model; off by default).
     shape_tie : float, optional
         As :func:`stabilize` (the curve model's tie of red's and blue's shapes to green's; off by
-        default: ``-O shape_tie=1`` keeps equal codes neutral on pingpong, docs/paper1.md).
+        default: ``-O shape_tie=1`` keeps equal codes neutral on pingpong but turns Memorial orange,
+        docs/paper1.md).
     weight : str
         The merge's weight (paper 1: ``"trapezoid"``).
     noise_weighting : bool
