@@ -27,7 +27,7 @@ def run(step: int, align: str, method: str = "stabilized", options: dict | None 
     from derender.engine.motion.run import MotionOptions
     from derender.evaluation.rendering_change import frame_predictions
     from derender.hdr.registry import merge
-    from derender.hdr.stabilize.filmic import CURVE_SAMPLES
+    from derender.hdr.stabilize.curve_samples import CURVE_SAMPLES
     from derender.io.exif import file_times
     from derender.io.files import expand_image_paths
     from derender.io.images import read_codes
@@ -69,9 +69,9 @@ def run(step: int, align: str, method: str = "stabilized", options: dict | None 
         z = aligned[j][ys[s], xs[s]]
         hist[f"frame{j + 1}"] = [int(((z[:, c] >= 170) & (z[:, c] <= 230)).sum()) for c in range(3)]
     row["sky_samples_codes_170_230"] = hist
-    import derender.hdr.stabilize.filmic as filmic
+    import derender.hdr.stabilize.curve_samples as curve_samples
     row["options"] = options or {}
-    row["curve_bin_min"] = filmic.CURVE_BIN_MIN
+    row["curve_bin_min"] = curve_samples.CURVE_BIN_MIN
     row["curve_samples_used"] = _find(res.info, "n_used")
     row["offsets"] = _find(res.info, "exposure_offsets")
     row["offsets_rejected"] = _find(res.info, "exposure_offsets_rejected")
@@ -140,25 +140,28 @@ if __name__ == "__main__":
     ap.add_argument("--json", type=Path)
     ap.add_argument("--options", default="{}", help="JSON options of the method, e.g. '{\"seed\": 1}'")
     ap.add_argument("--bin-min", type=int, default=None,
-                    help="derender.hdr.stabilize.filmic.CURVE_BIN_MIN for this run (code-stratified curve samples)")
+                    help="derender.hdr.stabilize.curve_samples.CURVE_BIN_MIN for this run (code-stratified curve samples)")
     ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="set constants of derender.hdr.stabilize.filmic for this run, e.g. CURVE_SAMPLES=4096")
+                    help="set constants of derender.hdr.stabilize.filmic (or .curve_samples) for this run, "
+                         "e.g. CURVE_SAMPLES=4096")
     ap.add_argument("--curve-only", type=int, nargs="*", metavar="SEED",
                     help="only the reference curve, at these grid seeds (function curve_only)")
     a = ap.parse_args()
     if a.set:
+        import derender.hdr.stabilize.curve_samples as curve_samples
         import derender.hdr.stabilize.filmic as filmic
         for item in a.set:
             name, value = item.split("=", 1)
-            setattr(filmic, name, float(value) if "." in value else int(value))
+            setattr(curve_samples if hasattr(curve_samples, name) else filmic, name,
+                    float(value) if "." in value else int(value))
     if a.curve_only:
         opts = json.loads(a.options)
         for st in a.steps:
             print(json.dumps(curve_only(st, a.curve_only, opts.get("exposure_rounds"))), flush=True)
         raise SystemExit(0)
     if a.bin_min is not None:
-        import derender.hdr.stabilize.filmic as filmic
-        filmic.CURVE_BIN_MIN = a.bin_min
+        import derender.hdr.stabilize.curve_samples as curve_samples
+        curve_samples.CURVE_BIN_MIN = a.bin_min
     rows = []
     for al in a.align:
         for st in a.steps:

@@ -219,7 +219,7 @@ def test_stabilised_luminance_follows_the_times_at_2_ev():
     (stabilized 1.9 %, a decade at 1.050; stabilized-joint 3.0 %, 1.063: the gammas' level read
     from pair gains extrapolated to white, 0.7 % high, and the shortest frames' matrices). The pairs'
     gains read at their own colours follow the times (``gamma_level``), so the level comes from them
-    and the matrices' scale from the times (:func:`derender.hdr.stabilize.method.anchor_to_times`):
+    and the matrices' scale from the times (:func:`derender.hdr.stabilize.colour_model.anchor_to_times`):
     measured 1.4 % / 0.7 %, worst decades 1.025 / 1.014. The line (median <= 3 %, every decade
     within +-5 %) is asserted; which level was taken is tested in ``tests/hdr/test_stabilize_families.py``."""
     from conftest import require_shared

@@ -1,5 +1,5 @@
 """Code-stratified samples of the stabilised curve fit (``CURVE_BIN_MIN`` of
-:mod:`derender.hdr.stabilize.filmic`, off by default; issue 36 item 6).
+:mod:`derender.hdr.stabilize.curve_samples`, off by default; issue 36 item 6).
 
 A synthetic bracket with a known response (a power law, 1/2.2, noise of 1 code): the codes 124-230
 are shown only by a bright patch of 1 % of the frame, so the 1024 grid samples see them a few dozen
@@ -8,6 +8,7 @@ stays on the truth there, as it does without it."""
 import numpy as np
 import pytest
 
+import derender.hdr.stabilize.curve_samples as curve_samples
 import derender.hdr.stabilize.filmic as filmic
 
 
@@ -25,12 +26,12 @@ def _bracket(seed: int):
 
 @pytest.mark.parametrize("bin_min", [0, 256])
 def test_bin_samples_fill_sparse_codes_and_keep_the_curve_on_the_truth(monkeypatch, bin_min):
-    monkeypatch.setattr(filmic, "CURVE_BIN_MIN", bin_min)
+    monkeypatch.setattr(curve_samples, "CURVE_BIN_MIN", bin_min)
     for seed in range(2):
         z, t = _bracket(seed)
         cur = filmic.unclipped_debevec(lambda j, ys, xs: z[j][ys, xs], 4, z.shape[1:3], t, seed=seed)
         used = cur.params["n_used"]
-        assert (used > filmic.CURVE_SAMPLES) == (bin_min > 0), used     # measured 2340-2345 with 256
+        assert (used > curve_samples.CURVE_SAMPLES) == (bin_min > 0), used     # measured 2340-2345 with 256
         for c, scale in enumerate((1.0, 0.8, 0.6)):
             k = np.arange(140, int(255 * (0.8 * scale) ** (1 / 2.2)) - 3)     # the codes the patch shows
             truth = 2.2 * np.log(k / 100.0)         # ln of the inverse power law, relative to code 100

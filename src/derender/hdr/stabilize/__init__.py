@@ -18,7 +18,7 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   with exposure time the tone curve is not a power law (film, filmic picture styles) and
   ``response="auto"`` switches to one common Debevec & Malik curve (:mod:`.filmic`:
   :func:`power_law_plausible`, :func:`curve_model`), fitted on samples away from clipped
-  pixels (:func:`unclipped_debevec`; beyond Debevec & Malik, per-frame exposure offsets
+  pixels (:func:`unclipped_debevec`, its samples in :mod:`.curve_samples`; beyond Debevec & Malik, per-frame exposure offsets
   re-estimated with the curve, :data:`CURVE_EXPOSURE_ROUNDS`). A quick search runs first and sends clearly filmic
   brackets to the curve straight away (:data:`SCREEN_TREND`).
 * Step 3.2, :mod:`.colour_matrices` -- :func:`fit_frame_matrix` / :func:`colour_matrices_to_reference`:
@@ -35,9 +35,12 @@ which are related by 3x3 matrices (eq. 9): ``L_ref = H_j L_j`` with
   Brackets whose frames differ by per-channel gains only (one rendering: a fixed pipeline, a
   film) take gains consistent over all neighbour pairs instead (:func:`diagonal_bracket`,
   :func:`graph_gains`): then the map does not depend on the reference (beyond the paper).
+  :mod:`.colour_model` runs this step for the merges (:func:`fit_colour_model`: matrices, time
+  anchoring, grey balance).
 * Step 4, :mod:`.method` -- :func:`stabilized_merge`, trapezoid-weighted average through
   :func:`derender.engine.float_merge.merge_linear` (method ``"stabilized"``), by default also
-  weighted by each estimate's inverse noise variance; :func:`stabilize` runs steps 1-3.2.
+  weighted by each estimate's inverse noise variance; :func:`stabilize` runs steps 1-3.2;
+  :mod:`.summary` makes the ``info`` record it reports.
 
 Fits use 2x2-pixel block means of the linearised values (:mod:`.blocks`: noise in both
 images biases pixel-wise fits; block means keep the linear relation exact) and pixels
@@ -67,8 +70,13 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "curves": ["Curve", "as_curve", "MIN_LOG_SLOPE"],
     "grey_balance": ["GREY_BALANCE", "GREY_TOLERANCE", "GREY_MIN_BLOCKS", "GREY_MAX_GAIN", "grey_balance"],
     "exponents": ["NARROW", "XATOL", "TIME_FOLLOW", "relative_exponents", "GammaEstimate", "estimate_gammas", "estimate_gammas_blocks"],
-    "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE", "CURVE_TIE_CODES", "CURVE_SHAPE_TIE", "CURVE_CLIP_RADIUS", "CURVE_BIN_MIN", "CURVE_BIN_WIDTH", "CURVE_BIN_CODES", "CURVE_BIN_CANDIDATES", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"],
-    "method": ["anchor_to_times", "Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "mode_note", "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack", "stabilized_joint_stack"],
+    "filmic": ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_TIE", "CURVE_TIE_CODES", "CURVE_SHAPE_TIE", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE", "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"],
+    "curve_samples": ["CURVE_CLIP", "CURVE_CLIP_RADIUS", "CURVE_BIN_MIN", "CURVE_BIN_WIDTH", "CURVE_BIN_CODES",
+                      "CURVE_BIN_CANDIDATES", "CURVE_SAMPLES", "unclipped_samples", "codes_at_positions",
+                      "sparse_bin_samples"],
+    "colour_model": ["fit_colour_model", "anchor_to_times"],
+    "summary": ["stabilization_info", "mode_note"],
+    "method": ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack", "stabilized_joint_stack"],
     "frame_exponents": ["EXPONENT_DEGREE", "EXPONENT_MAX", "EXPONENT_STEP", "EXPONENT_GRID", "EXPONENT_FREE_OFFSETS",
                         "warp_codes", "interp_table", "search_exponents", "gauge_exponents"],
     "frame_views": ["ShiftedFrames", "ShiftedValid", "HeldValid", "CodeFrameRows", "LazyAlignment"],

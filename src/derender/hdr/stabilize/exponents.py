@@ -13,7 +13,7 @@ luminance gains must grow like ``t_j``) or, without times, by the smallest total
 Each pair's gain is first read at the pair's own mean colour, ``lum(H_jk m_j) / lum(m_j)``;
 when every frame's exposure then follows its time within :data:`TIME_FOLLOW` (one rendering,
 no hidden gain: issue 36) that level is kept and the matrices' scale is later taken from the
-times (:func:`derender.hdr.stabilize.method.anchor_to_times`); otherwise the gain is read on
+times (:func:`derender.hdr.stabilize.colour_model.anchor_to_times`); otherwise the gain is read on
 white, ``lum(H_jk 1)`` (brackets whose frames draw their own gain and white balance).
 :mod:`.filmic` uses the relative exponents to tell power-law brackets from filmic ones.
 """

@@ -62,7 +62,8 @@ dropped 8.9 -> 5.2 degrees (Frobisher 3.8 either way).
 after the tone curve; :mod:`.frame_exponents` searches a relative exponent ``rho_j`` per frame
 inside this alternation, the curve then fitted on the warped codes ``J_j ** rho_j`` (measured
 table there).
-**Code-stratified samples** (:data:`CURVE_BIN_MIN`, off by default): samples added to the code
+**Code-stratified samples** (:data:`~derender.hdr.stabilize.curve_samples.CURVE_BIN_MIN` of
+:mod:`.curve_samples`, off by default): samples added to the code
 bins that the grid sees rarely; measured on the iPhone 6 bracket's sky (issue 36 item 6), they
 narrow the spread over grid seeds but do not make the sky's colour independent of size and
 alignment (docs/uncertainty.md).
@@ -78,15 +79,15 @@ from typing import Any, Sequence
 import numpy as np
 
 from derender.core.types import Stack
-from derender.engine.motion.reference_frame import REF_HIGH
+from derender.hdr.stabilize import curve_samples as cs
 from derender.hdr.stabilize import frame_exponents as fe
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, Blocks
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import relative_exponents
 
-__all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_CLIP", "CURVE_TIE",
+__all__ = ["gamma_trend", "SCREEN_TREND", "screen_gamma_trend", "power_law_plausible", "CURVE_TIE",
            "CURVE_TIE_CODES", "CURVE_SHAPE_TIE",
-           "CURVE_CLIP_RADIUS", "CURVE_BIN_MIN", "CURVE_BIN_WIDTH", "CURVE_BIN_CODES", "CURVE_BIN_CANDIDATES", "CURVE_SAMPLES", "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
+           "CURVE_EXPOSURE_ROUNDS", "CURVE_OFFSET_PRIOR", "CURVE_OFFSET_DEGREE",
            "CURVE_MAX_OFFSET", "CURVE_EXPONENT_ROUNDS", "unclipped_debevec", "curve_model"]
 
 
@@ -146,43 +147,6 @@ def power_law_plausible(gammas: Sequence[float], times: Sequence[float], max_tre
         return False
     return abs(gamma_trend(g, times)) <= max_trend
 
-
-#: Response fit of the curve model (:func:`unclipped_debevec`): a sample (pixel, image) is left
-#: out when any channel of it or of a pixel within CURVE_CLIP_RADIUS reaches CURVE_CLIP.
-CURVE_CLIP = REF_HIGH
-
-#: Radius (px) of the neighbourhood that excludes a sample next to a clipped pixel (see CURVE_CLIP).
-CURVE_CLIP_RADIUS = 1
-
-
-#: Code-stratified samples of that fit (:func:`unclipped_debevec`): every code bin of
-#: :data:`CURVE_BIN_WIDTH` codes within :data:`CURVE_BIN_CODES` of every channel that the
-#: :data:`CURVE_SAMPLES` grid samples see fewer than this many times (kept frame observations) gets
-#: samples added from a denser grid (:data:`CURVE_BIN_CANDIDATES` times as many positions) whose codes
-#: fall in it, so that a part of a curve that only a small region of the scene shows (the iPhone's blue
-#: codes 170-200: a few dozen grid samples) is fitted on a number of samples that does not hang on
-#: where the grid lands (issue 36 item 6). 0 (the default): the grid alone. Measured on the iPhone 6
-#: bracket (docs/uncertainty.md, "Why the stabilised sky's blue moves"): 256 narrows the spread of the
-#: sky's B/G over grid seeds (half size 2.07-4.39 -> 3.00-3.40) but moves it bluer and leaves it
-#: 2.68-3.56 across sizes and alignments (1.69-2.94 without), so it stays off.
-CURVE_BIN_MIN = 0
-
-#: Width (codes) of the bins of :data:`CURVE_BIN_MIN`.
-CURVE_BIN_WIDTH = 8
-
-#: Codes ``(lo, hi)`` whose bins :data:`CURVE_BIN_MIN` fills.
-CURVE_BIN_CODES = (16, 239)
-
-#: Candidate positions for :data:`CURVE_BIN_MIN`: this many times :data:`CURVE_SAMPLES`.
-CURVE_BIN_CANDIDATES = 16
-
-
-#: Grid samples of that fit (the Schur-complement solver costs little per sample; lambda
-#: grows with sqrt(samples / 256)). With Debevec's 256 the camera-style gain over debevec
-#: swung by up to 2.6 dB per scene with the sampling seed; measured with ``derender
-#: experiment fusion-gain --styles camera`` (9 scenes, seeds 0-2 / 3-5): 256 samples
-#: +1.76 / +1.97 dB L, 1024 +2.19 / +2.36.
-CURVE_SAMPLES = 1024
 
 
 #: Rounds of per-frame exposure re-estimation in :func:`unclipped_debevec` (see
@@ -265,28 +229,40 @@ def _debevec_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: float, ro
 CURVE_TIE_CODES: tuple[int, int] | None = None
 
 
-#: Weight ``kappa`` of the curve model's shape tie (:func:`_shape_penalty`): the differences between the
-#: channels' curves ``g_c - g_c'`` get ``kappa^2`` times the smoothness term each curve gets, on their
-#: second derivative in ``ln z`` (so a constant, the white balance, and a multiple of ``ln z``, a
-#: different exponent per channel, cost nothing). 0 (the default): independent channel curves, each
-#: anchored at ``g(128) = 0``. Why (issue 36 item 5): samples that do not follow the exposure (a thing
-#: that moves, residual misregistration of a handheld bracket), and codes where a channel has no data
-#: (there its curve is the smoothness term's extrapolation), bend each independent curve in its own way
-#: (a synthetic bracket with one tone curve for every channel, ``tests/hdr/test_curve_shape_tie.py``:
-#: swing of ``ln R/G`` over the codes with data 0.04-0.20 still, 0.20-0.26 with an unmasked moving
-#: patch; 0.21-0.35 over codes 16-239 also with 9 frames 1 stop apart; a smaller ``lambda`` makes it
-#: larger). So on pingpong (3 frames, 2 stops, a person moving) equal codes give R/G 0.90-1.20 across
-#: the codes (``--deghost``; 0.74-1.75 without, the person in every frame). With ``kappa = 1``: 0.98-1.06
-#: (0.95-1.02); the reference frame's neutral blocks (``reference_fidelity``, stabilized ``--deghost``)
-#: ``neutral_p95`` 0.222 -> 0.135, ``neutral_strict_p95`` 0.113 -> 0.042 (debevec 0.025); the iPhone's
-#: ``--deghost`` chroma p99 0.108 -> 0.069; Memorial, Frobisher, sculpture garden within 0.08 of before.
-#: Not the default because it costs on the tuning family ``camera`` (``benchmarks/families_measure.py
-#: --methods stabilized``, outdoor + indoor x seeds 0-1, PSNR L, kappa 0 / 0.03 / 1): ``camera`` 43.53 /
-#: 43.03 / 43.39 (outdoor -0.9 .. -1.3 dB, indoor +0.3 .. +1.2), held out ``dslr-lut`` 43.95 / 44.52 /
-#: 44.22, ``phone-local`` 43.85 / 43.84 / 44.10, ``drift`` 44.08 / 44.33 / 44.35; the demo's bracket
-#: (camera, auto, 480x320, 9 frames, seed 0) 49.24 / 49.43 / 47.52 (kappa 0.1: 47.79, 0.3: 47.22). The
-#: auto pipeline's per-frame tone changes (gamma times gain) are what the untied curves absorb, as with
-#: :data:`CURVE_TIE` (``docs/paper1.md``, neutral axis).
+#: Weight ``kappa`` of the curve model's shape tie (:func:`_shape_penalty`, :func:`_solve_to_green`): green's
+#: curve is the one its own samples give, and red's and blue's differences from it ``g_c - g_G`` get
+#: ``kappa^2`` times the smoothness term each curve gets, on their second derivative in ``ln z`` (so a
+#: constant, the white balance, and a multiple of ``ln z``, a different exponent per channel, cost
+#: nothing). 0 (the default): independent channel curves, each anchored at ``g(128) = 0``. Why (issue 36
+#: item 5): samples that do not follow the exposure (a thing that moves, residual misregistration of a
+#: handheld bracket), and codes where a channel has no data (there its curve is the smoothness term's
+#: extrapolation), bend each independent curve in its own way (a synthetic bracket with one tone curve for
+#: every channel, ``tests/hdr/test_curve_shape_tie.py``: swing of ``ln R/G`` over the codes with data
+#: 0.04-0.20 still, 0.20-0.26 with an unmasked moving patch). So on pingpong (3 frames, 2 stops, a person
+#: moving) equal codes give R/G 0.90-1.20 across the codes (``--deghost``). Why green is held: a tie between
+#: all three channels (the first form, measured in the previous session) moves green too, i.e. the
+#: luminance (Rec. 709 weight 0.72), and cost the tuning family ``camera`` 43.53 -> 43.39 dB L (outdoor
+#: -0.9 .. -1.3 dB); weighting that symmetric tie to give way where the data are many did not help (trials,
+#: not kept, camera outdoor seeds 0 / 1, untied 44.00 / 43.28: weight ``1 / (1 + (q / 0.3)^2)``, ``q`` the
+#: sparser channel's relative data density at the code, 42.74 / 42.31; only where samples are neutral
+#: 42.69 / 42.36). Held to green (``benchmarks/families_measure.py --methods stabilized stabilized-joint``,
+#: outdoor + indoor x seeds 0-1, PSNR L / median relative error of 4x4 means, stabilized; kappa 0 / 1):
+#: tuning ``paper`` 44.64 / 0.077 unchanged (power law), ``camera`` 43.53 / 0.144 -> 43.47 / 0.144 (kappa
+#: 0.3: 43.50; per bracket +0.33 .. -0.29), stabilized-joint 42.73 -> 42.68; held out ``dslr-lut`` 43.95 /
+#: 0.141 -> 43.22 / 0.118 (kappa 0.3: 43.26 / 0.119; kappa 0.03 on outdoor seed 0 already 42.13 -> 41.83:
+#: the LUTs' per-channel shapes are real, and weighting by data density does not keep them),
+#: ``phone-local`` 43.85 / 0.214 -> 43.64 / 0.213, ``drift`` 44.08 -> 44.09. Pingpong (stabilized
+#: ``--deghost``, ``reference_fidelity``) ``neutral_strict_p95`` 0.113 -> 0.039 (kappa 0.3: 0.038; debevec
+#: 0.028). It recolours still real brackets, though (``derender merge ... --method stabilized`` against
+#: ``-O shape_tie=1``, block chroma change median / p95, ``evaluation.consistency.compare_maps``; the
+#: previews looked at full size): Memorial (``--reference 8``, film) 1.13 / 1.30, orange all over (the
+#: symmetric form: p95 1.36, as orange); Frobisher 0.038 / 0.31, the window's blue sky turns yellow-white;
+#: the sculpture garden 0.032 / 0.15; the iPhone (``--reference 3``) 0.092 / 0.34, the pink buildings
+#: neutral; pingpong 0.047 / 0.13, the hill and the wall nearer grey. Film's dye layers, and the sky's
+#: highlights, have channel curves whose shapes do differ, and the tie takes that away. So it is an
+#: option, not the default: it meets the neutral line on pingpong at the price of the held-out
+#: ``dslr-lut`` family's luminance (-0.7 dB) and of Memorial's and Frobisher's colours. On the iPhone sky
+#: (issue 36 item 6) it does not settle the sky's colour (docs/uncertainty.md).
 CURVE_SHAPE_TIE = 0.0
 
 
@@ -294,9 +270,10 @@ def _shape_penalty(n: int, lam: float, kappa: float) -> np.ndarray:
     """(n, n) ``P = sum_z (kappa lam w(z))^2 r_z r_z'`` with ``r_z . f`` the second derivative of ``f``
     in ``u = ln z`` at code ``z`` divided by ``z^2`` (three-point, non-uniform spacing: to leading
     order ``f(z+1) - 2 f(z) + f(z-1) + (f(z+1) - f(z-1)) / (2 z)``), ``w`` the hat weight, codes
-    2 .. n-2. Applied to the differences between channels (``(3 I - J) kron P``), it lets them be a
-    constant plus a multiple of ``ln z`` and penalises any other shape as strongly as ``kappa^2``
-    times the curves' own smoothness (:func:`~derender.response.debevec1997.debevec_system`)."""
+    2 .. n-2. Applied to the difference between a channel's curve and green's
+    (:func:`_solve_to_green`), it lets it be a constant plus a multiple of ``ln z`` and penalises any
+    other shape as strongly as ``kappa^2`` times the curves' own smoothness
+    (:func:`~derender.response.debevec1997.debevec_system`)."""
     z = np.arange(2, n - 1, dtype=np.float64)
     u = np.log(np.arange(1, n, dtype=np.float64))           # u[k] = ln(k + 1)
     um, u0, up = u[z.astype(int) - 2], u[z.astype(int) - 1], u[z.astype(int)]
@@ -312,16 +289,21 @@ def _shape_penalty(n: int, lam: float, kappa: float) -> np.ndarray:
     return rw.T @ rw
 
 
-def _solve_penalised(blocks: list, rhs: list, pen: np.ndarray) -> np.ndarray:
-    """``blockdiag(A_c) + (3 I - J) kron pen`` solved directly (768, k): the three channels with the
-    penalty ``sum_{c < c'} (g_c - g_c')' pen (g_c - g_c')`` on their differences."""
+def _solve_to_green(blocks: list, rhs: list, pen: np.ndarray) -> np.ndarray:
+    """The three curves (768, k) with green's as Debevec & Malik fit it alone (``A_G g_G = r_G``) and
+    red's and blue's tied to its shape: ``(A_c + pen) g_c = r_c + pen g_G``, the minimiser of channel
+    c's own system plus ``(g_c - g_G)' pen (g_c - g_G)`` with ``g_G`` held (:data:`CURVE_SHAPE_TIE`)."""
     from scipy.linalg import solve
 
-    n = blocks[0].shape[0]
-    big = np.kron(3.0 * np.eye(3) - np.ones((3, 3)), pen)
+    gg = solve(np.asarray(blocks[1], dtype=np.float64), np.asarray(rhs[1], dtype=np.float64), assume_a="sym")
+    out = []
     for c in range(3):
-        big[c * n:(c + 1) * n, c * n:(c + 1) * n] += np.asarray(blocks[c], dtype=np.float64)
-    return solve(big, np.concatenate([np.asarray(r, dtype=np.float64) for r in rhs], axis=0), assume_a="sym")
+        if c == 1:
+            out.append(gg)
+        else:
+            a = np.asarray(blocks[c], dtype=np.float64) + pen
+            out.append(solve(a, np.asarray(rhs[c], dtype=np.float64) + pen @ gg, assume_a="sym"))
+    return np.concatenate(out, axis=0)
 
 
 def _solve_tied_codes(blocks: list, rhs: list, tie: float, codes: tuple[int, int]) -> np.ndarray:
@@ -365,7 +347,7 @@ def _debevec_tied_with_exposures(codes: np.ndarray, log_t: np.ndarray, lam: floa
         dinvs.append(dinv)
     # (768, 3N): the three curves stacked by channel = gm @ (b_R, b_G, b_B)
     if shape_tie > 0:
-        gm = _solve_penalised(blocks, rhs, _shape_penalty(256, lam, shape_tie))
+        gm = _solve_to_green(blocks, rhs, _shape_penalty(256, lam, shape_tie))
     elif CURVE_TIE_CODES is None:
         gm = solve_tied(blocks, rhs, tie).transpose(1, 0, 2).reshape(768, 3 * n)
     else:
@@ -432,12 +414,12 @@ def _misfit(codes: np.ndarray, log_t: np.ndarray, g: np.ndarray, offsets: np.nda
 
 
 def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.ndarray, *, seed: int = 0,
-                      high: float = CURVE_CLIP, radius: int = CURVE_CLIP_RADIUS,
+                      high: float = cs.CURVE_CLIP, radius: int = cs.CURVE_CLIP_RADIUS,
                       exposure_rounds: int | None = None, tie: float | None = None, valid_at: Any = None,
                       exponent_rounds: int | None = None, exponents: Any = None,
                       shape_tie: float | None = None) -> Any:
     """Debevec & Malik (1997) curves (:func:`derender.response.solve_debevec`, hat weights,
-    :data:`CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
+    :data:`~derender.hdr.stabilize.curve_samples.CURVE_SAMPLES` grid samples, made non-decreasing) that leave out every sample whose
     pixel has a clipped neighbour: sample (p, j) counts in no channel when some channel of
     image j reaches ``high`` within ``radius`` pixels (Chebyshev) of p.
 
@@ -451,7 +433,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     sees unclipped. The rendered channel that does clip is (nearly) always at white: the
     colour matrix has negative off-diagonals, so a saturated raw channel renders above 1.
 
-    ``shape_tie`` (default :data:`CURVE_SHAPE_TIE`): weight of the tie on the channels' shapes
+    ``shape_tie`` (default :data:`CURVE_SHAPE_TIE`): weight of the tie of red's and blue's shapes to green's
     (:func:`_shape_penalty`; ``params["shape_tie"]``).
 
     ``exposure_rounds`` (default :data:`CURVE_EXPOSURE_ROUNDS`): per-frame, per-channel
@@ -472,7 +454,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
     """
     from derender.response.curves import DEFAULT_LAMBDA, ResponseCurves, make_monotonic
 
-    codes, clipped = _unclipped_samples(codes_at, n, shape, seed=seed, high=high, radius=radius, valid_at=valid_at)
+    codes, clipped = cs.unclipped_samples(codes_at, n, shape, seed=seed, high=high, radius=radius, valid_at=valid_at)
     if not np.all(((codes > 0) & (codes < 255)).any(axis=(0, 1))):
         return None
     log_t = np.log(np.asarray(times, dtype=np.float64))
@@ -507,7 +489,7 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
         # determine it (Memorial's film frames), so the times are taken as given
         rho = np.ones(n)
         curve.fit(0, rho)
-    params = {"lambda": lam, "n_samples": CURVE_SAMPLES, "n_used": int(codes.shape[1]), "bin_min": CURVE_BIN_MIN, "sampling": "grid", "seed": int(seed),
+    params = {"lambda": lam, "n_samples": cs.CURVE_SAMPLES, "n_used": int(codes.shape[1]), "bin_min": cs.CURVE_BIN_MIN, "sampling": "grid", "seed": int(seed),
               "weights": "hat", "clip": float(high), "clip_radius": int(radius),
               "dropped": float(clipped.mean()), "exposure_rounds": rounds,
               "exposure_offsets": offsets.tolist(), "exposure_offsets_rejected": rejected, "tie": tie, "shape_tie": shape,
@@ -516,79 +498,6 @@ def unclipped_debevec(codes_at: Any, n: int, shape: tuple[int, int], times: np.n
               "rho_history": history, "misfit_plain": misfit_plain, "misfit": curve.misfit().tolist()}
     return ResponseCurves(log_inverse=make_monotonic(curve.g), method="debevec-unclipped", params=params)
 
-
-def _unclipped_samples(codes_at: Any, n: int, shape: tuple[int, int], *, seed: int, high: float, radius: int,
-                       valid_at: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The :data:`CURVE_SAMPLES` grid samples' codes (N, P, 3) int32, 0 (hat weight 0) where the sample
-    has a clipped neighbour or its image does not take part, and that mask ``clipped`` (N, P); with
-    :data:`CURVE_BIN_MIN` > 0, followed by the samples added to the code bins the grid leaves sparse
-    (:func:`_sparse_bin_samples`)."""
-    from derender.response.curves import grid_positions
-
-    h, w = int(shape[0]), int(shape[1])
-    ys, xs = grid_positions(h, w, CURVE_SAMPLES, seed)
-    codes, clipped = _codes_at_positions(codes_at, n, (h, w), ys, xs, high=high, radius=radius, valid_at=valid_at)
-    if CURVE_BIN_MIN > 0:
-        cy, cx = grid_positions(h, w, CURVE_SAMPLES * CURVE_BIN_CANDIDATES, seed + 1)
-        cc, ck = _codes_at_positions(codes_at, n, (h, w), cy, cx, high=high, radius=radius, valid_at=valid_at)
-        extra = _sparse_bin_samples(codes, cc)
-        codes = np.concatenate([codes, cc[:, extra]], axis=1)
-        clipped = np.concatenate([clipped, ck[:, extra]], axis=1)
-    return codes, clipped
-
-
-def _codes_at_positions(codes_at: Any, n: int, shape: tuple[int, int], ys: np.ndarray, xs: np.ndarray, *,
-                        high: float, radius: int, valid_at: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Codes (N, P, 3) int32 at the positions, 0 where clipped within ``radius`` or not valid, and that mask."""
-    h, w = int(shape[0]), int(shape[1])
-    top = int(np.ceil(high * 255 - 1e-9))
-    codes = np.stack([np.asarray(codes_at(j, ys, xs)) for j in range(n)]).astype(np.int32)   # (N, P, 3)
-    clipped = np.zeros(codes.shape[:2], dtype=bool)
-    r = int(radius)
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
-            for j in range(n):
-                clipped[j] |= np.asarray(codes_at(j, yy, xx)).max(axis=-1) >= top
-    if valid_at is not None:
-        for j in range(n):
-            clipped[j] |= ~np.asarray(valid_at(j, ys, xs), dtype=bool)
-    codes[clipped] = 0                       # hat weight 0: the sample drops out of every channel
-    return codes, clipped
-
-
-def _sparse_bin_samples(codes: np.ndarray, cand: np.ndarray) -> np.ndarray:
-    """Indices of candidate samples ``cand`` (N, C, 3) to add to ``codes`` (N, P, 3) (0: left out) so
-    that every code bin of :data:`CURVE_BIN_WIDTH` codes (within :data:`CURVE_BIN_CODES`) of every
-    channel holds at least :data:`CURVE_BIN_MIN` kept observations (frame, sample) where the
-    candidates allow; candidates taken in grid order, evenly spread over those that qualify."""
-    lo, hi = CURVE_BIN_CODES
-    width = CURVE_BIN_WIDTH
-    nb = 256 // width
-    chosen = np.zeros(cand.shape[1], dtype=bool)
-
-    def counts(z: np.ndarray) -> np.ndarray:          # (nb, 3) kept observations per bin
-        out = np.zeros((nb, 3), dtype=np.int64)
-        for c in range(3):
-            zc = z[..., c]
-            out[:, c] = np.bincount((zc[zc > 0] // width).ravel(), minlength=nb)[:nb]
-        return out
-
-    have = counts(codes)
-    cb = cand // width                                   # (N, C, 3)
-    for c in range(3):
-        for b in range(lo // width, (hi + 1) // width):
-            need = CURVE_BIN_MIN - int(have[b, c])
-            if need <= 0:
-                continue
-            hit = ((cb[..., c] == b) & (cand[..., c] > 0)).any(axis=0) & ~chosen
-            idx = np.flatnonzero(hit)
-            if idx.size == 0:
-                continue
-            take = idx[np.unique(np.linspace(0, idx.size - 1, min(need, idx.size)).round().astype(int))]
-            chosen[take] = True
-            have += counts(cand[:, take])
-    return np.flatnonzero(chosen)
 
 
 class _CurveFit:

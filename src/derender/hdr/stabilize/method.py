@@ -14,7 +14,6 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from derender.core.colorimetry import LUMINANCE_WEIGHTS_REC709 as _W
 from derender.core.errors import InputError
 from derender.core.options import check_at_least, check_choice
 from derender.core.types import HDRResult, Stack
@@ -27,7 +26,7 @@ from derender.engine.tables import code_histograms, code_values, stack_codes_exa
 from derender.engine.weights import WEIGHTS
 from derender.hdr.registry import merge
 from derender.hdr.stabilize.blocks import FIT_FLOOR, FIT_HIGH, FIT_LOW, make_blocks
-from derender.hdr.stabilize.colour_matrices import colour_matrices_to_reference, joint_colour_matrices
+from derender.hdr.stabilize.colour_model import fit_colour_model
 from derender.hdr.stabilize.curves import Curve
 from derender.hdr.stabilize.exponents import GammaEstimate, estimate_gammas_blocks
 from derender.hdr.stabilize.filmic import (
@@ -42,9 +41,10 @@ from derender.hdr.stabilize.filmic import (
 )
 from derender.hdr.stabilize.frame_views import CodeFrameRows, HeldValid, LazyAlignment, ShiftedFrames
 from derender.hdr.stabilize.saturation import HIDDEN_FRACTION, saturation_fraction, saturation_mask
+from derender.hdr.stabilize.summary import stabilization_info
 
-__all__ = ["anchor_to_times", "Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge", "stabilization_info",
-           "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan", "mode_note",
+__all__ = ["Stabilization", "stabilize", "stabilize_aligned", "stabilized_merge",
+           "merge_stabilized", "merge_stabilized_joint", "merge_stabilized_table", "stabilized_plan",
            "StabilizedMethod", "StabilizedOptions", "stabilized_engine", "stabilized_joint_engine", "stabilized_stack",
            "stabilized_joint_stack"]
 
@@ -318,8 +318,8 @@ def stabilize(stack: Stack, *, reference: int | None = None, align: str = "trans
         searched with the common curve (:mod:`~derender.hdr.stabilize.frame_exponents`; default
         :data:`~derender.hdr.stabilize.filmic.CURVE_EXPONENT_ROUNDS`).
     shape_tie : float, optional
-        Curve model: weight of the tie on the channels' curve shapes (equal codes stay near
-        neutral; default :data:`~derender.hdr.stabilize.filmic.CURVE_SHAPE_TIE`, off).
+        Curve model: weight of the tie of red's and blue's curve shapes to green's (equal codes stay
+        near neutral; default :data:`~derender.hdr.stabilize.filmic.CURVE_SHAPE_TIE`, off).
 
     Returns
     -------
@@ -418,51 +418,12 @@ def stabilize_aligned(al: Any, times: Sequence[float], *, mode: str = "reference
             info["response"] = "curve"
             info["shape_tie"] = CURVE_SHAPE_TIE if shape_tie is None else float(shape_tie)
     t2 = time.perf_counter()
-    if mode == "reference":
-        info["colour_model"] = {}
-        mats, how = colour_matrices_to_reference(blocks, curves, ref, low=low, high=high, floor=floor,
-                                                path=path, seed=seed, n_iter=ransac_iter, times=times,
-                                                info=info["colour_model"])
-    else:
-        info["colour_model"] = {}
-        mats = joint_colour_matrices(blocks, curves, times, low=low, high=high, floor=floor, seed=seed,
-                                    n_iter=ransac_iter, info=info["colour_model"])
-        how = ["joint"] * n
-    if "follows_times" in ge.info:
-        info["gamma_level"] = {k: ge.info[k] for k in ("level_gain", "follows_times", "time_residuals")}
-    if ge.info.get("follows_times") and ge.method == "times":
-        mats = anchor_to_times(mats, times, ref if mode == "reference" else None)
-        info["gamma_level"]["anchored_to_times"] = True
-    from derender.hdr.stabilize import grey_balance as gb
-
-    if gb.GREY_BALANCE:
-        gains, info["grey_balance"] = gb.grey_balance(blocks, curves, mats, low=low, high=high)
-        mats = np.asarray(mats, dtype=np.float64) * gains[None, :, None]      # D M_j
+    mats, how = fit_colour_model(blocks, curves, ge, times, ref, mode, low=low, high=high, floor=floor, path=path,
+                                 seed=seed, ransac_iter=ransac_iter, info=info)
     t3 = time.perf_counter()
     info["timings"] = {"response_s": t2 - t1, "matrices_s": t3 - t2}
     return Stabilization(mode=mode, reference=ref, gammas=ge, matrices=mats, alignment=al, times=times,
                          curves=curves, how=how, info=info)
-
-
-def anchor_to_times(mats: np.ndarray, times: np.ndarray, reference: int | None) -> np.ndarray:
-    """The matrices rescaled so that their luminance gain on white follows the exposure times:
-    ``lum(H_j 1) = t_ref / t_j`` (``reference`` given, :func:`colour_matrices_to_reference`), or
-    ``lum(K_j 1)`` equal for every frame, their mean (``reference=None``,
-    :func:`joint_colour_matrices`). Colour (each matrix's shape) is kept, only its scale changes.
-
-    Used when the bracket's exposures follow its times (``GammaEstimate.info["follows_times"]``,
-    :func:`~derender.hdr.stabilize.exponents.estimate_gammas_blocks`: one rendering, the gammas'
-    level set from the times): the fitted scale of a frame far from the reference is then worse
-    than the times' (on a pure gamma-2.2 camera at 2 EV, the shortest frames' fits, 8-10 stops from
-    the reference through blocks at codes near 11, carry 0.935-0.941 of the time ratio: the
-    convexity of ``J^gamma`` lifts the mean of noisy dark codes)."""
-    m = np.array(mats, dtype=np.float64, copy=True)
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    lum = np.einsum("c,jcd->j", _W, m)          # lum(M_j 1)
-    if not np.all(np.isfinite(lum)) or np.any(lum <= 0):
-        return m
-    target = t[reference] / t if reference is not None else np.full(t.shape, float(np.mean(lum)))
-    return m * (target / lum)[:, None, None]
 
 
 def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weighting: bool = True,
@@ -530,54 +491,6 @@ def stabilized_merge(stab: Stabilization, weight: str = "trapezoid", noise_weigh
                         domain="linear", block_rows=h, info=info)
 
 
-def mode_note(stab: Stabilization) -> str | None:
-    """The sentence a merge prints when its mode cannot matter: a bracket that
-    :func:`~derender.hdr.stabilize.colour_matrices.diagonal_bracket` finds to be one rendering
-    up to per-channel gains takes every matrix from one set of gains in both modes
-    (:func:`~derender.hdr.stabilize.colour_matrices.graph_gains`), and the grey balance takes out
-    the one diagonal by which the modes (and the references) differ: ``stabilized`` and
-    ``stabilized-joint`` then give the same map up to one global factor (measured: Frobisher
-    1.0023, the sculpture garden 1.050, every pixel within 4e-7 of it; a fixed ``simple``
-    simulator bracket 0.958 within 1.3e-4). None when the bracket's
-    colour model is the full per-frame fit, where the modes differ."""
-    cm = stab.info.get("colour_model") or {}
-    if not cm.get("diagonal"):
-        return None
-    other = "stabilized" if stab.mode == "joint" else "stabilized-joint"
-    return (f"colour model: one rendering (per-channel gains fit the whole bracket, diagonal ratio "
-            f"{float(cm.get('diagonal_ratio', float('nan'))):.3f}): the {stab.mode} fit equals the "
-            f"{'reference' if stab.mode == 'joint' else 'joint'} fit here, {other} gives the same map "
-            f"(up to one global factor)")
-
-
-def stabilization_info(stab: Stabilization) -> dict:
-    """What a stabilised merge reports in ``HDRResult.info``."""
-    al = stab.alignment
-    info = {"reference": stab.reference, "gammas": stab.gammas.gammas.tolist(),
-            "gamma_method": stab.gammas.method, "matrices": stab.matrices.tolist(), "mode": stab.mode,
-            "how": stab.how, "align": al.method, "response": stab.info.get("response", "given"),
-            "gamma_trend": stab.info.get("gamma_trend")}
-    if stab.gammas.method == "curve" and "rho" in stab.gammas.info:
-        info["rho"] = stab.gammas.info["rho"]          # per-frame relative exponents of the curve model
-        info["curve_misfit"] = stab.gammas.info.get("misfit")   # (rho = 1, fitted rho) per channel
-    if "hidden_saturation" in stab.info:
-        info["hidden_saturation"] = stab.info["hidden_saturation"]
-    if "grey_balance" in stab.info:
-        info["grey_balance"] = stab.info["grey_balance"]
-    if "gamma_level" in stab.info:
-        info["gamma_level"] = stab.info["gamma_level"]
-    if "shape_tie" in stab.info:
-        info["shape_tie"] = stab.info["shape_tie"]
-    if "colour_model" in stab.info:
-        info["colour_model"] = stab.info["colour_model"]
-    note = mode_note(stab)
-    if note:
-        info["note"] = note
-    if al.shifts is not None:
-        info["shifts"] = al.shifts.tolist()
-    return info
-
-
 @dataclass(frozen=True, kw_only=True)
 class StabilizedOptions:
     """The options of ``stabilized`` and ``stabilized-joint`` (:func:`merge_stabilized`,
@@ -593,8 +506,9 @@ class StabilizedOptions:
     exponent_rounds : int, optional
         As :func:`stabilize` (per-frame exponents of the curve model; off by default).
     shape_tie : float, optional
-        As :func:`stabilize` (the curve model's tie on the channels' shapes; off by default:
-        ``-O shape_tie=1`` keeps equal codes neutral on pingpong, docs/paper1.md).
+        As :func:`stabilize` (the curve model's tie of red's and blue's shapes to green's; off by
+        default: ``-O shape_tie=1`` keeps equal codes neutral on pingpong but turns Memorial orange,
+        docs/paper1.md).
     weight : str
         The merge's weight (paper 1: ``"trapezoid"``).
     noise_weighting : bool
