@@ -28,7 +28,10 @@ the merge's log radiance, ``m`` the indicator of ``D_c``), push: ``N_{l+1} = dow
 
     a_l = min(1, W_l / W_FULL),    v_l = a_l N_l / W_l + (1 - a_l) up(v_{l+1})
 
-(:data:`W_FULL`), and a pixel whose pyramid saw no data keeps its value. Then the bound holds:
+(:data:`W_FULL`), and a pixel whose pyramid saw no data keeps its value. A pixel with some
+channels measured (by a kept frame) takes the fill's colour anchored on them: ``v_c`` plus the
+mean, over its measured channels ``k``, of ``u_k - v_k`` (lifting a censored channel alone
+would change the hue: red rims on the sculpture garden's sunlit facade). Then the bound holds:
 ``v_c <- max(v_c, ln B_c)``, and only the censored channels of ``R`` are written; every pixel
 and channel a kept frame measures keeps the merge's value.
 
@@ -172,7 +175,13 @@ def censored_fill(radiance: np.ndarray, variance: np.ndarray | None, frames: np.
     ys, xs = np.nonzero(region)
     cens = censored[ys, xs] & (cov[ys, xs] > 0.5)       # the fill read data within the pyramid's reach
     bound = logr[ys, xs].astype(np.float64)
-    u = np.where(cens, np.maximum(fill[ys, xs].astype(np.float64), bound), bound)
+    f = fill[ys, xs].astype(np.float64)
+    # a pixel with some channels measured: the fill's colour anchored on them (their mean log
+    # offset from the fill), so that lifting the censored channels alone does not change its hue
+    meas = ~censored[ys, xs]
+    n_meas = meas.sum(axis=-1)
+    delta = np.where(n_meas > 0, np.where(meas, bound - f, 0.0).sum(axis=-1) / np.maximum(n_meas, 1), 0.0)
+    u = np.where(cens, np.maximum(f + delta[:, None], bound), bound)
     lift = u - bound
     info: dict[str, Any] = {"region_pixels": n_region, "filled_pixels": int(np.count_nonzero(cens.any(axis=-1))),
                             "censor_code": CENSOR_CODE,
