@@ -64,8 +64,10 @@ CENSOR_CODE = 250
 #: A datum (the reference clipped, a kept frame measuring) whose log radiance lies more than this
 #: below the censored region's bound (carried out from the region by the same pull-push) is
 #: left out: the clipped scene is at least at the bound, so such a value is a moving thing's
-#: edge that ghost removal kept, or a misregistered one (on the ping-pong bracket, the head's
-#: blurred rim in the short frame, beside the band).
+#: edge that ghost removal kept, or a misregistered one. Measured: the ping-pong band against
+#: the clipped hill within 20 px (stabilized, translation) 0.88 without this rule, 1.07 at 0.1,
+#: 1.04 at 0.3; on the simulator's hidden regions (tuning families, ``tests/engine``) 0.3 gives
+#: a median |ln error| of 0.156 against 0.149 without the rule and 0.177 at 0.1.
 DATA_TOL = 0.3
 
 #: Levels of the pull-push pyramid: the fill reads data at most about ``2^levels`` pixels away.
