@@ -67,7 +67,7 @@ CENSOR_CODE = 250
 #: edge that ghost removal kept, or a misregistered one. Measured: the ping-pong band against
 #: the clipped hill within 20 px (stabilized, translation) 0.88 without this rule, 1.07 at 0.1,
 #: 1.04 at 0.3; on the simulator's hidden regions (tuning families, ``tests/engine``) 0.3 gives
-#: a median |ln error| of 0.156 against 0.149 without the rule and 0.177 at 0.1.
+#: a median ``|ln error|`` of 0.156 against 0.149 without the rule and 0.177 at 0.1.
 DATA_TOL = 0.3
 
 #: Levels of the pull-push pyramid: the fill reads data at most about ``2^levels`` pixels away.
