@@ -19,7 +19,9 @@ Modules, in the order the run uses them:
 * :mod:`derender.engine.motion.compensation` -- filling rejected pixels from each frame's
   flow-compensated view;
 * :mod:`derender.engine.motion.consensus` -- removing the rendering bias of the frames left
-  where ghost removal left some out.
+  where ghost removal left some out;
+* :mod:`derender.engine.motion.censored_fill` -- where ghost removal left only clipped frames,
+  filling the bound from the measured clipped scene around it.
 """
 
 from derender.core.lazy import attach
@@ -34,4 +36,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "ghost_kernels": ["upsample_into"],
     "compensation": ["FLOW_CHECK", "FLOW_PIXELS", "compensate_frames"],
     "consensus": ["CONSENSUS_BIN", "CONSENSUS_MIN_COUNT", "CONSENSUS_PIXELS", "frame_biases", "consensus_correct"],
+    "censored_fill": ["CENSOR_CODE", "DATA_TOL", "PYRAMID_LEVELS", "W_FULL", "hidden_views", "pull_push", "censored_fill"],
 })

@@ -29,6 +29,10 @@ with what uncertainty; this module only decides *which pixels of which frame* ta
    :func:`derender.engine.kernels.table_merge_rows`, ``stabilized_merge_rows``,
    ``gaussian_moments_band``); where no frame that takes part has weight, the shortest
    (bright) or longest (dark) frame that takes part gives the value, as before.
+5. **Consensus correction** (:mod:`derender.engine.motion.consensus`) and **censored fill**
+   (:mod:`derender.engine.motion.censored_fill`): where ghost removal left only clipped frames
+   at a pixel that a rejected frame saw unclipped, the bound is raised to a fill from the
+   measured clipped scene around it, with a variance covering the difference.
 
 The frames are held in memory (N x H x W x 3 bytes, plus one byte per pixel and frame for
 ``valid``); the memory is checked before any pixel is decoded.
@@ -84,6 +88,11 @@ class MotionOptions:
         With ``deghost``: pixels where ghost removal left frames out lose the rendering bias of
         the frames that remain (:mod:`derender.engine.motion.consensus`; methods with one curve for
         the bracket).
+    censored_fill : bool
+        With ``deghost``: pixels that only clipped frames measure, because every frame that saw
+        them unclipped was rejected as a ghost, are filled from the measured clipped scene
+        around them, above their bound, with a variance that says so
+        (:mod:`derender.engine.motion.censored_fill`).
     seed : int
         Seeds the homography's RANSAC.
 
@@ -103,6 +112,7 @@ class MotionOptions:
     ghost_threshold: float | None = None
     compensate: bool = True
     consensus: bool = True
+    censored_fill: bool = True
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -118,7 +128,7 @@ class MotionOptions:
             if isinstance(ref, bool) or not float(ref).is_integer() or int(ref) < 0:
                 raise InputError(f"reference must be a frame index (from 0) or 'auto', got {ref!r}")
             object.__setattr__(self, "reference", int(ref))
-        for name in ("deghost", "compensate", "consensus"):
+        for name in ("deghost", "compensate", "consensus", "censored_fill"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if self.ghost_threshold is not None and not (np.isfinite(self.ghost_threshold) and self.ghost_threshold > 0):
@@ -462,6 +472,7 @@ class _GhostRemoval:
         self.threshold = GHOST_THRESHOLD if motion.ghost_threshold is None else float(motion.ghost_threshold)
         self.spare: list = []          # a round's rejection plane, reused by the next round
         self.before_fill: np.ndarray | None = None     # frames rejected per pixel before the last fill
+        self.hidden: np.ndarray | None = None          # (H, W, 3): a rejected frame has a code below the clip
 
     def detect(self, plan, valid):
         from derender.engine.motion.deghost import detect_ghosts
@@ -528,6 +539,10 @@ class _GhostRemoval:
             if self.before_fill is not None:   # the ghost map: left out or replaced by the warped view
                 ghosts = self.before_fill
         covered = valid is None              # then the merged validity is the rejections' alone: counted
+        if rejected is not None and self.motion.censored_fill:     # a frame left out would have measured it
+            from derender.engine.motion.censored_fill import hidden_views
+
+            self.hidden = hidden_views(self.frames, rejected)
         valid = merge_valid(valid, rejected, in_place=True)
         self.spare.clear()
         if valid is not None and not (covered and ghosts is not None):
@@ -560,11 +575,12 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     access = _access(method, source, frames, valid, ref, threads)
     plan = method.plan(access)
     t3 = time.perf_counter()
-    ghosts = anywhere = None
+    ghosts = anywhere = hidden = None
     ginfo: dict[str, Any] = {}
     if motion.deghost:
         removal = _GhostRemoval(method, source, frames, ref, motion, threads)
         plan, access, valid, ghosts, anywhere, ginfo = removal.run(plan, access, valid, ainfo)
+        hidden = removal.hidden
     elif valid is not None:
         ghosts = (valid == 0).sum(axis=0, dtype=np.uint8)
     t4 = time.perf_counter()
@@ -576,6 +592,13 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
         cinfo = consensus_correct(res.radiance, res.variance, plan, frames, valid, where=anywhere, threads=threads)
         if cinfo is not None:
             res.info["consensus"] = cinfo
+    if hidden is not None:
+        from derender.engine.motion.censored_fill import censored_fill
+
+        finfo = censored_fill(res.radiance, res.variance, frames, valid, hidden, ref)
+        del hidden
+        if finfo is not None:
+            res.info["censored_fill"] = finfo
     t5 = time.perf_counter()
     res.ghosts = ghosts if ghosts is not None else np.zeros((h, w), dtype=np.uint8)
     res.info.update({"n_clipped": n_clipped, "reference": ref,
@@ -583,7 +606,8 @@ def _merge_motion(method, source, motion: MotionOptions, threads: int | None, or
     if motion.deghost:
         res.info["deghost"] = ginfo
     res.info["motion"] = {"reference": motion.reference, "align": align, "deghost": motion.deghost,
-                          "compensate": motion.compensate, "consensus": motion.consensus}
+                          "compensate": motion.compensate, "consensus": motion.consensus,
+                          "censored_fill": motion.censored_fill}
     res.info.setdefault("timings", {}).update({"decode_s": t1 - t0, "align_s": t2 - t1, "plan_s": t3 - t2,
                                                "deghost_s": t4 - t3, "merge_s": t45 - t4,
                                                "consensus_s": t5 - t45})
