@@ -110,6 +110,34 @@ def test_a_film_base_is_a_black_clip():
     assert np.all(floored.pixels < plain.pixels)
 
 
+def test_the_reference_is_scored_where_ghost_removal_left_the_others_out(tmp_path):
+    """Three objects move on a tripod bracket (the simulator): ghost removal leaves the other
+    frames out there, never the reference, so the round trip scores the reference's codes on
+    every pixel it exposes (a ghost in the output shows in its row) and the others' off the
+    ghost mask."""
+    import cv2
+
+    from derender.camera import simulate_bracket
+    from derender.camera.motion import MotionSpec
+
+    b = simulate_bracket("nikon-d5100", kind="outdoor", size=(128, 96), exposures=3, seed=0, family="camera",
+                         motion=MotionSpec(objects=3, shake=3).tripod())
+    paths = []
+    for j, codes in enumerate(b.jpeg_codes):
+        paths.append(tmp_path / f"f{j}.png")
+        cv2.imwrite(str(paths[-1]), cv2.cvtColor(np.ascontiguousarray(codes), cv2.COLOR_RGB2BGR))
+    rt, res, names = bracket_round_trip(paths, "debevec", times=list(b.times),
+                                        motion=MotionOptions(reference=1, align="none", deghost=True))
+    ref = int(res.info["reference"])
+    ghost = res.ghosts > 0
+    assert ref == 1 and ghost.mean() > 0.01
+    codes = np.asarray(b.jpeg_codes)[np.argsort(b.times, kind="stable")]
+    inside = np.all((codes > 0) & (codes < 255), axis=-1)
+    assert rt.pixels[ref] > (inside[ref] & ~ghost).sum()               # scored on the ghost mask too
+    for j in (0, 2):
+        assert rt.pixels[j] <= (inside[j] & ~ghost).sum()
+
+
 def _frames_by_time(paths):
     from derender.io.exif import file_times
     from derender.io.images import read_codes
