@@ -147,7 +147,7 @@ def _frames_by_time(paths):
 
 
 @pytest.mark.shared_data
-@pytest.mark.parametrize("method", ["debevec", "robertson", "stabilized"])
+@pytest.mark.parametrize("method", ["debevec", "robertson", "stabilized", "stabilized-joint"])
 def test_frobisher_renders_back_its_frames(method):
     """Issue 36's per-frame line, pixel by pixel (no tolerance, no means), on every method:
     measured medians 0.07-0.71, p95 0.9-2.8 codes."""
@@ -213,8 +213,9 @@ def test_diagnose_round_trip_prints_every_frame_and_writes_the_fail_map(tmp_path
 
 
 @pytest.mark.shared_data
-def test_memorial_meets_the_line_on_every_frame_that_carries_the_merge():
-    """Memorial (one film, 16 frames), ``stabilized``, 5x5 means, the film base a black clip
+@pytest.mark.parametrize("method", ["stabilized", "stabilized-joint"])
+def test_memorial_meets_the_line_on_every_frame_that_carries_the_merge(method):
+    """Memorial (one film, 16 frames), the stabilised merges, 5x5 means, the film base a black clip
     (found: codes 15/20/19): every frame carrying at least 1 % of the merge's weight meets the
     per-frame line (measured: the 8 longest, 2.5-19 % of the weight each, medians 0.53-0.72, p95
     2.1-3.0). The 7 short frames (<= 0.7 % each) are only their windows above the base and miss
@@ -223,7 +224,7 @@ def test_memorial_meets_the_line_on_every_frame_that_carries_the_merge():
     from derender.evaluation.consistency import bracket_inputs
 
     paths, kw = bracket_inputs("memorial")
-    rt, res, names = bracket_round_trip(paths, "stabilized", scale=5, **kw)
+    rt, res, names = bracket_round_trip(paths, method, scale=5, **kw)
     assert rt.black == [15, 20, 19]
     heavy = rt.share >= 0.01
     assert heavy.sum() >= 8 and rt.share[heavy].sum() >= 0.95
