@@ -158,7 +158,8 @@ def diagnose(
                                              "each frame's own (median, p95; codes)."),
     reference: Optional[str] = typer.Option(None, "--reference", help="With --round-trip: the reference frame (N from "
                                             "1, or auto)."),
-    align: str = typer.Option("none", "--align", help="With --round-trip: none or translation."),
+    align: str = typer.Option("none", "--align", help="With --round-trip: none, translation, homography or flow (the "
+                              "merge's warps applied to the frames again before they are compared)."),
     deghost: bool = typer.Option(False, "--deghost", help="With --round-trip: merge with ghost removal (pixels any "
                                  "frame was left out of are not scored)."),
     fail_map: Optional[Path] = typer.Option(None, "--fail-map", help="With --round-trip: a PNG of where the round trip "
@@ -175,7 +176,7 @@ def diagnose(
     from derender.evaluation.diagnose import diagnose_constant_response, plot_diagnose
     from derender.io.files import OutputTransaction
 
-    check_choice("--align", align, ("none", "translation"))
+    check_choice("--align", align, ("none", "translation", "homography", "flow"))
     if round_trip is None and (fail_map is not None or deghost or reference is not None or tolerance or scale > 1):
         raise InputError("--fail-map, --deghost, --reference, --tolerance and --scale need --round-trip METHOD")
     if round_trip is not None:
@@ -215,6 +216,9 @@ def _round_trip_report(images, method, *, times, times_file, times_inverse, refe
     tol = (f", registration tolerance {tolerance:g} px" if tolerance else "") + (f", {scale}x{scale} means" if scale > 1
                                                                                 else "")
     typer.echo(f"round trip through {method}'s forward model (codes{tol}; the issue's line: median <= 1.5, p95 <= 4):")
+    if rt.black is not None and any(rt.black):
+        typer.echo(f"  the bracket's black floor (film base), codes R G B {' '.join(str(b) for b in rt.black)}: "
+                   "counted as a black clip, not scored")
     for row in rt.rows(names):
         typer.echo(f"  {row['frame']}: median {row['median']:.2f}  p95 {row['p95']:.2f}  ({row['pixels']} px, "
                    f"{100 * row['share']:.0f} % of the weight)")

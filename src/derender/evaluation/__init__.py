@@ -39,6 +39,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
                          "intensity_mappings", "one_rendering", "frame_predictions", "DECIMATE_ABOVE",
                          "bracket_one_rendering"],
     "roundtrip": ["FAIL_CODES", "REGIONS", "SHIFT_BLOCK", "SHIFT_STEP", "RoundTrip", "round_trip", "tolerant_residual",
-                  "box_means", "inverse_tables", "bracket_round_trip"],
+                  "box_means", "inverse_tables", "bracket_black", "bracket_round_trip", "FLOOR_PIXELS", "replay_alignment"],
     "families": ["TUNING_FAMILIES", "FAMILY_METHODS", "PEERS", "MIN_SMOOTH_PIXELS", "opencv_merge", "smooth_mask", "family_comparison", "summarise_families"],
 })
