@@ -346,8 +346,9 @@ def stages(size, exposures, tile=None, repeats=3, folder=None):
     stage on the bracket of :func:`speed`: LibRaw decoding (the floor), derender's read, the
     noise fit, the merge (black and white levels, pooled start, two reweighted rounds, the
     censored Newton steps; and without censoring, so that the Newton steps' share shows), the
-    demosaic with and without its variance, the mask, the EXR writing, and the whole merge in
-    memory. ``folder``: keep the DNG files there (written once) instead of a temporary folder."""
+    demosaic with and without its variance, the two other demosaics of the default variance's
+    interpolation term (:mod:`derender.raw.interpolation`), the mask, the EXR writing, and the
+    whole merge in memory (the default variance, the noise-only variance, no variance). ``folder``: keep the DNG files there (written once) instead of a temporary folder."""
     import rawpy
 
     from derender.engine.outputs import write_outputs
@@ -397,6 +398,10 @@ def stages(size, exposures, tile=None, repeats=3, folder=None):
                         lambda: demosaic_compiled(x, v, m.shape, "RGGB", wb, mat))
             timed("demosaic (Malvar) + colour matrix, no variance",
                   lambda: demosaic_compiled(x, None, m.shape, "RGGB", wb, mat))
+            timed("interpolation term: bilinear demosaic", lambda: demosaic_compiled(x, None, m.shape, "RGGB", wb, mat,
+                                                                                      "bilinear"))
+            timed("interpolation term: Menon demosaic (raw/menon.py)",
+                  lambda: demosaic_compiled(x, None, m.shape, "RGGB", wb, mat, "menon2007"))
             timed("mask spread", lambda: spread_mask(m, 2))
             from derender.core.types import HDRResult
 
@@ -406,6 +411,9 @@ def stages(size, exposures, tile=None, repeats=3, folder=None):
             frames = ordered = mosaics = x = v = m = res = hdr = None     # freed before the whole merge
             timed("merge_files in memory (read, noise, merge, variance, demosaic)",
                   lambda: merge_files(files, method="raw", options={"variance": True}))
+            timed("the same, variance_terms=noise (no interpolation term)",
+                  lambda: merge_files(files, method="raw", options={"variance": True, "variance_terms": "noise"}))
+            timed("the same, no variance", lambda: merge_files(files, method="raw"))
         for name in ("m.exr", "v.exr"):
             (where / name).unlink(missing_ok=True)
     return rows
@@ -607,8 +615,8 @@ def _print_stages(args) -> None:
     tile = None if args.speed_tile is None else tuple(int(v) for v in args.speed_tile.split("x"))
     rows = stages((sw, sh), args.speed_exposures, tile, folder=args.stages_folder)
     fw, fh = tile or (sw, sh)
-    print(f"\n## Stages: {args.speed_exposures} frames of {fw}x{fh} ({fw * fh / 1e6:.1f} MP), {os.cpu_count()} CPUs, "
-          f"load average {os.getloadavg()[0]:.1f}, best of 3\n")
+    print(f"\n## Stages: {args.speed_exposures} frames of {fw}x{fh} ({fw * fh / 1e6:.1f} MP), {len(os.sched_getaffinity(0))} CPUs "
+          f"(of {os.cpu_count()}), load average {os.getloadavg()[0]:.1f}, best of 3\n")
     dec_w, dec_c = rows["LibRaw decode, frame after frame (the floor)"]
     print("| stage | wall s | x floor (wall) | CPU s | x floor (CPU) |")
     print("|---|---|---|---|---|")

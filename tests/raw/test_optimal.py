@@ -462,6 +462,38 @@ def test_compiled_merge_is_the_float64_reference():
     np.testing.assert_allclose(vc, var, rtol=1e-5)
 
 
+def test_compiled_interpolation_term_is_eq1_in_numpy():
+    """The merge's variance with the interpolation term (one compiled pass,
+    :func:`derender.raw.kernels.interpolation_rows`) is the noise variance plus
+    :func:`derender.raw.interpolation.interpolation_variance` of the other demosaics of the same
+    merged planes and their colour texture (eq. 2), bit for bit, and the shares are the medians over every 4th row of the
+    float64 ratios."""
+    from derender.raw.interpolation import INTERPOLATION_ESTIMATES, interpolation_variance
+    from derender.raw.mosaic import sorted_raw_frames
+    from derender.raw.optimal import compiled_frames, demosaic_compiled, merge_compiled
+
+    b = simulate_bracket("nikon-d5100", kind="outdoor", size=(96, 66), exposures=3, seed=2, style="simple",
+                         pipeline="fixed")
+    frames = bracket_raw_frames(b)
+    ordered, times = sorted_raw_frames(frames)
+    mosaics, black, white = compiled_frames(ordered)
+    x, _, m = merge_compiled(mosaics, black, white, times, NoiseModel(0.5, 3.0 ** 2), scale=1.0 / (white[0] - black[0]))
+    for demosaic in ("malvar2004", "menon2007"):
+        res = raw_merge(frames, demosaic=demosaic, gain=0.5, read_noise=3.0)
+        noise = raw_merge(frames, demosaic=demosaic, gain=0.5, read_noise=3.0, variance_terms="noise")
+        mult, mat = np.array(res.info["wb_multipliers"]), np.array(res.info["output_matrix"])
+        others = {name: demosaic_compiled(x, None, m.shape, "RGGB", mult, mat, name)[0]
+                  for name, _ in INTERPOLATION_ESTIMATES[demosaic]}
+        extra = interpolation_variance(noise.radiance, others, demosaic, mat, "RGGB")
+        total = noise.variance + extra
+        np.testing.assert_array_equal(res.variance, total)
+        e, t = extra[::4].astype(np.float64), total[::4].astype(np.float64)
+        ok = t > 0
+        share = res.info["variance_sources"]
+        assert share["interpolation"] == float(np.median(e[ok] / t[ok]))
+        assert abs(share["noise"] - float(np.median((t[ok] - e[ok]) / t[ok]))) < 1e-12
+
+
 @pytest.mark.parametrize("camera,kind,seed", [("sigma-sd-merrill", "indoor", 4), ("nikon-d5100", "night", 1)])
 def test_default_sigma_covers_the_scene(camera, kind, seed):
     """The default variance (noise and the demosaic's interpolation error,
