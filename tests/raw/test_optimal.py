@@ -462,11 +462,34 @@ def test_compiled_merge_is_the_float64_reference():
     np.testing.assert_allclose(vc, var, rtol=1e-5)
 
 
+@pytest.mark.parametrize("shape", [(7, 9), (32, 21)])
+def test_compiled_colour_texture_is_chroma_texture(shape):
+    """The merge's compiled pass adds eq. 2's colour texture without its array
+    (:func:`derender.raw.kernels.interpolation_rows`): on a random image and matrix, with only
+    that term (k0 = k1 = 0), the variance it adds is ``kc c^2`` of
+    :func:`derender.raw.interpolation.chroma_texture` (mirrored borders, every CFA phase)."""
+    from derender.raw.interpolation import chroma_phase_matrices, chroma_texture
+    from derender.raw.kernels import interpolation_rows
+
+    rng = np.random.default_rng(4)
+    image = rng.random(shape + (3,), dtype=np.float32)
+    matrix = np.eye(3) + 0.4 * rng.standard_normal((3, 3))
+    for pattern in ("RGGB", "GBRG"):
+        var = np.full(shape + (3,), 0.5, np.float32)
+        ratio = np.empty(((shape[0] + 3) // 4, shape[1], 3))
+        zeros = np.zeros_like(image)
+        interpolation_rows(image, zeros, zeros, image, chroma_phase_matrices(matrix, pattern), 0.0, 0.0, 0.7,
+                           var, 4, ratio)
+        c = chroma_texture(image, matrix, pattern)
+        np.testing.assert_allclose(var - np.float32(0.5), np.float32(0.7) * c * c, rtol=1e-5, atol=1e-6)
+        assert float(np.abs(c).max()) > 0.1            # the term is not empty
+
+
 def test_compiled_interpolation_term_is_eq1_in_numpy():
     """The merge's variance with the interpolation term (one compiled pass,
     :func:`derender.raw.kernels.interpolation_rows`) is the noise variance plus
     :func:`derender.raw.interpolation.interpolation_variance` of the other demosaics of the same
-    merged planes and their colour texture (eq. 2), bit for bit, and the shares are the medians over every 4th row of the
+    merged planes and their colour texture (eq. 2), to float32 rounding, and the shares are the medians over every 4th row of the
     float64 ratios."""
     from derender.raw.interpolation import INTERPOLATION_ESTIMATES, interpolation_variance
     from derender.raw.mosaic import sorted_raw_frames
@@ -486,11 +509,12 @@ def test_compiled_interpolation_term_is_eq1_in_numpy():
                   for name, _ in INTERPOLATION_ESTIMATES[demosaic]}
         extra = interpolation_variance(noise.radiance, others, demosaic, mat, "RGGB")
         total = noise.variance + extra
-        np.testing.assert_array_equal(res.variance, total)
+        # the colour texture's 3x3 is summed in another order than NumPy's matmul: float32 rounding
+        np.testing.assert_allclose(res.variance, total, rtol=2e-6, atol=0)
         e, t = extra[::4].astype(np.float64), total[::4].astype(np.float64)
         ok = t > 0
         share = res.info["variance_sources"]
-        assert share["interpolation"] == float(np.median(e[ok] / t[ok]))
+        assert share["interpolation"] == pytest.approx(float(np.median(e[ok] / t[ok])), rel=1e-5)
         assert abs(share["noise"] - float(np.median((t[ok] - e[ok]) / t[ok]))) < 1e-12
 
 

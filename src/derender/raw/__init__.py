@@ -19,7 +19,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "colour_ghost_test": ["colour_ghosts"],
     "groundtruth": ["raw_to_camera_rgb", "raw_ground_truth"],
     "interpolation": ["INTERPOLATION_ESTIMATES", "CHROMA_ESTIMATES", "VARIANCE_TERMS", "interpolation_variance",
-                      "chroma_texture"],
+                      "chroma_texture", "chroma_phase_matrices"],
     "kernels": [],
     "menon": ["menon_demosaic"],
     "noise": ["NoiseModel", "estimate_noise", "estimate_noise_pairs", "estimate_noise_single",

@@ -62,7 +62,7 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["INTERPOLATION_ESTIMATES", "CHROMA_ESTIMATES", "VARIANCE_TERMS", "interpolation_variance",
+__all__ = ["INTERPOLATION_ESTIMATES", "CHROMA_ESTIMATES", "chroma_phase_matrices", "VARIANCE_TERMS", "interpolation_variance",
            "chroma_texture"]
 
 #: What a RAW merge's variance holds: ``"total"`` (noise and the demosaic's interpolation error,
@@ -88,27 +88,40 @@ CHROMA_ESTIMATES = {
 }
 
 
+def chroma_phase_matrices(matrix: np.ndarray, pattern: str) -> np.ndarray:
+    """Eq. (2)'s matrix ``M Pi_p P M^-1`` at each CFA phase ``p`` (``matrix`` ``M``: white-balanced
+    camera RGB to the output; ``pattern``, e.g. ``"RGGB"``): the mean over the channels removed,
+    the photosite's own colour set to 0, back through ``M``: (2, 2, 3, 3) float32, indexed by
+    the row and column parity."""
+    m = np.asarray(matrix, np.float64)
+    back = (np.eye(3) - 1.0 / 3.0) @ np.linalg.inv(m)             # P M^-1
+    lut = {"R": 0, "G": 1, "B": 2}
+    p = pattern.upper()
+    out = np.empty((2, 2, 3, 3), np.float32)
+    for a in range(2):
+        for b in range(2):
+            keep = np.ones(3)
+            keep[lut[p[2 * a + b]]] = 0.0
+            out[a, b] = (m @ np.diag(keep) @ back).astype(np.float32)
+    return out
+
+
 def chroma_texture(image: np.ndarray, matrix: np.ndarray, pattern: str) -> np.ndarray:
     """Eq. (2)'s vector ``M Pi_p P M^-1 L2[s]`` of an (H, W, 3) image ``s`` in the output space
     (``matrix`` ``M``: white-balanced camera RGB to the output): the distance-2 Laplacian of
     every channel (borders mirrored), taken back to balanced camera RGB, its mean over the
     channels removed, the photosite's own colour (``pattern``, e.g. ``"RGGB"``) set to 0, and
-    put through ``M`` again: (H, W, 3) float32."""
+    put through ``M`` again (:func:`chroma_phase_matrices`): (H, W, 3) float32. The merge adds
+    it without this array, in :func:`derender.raw.kernels.interpolation_rows`."""
     s = np.asarray(image, np.float32)
     pad = np.pad(s, ((2, 2), (2, 2), (0, 0)), mode="reflect")
     h, w = s.shape[:2]
     lap = s - np.float32(0.25) * (pad[:h, 2:w + 2] + pad[4:h + 4, 2:w + 2] + pad[2:h + 2, :w] + pad[2:h + 2, 4:w + 4])
-    m = np.asarray(matrix, np.float64)
-    back = (np.eye(3) - 1.0 / 3.0) @ np.linalg.inv(m)             # P M^-1
-    lut = {"R": 0, "G": 1, "B": 2}
-    p = pattern.upper()
+    phase = chroma_phase_matrices(matrix, pattern)
     out = np.empty_like(lap)
     for a in range(2):
         for b in range(2):
-            keep = np.ones(3)
-            keep[lut[p[2 * a + b]]] = 0.0
-            f = (m @ np.diag(keep) @ back).astype(np.float32)    # M Pi_p P M^-1 at this CFA phase
-            out[a::2, b::2] = lap[a::2, b::2] @ f.T
+            out[a::2, b::2] = lap[a::2, b::2] @ phase[a, b].T
     return out
 
 

@@ -519,14 +519,18 @@ def demosaic_rows(planes, var_planes, mult, ntaps, tap_dy, tap_dx, taps, taps2, 
 
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def interpolation_rows(out, other0, other1, chroma, k0, k1, kc, var, stride, ratio):  # pragma: no cover - compiled
+def interpolation_rows(out, other0, other1, source, phase, k0, k1, kc, var, stride, ratio):  # pragma: no cover - compiled
     """The interpolation term of :func:`derender.raw.interpolation.interpolation_variance` (its
-    eqs. 1-2 with two other demosaics and the colour texture ``chroma``,
-    ``k0 (o - o_0)^2 + k1 (o - o_1)^2 + kc c^2`` in float32, in that order; ``chroma`` is read
-    only when ``kc > 0``, else it may be a (1, 1, 3) placeholder) added to ``var`` in place, in
-    one pass over the (H, W, 3) float32 arrays; and, on every ``stride``-th row, the term's
-    share of the total ``extra / total`` (float64) in ``ratio`` ((ceil(H / stride), W, 3), -1
-    where the total is not positive)."""
+    eqs. 1-2: ``k0 (o - o_0)^2 + k1 (o - o_1)^2 + kc c^2`` in float32, in that order) added to
+    ``var`` in place, in one pass over the (H, W, 3) float32 arrays; and, on every
+    ``stride``-th row, the term's share of the total ``extra / total`` (float64) in ``ratio``
+    ((ceil(H / stride), W, 3), -1 where the total is not positive).
+
+    ``c`` is eq. 2's colour texture (:func:`derender.raw.interpolation.chroma_texture`) of the
+    (H, W, 3) ``source``, computed here without its (H, W, 3) array: the distance-2 Laplacian
+    of every channel (borders mirrored, :func:`mirror_index`) through ``phase`` (2, 2, 3, 3),
+    the matrix ``M Pi_p P M^-1`` of each CFA phase. ``source`` and ``phase`` are read only
+    when ``kc > 0`` (else they may be (1, 1, 3) and (2, 2, 3, 3) placeholders)."""
     h = out.shape[0]
     w = out.shape[1]
     c0 = np.float32(k0)
@@ -534,10 +538,23 @@ def interpolation_rows(out, other0, other1, chroma, k0, k1, kc, var, stride, rat
     c2 = np.float32(kc)
     use_chroma = kc > 0.0
     zero = np.float32(0.0)
+    quarter = np.float32(0.25)
     for y in prange(h):
         sample = y % stride == 0
         r = y // stride
+        lap = np.zeros(3, np.float32)
+        if use_chroma:
+            ya = mirror_index(y - 2, h)
+            yb = mirror_index(y + 2, h)
         for xx in range(w):
+            if use_chroma:
+                xa = mirror_index(xx - 2, w)
+                xb = mirror_index(xx + 2, w)
+                for k in range(3):
+                    ring = source[ya, xx, k] + source[yb, xx, k]
+                    ring = ring + source[y, xa, k]
+                    ring = ring + source[y, xb, k]
+                    lap[k] = source[y, xx, k] - quarter * ring
             for c in range(3):
                 o = out[y, xx, c]
                 e0 = o - other0[y, xx, c]
@@ -545,7 +562,8 @@ def interpolation_rows(out, other0, other1, chroma, k0, k1, kc, var, stride, rat
                 extra = zero + c0 * e0 * e0
                 extra = extra + c1 * e1 * e1
                 if use_chroma:
-                    e2 = chroma[y, xx, c]
+                    f = phase[y % 2, xx % 2, c]
+                    e2 = f[0] * lap[0] + f[1] * lap[1] + f[2] * lap[2]
                     extra = extra + c2 * e2 * e2
                 t = var[y, xx, c] + extra
                 var[y, xx, c] = t

@@ -481,27 +481,27 @@ def _with_interpolation(x, out, var_out, shape, pattern, *, mult, mat, demosaic,
     the other demosaics of the same planes and the colour texture of eq. 2; added in place in one compiled pass,
     :func:`derender.raw.kernels.interpolation_rows`) and each term's median share of a pixel's
     variance (on every 4th row: ample)."""
-    from derender.raw.interpolation import CHROMA_ESTIMATES, INTERPOLATION_ESTIMATES, chroma_texture
+    from derender.raw.interpolation import CHROMA_ESTIMATES, INTERPOLATION_ESTIMATES, chroma_phase_matrices
     from derender.raw.kernels import KERNEL_LOCK, interpolation_rows
 
     (name0, k0), (name1, k1) = INTERPOLATION_ESTIMATES[demosaic]
     o0 = demosaic_compiled(x, None, shape, pattern, mult, mat, name0, clip_negative)[0]
     o1 = demosaic_compiled(x, None, shape, pattern, mult, mat, name1, clip_negative)[0]
-    chroma, kc = np.zeros((1, 1, 3), np.float32), 0.0        # eq. 2's colour texture, where it has one
-    if demosaic in CHROMA_ESTIMATES:
+    source, phase, kc = np.zeros((1, 1, 3), np.float32), np.zeros((2, 2, 3, 3), np.float32), 0.0
+    if demosaic in CHROMA_ESTIMATES:                  # eq. 2's colour texture, where it has one
         name, kc = CHROMA_ESTIMATES[demosaic]
         source = {demosaic: out, name0: o0, name1: o1}.get(name)
         if source is None:
             source = demosaic_compiled(x, None, shape, pattern, mult, mat, name, clip_negative)[0]
-        chroma = chroma_texture(source, mat, pattern)
+        phase = chroma_phase_matrices(mat, pattern)
     h, w = shape
     ratio = np.empty(((h + 3) // 4, w, 3))
     total = np.ascontiguousarray(var_out, np.float32)
     with KERNEL_LOCK:
         interpolation_rows(np.ascontiguousarray(out, np.float32), np.ascontiguousarray(o0, np.float32),
-                           np.ascontiguousarray(o1, np.float32), np.ascontiguousarray(chroma, np.float32),
+                           np.ascontiguousarray(o1, np.float32), np.ascontiguousarray(source, np.float32), phase,
                            float(k0), float(k1), float(kc), total, 4, ratio)
-    del o0, o1, chroma
+    del o0, o1, source
     r = ratio[ratio >= 0.0]
     if r.size == 0:
         return total, {"noise": 0.0, "interpolation": 0.0}
